@@ -1,0 +1,1 @@
+"""softreach.agents (work in progress)."""

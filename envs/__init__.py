@@ -1,0 +1,44 @@
+"""softreach.envs: Gymnasium environments of the paper's landing tasks.
+
+Importing this package registers
+
+* ``"softreach/PointMassLanding-v0"`` (:class:`PointMassLandingEnv`, paper §VI-A; 100 steps of 0.01 s), and
+* ``"softreach/GliderLanding-v0"`` (:class:`GliderLandingEnv`, paper §VI-B; 100 steps of 0.1 s),
+
+so ``import softreach.envs; gymnasium.make("softreach/PointMassLanding-v0")`` works, and so does
+``gymnasium.make("softreach.envs:softreach/PointMassLanding-v0")`` without the import (Gymnasium imports the
+module named before the colon). Rendering (matplotlib) is imported only when a frame is drawn.
+"""
+
+from __future__ import annotations
+
+from gymnasium.envs.registration import register, registry
+
+from ._common import LandingEnv, OrnsteinUhlenbeckGust, integrate_period, rk4_stages
+from .glider_landing import GliderLandingEnv
+from .pointmass_landing import PointMassLandingEnv
+
+#: environment id -> (entry point, max_episode_steps = horizon / default control period)
+ENV_IDS = {
+    "softreach/PointMassLanding-v0": ("softreach.envs.pointmass_landing:PointMassLandingEnv", 100),
+    "softreach/GliderLanding-v0": ("softreach.envs.glider_landing:GliderLandingEnv", 100),
+}
+
+
+def _register_all() -> None:
+    for env_id, (entry_point, steps) in ENV_IDS.items():
+        if env_id not in registry:  # importing twice (e.g. reload) must not warn about re-registration
+            register(id=env_id, entry_point=entry_point, max_episode_steps=steps)
+
+
+_register_all()
+
+__all__ = [
+    "ENV_IDS",
+    "GliderLandingEnv",
+    "LandingEnv",
+    "OrnsteinUhlenbeckGust",
+    "PointMassLandingEnv",
+    "integrate_period",
+    "rk4_stages",
+]

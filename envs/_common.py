@@ -1,0 +1,755 @@
+"""Pieces shared by the landing environments: the integrator with its budget bookkeeping, the wind processes,
+input checks and the :class:`LandingEnv` base class.
+
+The environments simulate the models of :mod:`softreach.reach.models` with the model objects themselves:
+the vector field is ``model.f``, the budget drains at ``model.violation_rate``, landing and crashing are read off
+``model.target``, ``model.hard_constraint`` and ``model.soft_constraint``. Nothing here re-implements a model.
+
+Integration (:func:`integrate_period`): the control and the wind are held constant over a control period
+(zero-order hold) and the state is advanced by ``n_substeps`` classical Runge-Kutta (RK4) steps. The budget
+``z`` follows the augmented dynamics ``z' = -h_eps(t, x)`` of the paper: the same RK4 stages give its
+increment, which is the Simpson-type quadrature of ``h_eps`` over the stage states. ``h_eps`` is only Lipschitz
+(it has kinks where ``c2 = 0`` and ``c2 = eps``), so a sub-step whose stage values straddle a kink is bisected
+(re-integrated with RK4 on halves) until the pieces are shorter than ``budget_resolution``: the budget then
+drains by the violation time to within about ``budget_resolution`` per crossing of the boundary of ``C2``.
+Sub-steps that stay inside (``h_eps = 0``) or far outside (``h_eps = 1``) need no refinement and cost exactly
+``0`` or their length. The state path does not depend on the refinement (it is the fixed-step RK4 path).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+import gymnasium as gym
+from gymnasium import spaces
+
+from softreach.reach.problem import Model
+
+# --------------------------------------------------------------------------------------------- integrator
+
+Stage = list  # list[float]: one state, one Python float per component
+
+
+def rk4_stages(f: Callable, t: float, x: Sequence[float], a: Sequence[float], b: Sequence[float],
+               h: float) -> tuple[list[float], list[Stage]]:
+    """One classical RK4 step of ``x' = f(t, x, a, b)`` with ``a`` and ``b`` held constant.
+
+    :param f: the model's vector field ``f(t, x, a, b)`` taking and returning sequences of components
+    :param t: start time [s]
+    :param x: start state, one float per component
+    :param a: control, one float per component (physical units)
+    :param b: disturbance, one float per component (physical units)
+    :param h: step length [s]
+    :return: the state at ``t + h`` and the four stage states ``[x, x + h/2 k1, x + h/2 k2, x + h k3]``
+        (the points where RK4 evaluates ``f``; the budget quadrature evaluates ``h_eps`` there too)
+    """
+    hh = 0.5 * h
+    k1 = f(t, x, a, b)
+    x2 = [xi + hh * ki for xi, ki in zip(x, k1)]
+    k2 = f(t + hh, x2, a, b)
+    x3 = [xi + hh * ki for xi, ki in zip(x, k2)]
+    k3 = f(t + hh, x3, a, b)
+    x4 = [xi + h * ki for xi, ki in zip(x, k3)]
+    k4 = f(t + h, x4, a, b)
+    h6 = h / 6.0
+    xn = [float(xi + h6 * (c1 + 2.0 * c2 + 2.0 * c3 + c4)) for xi, c1, c2, c3, c4 in zip(x, k1, k2, k3, k4)]
+    return xn, [x, x2, x3, x4]
+
+
+def _rates(model: Model, times: list[float], points: list[Stage], eps: float) -> list[float]:
+    """``model.violation_rate`` at many points in one vectorised call."""
+    n = len(points[0])
+    comps = [np.array([p[i] for p in points], dtype=np.float64) for i in range(n)]
+    r = model.violation_rate(np.array(times, dtype=np.float64), comps, eps)
+    if not (isinstance(r, np.ndarray) and r.shape == (len(points),)):
+        r = np.broadcast_to(np.asarray(r, dtype=np.float64), (len(points),))
+    return r.tolist()
+
+
+# classification of the h_eps values at the four RK4 stages of a (sub-)step
+_INSIDE, _OUTSIDE, _SMOOTH, _KINK = 0, 1, 2, 3
+
+
+def _classify(v: Sequence[float]) -> int:
+    lo, hi = min(v), max(v)
+    if hi == 0.0:
+        return _INSIDE
+    if lo == 1.0:
+        return _OUTSIDE
+    if lo > 0.0 and hi < 1.0:
+        return _SMOOTH  # inside the eps band throughout: h_eps is as smooth as c2 there
+    return _KINK
+
+
+def _simpson(v: Sequence[float], h: float) -> float:
+    return h / 6.0 * (v[0] + 2.0 * v[1] + 2.0 * v[2] + v[3])
+
+
+def _piece_cost(v: Sequence[float], h: float) -> float | None:
+    """The budget spent over a piece whose stage rates are ``v``, or ``None`` if the piece needs bisection."""
+    kind = _classify(v)
+    if kind == _INSIDE:
+        return 0.0
+    if kind == _OUTSIDE:
+        return h
+    if kind == _SMOOTH:
+        return _simpson(v, h)
+    return None
+
+
+def _refined_cost(model: Model, t: float, x: Stage, a: Stage, b: Stage, h: float, eps: float, v: list[float],
+                  min_piece: float, leaves: list[int], max_leaves: int) -> float:
+    """Budget spent on ``[t, t + h]`` from ``x``, bisecting pieces where ``h_eps`` has a kink."""
+    cost = _piece_cost(v, h)
+    if cost is not None:
+        return cost
+    if h <= min_piece or leaves[0] >= max_leaves:
+        return _simpson(v, h)
+    h2 = 0.5 * h
+    f = model.f
+    xm, st1 = rk4_stages(f, t, x, a, b, h2)
+    _, st2 = rk4_stages(f, t + h2, xm, a, b, h2)
+    tq = 0.5 * h2
+    times = [t, t + tq, t + tq, t + h2, t + h2, t + h2 + tq, t + h2 + tq, t + h]
+    r = _rates(model, times, st1 + st2, eps)
+    leaves[0] += 1
+    return (_refined_cost(model, t, x, a, b, h2, eps, r[:4], min_piece, leaves, max_leaves)
+            + _refined_cost(model, t + h2, xm, a, b, h2, eps, r[4:], min_piece, leaves, max_leaves))
+
+
+def integrate_period(model: Model, t: float, x: Sequence[float], a: Sequence[float], b: Sequence[float],
+                     h: float, n_substeps: int, eps: float, budget_resolution: float,
+                     max_bisections: int = 256) -> tuple[list[float], float, float]:
+    """Advance the budget-augmented state over one control period with ``a`` and ``b`` held.
+
+    :param model: the model whose ``f`` and ``violation_rate`` are integrated
+    :param t: start time [s]
+    :param x: start state (physical), one float per component
+    :param a: physical control
+    :param b: physical disturbance
+    :param h: period length [s]
+    :param n_substeps: RK4 steps per period
+    :param eps: the ``eps`` of ``h_eps``
+    :param budget_resolution: bisect pieces of a sub-step with a kink of ``h_eps`` down to this length [s]
+    :param max_bisections: cap on bisections per period (a guard; never reached in ordinary flight)
+    :return: ``(x_end, cost, rate_end)``: the state at ``t + h``, the budget spent ``int h_eps dt`` over the
+        period, and ``h_eps`` at the end state (``> 0`` exactly when the end state is outside ``C2``)
+    """
+    f = model.f
+    hs = h / n_substeps
+    starts: list[tuple[float, Stage]] = []
+    points: list[Stage] = []
+    times: list[float] = []
+    xc = list(x)
+    for j in range(n_substeps):
+        tc = t + j * hs
+        xn, stages = rk4_stages(f, tc, xc, a, b, hs)
+        starts.append((tc, xc))
+        points.extend(stages)
+        times.extend((tc, tc + 0.5 * hs, tc + 0.5 * hs, tc + hs))
+        xc = xn
+    points.append(xc)
+    times.append(t + h)
+    r = _rates(model, times, points, eps)
+    cost = 0.0
+    leaves = None
+    for j in range(n_substeps):
+        v = r[4 * j: 4 * j + 4]
+        piece = _piece_cost(v, hs)
+        if piece is None:
+            if leaves is None:
+                leaves = [0]
+            tc, xs = starts[j]
+            piece = _refined_cost(model, tc, xs, a, b, hs, eps, v, budget_resolution, leaves, max_bisections)
+        cost += piece
+    return xc, cost, r[-1]
+
+
+# --------------------------------------------------------------------------------------------- wind
+
+WIND_MODES = ("none", "random", "constant", "adversarial")
+
+
+class OrnsteinUhlenbeckGust:
+    """A bounded Ornstein-Uhlenbeck gust, sampled exactly at the control period and clipped to a box.
+
+    ``b' = -(b - mean) / tau + std sqrt(2 / tau) xi`` (white noise ``xi``): stationary law
+    ``N(mean, std^2)`` (before clipping), correlation time ``tau``. Each period the exact transition
+    ``b <- mean + (b - mean) e^{-h/tau} + std sqrt(1 - e^{-2h/tau}) N(0, 1)`` is drawn from the environment's
+    ``np_random`` and the result clipped to ``[lo, hi]``.
+
+    :param mean: mean wind, per component (physical units)
+    :param std: stationary standard deviation, per component
+    :param tau: correlation time [s]
+    :param lo: lower bound per component
+    :param hi: upper bound per component
+    """
+
+    def __init__(self, mean: Sequence[float], std: Sequence[float], tau: float, lo: Sequence[float],
+                 hi: Sequence[float]):
+        self.mean = [float(m) for m in mean]
+        self.std = [float(s) for s in std]
+        self.tau = float(tau)
+        self.lo = [float(v) for v in lo]
+        self.hi = [float(v) for v in hi]
+        self.value = list(self.mean)
+        self._h = None
+        self._decay = 1.0
+        self._spread = [0.0] * len(self.mean)
+
+    def reset(self, rng: np.random.Generator) -> list[float]:
+        """Draw the initial wind from the (clipped) stationary law."""
+        self.value = [min(hi, max(lo, m + s * float(rng.standard_normal())))
+                      for m, s, lo, hi in zip(self.mean, self.std, self.lo, self.hi)]
+        return self.value
+
+    def advance(self, rng: np.random.Generator, h: float) -> list[float]:
+        """Move the gust on by ``h`` seconds and return the new value."""
+        if h != self._h:
+            self._h = h
+            self._decay = math.exp(-h / self.tau)
+            q = math.sqrt(max(0.0, 1.0 - self._decay * self._decay))
+            self._spread = [s * q for s in self.std]
+        d = self._decay
+        self.value = [min(hi, max(lo, m + (v - m) * d + s * float(rng.standard_normal())))
+                      for v, m, s, lo, hi in zip(self.value, self.mean, self._spread, self.lo, self.hi)]
+        return self.value
+
+
+def _as_float_list(name: str, value: Any, k: int, unit: str = "") -> list[float]:
+    """``value`` (a number when ``k == 1``, or a sequence of ``k`` numbers) as finite floats, or a clear error."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number or a sequence of {k} numbers{unit}, got {value!r}") from None
+    if arr.shape == () and k == 1:
+        arr = arr.reshape(1)
+    if arr.shape != (k,):
+        raise ValueError(f"{name} must have shape ({k},){unit}, got shape {arr.shape}: {value!r}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+    return arr.tolist()
+
+
+def load_wind_table(wind_table: Any, model: Model) -> Any:
+    """Resolve ``wind_table=`` to an object with ``worst_disturbance(t, x, z)``, checking it fits ``model``.
+
+    :param wind_table: a path to a saved ``W_eps`` table (loaded with :func:`softreach.reach.load_table`) or
+        an object with a ``worst_disturbance`` method (a :class:`softreach.reach.Table` or a stand-in)
+    :param model: the environment's model; a table with ``model_metadata`` must describe the same model
+    :raises ValueError: when the table was computed for another model or other parameters
+    """
+    if isinstance(wind_table, (str, os.PathLike)):
+        import softreach.reach as reach
+
+        load = getattr(reach, "load_table", None)
+        if load is None:
+            raise ImportError("wind_table= was given as a path but softreach.reach.load_table is not available "
+                              "in this installation; pass a loaded table object instead")
+        table = load(wind_table)
+    else:
+        table = wind_table
+    if not callable(getattr(table, "worst_disturbance", None)):
+        raise TypeError("wind_table must be a path to a W_eps table or an object with a "
+                        f"worst_disturbance(t, x, z) method, got {type(wind_table).__name__}")
+    meta = getattr(table, "model_metadata", None)
+    if meta is not None:
+        name = meta.get("name")
+        if name is not None and name != model.name:
+            raise ValueError(f"wind_table was computed for model {name!r}, but this environment simulates "
+                             f"{model.name!r}")
+        params = meta.get("parameters")
+        if params is not None:
+            mine = model.parameters()
+            diff = sorted(k for k in set(params) | set(mine) if not _same_value(params.get(k), mine.get(k)))
+            if diff:
+                detail = ", ".join(f"{k}: table {params.get(k)!r} vs env {mine.get(k)!r}" for k in diff)
+                raise ValueError(f"wind_table was computed with other {model.name} parameters ({detail})")
+    return table
+
+
+def _same_value(a: Any, b: Any) -> bool:
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same_value(u, v) for u, v in zip(a, b))
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+        return math.isclose(float(a), float(b), rel_tol=1e-12, abs_tol=1e-12)
+    return a == b
+
+
+# --------------------------------------------------------------------------------------------- base env
+
+
+def has_display() -> bool:
+    """Whether a window can be opened: on Linux, ``DISPLAY`` or ``WAYLAND_DISPLAY`` is set; elsewhere assumed."""
+    if sys.platform.startswith("linux"):
+        return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    return True
+
+
+def render_modes() -> list[str]:
+    """The render modes to declare: ``"rgb_array"`` always, ``"human"`` only where a display exists (so that
+    ``gymnasium.utils.env_checker.check_env``, which opens every declared mode, passes on headless machines)."""
+    return ["human", "rgb_array"] if has_display() else ["rgb_array"]
+
+
+def _require_display() -> None:
+    """Raise unless a window can be opened (render_mode='human')."""
+    if not has_display():
+        raise RuntimeError("render_mode='human' needs a display (no DISPLAY or WAYLAND_DISPLAY is set); use "
+                           "render_mode='rgb_array' and save or show the frames instead")
+
+
+class LandingEnv(gym.Env):
+    """Base class of the landing environments (see :class:`PointMassLandingEnv` for the documentation of the
+    common behaviour). Subclasses pass their model and defaults to :meth:`__init__` and implement
+    :meth:`_render_view`.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": render_modes(), "render_fps": 25}
+
+    #: keys accepted in ``reset(options=...)``
+    OPTION_KEYS = ("state", "budget", "time")
+
+    def __init__(
+        self,
+        *,
+        model: Model,
+        dt: float,
+        n_substeps: int,
+        eps: float,
+        init_state_low: Sequence[float],
+        init_state_high: Sequence[float],
+        budget: float | tuple[float, float],
+        wind: str | Callable[..., Any],
+        wind_value: Any,
+        wind_table: Any,
+        gust_std: Any,
+        gust_tau: float | None,
+        clip_wind: bool,
+        landing_reward: float,
+        failure_penalty: float,
+        progress_weight: float,
+        effort_weight: float,
+        budget_resolution: float,
+        render_mode: str | None,
+    ):
+        super().__init__()
+        self.model = model
+        self.horizon = float(model.horizon)
+        n, m, k = model.state_dim, model.control_dim, model.disturbance_dim
+        self._n, self._m, self._k = n, m, k
+
+        _check_positive("dt", dt)
+        if dt > self.horizon:
+            raise ValueError(f"dt must not exceed the horizon {self.horizon} s, got {dt!r}")
+        if not (isinstance(n_substeps, (int, np.integer)) and not isinstance(n_substeps, bool) and n_substeps >= 1):
+            raise ValueError(f"n_substeps must be a positive integer, got {n_substeps!r}")
+        _check_positive("eps", eps)
+        _check_positive("budget_resolution", budget_resolution)
+        self.dt = float(dt)
+        self.n_substeps = int(n_substeps)
+        self.eps = float(eps)
+        self.budget_resolution = float(budget_resolution)
+
+        # physical ranges of the inputs; the agent acts in [-1, 1]
+        self.action_low_physical = np.array(model.control_bounds[0], dtype=np.float64)
+        self.action_high_physical = np.array(model.control_bounds[1], dtype=np.float64)
+        self._a_lo = [float(v) for v in model.control_bounds[0]]
+        self._a_hi = [float(v) for v in model.control_bounds[1]]
+        self._a_mid = [0.5 * (lo + hi) for lo, hi in zip(self._a_lo, self._a_hi)]
+        self._a_half = [0.5 * (hi - lo) for lo, hi in zip(self._a_lo, self._a_hi)]
+        self.wind_low = np.array(model.disturbance_bounds[0], dtype=np.float64)
+        self.wind_high = np.array(model.disturbance_bounds[1], dtype=np.float64)
+        self._b_lo = [float(v) for v in model.disturbance_bounds[0]]
+        self._b_hi = [float(v) for v in model.disturbance_bounds[1]]
+
+        # the domain (grid box of the model) bounds the states a user may start from and the observation
+        self.state_low = np.array(model.domain[0], dtype=np.float64)
+        self.state_high = np.array(model.domain[1], dtype=np.float64)
+
+        lo = _as_float_list("init_state_low", init_state_low, n)
+        hi = _as_float_list("init_state_high", init_state_high, n)
+        for i in range(n):
+            if not lo[i] <= hi[i]:
+                raise ValueError(f"init_state_low must not exceed init_state_high, got {lo} and {hi}")
+        self._check_state(lo, "init_state_low")
+        self._check_state(hi, "init_state_high")
+        self.init_state_low, self.init_state_high = np.array(lo), np.array(hi)
+
+        if isinstance(budget, (tuple, list)):
+            if len(budget) != 2:
+                raise ValueError(f"budget must be a number or a (low, high) pair, got {budget!r}")
+            b_lo, b_hi = (self._check_budget(v, "budget") for v in budget)
+            if b_lo > b_hi:
+                raise ValueError(f"budget range must have low <= high, got {budget!r}")
+            self.budget_range = (b_lo, b_hi)
+        else:
+            q = self._check_budget(budget, "budget")
+            self.budget_range = (q, q)
+
+        for name, value in (("landing_reward", landing_reward), ("failure_penalty", failure_penalty),
+                            ("progress_weight", progress_weight), ("effort_weight", effort_weight)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite non-negative number, got {value!r}")
+        self.landing_reward = float(landing_reward)
+        self.failure_penalty = float(failure_penalty)
+        self.progress_weight = float(progress_weight)
+        self.effort_weight = float(effort_weight)
+
+        self._setup_wind(wind, wind_value, wind_table, gust_std, gust_tau, clip_wind)
+
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(m,), dtype=np.float32)
+        T = self.horizon
+        obs_lo = np.concatenate([self.state_low, [-T, 0.0]]).astype(np.float32)
+        obs_hi = np.concatenate([self.state_high, [T, T]]).astype(np.float32)
+        self.observation_space = spaces.Box(obs_lo, obs_hi, dtype=np.float32)
+
+        if render_mode == "human":
+            _require_display()
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, "
+                             f"got {render_mode!r}")
+        self.render_mode = render_mode
+        self._renderer = None
+        self._history: list[tuple[float, float]] | None = [] if render_mode is not None else None
+
+        # episode state (set by reset)
+        self._x: list[float] | None = None
+        self._t = 0.0
+        self._z = 0.0
+        self._q = 0.0
+        self._g = 0.0
+        self._b = [0.0] * k
+        self._last_a = list(self._a_mid)
+        self._last_info: dict[str, Any] = {}
+
+    # ------------------------------------------------------------------------------------------ checks
+    def _check_budget(self, value: Any, name: str) -> float:
+        if not (isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
+                and math.isfinite(float(value))):
+            raise ValueError(f"{name} must be a finite number of seconds, got {value!r}")
+        value = float(value)
+        if not 0.0 <= value <= self.horizon:
+            raise ValueError(f"{name} must lie in [0, T] = [0, {self.horizon}] s (a budget above the horizon is "
+                             f"never binding), got {value!r}")
+        return value
+
+    def _check_state(self, x: Sequence[float], name: str) -> None:
+        bad = [f"{self.model.state_names[i]}={x[i]!r} not in [{self.state_low[i]:.6g}, {self.state_high[i]:.6g}] "
+               f"{self.model.state_units[i]}"
+               for i in range(self._n) if not self.state_low[i] <= x[i] <= self.state_high[i]]
+        if bad:
+            raise ValueError(f"{name} lies outside the {self.model.name} domain: " + "; ".join(bad))
+        validate = getattr(self.model, "validate_state", None)
+        if validate is not None:
+            validate(list(x))
+
+    def _setup_wind(self, wind, wind_value, wind_table, gust_std, gust_tau, clip_wind) -> None:
+        k = self._k
+        self.clip_wind = bool(clip_wind)
+        self.wind_mode = wind if isinstance(wind, str) else "callable"
+        self._wind_fn = None
+        self._gust = None
+        self.wind_table = None
+        if isinstance(wind, str):
+            if wind not in WIND_MODES:
+                raise ValueError(f"wind must be one of {WIND_MODES} or a callable (t, state, budget, action) -> "
+                                 f"wind, got {wind!r}")
+        elif not callable(wind):
+            raise ValueError(f"wind must be one of {WIND_MODES} or a callable, got {wind!r}")
+        else:
+            self._wind_fn = wind
+        used = {"wind_value": "constant", "wind_table": "adversarial", "gust_std": "random", "gust_tau": "random"}
+        for name, value in (("wind_value", wind_value), ("wind_table", wind_table), ("gust_std", gust_std),
+                            ("gust_tau", gust_tau)):
+            if value is not None and self.wind_mode != used[name]:
+                raise ValueError(f"{name}= is used only with wind={used[name]!r}, but wind={self.wind_mode!r}")
+        units = f" [{_disturbance_unit(self.model)}]"
+        if self.wind_mode == "constant":
+            if wind_value is None:
+                raise ValueError("wind='constant' needs wind_value= (the physical wind"
+                                 f"{units}, a number or {k} numbers)")
+            value = _as_float_list("wind_value", wind_value, k, units)
+            if self.clip_wind:
+                out = [v for v, lo, hi in zip(value, self._b_lo, self._b_hi) if not lo <= v <= hi]
+                if out:
+                    raise ValueError(f"wind_value={value} lies outside the disturbance box [{self._b_lo}, "
+                                     f"{self._b_hi}]{units}; pass clip_wind=False to apply it anyway")
+            self.wind_value = value
+        elif self.wind_mode == "random":
+            half = [0.5 * (hi - lo) for lo, hi in zip(self._b_lo, self._b_hi)]
+            mean = [0.5 * (hi + lo) for lo, hi in zip(self._b_lo, self._b_hi)]
+            std = [0.5 * w for w in half] if gust_std is None else _as_float_list("gust_std", gust_std, k, units)
+            if any(s < 0 for s in std):
+                raise ValueError(f"gust_std must be non-negative, got {std}")
+            tau = self.horizon / 10.0 if gust_tau is None else gust_tau
+            _check_positive("gust_tau", tau)
+            lo = self._b_lo if self.clip_wind else [-math.inf] * k
+            hi = self._b_hi if self.clip_wind else [math.inf] * k
+            self._gust = OrnsteinUhlenbeckGust(mean, std, float(tau), lo, hi)
+        elif self.wind_mode == "adversarial":
+            if wind_table is None:
+                raise ValueError("wind='adversarial' needs wind_table= (a path to a W_eps table of this model, or a "
+                                 "loaded Table): the worst-case wind b* is read from the table's gradient")
+            self.wind_table = load_wind_table(wind_table, self.model)
+
+    # ------------------------------------------------------------------------------------------ mapping
+    def physical_action(self, action: Any) -> np.ndarray:
+        """Map a normalised action in ``[-1, 1]^m`` to the model's physical control (clipped first).
+
+        :param action: normalised action(s), shape ``(..., m)``
+        :return: physical control(s) of the same shape, in the model's units
+        """
+        a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        return np.asarray(self._a_mid) + np.asarray(self._a_half) * a
+
+    def normalized_action(self, physical: Any) -> np.ndarray:
+        """Map a physical control to the normalised action space (inverse of :meth:`physical_action`).
+
+        :param physical: control(s) in the model's units, shape ``(..., m)``
+        :return: normalised action(s) as float32, not clipped (values outside ``[-1, 1]`` are out of range)
+        """
+        u = np.asarray(physical, dtype=np.float64)
+        return ((u - np.asarray(self._a_mid)) / np.asarray(self._a_half)).astype(np.float32)
+
+    def _action_to_physical(self, action: Any) -> list[float]:
+        """Check an action and return the clipped physical control as floats (the hot path)."""
+        if isinstance(action, np.ndarray) and action.shape == (self._m,) and action.dtype.kind in "fiu":
+            vals = action.tolist()
+        else:
+            try:
+                arr = np.asarray(action, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ValueError(f"action must be an array of shape ({self._m},), got {action!r}") from None
+            if arr.shape != (self._m,):
+                raise ValueError(f"action must have shape ({self._m},) (the action space is {self.action_space}), "
+                                 f"got shape {arr.shape}: {action!r}")
+            vals = arr.tolist()
+        out = []
+        for v, mid, half in zip(vals, self._a_mid, self._a_half):
+            if not math.isfinite(v):
+                raise ValueError(f"action must be finite, got {vals}")
+            out.append(mid + half * (1.0 if v > 1.0 else (-1.0 if v < -1.0 else v)))
+        return out
+
+    # ------------------------------------------------------------------------------------------ wind
+    def _wind(self, a: list[float]) -> list[float]:
+        """The wind held over the coming period (physical units)."""
+        mode = self.wind_mode
+        if mode == "none":
+            return [0.0] * self._k
+        if mode == "random":
+            return list(self._gust.value)
+        if mode == "constant":
+            return list(self.wind_value)
+        if mode == "adversarial":
+            out = self.wind_table.worst_disturbance(self._t, np.array([self._x], dtype=np.float64),
+                                                    np.array([self._z], dtype=np.float64))
+            b = np.asarray(out, dtype=np.float64).reshape(-1)
+            if b.shape != (self._k,) or not np.all(np.isfinite(b)):
+                raise ValueError(f"wind_table.worst_disturbance returned {out!r} at t={self._t}, x={self._x}, "
+                                 f"z={self._z}; expected {self._k} finite values")
+            b = b.tolist()
+        else:
+            out = self._wind_fn(self._t, np.array(self._x, dtype=np.float64), self._z, np.array(a, dtype=np.float64))
+            b = _as_float_list("the wind callable's result", out, self._k)
+        if self.clip_wind:
+            b = [min(hi, max(lo, v)) for v, lo, hi in zip(b, self._b_lo, self._b_hi)]
+        return b
+
+    # ------------------------------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Start an episode.
+
+        :param seed: seeds ``self.np_random`` (initial state, budget and gusts)
+        :param options: optional ``{"state": ..., "budget": Q, "time": t0}``; ``state`` is the physical state
+            (must lie in the model's domain), ``budget`` the violation-time budget ``Q`` in ``[0, T]`` seconds,
+            ``time`` the start time ``t0`` in ``[0, T)``. Unset entries are drawn/defaulted as documented.
+        :return: ``(observation, info)``
+        """
+        super().reset(seed=seed)
+        if options is None:
+            options = {}
+        elif not isinstance(options, Mapping):
+            raise ValueError(f"options must be a dict with keys from {self.OPTION_KEYS}, got {options!r}")
+        unknown = sorted(str(key) for key in options if key not in self.OPTION_KEYS)
+        if unknown:
+            raise ValueError(f"unknown reset option(s) {unknown}; accepted keys: {list(self.OPTION_KEYS)}")
+        rng = self.np_random
+        if options.get("state") is not None:
+            x = _as_float_list("options['state']", options["state"], self._n)
+            self._check_state(x, "options['state']")
+        else:
+            x = rng.uniform(self.init_state_low, self.init_state_high).tolist()
+        if options.get("budget") is not None:
+            q = self._check_budget(options["budget"], "options['budget']")
+        else:
+            lo, hi = self.budget_range
+            q = lo if lo == hi else float(rng.uniform(lo, hi))
+        t0 = options.get("time")
+        if t0 is None:
+            t0 = 0.0
+        elif not (isinstance(t0, (int, float, np.floating, np.integer)) and not isinstance(t0, bool)
+                  and math.isfinite(float(t0)) and 0.0 <= float(t0) < self.horizon):
+            raise ValueError(f"options['time'] must be a start time in [0, T) = [0, {self.horizon}) s, got {t0!r}")
+        self._x, self._q, self._z, self._t = x, q, q, float(t0)
+        self._g = float(self.model.target(self._t, x))
+        if self._gust is not None:
+            self._gust.reset(rng)
+        self._last_a = list(self._a_mid)
+        rate = _rates(self.model, [self._t], [x], self.eps)[0]
+        c1 = float(self.model.hard_constraint(self._t, x))
+        info = self._info(0.0, rate > 0.0, c1 > 0.0, False, self._a_mid, self._wind_now(), 0.0, 0.0, 0.0)
+        self._last_info = info
+        if self._history is not None:
+            self._history.clear()
+            self._history.append((self._t, *x))
+        if self.render_mode == "human":
+            self.render()
+        return self._get_obs(), info
+
+    def _wind_now(self) -> list[float]:
+        if self.wind_mode == "random":
+            return list(self._gust.value)
+        if self.wind_mode == "constant":
+            return list(self.wind_value)
+        return [0.0] * self._k
+
+    def step(self, action: Any):
+        """Apply ``action`` (normalised, clipped to ``[-1, 1]``) for one control period.
+
+        :return: ``(observation, reward, terminated, truncated, info)``
+        :raises ValueError: on a non-finite or wrongly shaped action
+        """
+        if self._x is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        a = self._action_to_physical(action)
+        model = self.model
+        t = self._t
+        b = self._wind(a)
+        T = self.horizon
+        h = min(self.dt, T - t)
+        x, cost, rate_end = integrate_period(model, t, self._x, a, b, h, self.n_substeps, self.eps,
+                                             self.budget_resolution)
+        t_new = t + h
+        if T - t_new <= 1e-9 * T:
+            t_new = T
+        self._x, self._t = x, t_new
+        self._z -= cost
+        if self._gust is not None:
+            self._gust.advance(self.np_random, h)
+
+        soft = rate_end > 0.0
+        hard = float(model.hard_constraint(t_new, x)) > 0.0
+        g = float(model.target(t_new, x))
+        landed = (not hard) and (not soft) and g <= 0.0
+        terminated = hard or landed
+        truncated = (not terminated) and t_new >= T
+
+        # reward: terminal terms + shaping (progress potential and control effort)
+        r_land = self.landing_reward if landed else 0.0
+        r_fail = -self.failure_penalty if (hard or truncated) else 0.0
+        effort = 0.0
+        for ai, mid, half in zip(a, self._a_mid, self._a_half):
+            u = (ai - mid) / half
+            effort += u * u
+        r_shape = (self.progress_weight * ((self._g if self._g > 0.0 else 0.0) - (g if g > 0.0 else 0.0))
+                   - self.effort_weight * effort / self._m * h / T)
+        self._g = g
+        self._last_a = a
+        info = self._info(cost, soft, hard, landed, a, b, r_land, r_fail, r_shape)
+        self._last_info = info
+        if self._history is not None:
+            self._history.append((t_new, *x))
+        if self.render_mode == "human":
+            self.render()
+        return self._get_obs(), r_land + r_fail + r_shape, terminated, truncated, info
+
+    def _get_obs(self) -> np.ndarray:
+        return np.array(self._x + [self._z, self.horizon - self._t], dtype=np.float32)
+
+    def _info(self, cost: float, soft: bool, hard: bool, landed: bool, a: list[float], b: list[float],
+              r_land: float, r_fail: float, r_shape: float) -> dict[str, Any]:
+        z = self._z
+        return {
+            "t": self._t,
+            "budget": z,
+            "budget_used": self._q - z,
+            "budget_initial": self._q,
+            "budget_exceeded": z < 0.0,
+            "cost": cost,
+            "soft_violation": soft,
+            "hard_violation": hard,
+            "landed": landed,
+            "is_success": landed,
+            "action_physical": np.array(a, dtype=np.float64),
+            "wind": np.array(b, dtype=np.float64),
+            "reward_landing": r_land,
+            "reward_failure": r_fail,
+            "reward_shaping": r_shape,
+        }
+
+    @property
+    def state(self) -> np.ndarray | None:
+        """The physical state (float64 copy), or ``None`` before the first reset."""
+        return None if self._x is None else np.array(self._x, dtype=np.float64)
+
+    @property
+    def time(self) -> float:
+        """The current time ``t`` [s]."""
+        return self._t
+
+    @property
+    def budget(self) -> float:
+        """The remaining budget ``z`` [s] (negative once exceeded)."""
+        return self._z
+
+    # ------------------------------------------------------------------------------------------ rendering
+    def _render_view(self) -> dict[str, Any]:
+        info = self._last_info
+        return {"history": self._history, "t": self._t, "state": self._x, "budget": self._z,
+                "budget_initial": self._q, "action": self._last_a, "wind": info.get("wind"),
+                "landed": info.get("landed", False), "hard_violation": info.get("hard_violation", False)}
+
+    def render(self):
+        """Draw the current frame: an ``(H, W, 3)`` uint8 array for ``"rgb_array"``, a window for ``"human"``."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human' "
+                            "to the constructor (gymnasium.make(..., render_mode=...))")
+            return None
+        if self._x is None:
+            raise gym.error.ResetNeeded("call reset() before render()")
+        if self._renderer is None:
+            from ._render import LandingRenderer  # matplotlib is imported only here
+
+            self._renderer = LandingRenderer(self.render_mode, self._render_layout(), self.metadata["render_fps"])
+        return self._renderer.draw(self._render_view())
+
+    def _render_layout(self) -> dict[str, Any]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_renderer"] = None  # figures do not pickle; a copy draws its own
+        return state
+
+
+def _check_positive(name: str, value: Any) -> None:
+    if not (isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
+            and math.isfinite(float(value)) and float(value) > 0):
+        raise ValueError(f"{name} must be a finite positive number, got {value!r}")
+
+
+def _disturbance_unit(model: Model) -> str:
+    return {"pointmass": "m/s^2", "glider": "N"}.get(model.name, "model units")

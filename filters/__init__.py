@@ -1,0 +1,1 @@
+"""softreach.filters (work in progress)."""

@@ -1,0 +1,1 @@
+"""softreach.reach: the soft-constrained HJ solver and W_eps tables."""

@@ -1,0 +1,510 @@
+"""Emergency landing of a fixed-wing aircraft after propulsion failure, "glider" (paper §VI-B, spec §3).
+
+State ``x = (h, V, gamma)``: altitude [m], airspeed [m/s], flight-path angle [**rad**]. Control: the angle of
+attack ``alpha`` [**rad**] (minimises). Disturbance: the wind force ``F_wind`` [N] (maximises). Every angle the
+API takes or returns is in radians; :func:`degrees_to_radians` converts, and :meth:`Glider.validate_state` /
+:meth:`Glider.validate_control` reject values that look like degrees.
+
+Dynamics (the DC9-30 landing model of Bayen, Mitchell, Oishi and Tomlin, JGCD 2007, which the paper's
+parameters come from)::
+
+    h'     = V sin(gamma)
+    V'     = (-D(alpha, V) - m g sin(gamma) + F_wind) / m
+    gamma' = L(alpha, V) / (m V) - g cos(gamma) / V
+    C_L = cl0 + cl_alpha alpha,   L = half_rho_s C_L V^2,   D = (cd0 + cd_k C_L^2) V^2
+
+The Hamiltonian is not control-affine: the drag is quadratic in ``C_L``, hence in ``alpha``, so the model
+minimises a quadratic over the interval of ``C_L`` exactly (:meth:`Glider.hamiltonian`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from .. import backend as B
+from .. import sets
+from ..dynamics import Components
+from ..problem import Model
+
+Array = B.Array
+
+#: an angle above this many radians (about 28.6 degrees) is far outside every set of this model and far more
+#: likely a value in degrees; the checks below refuse it rather than fly a 5-radian dive
+DEGREES_SUSPECT = 0.5
+
+
+def degrees_to_radians(value: Any) -> Any:
+    """Degrees to radians for a Python number, a numpy array or a torch tensor.
+
+    :param value: angle(s) in degrees
+    :return: the same angle(s) in radians, of the same kind
+    """
+    return value * (math.pi / 180.0)
+
+
+def radians_to_degrees(value: Any) -> Any:
+    """Radians to degrees for a Python number, a numpy array or a torch tensor.
+
+    :param value: angle(s) in radians
+    :return: the same angle(s) in degrees, of the same kind
+    """
+    return value * (180.0 / math.pi)
+
+
+def _sin(v: Any) -> Any:
+    # a component may be a Python number next to torch tensors; torch.sin refuses numbers
+    return math.sin(v) if isinstance(v, (int, float)) else B.namespace(v).sin(v)
+
+
+def _cos(v: Any) -> Any:
+    return math.cos(v) if isinstance(v, (int, float)) else B.namespace(v).cos(v)
+
+
+def _as_numpy(value: Any) -> np.ndarray:
+    """A numpy copy of a number, array or tensor, for the (rare, user-facing) checks below."""
+    return np.asarray(B.to_numpy(value), dtype=float)
+
+
+def _check_radians(name: str, value: Any) -> None:
+    """Raise if ``value`` is non-finite or large enough in magnitude to be an angle in degrees."""
+    arr = _as_numpy(value)
+    if arr.size == 0:
+        return
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    worst = float(arr.flat[np.argmax(np.abs(arr))])
+    if abs(worst) > DEGREES_SUSPECT:
+        raise ValueError(
+            f"radians expected for {name}, got {worst!r} (looks like degrees; "
+            f"convert with softreach.reach.models.glider.degrees_to_radians)"
+        )
+
+
+@dataclass(frozen=True)
+class GliderParams:
+    """Parameters of the fixed-wing emergency landing (paper §VI-B, spec §3). Angles are in **radians**.
+
+    Aircraft (DC9-30, Bayen et al. 2007):
+
+    :param mass: ``m`` [kg]
+    :param gravity: ``g`` [m/s^2]
+    :param half_rho_s: ``rho S / 2`` [kg/m], the lift factor ``L = half_rho_s C_L V^2``; ``68.6`` is
+        ``1.225 kg/m^3 * 112 m^2 / 2``
+    :param cl0: lift coefficient at ``alpha = 0`` [-]
+    :param cl_alpha: lift slope ``dC_L/dalpha`` [1/rad]; positive, so ``C_L`` grows with ``alpha``
+    :param cd0: zero-lift drag factor [kg/m] in ``D = (cd0 + cd_k C_L^2) V^2`` (``rho S/2`` is folded in)
+    :param cd_k: induced drag factor [kg/m] in the same formula
+
+    Inputs:
+
+    :param alpha_bounds: angle of attack range ``(lo, hi)`` [rad], default ``[0, 13 deg]``
+    :param wind_max: wind force bound, ``F_wind in [-wind_max, wind_max]`` [N]
+
+    Sets and horizon:
+
+    :param hard_speed: stall / maximum descent speed, ``C1`` [m/s]
+    :param hard_gamma: flight-path corridor, ``C1`` [rad], default ``[-3 deg, 0 deg]``
+    :param min_altitude: ground level, ``C1`` requires ``h >= min_altitude`` [m]
+    :param soft_speed: recommended speed range (5 m/s margins inside ``hard_speed``), ``C2`` [m/s]
+    :param touchdown_altitude: half-width ``hb`` of the touchdown band ``|h| <= hb`` [m]
+    :param max_sink_rate: largest touchdown sink rate ``-V sin(gamma)`` [m/s] (3 ft/s)
+    :param horizon: ``T`` [s]
+
+    Scales of the implicit functions (each set function is a distance divided by these):
+
+    :param altitude_scale: [m] per unit of the implicit functions
+    :param speed_scale: [m/s] per unit
+    :param gamma_scale: [rad] per unit, default one degree, so flight-path distances count in degrees
+    :param sink_rate_scale: [m/s] per unit of the sink-rate term of the target
+    """
+
+    mass: float = 60000.0
+    gravity: float = 9.8
+    half_rho_s: float = 68.6
+    cl0: float = 1.25
+    cl_alpha: float = 4.2
+    cd0: float = 2.7
+    cd_k: float = 3.08
+    alpha_bounds: tuple[float, float] = (0.0, math.radians(13.0))
+    wind_max: float = 10000.0
+    hard_speed: tuple[float, float] = (61.0, 83.0)
+    hard_gamma: tuple[float, float] = (math.radians(-3.0), 0.0)
+    min_altitude: float = 0.0
+    soft_speed: tuple[float, float] = (66.0, 78.0)
+    touchdown_altitude: float = 0.5
+    max_sink_rate: float = 0.91
+    horizon: float = 10.0
+    altitude_scale: float = 1.0
+    speed_scale: float = 1.0
+    gamma_scale: float = math.radians(1.0)
+    sink_rate_scale: float = 1.0
+
+    def __post_init__(self):
+        for name, value in asdict(self).items():
+            values = value if isinstance(value, tuple) else (value,)
+            if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values):
+                raise ValueError(f"GliderParams.{name} must be finite numbers, got {value!r}")
+        positive = ("mass", "gravity", "half_rho_s", "cl_alpha", "horizon", "touchdown_altitude", "max_sink_rate",
+                    "altitude_scale", "speed_scale", "gamma_scale", "sink_rate_scale")
+        for name in positive:
+            if getattr(self, name) <= 0:
+                raise ValueError(f"GliderParams.{name} must be positive, got {getattr(self, name)!r}")
+        for name in ("cd0", "cd_k", "wind_max"):  # drag never pushes forward; the wind box is symmetric
+            if getattr(self, name) < 0:
+                raise ValueError(f"GliderParams.{name} must be non-negative, got {getattr(self, name)!r}")
+        for name in ("alpha_bounds", "hard_speed", "hard_gamma", "soft_speed"):
+            lo, hi = getattr(self, name)
+            if not lo < hi:
+                raise ValueError(f"GliderParams.{name} must be an interval lo < hi, got {(lo, hi)!r}")
+        for name in ("alpha_bounds", "hard_gamma"):
+            _check_radians(f"GliderParams.{name}", getattr(self, name))
+        if self.hard_speed[0] <= 0:
+            # gamma' divides by V; the hard constraint keeps trajectories away from V = 0
+            raise ValueError(f"GliderParams.hard_speed must be positive, got {self.hard_speed!r}")
+
+
+class Glider(Model):
+    """Longitudinal glide of a DC9-30 without thrust; state ``(h, V, gamma)`` in (m, m/s, **rad**).
+
+    Control ``alpha`` [rad] in ``alpha_bounds`` (minimises); disturbance ``F_wind`` [N] in
+    ``[-wind_max, wind_max]`` (maximises). Defaults (paper §VI-B):
+
+    * hard ``C1 = {V in [61, 83], gamma in [-3 deg, 0 deg], h >= 0}``; soft ``C2 = {V in [66, 78]}``
+      (``h`` and ``gamma`` free: only the speed margins cost budget);
+    * target ``T = {|h| <= hb, -V sin(gamma) <= 0.91 m/s}`` with ``hb = 0.5 m``: touchdown at ``h = 0`` as a
+      band that a grid resolves. ``C1`` cuts it to ``h in [0, hb]``; its part below ground only keeps ``h = 0``
+      strictly inside the band, where a grid node sits. Since ``h' <= 0`` in ``C1``, every descent crosses the
+      band, so its width only sets how long before ground contact the sink rate must already be within limits:
+      at most ``hb / 0.91 m/s`` = 0.55 s;
+    * horizon ``T = 10 s``.
+
+    **Scaling of the implicit functions.** Each is a Chebyshev box distance (:func:`softreach.reach.sets.box`)
+    with every coordinate divided by its scale: ``h`` by ``altitude_scale`` (1 m), ``V`` by ``speed_scale``
+    (1 m/s), ``gamma`` by ``gamma_scale`` (1 degree, so a flight-path distance counts in degrees: 1 deg is as
+    far as 1 m/s or 1 m). The sink-rate term of the target is ``(-V sin(gamma) - max_sink_rate) /
+    sink_rate_scale`` (1 m/s); its slope along ``gamma`` is ``V cos(gamma)`` m/s per rad, about 1.26 per
+    degree at 72 m/s, the same order as the box terms. ``c2`` is in m/s, so ``eps`` is in m/s too.
+
+    **Default grid box** (:attr:`domain`): ``h in [-5, 45] m``, ``V in [58, 86] m/s``,
+    ``gamma in [-4 deg, 1 deg]``: a few m/s, one degree and 5 m beyond ``C1`` and the 40 m start altitudes,
+    so the sets' boundaries lie inside the grid, away from its edges. With 101 x 57 x 51 nodes (0.5 m,
+    0.5 m/s, 0.1 deg) every set boundary (0, 0.5 m; 61, 66, 78, 83 m/s; -3, 0 deg) falls on a node.
+
+    **Units.** The grid path (:meth:`f`, :meth:`hamiltonian`, ...) takes radians and checks nothing, for speed.
+    The batched-point path :meth:`f_array` checks its inputs with :meth:`validate_state` and
+    :meth:`validate_control`, which refuse angles beyond 0.5 rad as "looks like degrees"; call them yourself
+    on states and controls that come from users.
+    """
+
+    name = "glider"
+    state_names = ("h", "V", "gamma")
+    state_units = ("m", "m/s", "rad")
+
+    def __init__(self, params: GliderParams | None = None, **overrides: Any):
+        """:param params: a full parameter set; or pass :class:`GliderParams` fields as keyword overrides"""
+        if params is None:
+            params = GliderParams(**overrides)
+        elif overrides:
+            raise TypeError("pass either params or keyword overrides, not both")
+        self.params = params
+        p = params
+        self.control_bounds = ((float(p.alpha_bounds[0]),), (float(p.alpha_bounds[1]),))
+        self.disturbance_bounds = ((-float(p.wind_max),), (float(p.wind_max),))
+        self.horizon = p.horizon
+        self.domain = ((-5.0, 58.0, math.radians(-4.0)), (45.0, 86.0, math.radians(1.0)))
+        # C_L over the control box; cl_alpha > 0 maps the alpha interval onto it in order
+        self._cl_bounds = (p.cl0 + p.cl_alpha * p.alpha_bounds[0], p.cl0 + p.cl_alpha * p.alpha_bounds[1])
+
+    def parameters(self) -> dict[str, Any]:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self.params).items()}
+
+    # ------------------------------------------------------------------------------------------ dynamics
+    def lift_coefficient(self, alpha: Array | float) -> Array | float:
+        """``C_L(alpha) = cl0 + cl_alpha alpha``.
+
+        :param alpha: angle of attack [rad]
+        """
+        return self.params.cl0 + self.params.cl_alpha * alpha
+
+    def lift(self, alpha: Array | float, V: Array | float) -> Array | float:
+        """``L = half_rho_s C_L V^2`` [N].
+
+        :param alpha: angle of attack [rad]
+        :param V: airspeed [m/s]
+        """
+        return self.params.half_rho_s * self.lift_coefficient(alpha) * V * V
+
+    def drag(self, alpha: Array | float, V: Array | float) -> Array | float:
+        """``D = (cd0 + cd_k C_L^2) V^2`` [N].
+
+        :param alpha: angle of attack [rad]
+        :param V: airspeed [m/s]
+        """
+        c = self.lift_coefficient(alpha)
+        return (self.params.cd0 + self.params.cd_k * c * c) * V * V
+
+    def trim_alpha(self, V: Array | float, gamma: Array | float) -> Array | float:
+        """The angle of attack [rad] that holds the flight path (``gamma' = 0``), not clipped to the bounds.
+
+        ``L = m g cos(gamma)`` gives ``C_L = m g cos(gamma) / (half_rho_s V^2)``. Above the upper bound the
+        aircraft cannot hold its path at that speed (near stall); below the lower bound it climbs even at the
+        lowest angle.
+
+        :param V: airspeed [m/s]
+        :param gamma: flight-path angle [rad]
+        """
+        p = self.params
+        c = p.mass * p.gravity * _cos(gamma) / (p.half_rho_s * V * V)
+        return (c - p.cl0) / p.cl_alpha
+
+    def f(self, t: float, x: Components, a: Components, b: Components) -> list[Array]:
+        """The vector field ``(h', V', gamma')``.
+
+        :param t: time [s] (unused: the dynamics are autonomous)
+        :param x: ``(h [m], V [m/s], gamma [rad])``, broadcastable components
+        :param a: ``(alpha [rad],)``
+        :param b: ``(F_wind [N],)``
+        """
+        p = self.params
+        _, V, gamma = x
+        (alpha,), (wind,) = a, b
+        c = self.lift_coefficient(alpha)
+        sg, cg = _sin(gamma), _cos(gamma)
+        h_dot = V * sg
+        V_dot = -(p.cd0 + p.cd_k * c * c) * V * V / p.mass - p.gravity * sg + wind / p.mass
+        gamma_dot = p.half_rho_s * c * V / p.mass - p.gravity * cg / V
+        return [h_dot, V_dot, gamma_dot]
+
+    def f_array(self, t: float, x: Array, a: Array, b: Array) -> Array:
+        """:meth:`f` on stacked arrays ``x (..., 3)``, ``a (..., 1)``, ``b (..., 1)``, after unit checks.
+
+        :raises ValueError: on angles that look like degrees, ``V <= 0`` or non-finite values
+        """
+        self.validate_state(x)
+        self.validate_control(a)
+        return super().f_array(t, x, a, b)
+
+    # ------------------------------------------------------------------------------------------ game
+    def _quadratic(self, x: Components, p: Components):
+        """The ``alpha``-dependent part of ``p . f`` as ``q(C) = a2 C^2 + a1 C`` in ``C = C_L(alpha)``, and the
+        part that depends on neither input."""
+        prm = self.params
+        _, V, gamma = x
+        p_h, p_V, p_g = p
+        sg, cg = _sin(gamma), _cos(gamma)
+        a2 = -p_V * (prm.cd_k * V * V / prm.mass)
+        a1 = p_g * (prm.half_rho_s * V / prm.mass)
+        rest = p_h * (V * sg) - p_V * (prm.cd0 * V * V / prm.mass + prm.gravity * sg) - p_g * (prm.gravity * cg / V)
+        return a2, a1, rest
+
+    def _vertex(self, a2: Array, a1: Array) -> Array:
+        """``argmin`` of ``q`` over ``[C_lo, C_hi]`` where ``q`` is strictly convex (``a2 > 0``); elsewhere some
+        point of the interval (a safe divisor keeps it finite)."""
+        lo, hi = self._cl_bounds
+        convex = a2 > 0
+        return B.clip(-a1 / (2.0 * B.where(convex, a2, 1.0)), lo, hi)
+
+    def hamiltonian(self, t: float, x: Components, p: Components) -> Array:
+        """``min_alpha max_F p . f``, exactly.
+
+        The wind enters ``V'`` alone and linearly: ``max_F`` gives ``wind_max |p_V| / m``. The control enters
+        through ``q(C) = -(p_V V^2/m)(cd0 + cd_k C^2) + (p_gamma half_rho_s V/m) C`` with ``C = C_L(alpha)``
+        over ``[C_L(alpha_lo), C_L(alpha_hi)]``. Its minimum is at an end of the interval, or at the clipped
+        vertex ``-a1 / (2 a2)`` when ``q`` is convex (``p_V < 0``). Taking the minimum of all three is exact in
+        every case: where ``q`` is concave or linear the clipped point is just another point of the interval,
+        never below the ends.
+
+        :param t: time [s] (unused)
+        :param x: ``(h, V, gamma)`` components [m, m/s, rad]
+        :param p: co-state components ``(p_h, p_V, p_gamma)``
+        """
+        prm = self.params
+        a2, a1, rest = self._quadratic(x, p)
+        lo, hi = self._cl_bounds
+        c_star = self._vertex(a2, a1)
+        q_lo = a2 * lo * lo + a1 * lo
+        q_hi = a2 * hi * hi + a1 * hi
+        q_star = a2 * c_star * c_star + a1 * c_star
+        q_min = B.minimum(B.minimum(q_lo, q_hi), q_star)
+        return rest + q_min + (prm.wind_max / prm.mass) * abs(p[1])
+
+    def optimal_control(self, t: float, x: Components, p: Components) -> list[Array]:
+        """``argmin_alpha max_F p . f`` [rad].
+
+        Convex ``q`` (``p_V < 0``): the clipped vertex. Otherwise the end where ``q`` is smaller: the sign of
+        ``q(C_hi) - q(C_lo) = (C_hi - C_lo)(a2 (C_lo + C_hi) + a1)`` decides. On a tie of a linear ``q``
+        (``p_V = p_gamma = 0``: every angle is optimal) the midpoint, as for the bang-bang models; on a tie of
+        a concave ``q`` (both ends optimal, the middle not) the lower end.
+
+        :param t: time [s] (unused)
+        :param x: ``(h, V, gamma)`` components [m, m/s, rad]
+        :param p: co-state components ``(p_h, p_V, p_gamma)``
+        :return: ``[alpha]`` in radians
+        """
+        prm = self.params
+        a2, a1, _ = self._quadratic(x, p)
+        lo, hi = self._cl_bounds
+        c_star = self._vertex(a2, a1)
+        ref = 0 * c_star
+        s = a2 * (lo + hi) + a1
+        tie = B.where(a2 < 0, ref + lo, ref + 0.5 * (lo + hi))
+        c_end = B.where(s > 0, ref + lo, B.where(s < 0, ref + hi, tie))
+        c = B.where(a2 > 0, c_star, c_end)
+        return [(c - prm.cl0) / prm.cl_alpha]
+
+    def worst_disturbance(self, t: float, x: Components, p: Components) -> list[Array]:
+        """``argmax_F``: ``+wind_max`` where ``p_V > 0``, ``-wind_max`` where ``p_V < 0``, ``0`` on ``p_V = 0``.
+
+        The wind term does not depend on ``alpha``, so this is the worst wind against every control.
+
+        :param t: time [s] (unused)
+        :param x: ``(h, V, gamma)`` components [m, m/s, rad]
+        :param p: co-state components ``(p_h, p_V, p_gamma)``
+        :return: ``[F_wind]`` in newtons
+        """
+        p_V = p[1]
+        w = float(self.params.wind_max)
+        if isinstance(p_V, (int, float)):
+            return [w if p_V > 0 else (-w if p_V < 0 else 0.0)]
+        ref = 0 * p_V + 0 * _sin(x[2]) * x[1]
+        return [B.where(p_V > 0, ref + w, B.where(p_V < 0, ref - w, ref))]
+
+    def dissipation(self, t: float, x: Components, p_lo: Components | None = None,
+                    p_hi: Components | None = None) -> list[Array | float]:
+        """Bounds ``alpha_i >= |dH/dp_i|``: ``max |f_i|`` over the inputs, in closed form per node.
+
+        ``dH/dp_i`` is ``f_i`` at an optimal pair of inputs, so ``max |f_i|`` over the whole control and wind
+        boxes bounds it for every co-state: ``|V sin(gamma)|`` along ``h`` (no input enters), the ends of the
+        drag interval ``(cd0 + cd_k [C^2 range]) V^2`` and of the wind interval along ``V``, and the ends of the
+        ``C_L`` interval along ``gamma`` (linear in ``C_L``). Given a co-state box whose ``p_V`` keeps one sign,
+        only the matching end of the wind interval can be optimal, which tightens the ``V`` bound by up to
+        ``2 wind_max / m``; the control bound is not tightened.
+
+        :param t: time [s] (unused)
+        :param x: ``(h, V, gamma)`` components [m, m/s, rad]
+        :param p_lo: lower corner of the co-state box, or ``None`` for a bound valid for every co-state
+        :param p_hi: upper corner of the co-state box, or ``None``
+        """
+        prm = self.params
+        _, V, gamma = x
+        sg, cg = _sin(gamma), _cos(gamma)
+        lo, hi = self._cl_bounds
+        sq = (lo * lo, hi * hi)
+        c2_min = 0.0 if lo <= 0.0 <= hi else min(sq)
+        c2_max = max(sq)
+        VV = V * V / prm.mass
+        drag_min = (prm.cd0 + prm.cd_k * c2_min) * VV  # cd_k >= 0: the ends of C^2 give the ends of D
+        drag_max = (prm.cd0 + prm.cd_k * c2_max) * VV
+        w = prm.wind_max / prm.mass
+        base = -prm.gravity * sg
+        if p_lo is None:
+            v_lo = base - drag_max - w
+            v_hi = base - drag_min + w
+        else:
+            # the maximiser takes -wind_max only where p_V <= 0 is possible, +wind_max where p_V >= 0 is
+            ref = 0 * p_lo[1]
+            w_lo = B.where(p_lo[1] > 0, ref + w, ref - w)
+            w_hi = B.where(p_hi[1] < 0, ref - w, ref + w)
+            v_lo = base - drag_max + w_lo
+            v_hi = base - drag_min + w_hi
+        h_bound = abs(V * sg)
+        v_bound = B.maximum(abs(v_lo), abs(v_hi)) if hasattr(v_lo, "shape") else max(abs(v_lo), abs(v_hi))
+        g_term = prm.gravity * cg / V
+        g_lo = prm.half_rho_s * lo * V / prm.mass - g_term
+        g_hi = prm.half_rho_s * hi * V / prm.mass - g_term
+        g_bound = B.maximum(abs(g_lo), abs(g_hi)) if hasattr(g_lo, "shape") else max(abs(g_lo), abs(g_hi))
+        return [h_bound, v_bound, g_bound]
+
+    # ------------------------------------------------------------------------------------------ sets
+    def _scales(self) -> tuple[float, float, float]:
+        p = self.params
+        return (p.altitude_scale, p.speed_scale, p.gamma_scale)
+
+    def sink_rate(self, x: Components) -> Array:
+        """``-V sin(gamma)`` [m/s], positive when descending.
+
+        :param x: ``(h, V, gamma)`` components [m, m/s, rad]
+        """
+        return -x[1] * _sin(x[2])
+
+    def target(self, t: float, x: Components) -> Array:
+        """``g = max(box distance to |h| <= hb in altitude units, (sink rate - max_sink_rate) / sink_rate_scale)``.
+
+        :param t: time [s] (unused)
+        :param x: ``(h, V, gamma)`` components [m, m/s, rad]
+        """
+        p = self.params
+        band = sets.box([x[0]], (-p.touchdown_altitude,), (p.touchdown_altitude,), (p.altitude_scale,))
+        sink = (self.sink_rate(x) - p.max_sink_rate) / p.sink_rate_scale
+        return B.maximum(band, sink) if hasattr(band, "shape") else B.maximum(sink, band)
+
+    def hard_constraint(self, t: float, x: Components) -> Array:
+        """``c1``: scaled box distance to ``{h >= min_altitude, V in hard_speed, gamma in hard_gamma}``.
+
+        :param t: time [s] (unused)
+        :param x: ``(h, V, gamma)`` components [m, m/s, rad]
+        """
+        p = self.params
+        lo = (p.min_altitude, p.hard_speed[0], p.hard_gamma[0])
+        hi = (sets.INF, p.hard_speed[1], p.hard_gamma[1])
+        return sets.box(x, lo, hi, self._scales())
+
+    def soft_constraint(self, t: float, x: Components) -> Array:
+        """``c2``: scaled distance to ``{V in soft_speed}`` [units of ``speed_scale``].
+
+        :param t: time [s] (unused)
+        :param x: ``(h, V, gamma)`` components [m, m/s, rad]
+        """
+        p = self.params
+        return sets.box([x[1]], (p.soft_speed[0],), (p.soft_speed[1],), (p.speed_scale,))
+
+    # ------------------------------------------------------------------------------------------ units
+    def validate_state(self, x: Array | Sequence[Any]) -> None:
+        """Refuse a state that is non-finite, has ``V <= 0`` or an angle that looks like degrees.
+
+        :param x: a stacked array ``(..., 3)`` or a sequence ``(h, V, gamma)`` of numbers or arrays
+        :raises ValueError: naming the offending value
+        """
+        if hasattr(x, "shape") and len(x.shape) >= 1 and not isinstance(x, (list, tuple)):
+            if x.shape[-1] != 3:
+                raise ValueError(f"a glider state has 3 components (h, V, gamma), got shape {tuple(x.shape)}")
+            h, V, gamma = x[..., 0], x[..., 1], x[..., 2]
+        else:
+            if len(x) != 3:
+                raise ValueError(f"a glider state has 3 components (h, V, gamma), got {len(x)}")
+            h, V, gamma = x
+        for name, v in (("h", h), ("V", V)):
+            arr = _as_numpy(v)
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"state component {name} must be finite, got {v!r}")
+            if name == "V" and arr.size and float(arr.min()) <= 0:
+                # gamma' divides by V; a zero or negative airspeed is a wrong unit or a wrong column
+                raise ValueError(f"airspeed V must be positive [m/s], got {float(arr.min())!r}")
+        _check_radians("gamma", gamma)
+
+    def validate_control(self, alpha: Array | float) -> None:
+        """Refuse an angle of attack that is non-finite or looks like degrees.
+
+        Values inside 0.5 rad but outside ``alpha_bounds`` pass: the simulator clips them
+        (:meth:`clip_control`), as it does any control.
+
+        :param alpha: angle(s) of attack [rad], a number or an array (a trailing axis of size 1 is fine)
+        :raises ValueError: naming the offending value
+        """
+        _check_radians("alpha", alpha)
+
+
+def _register() -> None:
+    # at the end of the module: the package's __init__ imports this module lazily, after it is complete
+    from . import register_model
+
+    register_model("glider", Glider)
+
+
+_register()
+
+__all__ = ["Glider", "GliderParams", "degrees_to_radians", "radians_to_degrees", "DEGREES_SUSPECT"]

@@ -1,0 +1,125 @@
+"""The 1-D point-mass landing of the paper's §VI-A (spec §2)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from .. import sets
+from ..dynamics import ControlAndDisturbanceAffine
+from ..problem import Model
+
+
+@dataclass(frozen=True)
+class PointMassParams:
+    """Parameters of the point-mass landing (paper §VI-A).
+
+    :param gravity: ``g`` [m/s^2]
+    :param u_max: thrust acceleration bound, ``u in [-u_max, u_max]`` [m/s^2]
+    :param d_max: disturbance bound, ``d in [-d_max, d_max]`` [m/s^2]
+    :param target_speed: touchdown speed band [m/s]
+    :param target_altitude: touchdown altitude band [m]
+    :param hard_speed: design speed range (``C1``) [m/s]
+    :param soft_speed: recommended speed range (``C2``) [m/s]
+    :param altitude: altitude range shared by ``C1`` and ``C2`` [m]
+    :param horizon: ``T`` [s]
+    """
+
+    gravity: float = 9.8
+    u_max: float = 60.0
+    d_max: float = 10.0
+    target_speed: tuple[float, float] = (-1.0, 0.0)
+    target_altitude: tuple[float, float] = (0.0, 0.7)
+    hard_speed: tuple[float, float] = (-15.0, 15.0)
+    soft_speed: tuple[float, float] = (-10.0, 10.0)
+    altitude: tuple[float, float] = (0.0, 18.0)
+    horizon: float = 1.0
+
+    def __post_init__(self):
+        for name, value in asdict(self).items():
+            values = value if isinstance(value, tuple) else (value,)
+            if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
+                raise ValueError(f"PointMassParams.{name} must be finite, got {value!r}")
+        for name in ("u_max", "d_max", "horizon", "gravity"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"PointMassParams.{name} must be positive, got {getattr(self, name)!r}")
+        for name in ("target_speed", "target_altitude", "hard_speed", "soft_speed", "altitude"):
+            lo, hi = getattr(self, name)
+            if not lo < hi:
+                raise ValueError(f"PointMassParams.{name} must be an interval lo < hi, got {(lo, hi)!r}")
+
+
+class PointMass(Model, ControlAndDisturbanceAffine):
+    """Vertical point mass ``y'' = u - g + d``; state ``(v, y) = (y', y)`` in (m/s, m).
+
+    Control ``u`` [m/s^2] in ``[-u_max, u_max]`` (minimises); disturbance ``d`` [m/s^2] in ``[-d_max, d_max]``
+    (maximises). Sets are boxes; their implicit functions are Chebyshev box distances **unscaled**, i.e. in m/s
+    along ``v`` and in m along ``y`` (as the paper's signed distances), so ``eps`` is in m/s.
+
+    * target ``T = {v in [-1, 0], y in [0, 0.7]}``
+    * hard ``C1 = {v in [-15, 15], y in [0, 18]}``, soft ``C2 = {v in [-10, 10], y in [0, 18]}``
+    * horizon ``T = 1 s``; default grid box ``v in [-20, 20]``, ``y in [-5, 20]``.
+    """
+
+    name = "pointmass"
+    state_names = ("v", "y")
+    state_units = ("m/s", "m")
+
+    def __init__(self, params: PointMassParams | None = None, **overrides: Any):
+        if params is None:
+            params = PointMassParams(**overrides)
+        elif overrides:
+            raise TypeError("pass either params or keyword overrides, not both")
+        self.params = params
+        p = params
+        self.control_bounds = ((-p.u_max,), (p.u_max,))
+        self.disturbance_bounds = ((-p.d_max,), (p.d_max,))
+        self.horizon = p.horizon
+        self.domain = ((-20.0, -5.0), (20.0, 20.0))
+
+    def parameters(self) -> dict[str, Any]:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self.params).items()}
+
+    # dynamics: v' = -g + u + d, y' = v
+    def drift(self, t, x):
+        return [-self.params.gravity, x[0]]
+
+    def control_matrix(self, t, x):
+        return [[1.0], [0]]
+
+    def disturbance_matrix(self, t, x):
+        return [[1.0], [0]]
+
+    # sets
+    def target(self, t, x):
+        p = self.params
+        return sets.box(x, (p.target_speed[0], p.target_altitude[0]), (p.target_speed[1], p.target_altitude[1]))
+
+    def hard_constraint(self, t, x):
+        p = self.params
+        return sets.box(x, (p.hard_speed[0], p.altitude[0]), (p.hard_speed[1], p.altitude[1]))
+
+    def soft_constraint(self, t, x):
+        p = self.params
+        return sets.box(x, (p.soft_speed[0], p.altitude[0]), (p.soft_speed[1], p.altitude[1]))
+
+    def exact_ceiling(self) -> float:
+        """The highest altitude from ``v = 0`` at ``t = 0`` that lands with ``Q = 0`` (spec §4).
+
+        The disturbance enters where the control does, so the game is a control-only double integrator with
+        ``|u'| <= u_max - d_max``. From rest: full down-thrust to the soft speed limit, coast, full brake to the
+        fastest touchdown speed, all within the horizon. Used by the tests as an exact reference.
+        """
+        p = self.params
+        authority = p.u_max - p.d_max
+        acc_down, acc_brake = p.gravity + authority, authority - p.gravity
+        v_lim = min(-p.soft_speed[0], -p.hard_speed[0])
+        v_land = -p.target_speed[0]  # touch down at the fastest allowed sink rate, at the top of the band
+        t1 = v_lim / acc_down
+        t3 = (v_lim - v_land) / acc_brake
+        t2 = p.horizon - t1 - t3
+        if t2 < 0:
+            raise ValueError("horizon too short for the bang-coast-bang profile; no closed form here")
+        drop = 0.5 * acc_down * t1**2 + v_lim * t2 + (v_lim * t3 - 0.5 * acc_brake * t3**2)
+        return drop + p.target_altitude[1]

@@ -1,0 +1,153 @@
+"""Reach-avoid problems: the classical one (value ``V``) and the soft-constrained one (value ``W_eps``).
+
+Names from the paper, used across softreach:
+
+* ``target`` ``g`` — the set to reach (touchdown), ``{g <= 0}``;
+* ``hard_constraint`` ``c1`` — never to be left (``C1 = {c1 <= 0}``);
+* ``soft_constraint`` ``c2`` — may be left for a bounded total time (``C2 = {c2 <= 0}``);
+* ``budget`` ``z`` — the violation time still allowed; ``z' = -h_eps(t, x)`` with
+  ``h_eps = min(1, max(0, c2 / eps))``, a Lipschitz stand-in for the indicator of ``x`` outside ``C2``;
+* ``W_eps(t, x, z)`` — the soft-constrained value (Thm. 3): a classical reach-avoid value on the augmented state
+  ``(x, z)`` with target function ``l = max(c2, -kappa z, g)`` and constraint ``c1``. Its zero sublevel set at
+  ``z = Q`` is ``RA~_Q``, the states that can land spending at most ``Q`` seconds outside ``C2``.
+* ``V(t, x)`` — the classical value (Prop. 2): target ``g``, constraint ``max(c1, c2)``. ``{V <= 0} = RA~_0``.
+"""
+
+from __future__ import annotations
+
+from abc import abstractmethod
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import math
+
+from . import backend as B
+from .dynamics import Components, Dynamics
+
+Array = B.Array
+
+
+class Model(Dynamics):
+    """Dynamics plus the sets and horizon of a landing task.
+
+    Subclasses implement :meth:`target`, :meth:`hard_constraint` and :meth:`soft_constraint` (implicit
+    functions, ``<= 0`` inside) and set ``horizon`` and ``domain`` (the default grid box).
+    """
+
+    horizon: float = 1.0
+    #: default grid box ``(lo, hi)`` over the physical state
+    domain: tuple[tuple[float, ...], tuple[float, ...]] = ((), ())
+
+    @abstractmethod
+    def target(self, t: float, x: Components) -> Array:
+        """``g``: ``<= 0`` on the target set."""
+
+    @abstractmethod
+    def hard_constraint(self, t: float, x: Components) -> Array:
+        """``c1``: ``<= 0`` on the hard-constraint set ``C1``."""
+
+    @abstractmethod
+    def soft_constraint(self, t: float, x: Components) -> Array:
+        """``c2``: ``<= 0`` on the soft-constraint set ``C2``."""
+
+    def violation_rate(self, t: float, x: Components, eps: float) -> Array:
+        """``h_eps(t, x) = min(1, max(0, c2 / eps))``: the rate at which the budget drains."""
+        return B.clip(self.soft_constraint(t, x) / eps, 0.0, 1.0)
+
+    def metadata(self) -> dict[str, Any]:
+        """What a table records to refuse being used with another model."""
+        return {"name": self.name, "parameters": self.parameters(), "state_names": list(self.state_names)}
+
+
+class BudgetAugmented(Dynamics):
+    """The augmented dynamics ``(x, z)' = (f(t, x, a, b), -h_eps(t, x))`` of a :class:`Model`.
+
+    ``z'`` depends on neither player, so the Hamiltonian is ``H(t, x, p_x) - p_z h_eps`` and the dissipation
+    along ``z`` is exactly ``h_eps``: the Lax-Friedrichs scheme then reduces to the exact upwind scheme along
+    ``z`` and adds no numerical diffusion there (spec §4 explains why that matters).
+    """
+
+    def __init__(self, model: Model, eps: float):
+        if not (math.isfinite(eps) and eps > 0):
+            raise ValueError(f"eps must be a finite positive number, got {eps!r}")
+        self.model = model
+        self.eps = float(eps)
+        self.name = f"{model.name}+budget"
+        self.state_names = tuple(model.state_names) + ("z",)
+        self.state_units = tuple(model.state_units) + ("s",)
+        self.control_bounds = model.control_bounds
+        self.disturbance_bounds = model.disturbance_bounds
+
+    def f(self, t, x, a, b):
+        return list(self.model.f(t, x[:-1], a, b)) + [-self.model.violation_rate(t, x[:-1], self.eps)]
+
+    def hamiltonian(self, t, x, p):
+        return self.model.hamiltonian(t, x[:-1], p[:-1]) - p[-1] * self.model.violation_rate(t, x[:-1], self.eps)
+
+    def optimal_control(self, t, x, p):
+        return self.model.optimal_control(t, x[:-1], p[:-1])
+
+    def worst_disturbance(self, t, x, p):
+        return self.model.worst_disturbance(t, x[:-1], p[:-1])
+
+    def dissipation(self, t, x, p_lo=None, p_hi=None):
+        inner = self.model.dissipation(t, x[:-1], None if p_lo is None else p_lo[:-1], None if p_hi is None else p_hi[:-1])
+        return list(inner) + [self.model.violation_rate(t, x[:-1], self.eps)]
+
+
+@dataclass(frozen=True)
+class ReachAvoidProblem:
+    """A reach-avoid game as the solver sees it: dynamics, target function ``l`` and constraint ``c``.
+
+    The value solves ``0 = max{c - W, min[l - W, W_t + H]}`` with ``W(T) = max(c, l)``.
+    """
+
+    dynamics: Dynamics
+    model: Model
+    kind: str  # "classical" or "soft"
+    eps: float | None = None
+    budget_scale: float = 1.0
+
+    def target_function(self, t: float, x: Components) -> Array:
+        """``l``: ``g`` (classical) or ``max(c2, -kappa z, g)`` (soft)."""
+        if self.kind == "classical":
+            return self.model.target(t, x)
+        xs, z = x[:-1], x[-1]
+        out = B.maximum(self.model.soft_constraint(t, xs), self.model.target(t, xs))
+        return B.maximum(out, -self.budget_scale * z) if hasattr(z, "shape") else B.maximum(out, -self.budget_scale * z + 0 * out)
+
+    def floor_function(self, t: float, x: Components) -> Array | None:
+        """A lower bound the exact value always satisfies, or ``None``.
+
+        For the soft problem ``W >= -kappa z``: the budget never increases, so every term ``-kappa z(tau)`` that
+        ``l`` can take along a trajectory is at least ``-kappa z``. Enforcing it keeps high-order schemes from
+        undershooting into spurious safety (it matters most at ``z = 0``, where the exact ``W`` is ``>= 0``).
+        """
+        if self.kind == "classical":
+            return None
+        return -self.budget_scale * x[-1]
+
+    def constraint_function(self, t: float, x: Components) -> Array:
+        """``c``: ``max(c1, c2)`` (classical) or ``c1`` (soft)."""
+        if self.kind == "classical":
+            return B.maximum(self.model.hard_constraint(t, x), self.model.soft_constraint(t, x))
+        return self.model.hard_constraint(t, x[:-1])
+
+    def metadata(self) -> dict[str, Any]:
+        return {"kind": self.kind, "eps": self.eps, "budget_scale": self.budget_scale, "model": self.model.metadata()}
+
+
+def classical_problem(model: Model) -> ReachAvoidProblem:
+    """The classical reach-avoid problem of Prop. 2 (value ``V``)."""
+    return ReachAvoidProblem(dynamics=model, model=model, kind="classical")
+
+
+def soft_problem(model: Model, eps: float = 1e-3, budget_scale: float = 1.0) -> ReachAvoidProblem:
+    """The soft-constrained problem of Thm. 3 (value ``W_eps``) on the budget-augmented state.
+
+    :param eps: width of the Lipschitz regularisation ``h_eps`` (units of ``c2``)
+    :param budget_scale: ``kappa`` in ``l = max(c2, -kappa z, g)``; the zero sublevel set does not depend on it
+    """
+    if not (math.isfinite(budget_scale) and budget_scale > 0):
+        raise ValueError(f"budget_scale must be a finite positive number, got {budget_scale!r}")
+    return ReachAvoidProblem(dynamics=BudgetAugmented(model, eps), model=model, kind="soft", eps=float(eps), budget_scale=float(budget_scale))
