@@ -8,6 +8,12 @@ Importing this package registers
 so ``import softreach.envs; gymnasium.make("softreach/PointMassLanding-v0")`` works, and so does
 ``gymnasium.make("softreach.envs:softreach/PointMassLanding-v0")`` without the import (Gymnasium imports the
 module named before the colon). Rendering (matplotlib) is imported only when a frame is drawn.
+
+``render_mode="rgb_array"`` is always available; ``"human"`` is declared in ``metadata["render_modes"]`` only
+where a display exists (``DISPLAY`` or ``WAYLAND_DISPLAY`` on Linux), because
+``gymnasium.utils.env_checker.check_env`` opens every declared mode and a headless machine cannot open a window.
+``gymnasium.utils.env_checker.check_env`` and Stable-Baselines3's ``check_env`` pass on both environments
+without warnings.
 """
 
 from __future__ import annotations

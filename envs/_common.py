@@ -8,12 +8,14 @@ the vector field is ``model.f``, the budget drains at ``model.violation_rate``, 
 Integration (:func:`integrate_period`): the control and the wind are held constant over a control period
 (zero-order hold) and the state is advanced by ``n_substeps`` classical Runge-Kutta (RK4) steps. The budget
 ``z`` follows the augmented dynamics ``z' = -h_eps(t, x)`` of the paper: the same RK4 stages give its
-increment, which is the Simpson-type quadrature of ``h_eps`` over the stage states. ``h_eps`` is only Lipschitz
-(it has kinks where ``c2 = 0`` and ``c2 = eps``), so a sub-step whose stage values straddle a kink is bisected
-(re-integrated with RK4 on halves) until the pieces are shorter than ``budget_resolution``: the budget then
-drains by the violation time to within about ``budget_resolution`` per crossing of the boundary of ``C2``.
-Sub-steps that stay inside (``h_eps = 0``) or far outside (``h_eps = 1``) need no refinement and cost exactly
-``0`` or their length. The state path does not depend on the refinement (it is the fixed-step RK4 path).
+increment, which is the Simpson-type quadrature of ``h_eps`` over the stage states. Sub-steps whose stages are
+all inside ``C2`` (``h_eps = 0``) or all beyond the ``eps`` band (``h_eps = 1``) cost exactly ``0`` or their
+length. ``h_eps`` is only Lipschitz, with kinks where ``c2 = 0`` and ``c2 = eps``; in a sub-step whose stage
+values straddle a kink (the path enters or leaves ``C2``) the integral is instead taken along the RK4 dense
+output (cubic Hermite interpolant), resolving the kink to ``budget_resolution`` seconds: the budget then drains
+by the violation time to within about ``budget_resolution`` per crossing. The state path does not depend on
+this (it is the fixed-step RK4 path); excursions out of ``C2`` shorter than a sub-step that no RK4 stage sees
+are missed.
 """
 
 from __future__ import annotations
@@ -103,29 +105,55 @@ def _piece_cost(v: Sequence[float], h: float) -> float | None:
     return None
 
 
-def _refined_cost(model: Model, t: float, x: Stage, a: Stage, b: Stage, h: float, eps: float, v: list[float],
-                  min_piece: float, leaves: list[int], max_leaves: int) -> float:
-    """Budget spent on ``[t, t + h]`` from ``x``, bisecting pieces where ``h_eps`` has a kink."""
-    cost = _piece_cost(v, h)
-    if cost is not None:
-        return cost
-    if h <= min_piece or leaves[0] >= max_leaves:
-        return _simpson(v, h)
-    h2 = 0.5 * h
+def _hermite(theta: np.ndarray, x0: Stage, f0: Sequence[float], x1: Stage, f1: Sequence[float],
+             h: float) -> list[np.ndarray]:
+    """The cubic Hermite dense output of a step at fractions ``theta`` of it (exact for cubic paths)."""
+    t2 = theta * theta
+    t3 = t2 * theta
+    h00 = 2.0 * t3 - 3.0 * t2 + 1.0
+    h10 = (t3 - 2.0 * t2 + theta) * h
+    h01 = 3.0 * t2 - 2.0 * t3
+    h11 = (t3 - t2) * h
+    return [h00 * p + h10 * fp + h01 * q + h11 * fq for p, fp, q, fq in zip(x0, f0, x1, f1)]
+
+
+def _kink_cost(model: Model, t: float, x0: Stage, x1: Stage, a: Stage, b: Stage, h: float, eps: float,
+               resolution: float, samples: int = 128, max_levels: int = 8) -> float:
+    """``int h_eps dt`` over a sub-step in which ``h_eps`` has a kink (the path enters or leaves ``C2``).
+
+    ``h_eps`` is sampled along the cubic Hermite interpolant of the RK4 step (end states and ``f`` there) at
+    ``samples`` cells in one vectorised call of ``model.violation_rate``; cells that lie inside, outside or in
+    the ``eps`` band throughout are summed (``0``, their length, trapezoid), the few cells that contain a kink
+    are sampled again in the same way, until a cell is shorter than ``resolution`` (then: trapezoid, an error
+    below half the cell per kink).
+    """
     f = model.f
-    xm, st1 = rk4_stages(f, t, x, a, b, h2)
-    _, st2 = rk4_stages(f, t + h2, xm, a, b, h2)
-    tq = 0.5 * h2
-    times = [t, t + tq, t + tq, t + h2, t + h2, t + h2 + tq, t + h2 + tq, t + h]
-    r = _rates(model, times, st1 + st2, eps)
-    leaves[0] += 1
-    return (_refined_cost(model, t, x, a, b, h2, eps, r[:4], min_piece, leaves, max_leaves)
-            + _refined_cost(model, t + h2, xm, a, b, h2, eps, r[4:], min_piece, leaves, max_leaves))
+    f0, f1 = f(t, x0, a, b), f(t + h, x1, a, b)
+    grid = np.linspace(0.0, 1.0, samples + 1)
+    starts = np.zeros(1)
+    width = 1.0
+    total = 0.0
+    for _ in range(max_levels):
+        theta = (starts[:, None] + width * grid[None, :]).reshape(-1)
+        r = model.violation_rate(t + h * theta, _hermite(theta, x0, f0, x1, f1, h), eps)
+        r = np.broadcast_to(np.asarray(r, dtype=np.float64), theta.shape).reshape(len(starts), samples + 1)
+        left, right = r[:, :-1], r[:, 1:]
+        lo, hi = np.minimum(left, right), np.maximum(left, right)
+        cell = width / samples * h
+        kink = ~((hi == 0.0) | (lo == 1.0) | ((lo > 0.0) & (hi < 1.0)))
+        last = cell <= resolution
+        settled = ~kink | last
+        total += cell * 0.5 * float(np.sum((left + right)[settled]))
+        if last or not kink.any():
+            return total
+        rows, cols = np.nonzero(kink)
+        starts = starts[rows] + width * grid[cols]
+        width /= samples
+    return total + cell * 0.5 * float(np.sum((left + right)[kink]))
 
 
 def integrate_period(model: Model, t: float, x: Sequence[float], a: Sequence[float], b: Sequence[float],
-                     h: float, n_substeps: int, eps: float, budget_resolution: float,
-                     max_bisections: int = 256) -> tuple[list[float], float, float]:
+                     h: float, n_substeps: int, eps: float, budget_resolution: float) -> tuple[list[float], float, float]:
     """Advance the budget-augmented state over one control period with ``a`` and ``b`` held.
 
     :param model: the model whose ``f`` and ``violation_rate`` are integrated
@@ -136,37 +164,34 @@ def integrate_period(model: Model, t: float, x: Sequence[float], a: Sequence[flo
     :param h: period length [s]
     :param n_substeps: RK4 steps per period
     :param eps: the ``eps`` of ``h_eps``
-    :param budget_resolution: bisect pieces of a sub-step with a kink of ``h_eps`` down to this length [s]
-    :param max_bisections: cap on bisections per period (a guard; never reached in ordinary flight)
+    :param budget_resolution: resolve the kinks of ``h_eps`` (entering or leaving ``C2``) to this length [s]
     :return: ``(x_end, cost, rate_end)``: the state at ``t + h``, the budget spent ``int h_eps dt`` over the
         period, and ``h_eps`` at the end state (``> 0`` exactly when the end state is outside ``C2``)
     """
     f = model.f
     hs = h / n_substeps
-    starts: list[tuple[float, Stage]] = []
+    path: list[Stage] = [list(x)]
     points: list[Stage] = []
     times: list[float] = []
-    xc = list(x)
+    xc = path[0]
     for j in range(n_substeps):
         tc = t + j * hs
-        xn, stages = rk4_stages(f, tc, xc, a, b, hs)
-        starts.append((tc, xc))
+        xc, stages = rk4_stages(f, tc, xc, a, b, hs)
+        path.append(xc)
         points.extend(stages)
         times.extend((tc, tc + 0.5 * hs, tc + 0.5 * hs, tc + hs))
-        xc = xn
     points.append(xc)
     times.append(t + h)
     r = _rates(model, times, points, eps)
     cost = 0.0
-    leaves = None
     for j in range(n_substeps):
         v = r[4 * j: 4 * j + 4]
         piece = _piece_cost(v, hs)
         if piece is None:
-            if leaves is None:
-                leaves = [0]
-            tc, xs = starts[j]
-            piece = _refined_cost(model, tc, xs, a, b, hs, eps, v, budget_resolution, leaves, max_bisections)
+            if hs <= budget_resolution:
+                piece = _simpson(v, hs)
+            else:
+                piece = _kink_cost(model, t + j * hs, path[j], path[j + 1], a, b, hs, eps, budget_resolution)
         cost += piece
     return xc, cost, r[-1]
 
@@ -425,7 +450,6 @@ class LandingEnv(gym.Env):
         self._z = 0.0
         self._q = 0.0
         self._g = 0.0
-        self._b = [0.0] * k
         self._last_a = list(self._a_mid)
         self._last_info: dict[str, Any] = {}
 
@@ -441,8 +465,10 @@ class LandingEnv(gym.Env):
         return value
 
     def _check_state(self, x: Sequence[float], name: str) -> None:
+        units = self.model.state_units
         bad = [f"{self.model.state_names[i]}={x[i]!r} not in [{self.state_low[i]:.6g}, {self.state_high[i]:.6g}] "
-               f"{self.model.state_units[i]}"
+               f"{units[i]}" + (" (radians expected; this looks like degrees)" if units[i] == "rad"
+                                and abs(x[i]) > 0.5 else "")
                for i in range(self._n) if not self.state_low[i] <= x[i] <= self.state_high[i]]
         if bad:
             raise ValueError(f"{name} lies outside the {self.model.name} domain: " + "; ".join(bad))
@@ -681,7 +707,6 @@ class LandingEnv(gym.Env):
             "t": self._t,
             "budget": z,
             "budget_used": self._q - z,
-            "budget_initial": self._q,
             "budget_exceeded": z < 0.0,
             "cost": cost,
             "soft_violation": soft,

@@ -90,7 +90,7 @@ class GliderLandingEnv(LandingEnv):
 
     ## Info
 
-    As for ``PointMassLanding-v0``: ``t``, ``budget``, ``budget_used``, ``budget_initial``,
+    As for ``PointMassLanding-v0``: ``t``, ``budget``, ``budget_used``,
     ``budget_exceeded``, ``cost``, ``soft_violation``, ``hard_violation``, ``landed``, ``is_success``,
     ``action_physical`` (``alpha`` in rad), ``wind`` (``F_wind`` in N), ``reward_landing``, ``reward_failure``,
     ``reward_shaping``.
@@ -99,10 +99,11 @@ class GliderLandingEnv(LandingEnv):
 
     As for ``PointMassLanding-v0`` with glider units: ``wind_value`` / ``gust_std`` in N (gust default: std
     5 kN, ``gust_tau`` 1 s), ``model_params`` overrides :class:`GliderParams`, ``init_state_low/high`` are
-    ``(h, V, gamma)`` with ``gamma`` in radians.
+    ``(h, V, gamma)`` with ``gamma`` in radians. With another ``dt`` than 0.1 s pass
+    ``max_episode_steps=ceil(T / dt)`` to ``gymnasium.make`` too (the env truncates itself at ``T`` in any case).
     """
 
-    metadata = {"render_modes": render_modes(), "render_fps": 10}
+    metadata = {"render_modes": render_modes(), "render_fps": 10}  # one frame per control period, real time
 
     def __init__(
         self,

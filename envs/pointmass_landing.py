@@ -52,7 +52,9 @@ class PointMassLandingEnv(LandingEnv):
     | 2     | remaining budget ``z`` | -1   | 1   | s    |
     | 3     | time left ``T - t``    | 0    | 1   | s    |
 
-    The state bounds are the model's grid domain; the time left makes the task Markov.
+    The state bounds are the model's grid domain; episodes end (leaving ``C1``) well inside them, unless an
+    unclipped wind (``clip_wind=False``) pushes harder than the model's disturbance box. The time left makes the
+    task Markov.
 
     ## Rewards
 
@@ -85,7 +87,7 @@ class PointMassLandingEnv(LandingEnv):
 
     ## Info
 
-    ``t``, ``budget`` (``z``), ``budget_used`` (``Q - z``), ``budget_initial`` (``Q``), ``budget_exceeded``
+    ``t``, ``budget`` (``z``), ``budget_used`` (``Q - z``), ``budget_exceeded``
     (``z < 0``), ``cost`` (violation time in this step, ``int h_eps dt``; safety-gymnasium's convention),
     ``soft_violation`` / ``hard_violation`` (end state outside ``C2`` / ``C1``), ``landed`` and ``is_success``,
     ``action_physical`` (m/s^2), ``wind`` (m/s^2), ``reward_landing``, ``reward_failure``, ``reward_shaping``.
@@ -100,14 +102,16 @@ class PointMassLandingEnv(LandingEnv):
       callable ``(t, state, budget, action) -> wind`` (physical units). Winds are clipped to ``[-10, 10]``
       unless ``clip_wind=False``; the wind is held over each period.
     * ``budget``: ``Q`` or a ``(low, high)`` range drawn at reset; ``eps``: the ``h_eps`` width (m/s).
-    * ``dt``, ``n_substeps``, ``budget_resolution``: time stepping (see above).
+    * ``dt``, ``n_substeps``, ``budget_resolution``: time stepping (see above). The registered step limit is
+      ``T / 0.01 = 100``; with another ``dt`` pass ``max_episode_steps=ceil(T / dt)`` to ``gymnasium.make`` too
+      (the env truncates itself at ``T`` in any case).
     * ``init_state_low`` / ``init_state_high``: the start box ``(v, y)``.
     * ``landing_reward``, ``failure_penalty``, ``progress_weight``, ``effort_weight``: reward terms.
     * ``model_params``: overrides of :class:`PointMassParams` (e.g. ``{"d_max": 5.0}``).
     * ``render_mode``: ``"rgb_array"`` or ``"human"`` (needs a display); matplotlib is imported on first render.
     """
 
-    metadata = {"render_modes": render_modes(), "render_fps": 50}
+    metadata = {"render_modes": render_modes(), "render_fps": 100}  # one frame per control period, real time
 
     def __init__(
         self,

@@ -37,6 +37,16 @@ class Model(Dynamics):
     horizon: float = 1.0
     #: default grid box ``(lo, hi)`` over the physical state
     domain: tuple[tuple[float, ...], tuple[float, ...]] = ((), ())
+    #: bounding box of the hard-constraint set ``C1``; a grid must contain it (``None``: unbounded, unchecked)
+    hard_box: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    #: default state grid and number of budget nodes for ``softreach solve``
+    default_shape: tuple[int, ...] = ()
+    default_budget_points: int = 101
+    #: default ``kappa`` in ``l = max(c2, -kappa z, g)``, in units of ``c2`` per second. The zero sublevel set does
+    #: not depend on it, the numerics do: outside ``C2`` at zero budget ``W`` grows like ``kappa`` times the time
+    #: needed to get back, while the classical ``V`` grows like ``c2``. Matching the two (``kappa`` about the rate
+    #: at which the controls can change ``c2``) keeps the budget slices as well resolved as ``V``.
+    budget_scale: float = 1.0
 
     @abstractmethod
     def target(self, t: float, x: Components) -> Array:

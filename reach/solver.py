@@ -224,7 +224,8 @@ def solve(
             u = stepper.step(t, u, rate, dt)
             t -= dt
             if progress is not None:
-                progress.update(dt)
+                # report exact positions: summed float steps would overshoot the bar's total
+                progress.update(max(0.0, min(times[-1] - t, progress.total or math.inf) - progress.n))
         t = target
         if sink is not None:
             sink(k, t, u)

@@ -404,7 +404,7 @@ def test_bad_reset_options_name_the_problem():
     with pytest.raises(ValueError, match="time"):
         env.reset(options={"time": 1.0})
     genv = GliderLandingEnv()
-    with pytest.raises(ValueError, match="gamma"):
+    with pytest.raises(ValueError, match="gamma=-2.0 .*looks like degrees"):
         genv.reset(options={"state": [20.0, 70.0, -2.0]})  # degrees passed as radians
     with pytest.raises(ValueError, match="V=50"):
         genv.reset(options={"state": [20.0, 50.0, -0.01]})

@@ -24,4 +24,10 @@ def get_model(name: str, **params) -> Model:
     return cls(**params)
 
 
-__all__ = ["MODELS", "PointMass", "PointMassParams", "get_model", "register_model"]
+def model_from_metadata(meta: dict) -> Model:
+    """Rebuild the model recorded in a table's metadata (JSON lists become tuples again)."""
+    params = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["parameters"].items()}
+    return get_model(meta["name"], **params)
+
+
+__all__ = ["model_from_metadata", "MODELS", "PointMass", "PointMassParams", "get_model", "register_model"]

@@ -77,6 +77,11 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         self.disturbance_bounds = ((-p.d_max,), (p.d_max,))
         self.horizon = p.horizon
         self.domain = ((-20.0, -5.0), (20.0, 20.0))
+        self.hard_box = ((p.hard_speed[0], p.altitude[0]), (p.hard_speed[1], p.altitude[1]))
+        self.default_shape = (101, 101)
+        self.default_budget_points = 111
+        # c2 is a speed margin [m/s]; the net authority u_max - d_max [m/s^2] is how fast it can be restored
+        self.budget_scale = p.u_max - p.d_max
 
     def parameters(self) -> dict[str, Any]:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self.params).items()}

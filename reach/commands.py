@@ -1,0 +1,144 @@
+"""The ``solve``, ``plot`` and ``study`` subcommands of the ``softreach`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("solve", help="solve V and W_eps for a model and write a table",
+                       description="Solve the classical value V and the soft-constrained W_eps on the budget-augmented grid.")
+    p.add_argument("model", choices=["pointmass", "glider"])
+    p.add_argument("--grid", type=int, nargs="+", metavar="N", help="state grid sizes (default: the model's)")
+    p.add_argument("--budget-points", type=int, metavar="NZ", help="nodes along the budget axis z (default: the model's)")
+    p.add_argument("--eps", type=float, default=1e-3, help="width of h_eps (default 1e-3)")
+    p.add_argument("--budget-scale", type=float, help="kappa in l = max(c2, -kappa z, g) (default: the model's)")
+    p.add_argument("--accuracy", choices=["low", "medium", "high", "very_high"], default="very_high")
+    p.add_argument("--device", default="cpu", help="cpu or cuda[:k] (torch backend)")
+    p.add_argument("--backend", choices=["torch", "numpy"], default="torch")
+    p.add_argument("--dtype", choices=["float32", "float64"], default="float32")
+    p.add_argument("--compile", choices=["auto", "yes", "no"], default="auto", help="fuse steps with torch.compile")
+    p.add_argument("--snapshots", type=int, default=None, help="output times over [0, T] (also the checkpoint interval)")
+    p.add_argument("--out", default=None, help="table path (default: <model>.srt)")
+    p.add_argument("--json", dest="json_path", default=None, help="write a machine-readable summary here")
+    p.add_argument("--classical", action="store_true", help="solve only the classical V")
+    p.add_argument("--no-resume", action="store_true", help="ignore an unfinished .partial file and start over")
+    p.add_argument("--budgets", type=float, nargs="+", default=None, help="budgets for the summary (default 0 0.06 0.3 0.6 for the point mass)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run_solve)
+
+    p = sub.add_parser("plot", help="draw the sets of a table (Fig. 1 style)")
+    p.add_argument("table")
+    p.add_argument("--budgets", type=float, nargs="+", default=None)
+    p.add_argument("--t", type=float, default=0.0, help="time of the sets")
+    p.add_argument("--from", dest="starts", action="append", default=[], metavar="X1,X2,...[:Q]",
+                   help="simulate the W-derived policy under worst-case disturbance from this state with budget Q (repeatable)")
+    p.add_argument("--out", default="fig.png")
+    p.set_defaults(func=run_plot)
+
+    p = sub.add_parser("study", help="convergence studies of the paper (Fig. 2, Fig. 3)")
+    p.add_argument("which", choices=["grid-convergence", "eps-convergence"])
+    p.add_argument("--sizes", type=int, nargs="+", default=[50, 100, 150, 200, 300])
+    p.add_argument("--budget-points", type=int, default=200)
+    p.add_argument("--eps-list", type=float, nargs="+", default=[10.0, 3.0, 1.0, 0.1, 1e-2, 1e-3])
+    p.add_argument("--grid", type=int, nargs=2, default=[101, 101])
+    p.add_argument("--samples", type=int, default=50_000)
+    p.add_argument("--accuracy", choices=["low", "medium", "high", "very_high"], default="very_high")
+    p.add_argument("--workdir", default="runs/study")
+    p.add_argument("--json", dest="json_path", default=None)
+    p.set_defaults(func=run_study)
+
+
+def _settings(args: argparse.Namespace):
+    from .solver import SolverSettings
+
+    compile_ = {"auto": None, "yes": True, "no": False}[args.compile]
+    return SolverSettings.from_accuracy(args.accuracy, backend=args.backend, device=args.device, dtype=args.dtype, compile=compile_)
+
+
+def run_solve(args: argparse.Namespace) -> int:
+    from .compute import DEFAULT_BUDGETS, SolveConfig, solve_table
+    from .models import get_model
+
+    model = get_model(args.model)
+    cfg = SolveConfig(
+        shape=tuple(args.grid) if args.grid else model.default_shape,
+        budget_points=args.budget_points or model.default_budget_points,
+        eps=args.eps,
+        budget_scale=args.budget_scale,
+        settings=_settings(args),
+        snapshots=args.snapshots or getattr(model, "default_snapshots", 21),
+        classical_only=args.classical,
+    )
+    out = Path(args.out or f"{args.model}.srt")
+    if args.json_path:
+        jp = Path(args.json_path)
+        if not jp.parent.is_dir() if str(jp.parent) else False:
+            raise ValueError(f"--json directory {jp.parent} does not exist")
+    budgets = args.budgets if args.budgets is not None else getattr(model, "default_budgets", DEFAULT_BUDGETS)
+    summary = solve_table(model, cfg, out, resume=not args.no_resume, progress=not args.quiet, budgets=budgets)
+    summary["table"] = str(out)
+    print(_format_summary(summary))
+    if args.json_path:
+        Path(args.json_path).write_text(json.dumps(summary, indent=2))
+    return 0
+
+
+def _format_summary(s: dict[str, Any]) -> str:
+    lines = [f"table: {s.get('table')}", f"classical RA measure at t=0: {s['classical_measure']:.4f}"]
+    if "budgets" in s:
+        for q, m in zip(s["budgets"], s["soft_measure"]):
+            lines.append(f"RA~_Q measure, Q={q:g}: {m:.4f}")
+        d = s["q0_vs_classical"]
+        lines.append(f"Q=0 vs classical: symmetric difference {d['symmetric_difference']:.4f} ({100 * d['relative']:.2f}% of RA)")
+    lines.append("wall time: " + ", ".join(f"{k} {v:.1f}s" for k, v in s.get("wall_time_s", {}).items()))
+    return "\n".join(lines)
+
+
+def _parse_start(text: str, n: int) -> tuple[tuple[float, ...], float]:
+    state, _, q = text.partition(":")
+    try:
+        x = tuple(float(v) for v in state.split(","))
+        budget = float(q) if q else 0.0
+    except ValueError:
+        raise ValueError(f"--from expects X1,...,X{n}[:Q], got {text!r}") from None
+    if len(x) != n:
+        raise ValueError(f"--from expects {n} state values, got {text!r}")
+    return x, budget
+
+
+def run_plot(args: argparse.Namespace) -> int:
+    from .query import load_table
+
+    table = load_table(args.table)
+    model = table.model
+    budgets = args.budgets if args.budgets is not None else list(getattr(model, "default_budgets", (0.0, 0.06, 0.3, 0.6)))
+    starts = [_parse_start(s, model.state_dim) for s in args.starts]
+    if model.state_dim == 2:
+        from .plotting import plot_sets_2d
+
+        out = plot_sets_2d(table, budgets if table.has_budget else [], args.out, t=args.t,
+                           starts=[s for s, _ in starts], start_budgets=[q for _, q in starts])
+    else:
+        from .plotting_nd import plot_sets_nd
+
+        out = plot_sets_nd(table, budgets, args.out, t=args.t, starts=[s for s, _ in starts], start_budgets=[q for _, q in starts])
+    print(f"wrote {out}")
+    return 0
+
+
+def run_study(args: argparse.Namespace) -> int:
+    from . import studies
+
+    if args.which == "grid-convergence":
+        result = studies.grid_convergence(args.sizes, args.budget_points, samples=args.samples, accuracy=args.accuracy, workdir=args.workdir)
+    else:
+        result = studies.eps_convergence(args.eps_list, tuple(args.grid), args.budget_points, accuracy=args.accuracy, workdir=args.workdir)
+    print(studies.format_result(result))
+    if args.json_path:
+        Path(args.json_path).write_text(json.dumps(result, indent=2))
+    return 0

@@ -1,0 +1,166 @@
+"""Solve a model's classical ``V`` and soft ``W_eps`` into one table file, with progress and checkpoints."""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from . import backend as B
+from .grid import Grid, budget_axis
+from .problem import Model, classical_problem, soft_problem
+from .solver import SolverSettings, solve
+from .table import TableWriter
+
+DEFAULT_BUDGETS = (0.0, 0.06, 0.3, 0.6)
+
+
+@dataclass
+class SolveConfig:
+    """What ``softreach solve`` computes.
+
+    :param shape: state grid (one size per state)
+    :param budget_points: nodes along the budget axis (``z = 0`` is one of them)
+    :param eps: width of ``h_eps`` in units of the soft constraint
+    :param budget_scale: ``kappa``; ``None`` takes the model's default
+    :param settings: numerical settings
+    :param snapshots: number of output times, evenly spaced over ``[0, T]`` (also the checkpoint interval)
+    :param classical_only: solve only ``V``
+    :param domain: grid box ``(lo, hi)`` over the state; ``None`` takes the model's
+    """
+
+    shape: tuple[int, ...]
+    budget_points: int
+    eps: float = 1e-3
+    budget_scale: float | None = None
+    settings: SolverSettings = field(default_factory=SolverSettings)
+    snapshots: int = 21
+    classical_only: bool = False
+    domain: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+
+
+def validate(model: Model, cfg: SolveConfig, out: str | os.PathLike | None) -> tuple[Grid, Grid | None]:
+    """Check everything that can be checked before any work starts; return the state and augmented grids."""
+    n = model.state_dim
+    shape = tuple(cfg.shape)
+    if len(shape) != n:
+        raise ValueError(f"{model.name} has {n} states {model.state_names}; --grid needs {n} sizes, got {list(shape)}")
+    for name, s in zip(model.state_names, shape):
+        if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 5:
+            raise ValueError(f"grid size for {name} must be an integer >= 5, got {s!r}")
+    if not (isinstance(cfg.eps, (int, float)) and math.isfinite(cfg.eps) and cfg.eps > 0):
+        raise ValueError(f"eps must be a finite number > 0, got {cfg.eps!r}")
+    if cfg.budget_scale is not None and not (math.isfinite(cfg.budget_scale) and cfg.budget_scale > 0):
+        raise ValueError(f"budget scale must be a finite number > 0, got {cfg.budget_scale!r}")
+    if isinstance(cfg.snapshots, bool) or not isinstance(cfg.snapshots, int) or cfg.snapshots < 2:
+        raise ValueError(f"snapshots must be an integer >= 2, got {cfg.snapshots!r}")
+    lo, hi = cfg.domain or model.domain
+    for name, a, b in zip(model.state_names, lo, hi):
+        if not (math.isfinite(a) and math.isfinite(b) and a < b):
+            raise ValueError(f"domain along {name} must be finite with lo < hi, got [{a!r}, {b!r}]")
+    if model.hard_box is not None:
+        for name, a, b, ca, cb in zip(model.state_names, lo, hi, *model.hard_box):
+            if a > ca or b < cb:
+                raise ValueError(f"the grid domain along {name}, [{a}, {b}], does not contain the hard-constraint set's [{ca}, {cb}]")
+    state_grid = Grid(tuple(lo), tuple(hi), shape, names=tuple(model.state_names))
+    aug = None
+    if not cfg.classical_only:
+        z_lo, z_hi, nz = budget_axis(model.horizon, cfg.budget_points)
+        aug = Grid(tuple(lo) + (z_lo,), tuple(hi) + (z_hi,), shape + (nz,), names=tuple(model.state_names) + ("z",))
+    if out is not None:
+        path = Path(out)
+        parent = path.parent if str(path.parent) else Path(".")
+        if path.is_dir():
+            raise ValueError(f"output path {path} is a directory; give a file name such as {path / (model.name + '.srt')}")
+        if not parent.is_dir():
+            raise ValueError(f"output directory {parent} does not exist")
+        if not os.access(parent, os.W_OK):
+            raise PermissionError(f"output directory {parent} is not writable")
+    return state_grid, aug
+
+
+def _progress(total: float, desc: str, enabled: bool):
+    if not enabled:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="s", unit_scale=False, bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} model-s [{elapsed}<{remaining}]")
+
+
+def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resume: bool = True, progress: bool = True,
+                budgets: Sequence[float] = DEFAULT_BUDGETS) -> dict[str, Any]:
+    """Solve ``V`` (and ``W_eps``) for ``model`` and write the table to ``out``.
+
+    Snapshots stream to ``out + '.partial'``; if that file exists from an interrupted run with the same settings the
+    solve resumes from its last finished snapshot. Returns the summary that is also stored in the table header.
+    """
+    state_grid, aug = validate(model, cfg, out)
+    kappa = cfg.budget_scale if cfg.budget_scale is not None else model.budget_scale
+    times = [float(t) for t in np.linspace(0.0, model.horizon, cfg.snapshots)]
+    fields: dict[str, dict[str, Any]] = {}
+    problems = {}
+    fields["V"] = {"grid": state_grid.to_dict(), "times": times, "problem": classical_problem(model).metadata(),
+                   "settings": cfg.settings.to_dict()}
+    problems["V"] = (classical_problem(model), state_grid)
+    if aug is not None:
+        sp = soft_problem(model, cfg.eps, kappa)
+        fields["W_eps"] = {"grid": aug.to_dict(), "times": times, "problem": sp.metadata(), "settings": cfg.settings.to_dict()}
+        problems["W_eps"] = (sp, aug)
+    header = {"model": model.metadata(), "fields": fields}
+    writer = TableWriter(out, header, resume=resume)
+    walls: dict[str, float] = {}
+    try:
+        for name, (problem, grid) in problems.items():
+            k = writer.resume_point(name)
+            if k == 0:
+                continue
+            start = None if k is None else (k, writer.read_snapshot(name, k))
+            span = times[-1] - times[0] if k is None else times[k] - times[0]
+            bar = _progress(span, f"{name} {'x'.join(map(str, grid.shape))}", progress)
+            t0 = time.perf_counter()
+            solve(problem, grid, times, cfg.settings, start=start, progress=bar,
+                  sink=lambda kk, tt, u, _n=name: writer.write_snapshot(_n, kk, u))
+            walls[name] = time.perf_counter() - t0
+            if bar is not None:
+                bar.close()
+        writer.set(wall_time=walls)
+        path = writer.finalize()
+    finally:
+        writer.close()
+    from .query import load_table
+
+    table = load_table(path, verify_checksum=False)
+    summary = summarize(table, budgets)
+    summary["wall_time_s"] = walls
+    summary["settings"] = cfg.settings.to_dict()
+    summary["eps"] = cfg.eps if aug is not None else None
+    summary["budget_scale"] = kappa if aug is not None else None
+    return summary
+
+
+def summarize(table, budgets: Sequence[float] = DEFAULT_BUDGETS, t: float = 0.0) -> dict[str, Any]:
+    """Set measures at time ``t``: ``RA``, ``RA~_Q`` per budget and the ``Q = 0`` vs classical difference."""
+    out: dict[str, Any] = {"t": t, "model": table.model_metadata["name"], "grid": table.grid("V").to_dict()}
+    ra = table.set_mask(t)
+    vol = table.cell_volume("V")
+    out["classical_measure"] = float(ra.sum()) * vol
+    if table.has_budget:
+        out["budget_grid"] = table.grid("W_eps").to_dict()
+        out["budget_resolution"] = table.budget_resolution
+        out["budgets"] = [float(q) for q in budgets]
+        out["soft_measure"] = [table.set_measure(t, q) for q in budgets]
+        ra0 = table.set_mask(t, 0.0)
+        out["q0_vs_classical"] = {
+            "symmetric_difference": float((ra0 ^ ra).sum()) * vol,
+            "in_soft_not_classical": float((ra0 & ~ra).sum()) * vol,
+            "in_classical_not_soft": float((ra & ~ra0).sum()) * vol,
+            "relative": float((ra0 ^ ra).sum()) / max(1, int(ra.sum())),
+            # the raw slice {W_eps(t, x, 0) <= 0} for reference (ill-posed: see Table.set_mask)
+            "raw_slice_measure": float((table._slice("W_eps", t, 0.0) <= 0).sum()) * vol,
+        }
+    return out

@@ -1,0 +1,90 @@
+"""Figures in the style of the paper: sets (Fig. 1), worst-case trajectories and budget depletion (Fig. 5)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+#: the paper's colours for Q = 0, 0.06, 0.3, 0.6 (then matplotlib's cycle)
+PAPER_COLOURS = [(0.4, 0.8, 1.0), (0.0, 0.0, 0.5), (0.0, 0.5, 0.0), (0.4, 0.0, 0.6)]
+
+
+def _colour(i: int):
+    if i < len(PAPER_COLOURS):
+        return PAPER_COLOURS[i]
+    import matplotlib.pyplot as plt
+
+    return plt.rcParams["axes.prop_cycle"].by_key()["color"][i % 10]
+
+
+def _set_region(ax, model, axes, fn, t, **kw):
+    X, Y = np.meshgrid(axes[0], axes[1], indexing="ij")
+    vals = np.asarray(fn(t, [X, Y]), dtype=float)
+    ax.contourf(X, Y, vals, levels=[vals.min() - 1, 0], **kw)
+    return X, Y, vals
+
+
+def plot_sets_2d(table, budgets: Sequence[float], out: str | Path, t: float = 0.0,
+                 starts: Sequence[tuple[float, ...]] = (), start_budgets: Sequence[float] = (),
+                 dt: float = 1e-3) -> Path:
+    """Fig. 1 style: target, ``C1``, ``C2``, the classical set dashed, ``RA~_Q`` per budget, and optionally the
+    W-derived worst-case trajectories from ``starts`` (with budgets ``start_budgets``) and their budget curves."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    from .simulate import rollout, table_control, table_disturbance
+
+    model = table.model
+    if model.state_dim != 2:
+        raise ValueError(f"plot_sets_2d draws 2-D models; {model.name} has {model.state_dim} states")
+    axes = table.state_axes("V")
+    with_traj = len(starts) > 0
+    fig, axs = plt.subplots(1, 2 if with_traj else 1, figsize=(11 if with_traj else 6.5, 5.5),
+                            gridspec_kw={"width_ratios": [1.6, 1]} if with_traj else None, squeeze=False)
+    ax = axs[0, 0]
+    _set_region(ax, model, axes, model.hard_constraint, t, colors=[(1.0, 0.8, 0.8)])
+    _set_region(ax, model, axes, model.soft_constraint, t, colors=[(0.93, 0.85, 0.7)])
+    X, Y, g = _set_region(ax, model, axes, model.target, t, colors=[(0.6, 0.6, 0.6)])
+    ax.contour(X, Y, g, levels=[0], colors="k", linewidths=1)
+    handles = [Line2D([], [], color=(1.0, 0.8, 0.8), lw=8, label="hard C1"),
+               Line2D([], [], color=(0.93, 0.85, 0.7), lw=8, label="soft C2"),
+               Line2D([], [], color=(0.6, 0.6, 0.6), lw=8, label="target")]
+    if "V" in table.fields:
+        ra = table.set_mask(t).astype(float)
+        ax.contour(X, Y, ra, levels=[0.5], colors="k", linestyles="--", linewidths=1.5)
+        handles.append(Line2D([], [], color="k", ls="--", label="classical RA"))
+    for i, q in enumerate(budgets):
+        m = table.set_mask(t, q).astype(float)
+        ax.contour(X, Y, m, levels=[0.5], colors=[_colour(i)], linewidths=2)
+        handles.append(Line2D([], [], color=_colour(i), lw=2, label=f"RA~ Q={q:g}"))
+    names, units = model.state_names, model.state_units
+    ax.set_xlabel(f"{names[0]} [{units[0]}]")
+    ax.set_ylabel(f"{names[1]} [{units[1]}]")
+    ax.set_title(f"{model.name}: reach-avoid sets at t={t:g}")
+    if with_traj:
+        x0 = np.asarray(starts, dtype=float)
+        qs = np.asarray(list(start_budgets) or [0.0] * len(x0), dtype=float)
+        ro = rollout(model, x0, qs, table_control(table), table_disturbance(table), t0=t, dt=dt, eps=table.eps or 1e-3)
+        for j in range(len(x0)):
+            c = _colour(list(budgets).index(qs[j]) if qs[j] in list(budgets) else j)
+            n = ro.steps[j] + 1
+            ax.plot(ro.x[:n, j, 0], ro.x[:n, j, 1], ls="--", color=c, lw=1.5)
+            ax.plot(*x0[j], "o", color=c, mec="k")
+            axs[0, 1].plot(ro.t[:n], ro.z[:n, j], color=c, label=f"Q={qs[j]:g}: used {ro.budget_used[j]:.3f}"
+                           + (" landed" if ro.landed[j] else " NOT landed") + (" HARD VIOLATION" if ro.hard_violation[j] else ""))
+        axs[0, 1].axhline(0, color="k", lw=0.8)
+        axs[0, 1].set_xlabel("t [s]")
+        axs[0, 1].set_ylabel("remaining budget z [s]")
+        axs[0, 1].set_title("budget depletion (worst-case disturbance)")
+        axs[0, 1].legend(fontsize=8)
+    ax.legend(handles=handles, fontsize=8, loc="upper right")
+    fig.tight_layout()
+    out = Path(out)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out

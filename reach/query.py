@@ -1,0 +1,308 @@
+"""Query a solved table: values, gradients, optimal inputs, ``Q_min`` and the reach-avoid sets."""
+
+from __future__ import annotations
+
+import math
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .grid import Grid
+from .interpolation import interpolate
+from .table import TableError, field_grid, open_field, read_header, verify
+
+#: the paper's conservative proxy for ``Q > 0`` (§VI-A): ``W_eps + 1e-3 <= 0``, in seconds of budget
+PAPER_PROXY_SECONDS = 1e-3
+
+
+def load_table(path: str | Path, verify_checksum: bool = True) -> "Table":
+    """Open a table written by ``softreach solve``.
+
+    :param path: the ``.srt`` file
+    :param verify_checksum: recompute the SHA-256 of the data (streamed; turn off only for trusted files)
+    :raises TableError: corrupted, truncated, incomplete or unsupported file (the message says which)
+    """
+    path = Path(path)
+    header = read_header(path)
+    if verify_checksum:
+        verify(path, header)
+    return Table(path, header)
+
+
+def _as_points(x: Any, n: int, what: str) -> np.ndarray:
+    arr = np.asarray(x, dtype=np.float64)
+    if arr.ndim == 1 and arr.shape[0] == n:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != n:
+        raise ValueError(f"{what} must have shape (N, {n}) or ({n},), got {np.shape(x)}")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        row = int(np.nonzero(bad.any(axis=1))[0][0])
+        raise ValueError(f"{what} must be finite, got {arr[row].tolist()} at row {row}")
+    return arr
+
+
+def _as_column(v: Any, n_points: int, what: str) -> np.ndarray:
+    arr = np.asarray(v, dtype=np.float64).reshape(-1)
+    if arr.size == 1:
+        arr = np.full(n_points, float(arr[0]))
+    if arr.shape != (n_points,):
+        raise ValueError(f"{what} must be a scalar or have shape ({n_points},), got {np.shape(v)}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{what} must be finite, got {arr[~np.isfinite(arr)][:3].tolist()}")
+    return arr
+
+
+class Table:
+    """A solved table: the classical value ``V(t, x)`` and/or the soft value ``W_eps(t, x, z)``.
+
+    All queries are batched: ``x`` has shape ``(N, n)`` (or ``(n,)``), ``t`` and ``z`` are scalars or ``(N,)``.
+    Outside the grid or the table's time span the value is ``+inf`` (unsafe), never NaN. A budget above the grid's
+    top (the horizon) is treated as the top: no trajectory can spend more than the horizon. A negative budget is
+    unsafe.
+    """
+
+    def __init__(self, path: Path, header: dict[str, Any]):
+        self.path = path
+        self.header = header
+        self.fields = sorted(header["fields"])
+        self._arrays: dict[str, np.ndarray] = {}
+
+    # ------------------------------------------------------------------ metadata
+    @property
+    def model_metadata(self) -> dict[str, Any]:
+        return self.header["model"]
+
+    @cached_property
+    def model(self):
+        """The model the table was solved for, rebuilt from its metadata."""
+        from .models import model_from_metadata
+
+        return model_from_metadata(self.model_metadata)
+
+    @property
+    def has_budget(self) -> bool:
+        return "W_eps" in self.header["fields"]
+
+    @property
+    def eps(self) -> float | None:
+        return self.header["fields"]["W_eps"]["problem"]["eps"] if self.has_budget else None
+
+    @property
+    def budget_scale(self) -> float:
+        return self.header["fields"]["W_eps"]["problem"]["budget_scale"] if self.has_budget else 1.0
+
+    def grid(self, field: str | None = None) -> Grid:
+        return field_grid(self.header, field or self._default_field())
+
+    def times(self, field: str | None = None) -> np.ndarray:
+        return np.asarray(self.header["fields"][field or self._default_field()]["times"], dtype=np.float64)
+
+    @property
+    def horizon(self) -> float:
+        return float(self.times()[-1])
+
+    @property
+    def budget_resolution(self) -> float:
+        """Half a budget cell: the smallest budget the grid resolves (see :meth:`set_mask`)."""
+        return 0.5 * self.grid("W_eps").spacing[-1]
+
+    def values(self, field: str) -> np.ndarray:
+        """The memory-mapped block of ``field``: shape ``(n_times, *grid.shape)``."""
+        if field not in self.header["fields"]:
+            raise KeyError(f"table {self.path} has no field {field!r}; it has {self.fields}")
+        if field not in self._arrays:
+            self._arrays[field] = open_field(self.path, self.header, field)
+        return self._arrays[field]
+
+    def summary(self) -> dict[str, Any]:
+        return self.header.get("summary", {})
+
+    def check_compatible(self, model: Any) -> None:
+        """Raise :class:`TableError` unless the table was solved for ``model`` (name and parameters)."""
+        from .table import _first_mismatch
+
+        mine, theirs = self.model_metadata, model.metadata()
+        if mine["name"] != theirs["name"]:
+            raise TableError(f"table {self.path} was solved for model {mine['name']!r}, not {theirs['name']!r}")
+        mismatch = _first_mismatch(mine["parameters"], theirs["parameters"])
+        if mismatch:
+            raise TableError(f"table {self.path} was solved for other {mine['name']} parameters: {mismatch}")
+
+    def _default_field(self) -> str:
+        return "W_eps" if self.has_budget else "V"
+
+    # ------------------------------------------------------------------ values
+    def _field_for(self, z: Any) -> str:
+        if z is None:
+            if "V" not in self.header["fields"]:
+                raise ValueError(f"table {self.path} holds only W_eps: pass the budget z")
+            return "V"
+        if not self.has_budget:
+            raise ValueError(f"table {self.path} holds only the classical V: call without z")
+        return "W_eps"
+
+    def _queries(self, t: Any, x: Any, z: Any) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
+        field = self._field_for(z)
+        n = len(self.model_metadata["state_names"])
+        pts = _as_points(x, n, "x")
+        tt = _as_column(t, len(pts), "t")
+        unsafe = np.zeros(len(pts), bool)
+        if field == "W_eps":
+            zz = _as_column(z, len(pts), "z")
+            grid = self.grid(field)
+            unsafe = zz < grid.lo[-1]
+            zz = np.minimum(zz, grid.hi[-1])
+            pts = np.concatenate([pts, zz[:, None]], axis=1)
+        return field, tt, pts, unsafe
+
+    def value(self, t: Any, x: Any, z: Any = None) -> np.ndarray:
+        """``V(t, x)`` (``z=None``) or ``W_eps(t, x, z)`` by multilinear interpolation; ``+inf`` outside."""
+        field, tt, pts, unsafe = self._queries(t, x, z)
+        val, inside = interpolate(self.values(field), self.times(field), self.grid(field), tt, pts)
+        return np.where(inside & ~unsafe, val, np.inf)
+
+    def inside(self, t: Any, x: Any, z: Any = None) -> np.ndarray:
+        """Whether each query lies inside the table's grid and time span."""
+        return np.isfinite(self.value(t, x, z))
+
+    def gradient(self, t: Any, x: Any, z: Any = None) -> np.ndarray:
+        """Spatial gradient (including ``dW/dz`` for ``W_eps``) by central differences of the interpolant.
+
+        Each difference spans one grid spacing on either side (shifted inwards at the grid's edges). Points
+        outside the grid use the nearest point of the grid box; check :meth:`inside` where that matters.
+        """
+        field, tt, pts, _ = self._queries(t, x, z)
+        grid = self.grid(field)
+        times = self.times(field)
+        tt = np.clip(tt, times[0], times[-1])
+        lo, hi, h = np.array(grid.lo), np.array(grid.hi), np.array(grid.spacing)
+        per = np.array(grid.periodic)
+        pts = np.where(per, pts, np.clip(pts, lo, hi))
+        out = np.empty_like(pts)
+        vals = self.values(field)
+        for a in range(grid.ndim):
+            plus, minus = pts.copy(), pts.copy()
+            plus[:, a] += h[a]
+            minus[:, a] -= h[a]
+            if not per[a]:
+                shift_up = np.maximum(0.0, lo[a] - minus[:, a])
+                shift_dn = np.maximum(0.0, plus[:, a] - hi[a])
+                plus[:, a] += shift_up - shift_dn
+                minus[:, a] += shift_up - shift_dn
+            vp, _ = interpolate(vals, times, grid, tt, plus)
+            vm, _ = interpolate(vals, times, grid, tt, minus)
+            out[:, a] = (vp - vm) / (plus[:, a] - minus[:, a])
+        return out
+
+    def _inputs(self, t: Any, x: Any, z: Any, which: str) -> np.ndarray:
+        field, tt, pts, _ = self._queries(t, x, z)
+        p = self.gradient(t, x, z)
+        n = len(self.model_metadata["state_names"])
+        xs = [pts[:, i] for i in range(n)]
+        ps = [p[:, i] for i in range(n)]
+        fn = self.model.optimal_control if which == "control" else self.model.worst_disturbance
+        # z' does not depend on either player, so dW/dz does not enter the optimal inputs
+        out = fn(float(tt[0]) if np.all(tt == tt[0]) else tt, xs, ps)
+        return np.stack([np.broadcast_to(np.asarray(o, dtype=np.float64), (len(pts),)) for o in out], axis=1)
+
+    def optimal_control(self, t: Any, x: Any, z: Any = None) -> np.ndarray:
+        """``a* = argmin_a max_b grad W . f`` at each query, shape ``(N, m)``, physical units."""
+        return self._inputs(t, x, z, "control")
+
+    def worst_disturbance(self, t: Any, x: Any, z: Any = None) -> np.ndarray:
+        """``b* = argmax_b`` against the optimal control, shape ``(N, k)``, physical units."""
+        return self._inputs(t, x, z, "disturbance")
+
+    # ------------------------------------------------------------------ budgets and sets
+    def q_min(self, t: Any, x: Any) -> np.ndarray:
+        """``Q_min(t, x)``: the smallest budget with ``W_eps <= 0`` (eq. Q_min); ``inf`` if none up to the horizon.
+
+        Found along the budget nodes and refined linearly between them; budgets below
+        :attr:`budget_resolution` are reported as 0, consistently with :meth:`set_mask`.
+        """
+        grid = self.grid("W_eps")
+        n = len(self.model_metadata["state_names"])
+        pts = _as_points(x, n, "x")
+        tt = _as_column(t, len(pts), "t")
+        z_nodes = grid.axis(grid.ndim - 1)
+        z_nodes = np.concatenate([[self.budget_resolution], z_nodes[z_nodes > self.budget_resolution]])
+        vals = np.stack([self.value(tt, pts, np.full(len(pts), z)) for z in z_nodes], axis=1)
+        out = np.full(len(pts), np.inf)
+        ok = vals <= 0
+        first = np.argmax(ok, axis=1)
+        has = ok.any(axis=1)
+        for i in np.nonzero(has)[0]:
+            j = first[i]
+            if j == 0:
+                out[i] = 0.0
+            else:
+                w0, w1 = vals[i, j - 1], vals[i, j]
+                frac = w0 / (w0 - w1) if np.isfinite(w0) and w0 != w1 else 1.0
+                out[i] = z_nodes[j - 1] + frac * (z_nodes[j] - z_nodes[j - 1])
+        return out
+
+    def _slice(self, field: str, t: float, z: float | None = None) -> np.ndarray:
+        """The field interpolated at time ``t`` (and budget ``z``) on its state grid."""
+        times = self.times(field)
+        if not (math.isfinite(t) and times[0] - 1e-9 <= t <= times[-1] + 1e-9):
+            raise ValueError(f"t={t!r} is outside the table's time span [{times[0]}, {times[-1]}]")
+        vals = self.values(field)
+        k = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, max(len(times) - 2, 0)))
+        wt = 0.0 if len(times) == 1 else float(np.clip((t - times[k]) / (times[k + 1] - times[k]), 0, 1))
+        snaps = [(k, 1 - wt)] + ([(k + 1, wt)] if wt > 0 else [])
+        if z is None:
+            return sum(w * np.asarray(vals[j], dtype=np.float64) for j, w in snaps)
+        grid = self.grid(field)
+        dz = grid.spacing[-1]
+        s = (min(z, grid.hi[-1]) - grid.lo[-1]) / dz
+        i = int(np.clip(math.floor(s), 0, grid.shape[-1] - 2))
+        wz = float(np.clip(s - i, 0, 1))
+        out = 0.0
+        for j, w in snaps:
+            out = out + w * ((1 - wz) * np.asarray(vals[j, ..., i], dtype=np.float64) + wz * np.asarray(vals[j, ..., i + 1], dtype=np.float64))
+        return out
+
+    def set_mask(self, t: float = 0.0, budget: float | None = None, margin: float | None = None) -> np.ndarray:
+        """The reach-avoid set at time ``t`` as a boolean mask over the state grid.
+
+        * ``budget=None``: the classical ``RA = {V <= 0}``.
+        * ``budget=Q``: ``RA~_Q = {W_eps(t, x, max(Q, r)) + margin <= 0}`` with ``r`` the
+          :attr:`budget_resolution`. The exact ``W_eps(t, x, 0)`` is ``>= 0`` everywhere (``l >= -kappa z``), so
+          ``RA~_0`` is the flat face ``{W_eps = 0}`` of the set in ``(x, z)``: a slice along it is ill-posed on a
+          grid. It is taken as the limit from above (``RA~_0 = ∩_{Q>0} RA~_Q``, Prop. 4) at the smallest budget
+          the grid resolves, half a budget cell.
+        * ``margin`` defaults to the paper's proxy: 0 for ``Q = 0``, ``kappa * 1e-3`` (one millisecond of budget)
+          for ``Q > 0``.
+        """
+        if budget is None:
+            return self._slice("V", float(t)) <= 0
+        q = float(budget)
+        if not (math.isfinite(q) and q >= 0):
+            raise ValueError(f"budget must be a finite number >= 0, got {budget!r}")
+        if margin is None:
+            margin = 0.0 if q == 0 else self.budget_scale * PAPER_PROXY_SECONDS
+        return self._slice("W_eps", float(t), max(q, self.budget_resolution)) + margin <= 0
+
+    def cell_volume(self, field: str | None = None) -> float:
+        g = self.grid(field)
+        n = len(self.model_metadata["state_names"])
+        return float(np.prod(g.spacing[:n]))
+
+    def set_measure(self, t: float = 0.0, budget: float | None = None, margin: float | None = None) -> float:
+        """Measure of :meth:`set_mask` in state units (node count times cell volume)."""
+        field = "V" if budget is None else "W_eps"
+        return float(self.set_mask(t, budget, margin).sum()) * self.cell_volume(field)
+
+    def budget_band_mask(self, t: float, q1: float, q2: float) -> np.ndarray:
+        """``RA~_(q1, q2] = RA~_q2 minus RA~_q1`` (Thm. 4): the states whose ``Q_min`` lies in ``(q1, q2]``."""
+        if not q1 < q2:
+            raise ValueError(f"need q1 < q2, got q1={q1!r}, q2={q2!r}")
+        return self.set_mask(t, q2) & ~self.set_mask(t, q1)
+
+    def state_axes(self, field: str | None = None) -> list[np.ndarray]:
+        g = self.grid(field)
+        n = len(self.model_metadata["state_names"])
+        return [g.axis(i) for i in range(n)]

@@ -1,0 +1,27 @@
+"""Shared fixtures: small solved tables (seconds to compute) reused across test modules."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+os.environ.setdefault("OMP_NUM_THREADS", "2")
+
+
+@pytest.fixture(scope="session")
+def pointmass_table(tmp_path_factory):
+    """A coarse point-mass table with V and W_eps (41 x 41 x 45, ENO2/RK2, 11 snapshots)."""
+    from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
+
+    path = tmp_path_factory.mktemp("tables") / "pointmass_small.srt"
+    model = get_model("pointmass")
+    cfg = SolveConfig(shape=(41, 41), budget_points=45, settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False),
+                      snapshots=11)
+    solve_table(model, cfg, path, progress=False)
+    return load_table(path)
+
+
+@pytest.fixture(scope="session")
+def pointmass_table_path(pointmass_table):
+    return pointmass_table.path
