@@ -15,7 +15,8 @@ Protocol (the same for every environment, in one process, one after the other):
   random batched actions; reported as environment steps per second (16 per ``step`` call). ``--async`` adds
   ``AsyncVectorEnv`` (one process per env; on a 2-core machine that mostly measures process switching).
 
-Each figure is the best of ``--repeats`` runs (the machine may be shared). The headline ratio is the point-mass
+Each figure is the best of ``--repeats`` runs, taken round robin over the environments (the machine may be
+shared; interleaving keeps a change of load from favouring one of them). The headline ratio is the point-mass
 env's single-env rate over Pendulum-v1's, measured in this run.
 """
 
@@ -36,42 +37,36 @@ import softreach.envs  # noqa: F401  (registers the ids)
 ENVS = ["softreach/PointMassLanding-v0", "softreach/GliderLanding-v0", "Pendulum-v1"]
 
 
-def bench_single(env_id: str, steps: int, repeats: int, unwrapped: bool) -> float:
-    """Best steps per second of one env over ``repeats`` runs of ``steps`` random-action steps."""
-    best = 0.0
-    for rep in range(repeats):
-        env = gym.make(env_id)
-        if unwrapped:
-            env = env.unwrapped
-        env.action_space.seed(rep)
-        actions = [env.action_space.sample() for _ in range(steps)]
-        env.reset(seed=rep)
-        t0 = time.perf_counter()
-        for a in actions:
-            _, _, term, trunc, _ = env.step(a)
-            if term or trunc:
-                env.reset()
-        elapsed = time.perf_counter() - t0
-        env.close()
-        best = max(best, steps / elapsed)
-    return best
+def _time_single(env_id: str, steps: int, seed: int, unwrapped: bool) -> float:
+    """Steps per second of one run of ``steps`` random-action steps of one env."""
+    env = gym.make(env_id)
+    if unwrapped:
+        env = env.unwrapped
+    env.action_space.seed(seed)
+    actions = [env.action_space.sample() for _ in range(steps)]
+    env.reset(seed=seed)
+    t0 = time.perf_counter()
+    for a in actions:
+        _, _, term, trunc, _ = env.step(a)
+        if term or trunc:
+            env.reset()
+    elapsed = time.perf_counter() - t0
+    env.close()
+    return steps / elapsed
 
 
-def bench_vector(env_id: str, vec_steps: int, repeats: int, mode: str, num_envs: int = 16) -> float:
-    """Best environment steps per second of ``num_envs`` vectorised envs."""
-    best = 0.0
-    for rep in range(repeats):
-        venv = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode=mode)
-        venv.action_space.seed(rep)
-        actions = [venv.action_space.sample() for _ in range(vec_steps)]
-        venv.reset(seed=rep)
-        t0 = time.perf_counter()
-        for a in actions:
-            venv.step(a)
-        elapsed = time.perf_counter() - t0
-        venv.close()
-        best = max(best, num_envs * vec_steps / elapsed)
-    return best
+def _time_vector(env_id: str, vec_steps: int, seed: int, mode: str, num_envs: int = 16) -> float:
+    """Environment steps per second of one run of ``num_envs`` vectorised envs."""
+    venv = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode=mode)
+    venv.action_space.seed(seed)
+    actions = [venv.action_space.sample() for _ in range(vec_steps)]
+    venv.reset(seed=seed)
+    t0 = time.perf_counter()
+    for a in actions:
+        venv.step(a)
+    elapsed = time.perf_counter() - t0
+    venv.close()
+    return num_envs * vec_steps / elapsed
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -88,23 +83,22 @@ def main(argv: list[str] | None = None) -> dict:
                                  "gymnasium": gym.__version__,
                                  "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS")},
                      "envs": {}}
-    header = f"{'env':34s} {'single':>10s} {'unwrapped':>10s} {'16 sync':>10s}"
+    kinds = {"single": lambda e, r: _time_single(e, args.steps, r, unwrapped=False),
+             "unwrapped": lambda e, r: _time_single(e, args.steps, r, unwrapped=True),
+             "vector16_sync": lambda e, r: _time_vector(e, args.vec_steps, r, "sync")}
     if args.use_async:
-        header += f" {'16 async':>10s}"
-    print(header + "   (steps/s)")
+        kinds["vector16_async"] = lambda e, r: _time_vector(e, args.vec_steps, r, "async")
+    best = {e: {k: 0.0 for k in kinds} for e in ENVS}
+    # round robin (every env once per repeat, in turn) so that a change of machine load hits all of them alike
+    for rep in range(args.repeats):
+        for kind, fn in kinds.items():
+            for env_id in ENVS:
+                best[env_id][kind] = max(best[env_id][kind], fn(env_id, rep))
+    print(f"{'env':34s}" + "".join(f" {k:>15s}" for k in kinds) + "   (env steps/s, best of "
+          f"{args.repeats})")
     for env_id in ENVS:
-        row = {
-            "single": bench_single(env_id, args.steps, args.repeats, unwrapped=False),
-            "unwrapped": bench_single(env_id, args.steps, args.repeats, unwrapped=True),
-            "vector16_sync": bench_vector(env_id, args.vec_steps, args.repeats, "sync"),
-        }
-        if args.use_async:
-            row["vector16_async"] = bench_vector(env_id, args.vec_steps, args.repeats, "async")
-        results["envs"][env_id] = row
-        line = f"{env_id:34s} {row['single']:10.0f} {row['unwrapped']:10.0f} {row['vector16_sync']:10.0f}"
-        if args.use_async:
-            line += f" {row['vector16_async']:10.0f}"
-        print(line, flush=True)
+        results["envs"][env_id] = dict(best[env_id])
+        print(f"{env_id:34s}" + "".join(f" {best[env_id][k]:15.0f}" for k in kinds), flush=True)
     pend = results["envs"]["Pendulum-v1"]
     for env_id in ENVS[:2]:
         mine = results["envs"][env_id]

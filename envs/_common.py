@@ -262,12 +262,14 @@ def _as_float_list(name: str, value: Any, k: int, unit: str = "") -> list[float]
     return arr.tolist()
 
 
-def load_wind_table(wind_table: Any, model: Model) -> Any:
+def load_wind_table(wind_table: Any, model: Model, eps: float | None = None) -> Any:
     """Resolve ``wind_table=`` to an object with ``worst_disturbance(t, x, z)``, checking it fits ``model``.
 
     :param wind_table: a path to a saved ``W_eps`` table (loaded with :func:`softreach.reach.load_table`) or
         an object with a ``worst_disturbance`` method (a :class:`softreach.reach.Table` or a stand-in)
     :param model: the environment's model; a table with ``model_metadata`` must describe the same model
+    :param eps: the environment's ``eps``; a table solved with another ``eps`` gets a warning (its ``b*`` is
+        still a valid wind, but the budget it plays against is measured differently)
     :raises ValueError: when the table was computed for another model or other parameters
     """
     if isinstance(wind_table, (str, os.PathLike)):
@@ -296,6 +298,9 @@ def load_wind_table(wind_table: Any, model: Model) -> Any:
             if diff:
                 detail = ", ".join(f"{k}: table {params.get(k)!r} vs env {mine.get(k)!r}" for k in diff)
                 raise ValueError(f"wind_table was computed with other {model.name} parameters ({detail})")
+    table_eps = getattr(table, "eps", None)
+    if eps is not None and isinstance(table_eps, (int, float)) and not math.isclose(table_eps, eps, rel_tol=1e-9):
+        gym.logger.warn(f"wind_table was solved with eps={table_eps!r}, the environment uses eps={eps!r}")
     return table
 
 
@@ -333,7 +338,7 @@ def _require_display() -> None:
 class LandingEnv(gym.Env):
     """Base class of the landing environments (see :class:`PointMassLandingEnv` for the documentation of the
     common behaviour). Subclasses pass their model and defaults to :meth:`__init__` and implement
-    :meth:`_render_view`.
+    :meth:`_render_layout` (the static parts of a frame: ranges, limits, labels).
     """
 
     metadata: dict[str, Any] = {"render_modes": render_modes(), "render_fps": 25}
@@ -483,6 +488,7 @@ class LandingEnv(gym.Env):
         self._wind_fn = None
         self._gust = None
         self.wind_table = None
+        self._wind_table_path: str | None = None
         if isinstance(wind, str):
             if wind not in WIND_MODES:
                 raise ValueError(f"wind must be one of {WIND_MODES} or a callable (t, state, budget, action) -> "
@@ -523,7 +529,9 @@ class LandingEnv(gym.Env):
             if wind_table is None:
                 raise ValueError("wind='adversarial' needs wind_table= (a path to a W_eps table of this model, or a "
                                  "loaded Table): the worst-case wind b* is read from the table's gradient")
-            self.wind_table = load_wind_table(wind_table, self.model)
+            self.wind_table = load_wind_table(wind_table, self.model, self.eps)
+            if isinstance(wind_table, (str, os.PathLike)):
+                self._wind_table_path = os.fspath(wind_table)
 
     # ------------------------------------------------------------------------------------------ mapping
     def physical_action(self, action: Any) -> np.ndarray:
@@ -767,7 +775,14 @@ class LandingEnv(gym.Env):
     def __getstate__(self):
         state = self.__dict__.copy()
         state["_renderer"] = None  # figures do not pickle; a copy draws its own
+        if state.get("_wind_table_path") is not None:
+            state["wind_table"] = None  # a table loaded from a file travels as its path, not as its data
         return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        if self._wind_table_path is not None and self.wind_table is None:
+            self.wind_table = load_wind_table(self._wind_table_path, self.model)
 
 
 def _check_positive(name: str, value: Any) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ from scipy.integrate import solve_ivp
 import gymnasium as gym
 
 import softreach.envs  # noqa: F401  (registers the ids)
+import softreach.reach as reach
 from softreach.envs import GliderLandingEnv, PointMassLandingEnv
 from softreach.envs._common import integrate_period
 from softreach.reach.models import get_model
@@ -515,3 +517,58 @@ def test_adversarial_wind_queries_the_table_contract():
         PointMassLandingEnv(wind="adversarial", wind_table=other)
     with pytest.raises(ValueError, match="glider"):
         PointMassLandingEnv(wind="adversarial", wind_table=FakeTable(get_model("glider")))
+
+
+# --------------------------------------------------------------------------------------------- a real W_eps table
+
+needs_tables = pytest.mark.skipif(not (hasattr(reach, "load_table") and hasattr(reach, "solve_table")),
+                                  reason="softreach.reach.load_table / solve_table not available")
+
+
+@pytest.fixture(scope="module")
+def small_pointmass_table(tmp_path_factory):
+    """A coarse point-mass table (21 x 21 x 8, 3 snapshots; well under a second)."""
+    path = tmp_path_factory.mktemp("tables") / "pointmass_small.srt"
+    cfg = reach.SolveConfig(shape=(21, 21), budget_points=8, snapshots=3,
+                            settings=reach.SolverSettings(scheme="eno2", time_order=2, backend="numpy"))
+    reach.solve_table(reach.get_model("pointmass"), cfg, path, progress=False, resume=False)
+    return path
+
+
+@needs_tables
+def test_adversarial_wind_from_a_real_table(small_pointmass_table):
+    table = reach.load_table(small_pointmass_table)
+    for source in (str(small_pointmass_table), small_pointmass_table, table):
+        env = PointMassLandingEnv(wind="adversarial", wind_table=source)
+        env.reset(options={"state": [-4.0, 12.0], "budget": 0.3})
+        nonzero = 0
+        for k in range(30):
+            t, x, z = env.time, env.state, env.budget
+            *_, term, trunc, info = env.step(np.float32([0.1 * math.sin(k)]))
+            expected = table.worst_disturbance(t, x[None, :], np.array([z]))[0]
+            np.testing.assert_array_equal(info["wind"], expected)
+            nonzero += int(abs(info["wind"][0]) == 10.0)
+            if term or trunc:
+                break
+        assert nonzero > 0  # the table's b* is bang-bang at the disturbance bound
+    # a table loaded from a path travels by path when pickled, and answers the same
+    env = PointMassLandingEnv(wind="adversarial", wind_table=str(small_pointmass_table))
+    env.reset(options={"state": [-4.0, 12.0], "budget": 0.3})
+    env.step(np.float32([0.0]))
+    clone = pickle.loads(pickle.dumps(env))
+    assert clone.wind_table is not None and clone.wind_table is not env.wind_table
+    np.testing.assert_array_equal(env.step(np.float32([0.2]))[0], clone.step(np.float32([0.2]))[0])
+
+
+@needs_tables
+def test_real_table_for_other_parameters_is_refused(small_pointmass_table):
+    with pytest.raises(ValueError, match="d_max"):
+        PointMassLandingEnv(wind="adversarial", wind_table=small_pointmass_table, model_params={"d_max": 5.0})
+    with pytest.raises(ValueError, match="pointmass"):
+        GliderLandingEnv(wind="adversarial", wind_table=small_pointmass_table)
+
+
+@needs_tables
+def test_real_table_with_other_eps_warns(small_pointmass_table):
+    with pytest.warns(UserWarning, match="eps"):
+        PointMassLandingEnv(wind="adversarial", wind_table=small_pointmass_table, eps=1e-2)

@@ -108,9 +108,10 @@ class GliderParams:
 
     :param hard_speed: stall / maximum descent speed, ``C1`` [m/s]
     :param hard_gamma: flight-path corridor, ``C1`` [rad], default ``[-3 deg, 0 deg]``
-    :param min_altitude: ground level, ``C1`` requires ``h >= min_altitude`` [m]
+    :param min_altitude: ground level [m]; the touchdown band is centred on it and ``C1`` requires
+        ``h >= min_altitude - touchdown_altitude`` (see :class:`Glider`, "Touchdown")
     :param soft_speed: recommended speed range (5 m/s margins inside ``hard_speed``), ``C2`` [m/s]
-    :param touchdown_altitude: half-width ``hb`` of the touchdown band ``|h| <= hb`` [m]
+    :param touchdown_altitude: half-width ``hb`` of the touchdown band ``|h - min_altitude| <= hb`` [m]
     :param max_sink_rate: largest touchdown sink rate ``-V sin(gamma)`` [m/s] (3 ft/s)
     :param horizon: ``T`` [s]
 
@@ -216,6 +217,13 @@ class Glider(Model):
         self.disturbance_bounds = ((-float(p.wind_max),), (float(p.wind_max),))
         self.horizon = p.horizon
         self.domain = ((-5.0, 58.0, math.radians(-4.0)), (45.0, 86.0, math.radians(1.0)))
+        # C1 is unbounded above in h; the start altitudes [0, 40] m stand in for its top so that a grid must hold them
+        self.hard_box = ((p.min_altitude, p.hard_speed[0], p.hard_gamma[0]), (40.0, p.hard_speed[1], p.hard_gamma[1]))
+        self.default_shape = (41, 29, 21)
+        self.default_budget_points = 21
+        self.budget_scale = 1.0
+        self.default_budgets = (0.0, 5.0, 10.0)
+        self.default_snapshots = 21
         # C_L over the control box; cl_alpha > 0 maps the alpha interval onto it in order
         self._cl_bounds = (p.cl0 + p.cl_alpha * p.alpha_bounds[0], p.cl0 + p.cl_alpha * p.alpha_bounds[1])
 
@@ -438,18 +446,21 @@ class Glider(Model):
         :param x: ``(h, V, gamma)`` components [m, m/s, rad]
         """
         p = self.params
-        band = sets.box([x[0]], (-p.touchdown_altitude,), (p.touchdown_altitude,), (p.altitude_scale,))
+        band = sets.box([x[0]], (p.min_altitude - p.touchdown_altitude,), (p.min_altitude + p.touchdown_altitude,),
+                        (p.altitude_scale,))
         sink = (self.sink_rate(x) - p.max_sink_rate) / p.sink_rate_scale
         return B.maximum(band, sink) if hasattr(band, "shape") else B.maximum(sink, band)
 
     def hard_constraint(self, t: float, x: Components) -> Array:
-        """``c1``: scaled box distance to ``{h >= min_altitude, V in hard_speed, gamma in hard_gamma}``.
+        """``c1``: scaled box distance to ``{h >= min_altitude - hb, V in hard_speed, gamma in hard_gamma}``.
+
+        The ground bound sits at the bottom of the touchdown band (class docstring, "Touchdown").
 
         :param t: time [s] (unused)
         :param x: ``(h, V, gamma)`` components [m, m/s, rad]
         """
         p = self.params
-        lo = (p.min_altitude, p.hard_speed[0], p.hard_gamma[0])
+        lo = (p.min_altitude - p.touchdown_altitude, p.hard_speed[0], p.hard_gamma[0])
         hi = (sets.INF, p.hard_speed[1], p.hard_gamma[1])
         return sets.box(x, lo, hi, self._scales())
 

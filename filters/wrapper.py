@@ -1,0 +1,146 @@
+"""``SafetyFilter``: the least-restrictive filter as a ``gymnasium.Wrapper`` around a landing environment."""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any
+
+import numpy as np
+
+import gymnasium as gym
+
+from softreach.reach import Table, TableError, load_table
+
+from .core import REASONS, ValueFilter
+
+#: what the wrapper reads from ``env.unwrapped`` (the softreach landing environments provide all of it)
+REQUIRED_ATTRIBUTES = ("model", "dt", "eps", "state", "time", "budget")
+
+
+class SafetyFilter(gym.Wrapper):
+    """Filter any policy's actions with a ``W_eps`` table so that the paper's guarantee holds.
+
+    From any start inside ``RA~_Q`` with margin (``W_eps(0, x0, Q) <= -margin``), whatever the wind within its
+    bounds, the vehicle lands, never leaves the hard constraint and spends at most ``Q`` of budget, while the
+    policy acts unchanged wherever one control period of any action cannot leave the safe set. See
+    :mod:`softreach.filters.core` for the rules and the computed margin.
+
+    A ``gymnasium.Wrapper`` rather than an ``ActionWrapper``, because the filter needs the state, time and
+    remaining budget, which it reads from ``env.unwrapped`` (``state``, ``time``, ``budget``); observations and
+    rewards pass through unchanged. Works under ``gymnasium.vector.SyncVectorEnv`` / ``AsyncVectorEnv`` and
+    Stable-Baselines3's ``make_vec_env(..., wrapper_class=SafetyFilter, wrapper_kwargs={"table": path})``.
+
+    ``info`` of every step adds:
+
+    * ``filter_active`` — the filter replaced (or, with ``rule="smooth"``, moved) the policy's action;
+    * ``policy_action`` / ``applied_action`` — the normalised action the policy gave / the one applied;
+    * ``value`` — ``W~(t, x, z)`` at the state the decision was taken in (``+inf`` outside the table);
+    * ``margin``, ``optimal_action`` (normalised ``a*``), ``filter_reason`` (``"pass"``, ``"blend"``,
+      ``"optimal"``, ``"outside_domain"``, ``"after_horizon"``, ``"nonfinite_value"``, ``"fallback"``);
+    * on the last step of an episode, ``filter_episode``: ``steps``, ``interventions``, ``intervention_rate``,
+      ``min_value`` and ``max_value`` (over the decisions; ``max_value <= 0`` means the episode never left the
+      table's safe set), ``budget_used`` and ``initial_budget``.
+
+    ``reset`` adds ``value`` and ``margin`` of the start, so a caller can check it lies in the filter's safe set.
+
+    :param env: a softreach landing environment (possibly wrapped, e.g. by ``TimeLimit`` or ``Monitor``)
+    :param table: a :class:`~softreach.reach.Table` with ``W_eps``, or the path of one
+    :param margin: ``None`` for the computed margin, or a constant ``>= 0`` (units of the soft constraint)
+    :param rule: ``"switch"`` (least restrictive) or ``"smooth"``
+    :param filter_kwargs: passed to :class:`~softreach.filters.ValueFilter` (``fallback_action``,
+        ``smooth_iterations``, ``smooth_tolerance``, ``interpolation_error``, ``max_margin_bytes``)
+    :raises TableError: the table was solved for another model, other parameters or another ``eps``
+    :raises TypeError: the environment does not expose what the filter needs
+    """
+
+    def __init__(self, env: gym.Env, table: Table | str | os.PathLike, margin: float | None = None,
+                 rule: str = "switch", **filter_kwargs: Any):
+        super().__init__(env)
+        base = env.unwrapped
+        missing = [name for name in REQUIRED_ATTRIBUTES if not hasattr(base, name)]
+        if missing:
+            raise TypeError(f"SafetyFilter needs an environment exposing {list(REQUIRED_ATTRIBUTES)} on "
+                            f"env.unwrapped (the softreach landing environments do); {type(base).__name__} lacks "
+                            f"{missing}")
+        if not isinstance(table, Table):
+            table = load_table(table)
+        table.check_compatible(base.model)
+        if table.has_budget and table.eps is not None and not math.isclose(float(table.eps), float(base.eps),
+                                                                              rel_tol=1e-9, abs_tol=0.0):
+            raise TableError(f"table {table.path} was solved with eps={table.eps}, but the environment drains the "
+                             f"budget with eps={base.eps}; make the environment with eps={table.eps}")
+        self.table = table
+        self.value_filter = ValueFilter(table, float(base.dt), margin=margin, rule=rule, model=base.model,
+                                        **filter_kwargs)
+        self.rule = rule
+        self._reset_stats()
+
+    # ------------------------------------------------------------------------------------------ episode stats
+    def _reset_stats(self) -> None:
+        self._steps = 0
+        self._interventions = 0
+        self._min_value = math.inf
+        self._max_value = -math.inf
+        self._initial_budget = math.nan
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Reset the environment and the episode statistics; ``info`` adds ``value`` and ``margin`` of the start."""
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._reset_stats()
+        base = self.env.unwrapped
+        self._initial_budget = float(base.budget)
+        vf = self.value_filter
+        info = dict(info)
+        info["value"] = float(vf.value(base.time, base.state, base.budget))
+        info["margin"] = float(vf.margin(base.time, base.state, base.budget))
+        return obs, info
+
+    def step(self, action: Any):
+        """Filter ``action`` (normalised, as the policy gives it) and step the environment.
+
+        :raises ValueError: a non-finite or wrongly shaped action (as the environment would)
+        """
+        base = self.env.unwrapped
+        x = base.state
+        if x is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        applied, f = self.value_filter.filter(base.time, x, base.budget, np.asarray(action), normalized=True)
+        active = bool(f["active"])
+        dtype = self.action_space.dtype if self.action_space.dtype is not None else np.float32
+        # the policy's own object passes untouched where the filter does not act (no float round trip)
+        to_env = np.clip(applied, -1.0, 1.0).astype(dtype) if active else action
+        obs, reward, terminated, truncated, info = self.env.step(to_env)
+
+        value = float(f["value"])
+        self._steps += 1
+        self._interventions += int(active)
+        self._min_value = min(self._min_value, value)
+        self._max_value = max(self._max_value, value)
+        info = dict(info)
+        info["filter_active"] = active
+        info["policy_action"] = np.array(action, dtype=dtype, copy=True).reshape(self.action_space.shape)
+        info["applied_action"] = np.array(to_env, dtype=dtype, copy=True).reshape(self.action_space.shape)
+        info["value"] = value
+        info["margin"] = float(f["margin"])
+        info["optimal_action"] = np.asarray(f["optimal_action"], dtype=dtype).reshape(self.action_space.shape)
+        info["filter_reason"] = REASONS[int(f["reason"])]
+        if terminated or truncated:
+            info["filter_episode"] = self.episode_summary(info)
+        return obs, reward, terminated, truncated, info
+
+    def episode_summary(self, info: dict[str, Any] | None = None) -> dict[str, float]:
+        """The running episode's filter statistics (what ``info["filter_episode"]`` holds at its end)."""
+        base = self.env.unwrapped
+        used = info.get("budget_used") if info else None
+        if used is None:
+            used = self._initial_budget - float(base.budget)
+        return {
+            "steps": self._steps,
+            "interventions": self._interventions,
+            "intervention_rate": self._interventions / self._steps if self._steps else 0.0,
+            "min_value": self._min_value,
+            "max_value": self._max_value,
+            "budget_used": float(used),
+            "initial_budget": self._initial_budget,
+        }
