@@ -24,7 +24,7 @@ import math
 import os
 import sys
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -105,20 +105,43 @@ def _piece_cost(v: Sequence[float], h: float) -> float | None:
     return None
 
 
-def _hermite(theta: np.ndarray, x0: Stage, f0: Sequence[float], x1: Stage, f1: Sequence[float],
-             h: float) -> list[np.ndarray]:
-    """The cubic Hermite dense output of a step at fractions ``theta`` of it (exact for cubic paths)."""
+def _hermite_basis(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The cubic Hermite basis at ``theta``: ``h00``, ``h10 / h``, ``h01``, ``h11 / h``."""
     t2 = theta * theta
     t3 = t2 * theta
-    h00 = 2.0 * t3 - 3.0 * t2 + 1.0
-    h10 = (t3 - 2.0 * t2 + theta) * h
-    h01 = 3.0 * t2 - 2.0 * t3
-    h11 = (t3 - t2) * h
+    return 2.0 * t3 - 3.0 * t2 + 1.0, t3 - 2.0 * t2 + theta, 3.0 * t2 - 2.0 * t3, t3 - t2
+
+
+def _hermite(theta: np.ndarray, x0: Stage, f0: Sequence[float], x1: Stage, f1: Sequence[float],
+             h: float, basis: tuple[np.ndarray, ...] | None = None) -> list[np.ndarray]:
+    """The cubic Hermite dense output of a step at fractions ``theta`` of it (exact for cubic paths).
+
+    :param basis: ``_hermite_basis(theta)`` if already known
+    """
+    h00, p10, h01, p11 = _hermite_basis(theta) if basis is None else basis
+    h10 = p10 * h
+    h11 = p11 * h
     return [h00 * p + h10 * fp + h01 * q + h11 * fq for p, fp, q, fq in zip(x0, f0, x1, f1)]
 
 
+_KINK_GRIDS: dict[int, tuple[np.ndarray, tuple[np.ndarray, ...]]] = {}
+
+
+def _kink_grid(samples: int) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    """``linspace(0, 1, samples + 1)`` and the Hermite basis there (read-only; the first level of every
+    :func:`_kink_cost` samples exactly these fractions)."""
+    out = _KINK_GRIDS.get(samples)
+    if out is None:
+        grid = np.linspace(0.0, 1.0, samples + 1)
+        basis = _hermite_basis(grid)
+        for arr in (grid, *basis):
+            arr.flags.writeable = False
+        out = _KINK_GRIDS[samples] = (grid, basis)
+    return out
+
+
 def _kink_cost(model: Model, t: float, x0: Stage, x1: Stage, a: Stage, b: Stage, h: float, eps: float,
-               resolution: float, samples: int = 128, max_levels: int = 8) -> float:
+               resolution: float, samples: int = 128, max_levels: int = 8, f: Callable | None = None) -> float:
     """``int h_eps dt`` over a sub-step in which ``h_eps`` has a kink (the path enters or leaves ``C2``).
 
     ``h_eps`` is sampled along the cubic Hermite interpolant of the RK4 step (end states and ``f`` there) at
@@ -126,16 +149,25 @@ def _kink_cost(model: Model, t: float, x0: Stage, x1: Stage, a: Stage, b: Stage,
     the ``eps`` band throughout are summed (``0``, their length, trapezoid), the few cells that contain a kink
     are sampled again in the same way, until a cell is shorter than ``resolution`` (then: trapezoid, an error
     below half the cell per kink).
+
+    :param f: the vector field to take ``f`` at the ends with (default ``model.f``; the scalar fast path passes
+        its ``f_scalar``, which gives the same numbers)
     """
-    f = model.f
+    if f is None:
+        f = model.f
     f0, f1 = f(t, x0, a, b), f(t + h, x1, a, b)
-    grid = np.linspace(0.0, 1.0, samples + 1)
+    grid, basis = _kink_grid(samples)
     starts = np.zeros(1)
     width = 1.0
     total = 0.0
-    for _ in range(max_levels):
-        theta = (starts[:, None] + width * grid[None, :]).reshape(-1)
-        r = model.violation_rate(t + h * theta, _hermite(theta, x0, f0, x1, f1, h), eps)
+    for level in range(max_levels):
+        if level == 0:
+            theta = grid  # = (0 + 1 * grid): the first level samples the grid itself, with its basis cached
+            path = _hermite(theta, x0, f0, x1, f1, h, basis)
+        else:
+            theta = (starts[:, None] + width * grid[None, :]).reshape(-1)
+            path = _hermite(theta, x0, f0, x1, f1, h)
+        r = model.violation_rate(t + h * theta, path, eps)
         r = np.broadcast_to(np.asarray(r, dtype=np.float64), theta.shape).reshape(len(starts), samples + 1)
         left, right = r[:, :-1], r[:, 1:]
         lo, hi = np.minimum(left, right), np.maximum(left, right)
@@ -152,8 +184,12 @@ def _kink_cost(model: Model, t: float, x0: Stage, x1: Stage, a: Stage, b: Stage,
     return total + cell * 0.5 * float(np.sum((left + right)[kink]))
 
 
+_AUTO: Any = object()  # integrate_period(fast=...): look the model's scalar fast path up
+
+
 def integrate_period(model: Model, t: float, x: Sequence[float], a: Sequence[float], b: Sequence[float],
-                     h: float, n_substeps: int, eps: float, budget_resolution: float) -> tuple[list[float], float, float]:
+                     h: float, n_substeps: int, eps: float, budget_resolution: float, *, fast: Any = _AUTO,
+                     rate0: float | None = None) -> tuple[list[float], float, float]:
     """Advance the budget-augmented state over one control period with ``a`` and ``b`` held.
 
     :param model: the model whose ``f`` and ``violation_rate`` are integrated
@@ -165,9 +201,16 @@ def integrate_period(model: Model, t: float, x: Sequence[float], a: Sequence[flo
     :param n_substeps: RK4 steps per period
     :param eps: the ``eps`` of ``h_eps``
     :param budget_resolution: resolve the kinks of ``h_eps`` (entering or leaving ``C2``) to this length [s]
+    :param fast: the model's scalar fast path (:func:`scalar_model`), ``None`` for the vectorised methods;
+        by default it is looked up. Both give the same numbers (the fast path repeats the same arithmetic).
+    :param rate0: ``h_eps(t, x)`` if already known (the fast path then does not evaluate it again)
     :return: ``(x_end, cost, rate_end)``: the state at ``t + h``, the budget spent ``int h_eps dt`` over the
         period, and ``h_eps`` at the end state (``> 0`` exactly when the end state is outside ``C2``)
     """
+    if fast is _AUTO:
+        fast = scalar_model(model)
+    if fast is not None:
+        return _integrate_period_scalar(fast, model, t, x, a, b, h, n_substeps, eps, budget_resolution, rate0)
     f = model.f
     hs = h / n_substeps
     path: list[Stage] = [list(x)]
@@ -194,6 +237,115 @@ def integrate_period(model: Model, t: float, x: Sequence[float], a: Sequence[flo
                 piece = _kink_cost(model, t + j * hs, path[j], path[j + 1], a, b, hs, eps, budget_resolution)
         cost += piece
     return xc, cost, r[-1]
+
+
+def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Sequence[float], a: Sequence[float],
+                             b: Sequence[float], h: float, n_substeps: int, eps: float, budget_resolution: float,
+                             rate0: float | None) -> tuple[list[float], float, float]:
+    """:func:`integrate_period` on the model's scalar fast path: the same RK4 stages, stage times and budget
+    pieces with the same arithmetic, evaluated point by point on Python floats instead of in one vectorised
+    call (two-component states, the point mass, have the stage updates written out)."""
+    f, rate = fast.f, fast.violation_rate
+    hs = h / n_substeps
+    hh = 0.5 * hs
+    h6 = hs / 6.0
+    xc = x if type(x) is list else list(x)
+    r0 = rate(t, xc, eps) if rate0 is None else rate0
+    two = len(xc) == 2
+    cost = 0.0
+    for j in range(n_substeps):
+        tc = t + j * hs
+        tm = tc + hh
+        te = tc + hs
+        if two:
+            p, q = xc
+            k1 = f(tc, xc, a, b)
+            x2 = [p + hh * k1[0], q + hh * k1[1]]
+            k2 = f(tm, x2, a, b)
+            x3 = [p + hh * k2[0], q + hh * k2[1]]
+            k3 = f(tm, x3, a, b)
+            x4 = [p + hs * k3[0], q + hs * k3[1]]
+            k4 = f(te, x4, a, b)
+            xn = [p + h6 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
+                  q + h6 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])]
+        else:
+            k1 = f(tc, xc, a, b)
+            x2 = [xi + hh * ki for xi, ki in zip(xc, k1)]
+            k2 = f(tm, x2, a, b)
+            x3 = [xi + hh * ki for xi, ki in zip(xc, k2)]
+            k3 = f(tm, x3, a, b)
+            x4 = [xi + hs * ki for xi, ki in zip(xc, k3)]
+            k4 = f(te, x4, a, b)
+            xn = [xi + h6 * (c1 + 2.0 * c2 + 2.0 * c3 + c4) for xi, c1, c2, c3, c4 in zip(xc, k1, k2, k3, k4)]
+        r2, r3, r4 = rate(tm, x2, eps), rate(tm, x3, eps), rate(te, x4, eps)
+        # the cases of _piece_cost, spelled out
+        if r0 == 0.0 and r2 == 0.0 and r3 == 0.0 and r4 == 0.0:
+            piece = 0.0
+        elif r0 == 1.0 and r2 == 1.0 and r3 == 1.0 and r4 == 1.0:
+            piece = hs
+        else:
+            v = (r0, r2, r3, r4)
+            if (min(v) > 0.0 and max(v) < 1.0) or hs <= budget_resolution:
+                piece = _simpson(v, hs)
+            else:
+                piece = _kink_cost(model, tc, xc, xn, a, b, hs, eps, budget_resolution, f=f)
+        cost += piece
+        xc = xn
+        r0 = rate(t + h if j == n_substeps - 1 else t + (j + 1) * hs, xn, eps)
+    return xc, cost, r0
+
+
+# --------------------------------------------------------------------------------------------- scalar fast path
+
+
+class ScalarModel(NamedTuple):
+    """A model's scalar fast paths, bound to the model: the same functions as its vectorised ``f``,
+    ``violation_rate``, ``hard_constraint`` and ``target`` at one point given as Python floats (sequences of
+    floats in, floats or a sequence of floats out), for the per-step work of the environments."""
+
+    f: Callable
+    violation_rate: Callable
+    hard_constraint: Callable
+    target: Callable
+
+
+#: the scalar methods a model provides for the fast path, each with the vectorised methods it stands for
+_SCALAR_METHODS = (
+    ("f_scalar", ("f",)),
+    ("violation_rate_scalar", ("violation_rate", "soft_constraint")),
+    ("hard_constraint_scalar", ("hard_constraint",)),
+    ("target_scalar", ("target",)),
+)
+
+
+def _owner(cls: type, name: str) -> type | None:
+    for c in cls.__mro__:
+        if name in c.__dict__:
+            return c
+    return None
+
+
+def scalar_model(model: Model) -> ScalarModel | None:
+    """The model's scalar fast path, or ``None`` (then the environments use the vectorised methods).
+
+    A model opts in by defining ``f_scalar``, ``violation_rate_scalar``, ``hard_constraint_scalar`` and
+    ``target_scalar``. A scalar method is used only where it is defined in the same class as the vectorised
+    methods it stands for, or in a subclass of it: a subclass that overrides ``f`` (or replaces it on the
+    instance) but not ``f_scalar`` falls back to the vectorised methods instead of silently ignoring the change.
+    """
+    cls = type(model)
+    own = getattr(model, "__dict__", {})
+    methods = []
+    for fast, slows in _SCALAR_METHODS:
+        owner = _owner(cls, fast)
+        if owner is None or fast in own:
+            return None
+        for slow in slows:
+            slow_owner = _owner(cls, slow)
+            if slow in own or slow_owner is None or not issubclass(owner, slow_owner):
+                return None
+        methods.append(getattr(model, fast))
+    return ScalarModel(*methods)
 
 
 # --------------------------------------------------------------------------------------------- wind
@@ -457,6 +609,10 @@ class LandingEnv(gym.Env):
         self._g = 0.0
         self._last_a = list(self._a_mid)
         self._last_info: dict[str, Any] = {}
+        # the model's scalar fast path (looked up at each reset) and h_eps at the current (t, x), reused as the
+        # first RK4 stage of the next step: (t, x, rate), x compared by identity
+        self._fast: ScalarModel | None = None
+        self._rate_now: tuple[float, Any, float] | None = None
 
     # ------------------------------------------------------------------------------------------ checks
     def _check_budget(self, value: Any, name: str) -> float:
@@ -638,6 +794,8 @@ class LandingEnv(gym.Env):
             self._gust.reset(rng)
         self._last_a = list(self._a_mid)
         rate = _rates(self.model, [self._t], [x], self.eps)[0]
+        self._fast = scalar_model(self.model)
+        self._rate_now = (self._t, x, rate)
         c1 = float(self.model.hard_constraint(self._t, x))
         info = self._info(0.0, rate > 0.0, c1 > 0.0, False, self._a_mid, self._wind_now(), 0.0, 0.0, 0.0)
         self._last_info = info
@@ -669,8 +827,12 @@ class LandingEnv(gym.Env):
         b = self._wind(a)
         T = self.horizon
         h = min(self.dt, T - t)
+        fast = self._fast
+        known = self._rate_now
+        rate0 = known[2] if known is not None and known[0] == t and known[1] is self._x else None
         x, cost, rate_end = integrate_period(model, t, self._x, a, b, h, self.n_substeps, self.eps,
-                                             self.budget_resolution)
+                                             self.budget_resolution, fast=fast, rate0=rate0)
+        self._rate_now = (t + h, x, rate_end)
         t_new = t + h
         if T - t_new <= 1e-9 * T:
             t_new = T
@@ -680,8 +842,12 @@ class LandingEnv(gym.Env):
             self._gust.advance(self.np_random, h)
 
         soft = rate_end > 0.0
-        hard = float(model.hard_constraint(t_new, x)) > 0.0
-        g = float(model.target(t_new, x))
+        if fast is not None:
+            hard = fast.hard_constraint(t_new, x) > 0.0
+            g = fast.target(t_new, x)
+        else:
+            hard = float(model.hard_constraint(t_new, x)) > 0.0
+            g = float(model.target(t_new, x))
         landed = (not hard) and (not soft) and g <= 0.0
         terminated = hard or landed
         truncated = (not terminated) and t_new >= T

@@ -899,8 +899,9 @@ class ValueFilter:
         pol = self.physical(act) if normalized else np.clip(act, self.a_lo, self.a_hi)
         value, margin, a_star, grad, loc = self._evaluate(tt, xs, zz)
 
-        # a* where defined; the fallback where not (non-finite gradient)
-        a_ok = np.isfinite(a_star).all(axis=1)
+        # a* where defined; the fallback where not. A NaN gradient must be caught here: the models' bang-bang
+        # closed forms map it silently to the middle of the box (neither sign test holds)
+        a_ok = np.isfinite(a_star).all(axis=1) & np.isfinite(grad).all(axis=1)
         if not a_ok.all():
             a_star = np.where(a_ok[:, None], a_star, self.fallback_action)
         a_star = np.clip(a_star, self.a_lo, self.a_hi)
@@ -968,6 +969,8 @@ class ValueFilter:
         if found is None:
             return None
         value, grad, k, I, inside, after = found
+        if not all(math.isfinite(v) for v in grad):
+            return None
         a_star = [float(v) for v in self.model.optimal_control(tf, xs, grad)]
         if not all(math.isfinite(v) for v in a_star):
             return None

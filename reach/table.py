@@ -62,14 +62,15 @@ class TableWriter:
     def __init__(self, path: str | os.PathLike, header: dict[str, Any], *, resume: bool = True):
         self.path = Path(path)
         self.partial = self.path.with_name(self.path.name + ".partial")
-        offset = _data_start()
+        offset = end = _data_start()
         for spec in header["fields"].values():
             shape = [len(spec["times"])] + list(spec["grid"]["shape"])
             spec.update(offset=offset, shape=shape, dtype="<f4", sha256=None)
             spec.setdefault("done", [False] * shape[0])
-            offset = _align(offset + 4 * int(np.prod(shape)))
+            end = offset + 4 * int(np.prod(shape))
+            offset = _align(end)
         header.update(format="softreach-table", format_version=FORMAT_VERSION, complete=False)
-        self.size = offset
+        self.size = end  # no padding after the last block: any truncation cuts into data
         if resume and self.partial.exists():
             old = read_header(self.partial, allow_incomplete=True)
             mismatch = _first_mismatch(_identity(old), _identity(header))

@@ -1,0 +1,185 @@
+"""Default hyperparameters of ``softreach train``: the one place where they live.
+
+One frozen dataclass per algorithm (:class:`PPOConfig`, :class:`SACConfig`) holds what Stable-Baselines3 gets;
+:class:`RunConfig` holds what the training loop does around it (steps, vectorised environments, evaluation,
+checkpoints, reward scale). :func:`defaults` returns the defaults of a model and algorithm, and
+:func:`algo_kwargs` turns an algorithm config into the keyword arguments of ``PPO(...)`` / ``SAC(...)``.
+
+The point-mass PPO defaults were chosen so that ``softreach train pointmass`` finishes in about five minutes
+on a 2-core CPU and lands most episodes (measured numbers: ``docs/agents.md``). The glider defaults are the
+same algorithm settings with a longer run; they have not been tuned.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+ALGOS = ("ppo", "sac")
+MODELS = ("pointmass", "glider")
+ENV_IDS = {"pointmass": "softreach/PointMassLanding-v0", "glider": "softreach/GliderLanding-v0"}
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """Proximal Policy Optimisation (SB3 ``PPO``, ``MlpPolicy``).
+
+    :param learning_rate: Adam step size
+    :param n_steps: steps per environment per rollout (the rollout holds ``n_steps * n_envs`` transitions)
+    :param batch_size: minibatch size
+    :param n_epochs: passes over each rollout
+    :param gamma: discount (an episode is 100 control periods)
+    :param gae_lambda: GAE parameter
+    :param clip_range: PPO ratio clip
+    :param ent_coef: entropy bonus
+    :param vf_coef: value-loss weight
+    :param max_grad_norm: gradient clip
+    :param log_std_init: initial log standard deviation of the Gaussian policy
+    :param net_arch: hidden layers of the policy and of the value network
+    :param activation: ``"tanh"`` or ``"relu"``
+    """
+
+    learning_rate: float = 3e-4
+    n_steps: int = 256
+    batch_size: int = 256
+    n_epochs: int = 10
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_range: float = 0.2
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    log_std_init: float = -0.5
+    net_arch: tuple[int, ...] = (64, 64)
+    activation: str = "tanh"
+
+
+@dataclass(frozen=True)
+class SACConfig:
+    """Soft Actor-Critic (SB3 ``SAC``, ``MlpPolicy``).
+
+    :param learning_rate: Adam step size (actor, critics, entropy coefficient)
+    :param buffer_size: replay buffer capacity
+    :param learning_starts: random steps before the first update
+    :param batch_size: minibatch size
+    :param tau: target-network soft update
+    :param gamma: discount
+    :param train_freq: environment steps (per environment) between updates
+    :param gradient_steps: gradient steps per update
+    :param ent_coef: ``"auto"`` (learned) or a number
+    :param net_arch: hidden layers of the actor and of each critic
+    :param action_label: what the replay buffer stores as the action of a transition: ``"policy"`` (the
+        policy's own action; the filter is part of the environment) or ``"applied"`` (the action the filter let
+        through, i.e. what the environment executed). See ``docs/agents.md``.
+    """
+
+    learning_rate: float = 3e-4
+    buffer_size: int = 200_000
+    learning_starts: int = 2_000
+    batch_size: int = 256
+    tau: float = 0.005
+    gamma: float = 0.99
+    train_freq: int = 1
+    gradient_steps: int = 1
+    ent_coef: str | float = "auto"
+    net_arch: tuple[int, ...] = (128, 128)
+    action_label: str = "policy"
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """What the training loop does around the algorithm.
+
+    :param timesteps: total environment steps (all environments together)
+    :param n_envs: environments stepped together (``DummyVecEnv``: one process, batched policy calls)
+    :param eval_freq: environment steps between evaluations (``EvalCallback``); 0 disables them
+    :param eval_episodes: episodes per evaluation (deterministic policy, same filter and wind as training)
+    :param checkpoint_freq: environment steps between checkpoints; 0 disables them
+    :param reward_scale: the learner sees ``reward_scale * reward`` (the environment's rewards are about
+        ``+-100`` at the end of an episode); logged returns and evaluations stay in the environment's units
+    :param intervention_penalty: subtracted from the (unscaled) reward of each step in which the filter
+        changed the action; 0 leaves the reward alone. Only with ``--filter``.
+    :param wind: the training wind (``"none"``, ``"random"``, ``"adversarial"``)
+    :param budget: the budget ``Q`` of each training episode: ``None`` for the environment's default
+        distribution (point mass ``U[0, 0.6]`` s), a number, or a ``(low, high)`` range
+    """
+
+    timesteps: int = 300_000
+    n_envs: int = 8
+    eval_freq: int = 25_000
+    eval_episodes: int = 20
+    checkpoint_freq: int = 100_000
+    reward_scale: float = 0.01
+    intervention_penalty: float = 0.0
+    wind: str = "random"
+    budget: float | tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
+class Defaults:
+    """The defaults of one model and algorithm."""
+
+    run: RunConfig
+    algo: PPOConfig | SACConfig
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"run": asdict(self.run), "algo": asdict(self.algo)}
+
+
+_DEFAULTS: dict[tuple[str, str], Defaults] = {
+    ("pointmass", "ppo"): Defaults(RunConfig(), PPOConfig()),
+    ("pointmass", "sac"): Defaults(RunConfig(timesteps=60_000, n_envs=4, eval_freq=10_000,
+                                             checkpoint_freq=20_000), SACConfig()),
+    ("glider", "ppo"): Defaults(RunConfig(timesteps=500_000), PPOConfig()),
+    ("glider", "sac"): Defaults(RunConfig(timesteps=100_000, n_envs=4, eval_freq=10_000,
+                                          checkpoint_freq=25_000), SACConfig()),
+}
+
+
+def defaults(model: str, algo: str = "ppo") -> Defaults:
+    """The default run and algorithm settings of ``model`` trained with ``algo``.
+
+    :raises ValueError: an unknown model or algorithm (the message names it)
+    """
+    if model not in MODELS:
+        raise ValueError(f"unknown model {model!r}; choose from {list(MODELS)}")
+    if algo not in ALGOS:
+        raise ValueError(f"unknown algorithm {algo!r}; choose from {list(ALGOS)}")
+    return _DEFAULTS[(model, algo)]
+
+
+def with_overrides(cfg: Any, **overrides: Any) -> Any:
+    """``cfg`` with the given fields replaced; ``None`` values are ignored (an unset command-line option)."""
+    return replace(cfg, **{k: v for k, v in overrides.items() if v is not None})
+
+
+def algo_kwargs(cfg: PPOConfig | SACConfig) -> dict[str, Any]:
+    """Keyword arguments of ``stable_baselines3.PPO`` / ``SAC`` for ``cfg`` (without ``env``, ``seed``...)."""
+    import torch.nn as nn
+
+    if isinstance(cfg, PPOConfig):
+        act = {"tanh": nn.Tanh, "relu": nn.ReLU}.get(cfg.activation)
+        if act is None:
+            raise ValueError(f"activation must be 'tanh' or 'relu', got {cfg.activation!r}")
+        return {
+            "learning_rate": cfg.learning_rate, "n_steps": cfg.n_steps, "batch_size": cfg.batch_size,
+            "n_epochs": cfg.n_epochs, "gamma": cfg.gamma, "gae_lambda": cfg.gae_lambda,
+            "clip_range": cfg.clip_range, "ent_coef": cfg.ent_coef, "vf_coef": cfg.vf_coef,
+            "max_grad_norm": cfg.max_grad_norm,
+            "policy_kwargs": {"net_arch": {"pi": list(cfg.net_arch), "vf": list(cfg.net_arch)},
+                              "activation_fn": act, "log_std_init": cfg.log_std_init},
+        }
+    if isinstance(cfg, SACConfig):
+        if cfg.action_label not in ("policy", "applied"):
+            raise ValueError(f"action_label must be 'policy' or 'applied', got {cfg.action_label!r}")
+        return {
+            "learning_rate": cfg.learning_rate, "buffer_size": cfg.buffer_size,
+            "learning_starts": cfg.learning_starts, "batch_size": cfg.batch_size, "tau": cfg.tau,
+            "gamma": cfg.gamma, "train_freq": cfg.train_freq, "gradient_steps": cfg.gradient_steps,
+            "ent_coef": cfg.ent_coef, "policy_kwargs": {"net_arch": list(cfg.net_arch)},
+        }
+    raise TypeError(f"expected a PPOConfig or SACConfig, got {type(cfg).__name__}")
+
+
+__all__ = ["ALGOS", "Defaults", "ENV_IDS", "MODELS", "PPOConfig", "RunConfig", "SACConfig", "algo_kwargs",
+           "defaults", "with_overrides"]

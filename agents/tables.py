@@ -1,0 +1,237 @@
+"""What the agents read from a ``W_eps`` table: fast per-step ``a*``/``b*``, shared safety filters, start states.
+
+* :class:`TableOracle` answers ``W~``, ``a*(t, x, z)`` and ``b*(t, x, z)`` for one state at a time through the
+  filter's :class:`~softreach.filters.TableField` (the same interpolant and central-difference gradient as
+  :meth:`softreach.reach.Table.optimal_control`, several times faster for single queries). It is what the
+  ``optimal`` policy plays and what ``wind="adversarial"`` blows: an environment accepts it as ``wind_table``.
+* :func:`safety_filter` wraps an environment in :class:`~softreach.filters.SafetyFilter`, computing the
+  filter's margin field once per table and sharing it between environments (one margin field is several
+  seconds of work and up to a few hundred MB; a vectorised training run holds many environments).
+* :func:`sample_inside`, :func:`paper_starts`, :func:`sample_uniform`: the start distributions of
+  ``softreach evaluate --starts inside|paper|uniform``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from softreach.reach import Table, load_table
+from softreach.reach.query import PAPER_PROXY_SECONDS
+
+#: the state axis that is the altitude, per model (for the "paper" starts: as high as possible)
+ALTITUDE_AXIS = {"pointmass": 1, "glider": 0}
+
+
+def as_table(table: Table | str | Any) -> Table:
+    """A loaded :class:`Table` (``table`` itself, or the file it names)."""
+    return table if isinstance(table, Table) else load_table(table)
+
+
+class TableOracle:
+    """``W~``, ``a*`` and ``b*`` of a ``W_eps`` table, one state at a time.
+
+    The budget is queried at ``max(z, 0)`` (as :func:`softreach.reach.simulate.table_control`): once the budget is
+    spent the best the table knows is the feedback of an empty budget.
+
+    :param table: a table with ``W_eps`` (or its path)
+    """
+
+    def __init__(self, table: Table | str):
+        from softreach.filters import TableField
+
+        self.table = as_table(table)
+        self.model = self.table.model
+        self.field = TableField(self.table)
+        self.n = self.model.state_dim
+        grid = self.table.grid("W_eps")
+        self._z_hi = float(grid.hi[-1])
+        # what an environment checks before it accepts us as wind_table=
+        self.model_metadata = self.table.model_metadata
+        self.eps = self.table.eps
+        self.path = self.table.path
+
+    def _value_grad(self, t: float, x: Sequence[float], z: float) -> tuple[float, list[float]]:
+        zq = min(max(float(z), 0.0), self._z_hi)
+        c = [float(v) for v in x] + [zq]
+        found = self.field.single(float(t), c)
+        if found is None:  # grid edge cells: the batch path (same numbers)
+            val, grad, _ = self.field.value_and_gradient(np.array([float(t)]), np.array([c]))
+            return float(val[0]), grad[0].tolist()
+        return float(found[0]), list(found[1])
+
+    def value(self, t: float, x: Sequence[float], z: float) -> float:
+        """``W~(t, x, max(z, 0))`` (``+inf`` outside the table)."""
+        return self._value_grad(t, x, z)[0]
+
+    def optimal_control(self, t: float, x: Sequence[float], z: float) -> np.ndarray:
+        """``a*(t, x, z)``, physical units, shape ``(m,)``, clipped to the control box."""
+        _, grad = self._value_grad(t, x, z)
+        a = np.array([float(np.asarray(v)) for v in self.model.optimal_control(float(t), [float(v) for v in x], grad)])
+        lo, hi = self.model.control_bounds
+        return np.clip(a, lo, hi)
+
+    def _worst_one(self, t: float, x: Sequence[float], z: float) -> np.ndarray:
+        _, grad = self._value_grad(t, x, z)
+        return np.array([float(np.asarray(v)) for v in self.model.worst_disturbance(float(t), [float(v) for v in x], grad)])
+
+    def worst_disturbance(self, t: float, x: Any, z: Any) -> np.ndarray:
+        """``b*(t, x, z)`` for ``x`` of shape ``(N, n)`` (or ``(n,)``) and ``z`` scalar or ``(N,)``: ``(N, k)``.
+
+        The signature of :meth:`softreach.reach.Table.worst_disturbance`, so an environment takes the oracle as
+        ``wind_table``.
+        """
+        xs = np.asarray(x, dtype=np.float64).reshape(-1, self.n)
+        zs = np.broadcast_to(np.asarray(z, dtype=np.float64).reshape(-1), (len(xs),))
+        return np.stack([self._worst_one(t, xs[i].tolist(), float(zs[i])) for i in range(len(xs))])
+
+
+# --------------------------------------------------------------------------------------------- filters
+
+_FILTER_CACHE: dict[tuple, Any] = {}
+
+
+def safety_filter(env: Any, table: Table | str, rule: str = "switch", margin: float | None = None) -> Any:
+    """``SafetyFilter(env, table, margin, rule)``, with the filter's core shared between calls.
+
+    The first call for a table file, control period, rule and margin builds the
+    :class:`~softreach.filters.ValueFilter` (and its margin field); later calls reuse it. The wrapper keeps its
+    own episode statistics; the shared core holds only the table and the margin field, which do not change.
+    """
+    from softreach.filters import SafetyFilter
+
+    table = as_table(table)
+    dt = float(env.unwrapped.dt)
+    key = (str(table.path), dt, rule, margin)
+    core = _FILTER_CACHE.get(key)
+    if core is None:
+        wrapped = SafetyFilter(env, table, margin=margin, rule=rule)
+        if len(_FILTER_CACHE) >= 4:  # keep at most a few margin fields alive
+            _FILTER_CACHE.pop(next(iter(_FILTER_CACHE)))
+        _FILTER_CACHE[key] = wrapped.value_filter
+        return wrapped
+    # margin=0.0 skips the margin-field computation; the shared core (with the requested margin) replaces it.
+    # (If SafetyFilter gains a value_filter= argument this becomes SafetyFilter(env, table, value_filter=core).)
+    wrapped = SafetyFilter(env, table, margin=0.0, rule=rule)
+    wrapped.value_filter = core
+    return wrapped
+
+
+def clear_filter_cache() -> None:
+    """Forget the shared filter cores (frees their margin fields)."""
+    _FILTER_CACHE.clear()
+
+
+# --------------------------------------------------------------------------------------------- starts
+
+def _membership_margin(table: Table, q: float) -> float:
+    """The margin of :meth:`Table.set_mask`: the paper's proxy (one millisecond of budget) for ``Q > 0``."""
+    return 0.0 if q == 0 else table.budget_scale * PAPER_PROXY_SECONDS
+
+
+def in_set(table: Table, x: Sequence[float], q: float, t: float = 0.0) -> bool:
+    """Whether ``x`` lies in ``RA~_Q`` at time ``t``, by the definition of :meth:`Table.set_mask` evaluated at
+    ``x`` itself: ``W_eps(t, x, max(Q, r)) + margin <= 0`` (``r`` the table's budget resolution)."""
+    z = max(float(q), table.budget_resolution)
+    v = float(table.value(t, np.asarray(x, dtype=np.float64)[None, :], np.array([z]))[0])
+    return v + _membership_margin(table, q) <= 0
+
+
+def start_value(table: Table, x: Sequence[float], q: float, t: float = 0.0) -> float:
+    """``W_eps(t, x, max(Q, r))`` at a start (``+inf`` outside the table)."""
+    z = max(float(q), table.budget_resolution)
+    return float(table.value(t, np.asarray(x, dtype=np.float64)[None, :], np.array([z]))[0])
+
+
+def sample_inside(table: Table, q: float, rng: np.random.Generator, t: float = 0.0, tries: int = 100) -> np.ndarray:
+    """A random state of ``RA~_Q`` at time ``t``.
+
+    A node of :meth:`Table.set_mask` is drawn uniformly and moved uniformly within half a grid cell; the move is
+    kept if the state is still in the set (:func:`in_set`), else another draw is made (after ``tries``
+    rejections the node itself, which is in the set by definition).
+
+    :raises ValueError: when ``RA~_Q`` is empty on the table's grid
+    """
+    mask = table.set_mask(t, float(q))
+    nodes = np.argwhere(mask)
+    if len(nodes) == 0:
+        raise ValueError(f"RA~_Q is empty for Q={q:g} at t={t:g} in table {table.path}; no 'inside' start exists")
+    axes = table.state_axes("W_eps")
+    h = np.array([a[1] - a[0] for a in axes])
+    node = None
+    for _ in range(tries):
+        idx = nodes[rng.integers(len(nodes))]
+        node = np.array([axes[d][idx[d]] for d in range(len(axes))])
+        x = node + rng.uniform(-0.5, 0.5, size=len(h)) * h
+        if in_set(table, x, q, t):
+            return x
+    return node
+
+
+def paper_starts(table: Table, budgets: Sequence[float], t: float = 0.0, depth: float = 0.5) -> list[tuple[np.ndarray, float]]:
+    """The paper's representative starts (Fig. 1, 5, 6-9): one per budget ``Q``, high up in ``RA~_Q``.
+
+    For each ``Q`` (in increasing order): among the grid nodes of ``RA~_Q`` that need that budget (outside the
+    set of the previous budget, where that leaves any), those at least ``depth`` times as deep as the deepest
+    (``W`` is negative inside; this keeps the point off the set's jagged grid boundary), then the highest of
+    them (largest altitude), then the deepest. The paper picks its points on the sets' boundaries and does not
+    print them; this picks comparable points reproducibly. The start's budget is ``Q`` itself.
+
+    :return: ``[(x, Q), ...]`` for the budgets whose set is not empty
+    """
+    model = table.model
+    alt = ALTITUDE_AXIS.get(model.name, 0)
+    axes = table.state_axes("W_eps")
+    out = []
+    prev = None
+    for q in sorted(float(b) for b in budgets):
+        mask = table.set_mask(t, q)
+        if not mask.any():
+            prev = mask
+            continue
+        cand = mask & ~prev if prev is not None and (mask & ~prev).any() else mask
+        w = table._slice("W_eps", t, max(q, table.budget_resolution))
+        floor = float(np.where(cand, w, np.inf).min())
+        deep = cand & (w <= depth * floor) if floor < 0 else cand
+        idx = np.argwhere(deep)
+        top = idx[:, alt].max()
+        idx = idx[idx[:, alt] == top]
+        best = idx[np.argmin([w[tuple(i)] for i in idx])]
+        out.append((np.array([axes[d][best[d]] for d in range(len(axes))]), q))
+        prev = mask
+    return out
+
+
+def uniform_box(model: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The box of ``--starts uniform``: the hard-constraint box ``C1`` clipped to the model's domain (a start
+    outside ``C1`` has failed before it begins); the whole domain where the model has no box."""
+    lo, hi = (np.array(v, dtype=np.float64) for v in model.domain)
+    box = getattr(model, "hard_box", None)
+    if box is not None:
+        lo = np.maximum(lo, np.array(box[0], dtype=np.float64))
+        hi = np.minimum(hi, np.array(box[1], dtype=np.float64))
+    lo = np.where(np.isfinite(lo), lo, np.array(model.domain[0], dtype=np.float64))
+    hi = np.where(np.isfinite(hi), hi, np.array(model.domain[1], dtype=np.float64))
+    return lo, hi
+
+
+def sample_uniform(model: Any, rng: np.random.Generator) -> np.ndarray:
+    """A state drawn uniformly from :func:`uniform_box`."""
+    lo, hi = uniform_box(model)
+    return rng.uniform(lo, hi)
+
+
+def sink_rate(model: Any, x: Sequence[float]) -> float:
+    """The vertical speed downwards [m/s] at state ``x`` (point mass ``-v``, glider ``-V sin(gamma)``)."""
+    if model.name == "pointmass":
+        return -float(x[0])
+    if model.name == "glider":
+        return -float(x[1]) * math.sin(float(x[2]))
+    return math.nan
+
+
+__all__ = ["ALTITUDE_AXIS", "TableOracle", "as_table", "clear_filter_cache", "in_set", "paper_starts",
+           "safety_filter", "sample_inside", "sample_uniform", "sink_rate", "start_value", "uniform_box"]

@@ -1,0 +1,335 @@
+"""``softreach train``: a landing policy with Stable-Baselines3, optionally under the safety filter.
+
+What the learner is told when the filter is on (see ``docs/agents.md``):
+
+* The environment executes the **filtered** action; observations, rewards and episode ends are those of the
+  filtered closed loop. The filter is a deterministic function of ``(t, x, z)``, which the observation holds
+  (state, remaining budget, time left), so "environment + filter" is again a Markov decision process and PPO
+  and SAC learn in it without modification.
+* **PPO** stores the policy's own (unclipped Gaussian) sample and its log-probability in the rollout buffer: the
+  ratio ``pi_new(a) / pi_old(a)`` stays well defined. Storing the applied action instead would make the
+  ratio meaningless (``a*`` may have almost no probability under the policy), so PPO always learns
+  "in the filtered environment": where the filter overrides, the policy's action has no effect on what
+  follows, and its advantage there is pure noise around zero.
+* **SAC** stores ``(obs, action, reward, next_obs)`` in a replay buffer. With ``action_label="policy"``
+  (default) it is the policy's action, as for PPO. With ``action_label="applied"`` it is the action the
+  filter let through, i.e. the transition the plain environment actually made: the critic then learns the
+  unfiltered dynamics' Q-function on the actions that were executed.
+* With ``intervention_penalty > 0`` each step in which the filter acted costs that much reward, so the policy
+  is pushed to stay where the filter does not need to act; by default (0) it is told nothing beyond the
+  consequences of the filtered actions. ``info["filter_active"]`` is logged either way.
+
+Outputs under ``--out DIR``: ``model.zip`` (final policy), ``best_model.zip`` (best periodic evaluation),
+``checkpoints/``, ``eval/evaluations.npz`` (``EvalCallback``), ``monitor/*.monitor.csv`` (training episodes),
+``progress.csv`` (SB3 logger), ``config.json`` (everything needed to reproduce and to evaluate the run).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import platform
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .config import ALGOS, MODELS, PPOConfig, SACConfig, algo_kwargs, defaults, with_overrides
+from .envs import RULES, WINDS, check_budget, check_choice, make_env
+from .tables import TableOracle, as_table
+
+TRAIN_SCHEMA = "softreach.train/1"
+
+
+@dataclass
+class TrainSpec:
+    """What ``softreach train`` was asked to do. ``None`` fields take the model's defaults (:mod:`.config`).
+
+    :param model: ``"pointmass"`` or ``"glider"``
+    :param algo: ``"ppo"`` or ``"sac"``
+    :param filter: the safety filter's table (path); ``None`` trains without a filter
+    :param rule: the filter's rule
+    :param budget: ``Q`` of each episode, a ``(low, high)`` range, or ``None`` (the environment's default)
+    :param wind: ``"none"``, ``"random"`` or ``"adversarial"``
+    :param table: the table of ``wind="adversarial"`` (default: the filter's)
+    :param timesteps: total environment steps
+    :param n_envs: environments stepped together
+    :param seed: seed of the algorithm and the environments
+    :param out: output directory (default ``runs/train/<model>-<algo>-<filtered|unfiltered>-s<seed>``)
+    :param progress: show a progress bar
+    :param run_overrides: fields of :class:`~softreach.agents.config.RunConfig` to replace
+    :param algo_overrides: fields of the algorithm's config to replace
+    """
+
+    model: str = "pointmass"
+    algo: str = "ppo"
+    filter: str | None = None
+    rule: str = "switch"
+    budget: Any = None
+    wind: str | None = None
+    table: str | None = None
+    timesteps: int | None = None
+    n_envs: int | None = None
+    seed: int = 0
+    out: str | None = None
+    progress: bool = True
+    run_overrides: dict[str, Any] = field(default_factory=dict)
+    algo_overrides: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class TrainResult:
+    """Where a training run put its outputs."""
+
+    out_dir: Path
+    model_path: Path
+    best_model_path: Path | None
+    config: dict[str, Any]
+    wall_time_s: float
+    timesteps: int
+
+
+def default_out(spec: TrainSpec) -> Path:
+    kind = "filtered" if spec.filter else "unfiltered"
+    return Path("runs") / "train" / f"{spec.model}-{spec.algo}-{kind}-s{spec.seed}"
+
+
+def _check_positive_int(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def resolve(spec: TrainSpec) -> tuple[Any, PPOConfig | SACConfig, dict[str, Any]]:
+    """Check ``spec`` and merge it with the defaults; returns ``(run config, algo config, env settings)``.
+
+    :raises ValueError: naming the first bad value
+    """
+    check_choice("model", spec.model, MODELS)
+    check_choice("algorithm", spec.algo, ALGOS)
+    check_choice("rule", spec.rule, RULES)
+    d = defaults(spec.model, spec.algo)
+    run = with_overrides(d.run, timesteps=spec.timesteps, n_envs=spec.n_envs, wind=spec.wind,
+                         **spec.run_overrides)
+    if spec.budget is not None:
+        run = with_overrides(run, budget=spec.budget)
+    algo = with_overrides(d.algo, **spec.algo_overrides)
+    check_choice("wind", run.wind, WINDS)
+    _check_positive_int("timesteps", run.timesteps)
+    _check_positive_int("n_envs", run.n_envs)
+    for name in ("eval_freq", "checkpoint_freq", "eval_episodes"):
+        v = getattr(run, name)
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise ValueError(f"{name} must be an integer >= 0, got {v!r}")
+    if not (isinstance(spec.seed, (int, np.integer)) and not isinstance(spec.seed, bool)):
+        raise ValueError(f"seed must be an integer, got {spec.seed!r}")
+    from softreach.reach.models import get_model
+
+    horizon = get_model(spec.model).horizon
+    budget = check_budget(run.budget, horizon)
+    if run.wind == "adversarial" and not (spec.table or spec.filter):
+        raise ValueError("--wind adversarial needs a table for the worst-case wind: give --filter TABLE or --table TABLE")
+    if run.intervention_penalty and not spec.filter:
+        raise ValueError("an intervention penalty needs --filter TABLE")
+    algo_kwargs(algo)  # validates the algorithm's choices
+    for path in (spec.filter, spec.table):
+        if path is not None and not Path(path).is_file():
+            raise FileNotFoundError(f"table {path} does not exist (solve one with `softreach solve {spec.model}`)")
+    env_settings = {"model": spec.model, "wind": run.wind, "budget": budget, "filter": spec.filter,
+                    "rule": spec.rule, "table": spec.table}
+    return run, algo, env_settings
+
+
+def progress_callback(desc: str):
+    """An SB3 callback drawing a tqdm progress bar (SB3's ``ProgressBarCallback`` where ``rich`` is installed)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    try:
+        import rich  # noqa: F401
+    except ImportError:
+        pass
+    else:
+        from stable_baselines3.common.callbacks import ProgressBarCallback
+
+        return ProgressBarCallback()
+
+    from tqdm.auto import tqdm
+
+    class _Tqdm(BaseCallback):
+        def _on_training_start(self) -> None:
+            total = self.locals["total_timesteps"] - self.model.num_timesteps
+            self.bar = tqdm(total=total, desc=desc, unit="step", unit_scale=True, dynamic_ncols=True)
+            self._last = 0
+
+        def _on_step(self) -> bool:
+            self.bar.update(self.training_env.num_envs)
+            if self.n_calls - self._last >= 200:
+                self._last = self.n_calls
+                buf = self.model.ep_info_buffer
+                if buf:
+                    ret = float(np.mean([e["r"] for e in buf]))
+                    landed = float(np.mean([bool(e.get("landed", False)) for e in buf]))
+                    self.bar.set_postfix(ret=f"{ret:.1f}", landed=f"{landed:.0%}", refresh=False)
+            return True
+
+        def _on_training_end(self) -> None:
+            self.bar.close()
+
+    return _Tqdm()
+
+
+def _sac_class(action_label: str):
+    from stable_baselines3 import SAC
+
+    if action_label == "policy":
+        return SAC
+
+    class AppliedActionSAC(SAC):
+        """SAC whose replay buffer stores the action the safety filter applied (``info["applied_action"]``)."""
+
+        def _store_transition(self, replay_buffer, buffer_action, new_obs, reward, dones, infos):
+            applied = [info.get("applied_action") for info in infos]
+            if all(a is not None for a in applied):
+                buffer_action = self.policy.scale_action(np.stack([np.asarray(a, dtype=np.float32) for a in applied]))
+            super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
+
+    return AppliedActionSAC
+
+
+def _versions() -> dict[str, str]:
+    import gymnasium
+    import stable_baselines3
+    import torch
+
+    return {"python": platform.python_version(), "stable_baselines3": stable_baselines3.__version__,
+            "gymnasium": gymnasium.__version__, "torch": torch.__version__, "numpy": np.__version__}
+
+
+def train(spec: TrainSpec) -> TrainResult:
+    """Train a policy as ``spec`` says and save it (see the module docstring for the outputs)."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    run, algo_cfg, env_settings = resolve(spec)
+    out = Path(spec.out) if spec.out else default_out(spec)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "monitor").mkdir(exist_ok=True)
+
+    filt = as_table(spec.filter) if spec.filter else None
+    wind_src = spec.table or spec.filter
+    oracle = TableOracle(wind_src) if (run.wind == "adversarial") else None
+
+    def env_fn(rank: int, learner: bool):
+        def thunk():
+            return make_env(spec.model, wind=run.wind, wind_table=oracle, budget=env_settings["budget"],
+                            filter_table=filt, rule=spec.rule, monitor=True,
+                            monitor_file=str(out / "monitor" / f"{'train' if learner else 'eval'}-{rank}"),
+                            reward_scale=run.reward_scale if learner else 1.0,
+                            intervention_penalty=run.intervention_penalty if learner else 0.0)
+        return thunk
+
+    venv = DummyVecEnv([env_fn(i, True) for i in range(run.n_envs)])
+    venv.seed(spec.seed)
+    kwargs = algo_kwargs(algo_cfg)
+    if spec.algo == "ppo":
+        model = PPO("MlpPolicy", venv, seed=spec.seed, verbose=0, device="cpu", **kwargs)
+    else:
+        model = _sac_class(algo_cfg.action_label)("MlpPolicy", venv, seed=spec.seed, verbose=0, device="cpu",
+                                                  **kwargs)
+    model.set_logger(configure(str(out), ["csv"]))
+
+    callbacks = []
+    eval_env = None
+    if run.eval_freq > 0:
+        eval_env = DummyVecEnv([env_fn(0, False)])
+        eval_env.seed(spec.seed + 10_000)
+        callbacks.append(EvalCallback(eval_env, n_eval_episodes=max(1, run.eval_episodes),
+                                      eval_freq=max(1, run.eval_freq // run.n_envs), log_path=str(out / "eval"),
+                                      best_model_save_path=str(out), deterministic=True, verbose=0))
+    if run.checkpoint_freq > 0:
+        callbacks.append(CheckpointCallback(save_freq=max(1, run.checkpoint_freq // run.n_envs),
+                                            save_path=str(out / "checkpoints"), name_prefix="model"))
+    if spec.progress:
+        callbacks.append(progress_callback(f"train {spec.model} {spec.algo}{' +filter' if filt else ''}"))
+
+    config = {
+        "schema": TRAIN_SCHEMA,
+        "model": spec.model,
+        "algo": spec.algo,
+        "env_id": f"softreach/{'PointMass' if spec.model == 'pointmass' else 'Glider'}Landing-v0",
+        "filter": {"table": str(spec.filter), "rule": spec.rule} if spec.filter else None,
+        "wind": run.wind,
+        "wind_table": str(wind_src) if run.wind == "adversarial" else None,
+        "budget": env_settings["budget"],
+        "seed": spec.seed,
+        "run": asdict(run),
+        "algo_config": asdict(algo_cfg),
+        "versions": _versions(),
+        "status": "running",
+    }
+    (out / "config.json").write_text(json.dumps(config, indent=2))
+    t0 = time.perf_counter()
+    try:
+        model.learn(total_timesteps=run.timesteps, callback=CallbackList(callbacks), progress_bar=False)
+    finally:
+        venv.close()
+        if eval_env is not None:
+            eval_env.close()
+    wall = time.perf_counter() - t0
+    model_path = out / "model.zip"
+    model.save(model_path)
+    best = out / "best_model.zip"
+    config.update(status="done", wall_time_s=wall, timesteps=int(model.num_timesteps),
+                  steps_per_s=model.num_timesteps / wall if wall > 0 else math.nan)
+    (out / "config.json").write_text(json.dumps(config, indent=2))
+    return TrainResult(out_dir=out, model_path=model_path, best_model_path=best if best.exists() else None,
+                       config=config, wall_time_s=wall, timesteps=int(model.num_timesteps))
+
+
+def run_config_of(policy_path: str | Path) -> dict[str, Any] | None:
+    """The ``config.json`` of the run a saved policy belongs to (its directory or the one above), if any."""
+    p = Path(policy_path)
+    for d in ([p] if p.is_dir() else []) + [p.parent, p.parent.parent]:
+        cfg = d / "config.json"
+        if cfg.is_file():
+            try:
+                data = json.loads(cfg.read_text())
+            except (OSError, ValueError):
+                continue
+            if data.get("schema") == TRAIN_SCHEMA:
+                return {**data, "_dir": str(d)}
+    return None
+
+
+def load_policy(path: str | Path, algo: str | None = None):
+    """Load a saved SB3 policy (``model.zip`` or a run directory); the algorithm is read from the run's
+    ``config.json`` when ``algo`` is not given, else PPO and SAC are tried in turn.
+
+    :raises FileNotFoundError: no such file
+    :raises ValueError: the file is not a PPO or SAC model
+    """
+    from stable_baselines3 import PPO, SAC
+
+    p = Path(path)
+    if p.is_dir():
+        p = p / "model.zip"
+    if not p.is_file():
+        raise FileNotFoundError(f"policy {path} does not exist (train one with `softreach train`)")
+    cfg = run_config_of(p)
+    algo = algo or (cfg or {}).get("algo")
+    classes = {"ppo": [PPO], "sac": [SAC]}.get(algo, [PPO, SAC])
+    errors = []
+    for cls in classes:
+        try:
+            return cls.load(p, device="cpu")
+        except Exception as exc:  # noqa: BLE001 - try the next class, report all if none fits
+            errors.append(f"{cls.__name__}: {exc}")
+    raise ValueError(f"{path} is not a saved PPO or SAC policy ({'; '.join(errors)})")
+
+
+__all__ = ["TRAIN_SCHEMA", "TrainResult", "TrainSpec", "default_out", "load_policy", "progress_callback", "resolve",
+           "run_config_of", "train"]

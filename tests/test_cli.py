@@ -1,0 +1,58 @@
+"""The command line: solve with a JSON summary, plot, and clear errors before any work on bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from softreach.cli import main
+
+
+def test_solve_writes_table_and_summary(tmp_path, capsys):
+    out, js = tmp_path / "pm.srt", tmp_path / "pm.json"
+    rc = main(["solve", "pointmass", "--grid", "31", "31", "--budget-points", "23", "--accuracy", "medium",
+               "--snapshots", "5", "--compile", "no", "--out", str(out), "--json", str(js), "--quiet"])
+    assert rc == 0 and out.exists()
+    s = json.loads(js.read_text())
+    assert s["budgets"] == [0.0, 0.06, 0.3, 0.6]
+    assert len(s["soft_measure"]) == 4 and s["soft_measure"] == sorted(s["soft_measure"])
+    assert s["classical_measure"] > 50
+    assert set(s["q0_vs_classical"]) >= {"symmetric_difference", "relative", "raw_slice_measure"}
+    assert s["grid"]["shape"] == [31, 31] and s["budget_grid"]["shape"] == [31, 31, 23]
+    assert s["wall_time_s"]["W_eps"] > 0 and s["eps"] == 1e-3
+    assert "Q=0 vs classical" in capsys.readouterr().out
+    png = tmp_path / "fig.png"
+    assert main(["plot", str(out), "--out", str(png), "--from", "0,4:0.3", "--from", "-12,12:0.6"]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--grid", "0", "31"], "grid size for v must be an integer >= 5, got 0"),
+    (["--grid", "31"], "--grid needs 2 sizes"),
+    (["--eps", "-1"], "eps must be a finite number > 0, got -1.0"),
+    (["--eps", "nan"], "eps must be a finite number > 0, got nan"),
+    (["--budget-scale", "0"], "budget scale must be a finite number > 0"),
+    (["--out", "/nonexistent-dir/x.srt"], "output directory /nonexistent-dir does not exist"),
+])
+def test_bad_input_is_a_clear_error(args, message, capsys, tmp_path):
+    base = ["solve", "pointmass", "--quiet", "--compile", "no"]
+    if "--out" not in args:
+        base += ["--out", str(tmp_path / "x.srt")]
+    assert main(base + args) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "x.srt.partial").exists()  # refused before any work
+
+
+def test_plot_refuses_a_corrupted_table(tmp_path, capsys):
+    bad = tmp_path / "bad.srt"
+    bad.write_bytes(b"not a table")
+    assert main(["plot", str(bad)]) == 2
+    assert "bad magic" in capsys.readouterr().err
+
+
+def test_console_script_is_installed():
+    r = subprocess.run([sys.executable, "-m", "softreach.cli", "--help"], capture_output=True, text=True)
+    assert r.returncode == 0 and "solve" in r.stdout and "plot" in r.stdout and "study" in r.stdout

@@ -1,0 +1,201 @@
+"""Table files: round trip, integrity checks, resume after interruption, and the query API's contracts."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from softreach.reach import SolveConfig, SolverSettings, TableError, get_model, load_table, solve_table
+from softreach.reach.compute import validate
+from softreach.reach.table import MAGIC
+
+MODEL = get_model("pointmass")
+SETTINGS = SolverSettings.from_accuracy("low", dtype="float32", compile=False)
+
+
+def _cfg(**kw):
+    base = dict(shape=(21, 21), budget_points=23, snapshots=5, settings=SETTINGS)
+    base.update(kw)
+    return SolveConfig(**base)
+
+
+def test_metadata_round_trip(pointmass_table):
+    t = pointmass_table
+    assert t.fields == ["V", "W_eps"]
+    assert t.model_metadata["name"] == "pointmass" and t.eps == 1e-3
+    assert t.header["softreach_version"] and t.header["complete"]
+    assert t.grid("W_eps").shape[:2] == t.grid("V").shape
+    assert t.budget_scale == MODEL.budget_scale
+    assert t.model.metadata() == MODEL.metadata()
+    assert t.values("W_eps").shape == (11,) + t.grid("W_eps").shape
+
+
+def test_snapshots_are_the_solver_output(pointmass_table):
+    # the terminal snapshot is max(c, l) exactly, the earliest one differs from it
+    W = pointmass_table.values("W_eps")
+    g = pointmass_table.grid("W_eps")
+    x = g.coordinates()
+    from softreach.reach import soft_problem
+
+    sp = soft_problem(MODEL, pointmass_table.eps, pointmass_table.budget_scale)
+    terminal = np.maximum(np.maximum(sp.constraint_function(1.0, x), sp.floor_function(1.0, x)), sp.target_function(1.0, x))
+    np.testing.assert_allclose(W[-1], terminal + 0 * W[-1], atol=1e-5)
+    assert np.abs(W[0] - W[-1]).max() > 1.0
+
+
+@pytest.fixture
+def small_table(tmp_path):
+    path = tmp_path / "t.srt"
+    solve_table(MODEL, _cfg(), path, progress=False)
+    return path
+
+
+def test_corrupted_data_is_refused(small_table):
+    data = bytearray(small_table.read_bytes())
+    data[-100] ^= 0xFF
+    small_table.write_bytes(bytes(data))
+    with pytest.raises(TableError, match="checksum mismatch in field"):
+        load_table(small_table)
+
+
+def test_truncated_file_is_refused(small_table):
+    data = small_table.read_bytes()
+    small_table.write_bytes(data[: len(data) - 4096])
+    with pytest.raises(TableError, match="truncated"):
+        load_table(small_table)
+
+
+def test_not_a_table_and_bad_header_are_refused(small_table, tmp_path):
+    other = tmp_path / "x.srt"
+    other.write_bytes(b"hello world" * 10)
+    with pytest.raises(TableError, match="bad magic"):
+        load_table(other)
+    data = bytearray(small_table.read_bytes())
+    data[len(MAGIC) + 8] = ord("#")  # the opening brace of the JSON header
+    small_table.write_bytes(bytes(data))
+    with pytest.raises(TableError, match="header is corrupted"):
+        load_table(small_table)
+
+
+def test_interrupted_solve_resumes_to_the_same_table(tmp_path, monkeypatch):
+    ref = tmp_path / "ref.srt"
+    solve_table(MODEL, _cfg(), ref, progress=False)
+    out = tmp_path / "run.srt"
+    from softreach.reach import table as table_mod
+
+    original = table_mod.TableWriter.write_snapshot
+    calls = {"n": 0}
+
+    def crash_after_three(self, field, k, value):
+        calls["n"] += 1
+        if field == "W_eps" and calls["n"] > 8:  # V's 5 snapshots, then 3 of W_eps
+            raise KeyboardInterrupt("simulated kill")
+        return original(self, field, k, value)
+
+    monkeypatch.setattr(table_mod.TableWriter, "write_snapshot", crash_after_three)
+    with pytest.raises(KeyboardInterrupt):
+        solve_table(MODEL, _cfg(), out, progress=False)
+    partial = out.with_name(out.name + ".partial")
+    assert partial.exists() and not out.exists()
+    with pytest.raises(TableError, match="incomplete"):
+        load_table(partial)
+    monkeypatch.setattr(table_mod.TableWriter, "write_snapshot", original)
+    solve_table(MODEL, _cfg(), out, progress=False)
+    a, b = load_table(ref), load_table(out)
+    for f in ("V", "W_eps"):
+        np.testing.assert_allclose(np.asarray(a.values(f)), np.asarray(b.values(f)), atol=1e-6)
+
+
+def test_resume_with_other_settings_is_refused(tmp_path, monkeypatch):
+    out = tmp_path / "run.srt"
+    from softreach.reach import table as table_mod
+
+    def crash(self, field, k, value):
+        raise KeyboardInterrupt
+
+    original = table_mod.TableWriter.write_snapshot
+    monkeypatch.setattr(table_mod.TableWriter, "write_snapshot", crash)
+    with pytest.raises(KeyboardInterrupt):
+        solve_table(MODEL, _cfg(), out, progress=False)
+    monkeypatch.setattr(table_mod.TableWriter, "write_snapshot", original)
+    with pytest.raises(TableError, match="other settings.*shape"):
+        solve_table(MODEL, _cfg(shape=(25, 25)), out, progress=False)
+
+
+def test_queries_outside_are_unsafe_never_nan(pointmass_table):
+    t = pointmass_table
+    x = np.array([[0.0, 5.0], [100.0, 5.0], [0.0, -50.0], [0.0, 5.0]])
+    v = t.value(0.0, x, np.array([0.3, 0.3, 0.3, -0.5]))
+    assert np.isfinite(v[0]) and np.isposinf(v[1:]).all()
+    assert np.isposinf(t.value(2.0, x[:1], 0.3)).all()  # after the horizon
+    assert np.isfinite(t.value(0.0, x[:1], 5.0)).all()  # more budget than the horizon: as much as the horizon
+    np.testing.assert_allclose(t.value(0.0, x[:1], 5.0), t.value(0.0, x[:1], 1.0))
+    assert not np.isnan(t.gradient(0.0, x, np.full(4, 0.3))).any()
+
+
+def test_bad_queries_name_the_bad_value(pointmass_table):
+    t = pointmass_table
+    with pytest.raises(ValueError, match=r"x must be finite, got \[nan, 1.0\]"):
+        t.value(0.0, [[np.nan, 1.0]], 0.3)
+    with pytest.raises(ValueError, match=r"shape \(N, 2\)"):
+        t.value(0.0, [[1.0, 2.0, 3.0]], 0.3)
+    with pytest.raises(ValueError, match="z must be finite"):
+        t.value(0.0, [[1.0, 2.0]], np.inf)
+
+
+def test_classical_only_table_wants_no_budget(tmp_path):
+    path = tmp_path / "v.srt"
+    solve_table(MODEL, _cfg(classical_only=True), path, progress=False)
+    t = load_table(path)
+    assert t.fields == ["V"] and np.isfinite(t.value(0.0, [[0.0, 2.0]]))[0]
+    with pytest.raises(ValueError, match="holds only the classical V"):
+        t.value(0.0, [[0.0, 2.0]], 0.3)
+
+
+def test_model_mismatch_is_an_error(pointmass_table):
+    from softreach.reach.models.pointmass import PointMass
+
+    pointmass_table.check_compatible(MODEL)
+    with pytest.raises(TableError, match="u_max"):
+        pointmass_table.check_compatible(PointMass(u_max=55.0))
+    with pytest.raises(TableError, match="model 'pointmass', not 'glider'"):
+        pointmass_table.check_compatible(get_model("glider"))
+
+
+def test_optimal_inputs_and_q_min(pointmass_table):
+    t = pointmass_table
+    x = np.array([[-12.0, 4.0], [8.0, 12.0]])
+    a = t.optimal_control(0.0, x, [0.3, 0.3])
+    b = t.worst_disturbance(0.0, x, [0.3, 0.3])
+    assert a.shape == (2, 1) and b.shape == (2, 1)
+    assert set(np.abs(a.ravel())) <= {60.0, 0.0} and set(np.abs(b.ravel())) <= {10.0, 0.0}
+    # falling fast outside C2, 4 m up: brake (u = +60) while the wind pushes down
+    assert a[0, 0] == 60.0 and b[0, 0] == -10.0
+    # climbing fast at 12 m with one second to land: thrust down while the wind pushes up
+    assert a[1, 0] == -60.0 and b[1, 0] == 10.0
+    g = t.grid("V")
+    vv, yy = np.meshgrid(*t.state_axes("V"), indexing="ij")
+    pts = np.stack([vv.ravel(), yy.ravel()], 1)
+    qmin = t.q_min(0.0, pts)
+    for q in (0.0, 0.3, 0.6):
+        # equal up to nodes where W crosses zero within round-off of q (first crossing vs. value at q)
+        differ = (qmin <= q).reshape(g.shape) != t.set_mask(0.0, q, margin=0.0)
+        assert differ.sum() <= 2, (q, differ.sum())
+    band = t.budget_band_mask(0.0, 0.3, 0.6)
+    np.testing.assert_array_equal(band, t.set_mask(0.0, 0.6) & ~t.set_mask(0.0, 0.3))
+    assert band.any()
+
+
+def test_bad_solve_input_fails_before_work(tmp_path):
+    with pytest.raises(ValueError, match="grid size for v must be an integer >= 5, got -3"):
+        validate(MODEL, _cfg(shape=(-3, 21)), tmp_path / "a.srt")
+    with pytest.raises(ValueError, match="eps must be a finite number > 0, got 0.0"):
+        validate(MODEL, _cfg(eps=0.0), tmp_path / "a.srt")
+    with pytest.raises(ValueError, match="eps must be a finite number > 0, got nan"):
+        validate(MODEL, _cfg(eps=float("nan")), tmp_path / "a.srt")
+    with pytest.raises(ValueError, match="does not contain the hard-constraint"):
+        validate(MODEL, _cfg(domain=((-12.0, -5.0), (20.0, 20.0))), tmp_path / "a.srt")
+    with pytest.raises(ValueError, match="does not exist"):
+        validate(MODEL, _cfg(), tmp_path / "missing" / "a.srt")
+    with pytest.raises(ValueError, match="PointMassParams.u_max must be finite"):
+        get_model("pointmass", u_max=float("inf"))
