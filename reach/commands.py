@@ -36,7 +36,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--budgets", type=float, nargs="+", default=None)
     p.add_argument("--t", type=float, default=0.0, help="time of the sets")
     p.add_argument("--from", dest="starts", action="append", default=[], metavar="X1,X2,...[:Q]",
-                   help="simulate the W-derived policy under worst-case disturbance from this state with budget Q (repeatable)")
+                   help="simulate the W-derived policy under worst-case disturbance from this state with budget Q (repeatable; write --from=-12,4:0.3 when the state starts with a minus sign)")
     p.add_argument("--out", default="fig.png")
     p.set_defaults(func=run_plot)
 

@@ -25,7 +25,7 @@ def test_solve_writes_table_and_summary(tmp_path, capsys):
     assert s["wall_time_s"]["W_eps"] > 0 and s["eps"] == 1e-3
     assert "Q=0 vs classical" in capsys.readouterr().out
     png = tmp_path / "fig.png"
-    assert main(["plot", str(out), "--out", str(png), "--from", "0,4:0.3", "--from", "-12,12:0.6"]) == 0
+    assert main(["plot", str(out), "--out", str(png), "--from", "0,4:0.3", "--from=-12,12:0.6"]) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
