@@ -20,7 +20,7 @@ from .config import MODELS
 from .envs import RULES, WINDS, check_budget, check_choice, make_env, normalized_action, unwrap_filter
 from .tables import TableOracle, as_table, in_set, paper_starts, sample_inside, sample_uniform, sink_rate, start_value
 
-STARTS = ("inside", "paper", "uniform")
+STARTS = ("inside", "paper", "uniform", "env")
 POLICIES = ("optimal", "random")
 #: an episode is "over budget" when it used more than ``Q + BUDGET_TOL`` seconds (the paper's proxy for the
 #: sets: one millisecond of budget; the environment integrates the budget to about a microsecond)
@@ -39,7 +39,7 @@ def wilson(successes: int, n: int, z: float = Z95) -> dict[str, Any]:
     den = 1.0 + z * z / n
     centre = (p + z * z / (2 * n)) / den
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return {"value": p, "low": max(0.0, centre - half), "high": min(1.0, centre + half), "count": int(successes),
+    return {"value": p, "low": min(p, max(0.0, centre - half)), "high": max(p, min(1.0, centre + half)), "count": int(successes),
             "n": int(n)}
 
 
@@ -120,7 +120,8 @@ class EvalSpec:
         (default: the filter's)
     :param episodes: number of episodes
     :param starts: ``"inside"`` (sampled from ``RA~_Q``), ``"paper"`` (the representative points, cycled) or
-        ``"uniform"`` (uniform over the hard-constraint box, to show what happens outside the guarantee)
+        ``"uniform"`` (uniform over the hard-constraint box, to show what happens outside the guarantee) or
+        ``"env"`` (the environment's own reset distribution, the one training uses)
     :param seed: seed of the starts, the budgets, the gusts and the random policy
     :param margin: the filter's margin (``None``: computed)
     :param keep_traces: keep the per-step traces of this many episodes (for the plots)
@@ -186,8 +187,9 @@ def resolve_policy(spec: EvalSpec, oracle: TableOracle | None, policy_obj: Any =
     return SB3Policy(load_policy(spec.policy), str(spec.policy))
 
 
-def check_spec(spec: EvalSpec) -> None:
-    """Check ``spec`` (ValueError / FileNotFoundError naming the bad value)."""
+def check_spec(spec: EvalSpec, policy_given: bool = False) -> None:
+    """Check ``spec`` (ValueError / FileNotFoundError naming the bad value); ``policy_given``: the policy object
+    is passed in, ``spec.policy`` is only its name."""
     check_choice("model", spec.model, MODELS)
     check_choice("rule", spec.rule, RULES)
     check_choice("wind", spec.wind, WINDS)
@@ -208,7 +210,7 @@ def check_spec(spec: EvalSpec) -> None:
     for path in (spec.filter, spec.table):
         if path is not None and not Path(path).is_file():
             raise FileNotFoundError(f"table {path} does not exist (solve one with `softreach solve {spec.model}`)")
-    if spec.policy not in POLICIES and not Path(spec.policy).exists():
+    if not policy_given and spec.policy not in POLICIES and not Path(spec.policy).exists():
         raise FileNotFoundError(f"policy {spec.policy!r} is neither 'optimal', 'random' nor an existing file")
 
 
@@ -231,19 +233,25 @@ def _starts(spec: EvalSpec, table, model, rng: np.random.Generator, budget_range
         else:
             lo, hi = budget_range
             q = lo if lo == hi else float(rng.uniform(lo, hi))
-        if spec.starts == "inside":
-            x0 = sample_inside(table, q, rng)
+        if spec.starts == "env":
+            out.append((None, q))  # the environment draws the state at reset
+        elif spec.starts == "inside":
+            out.append((np.asarray(sample_inside(table, q, rng), dtype=np.float64), q))
         else:
-            x0 = sample_uniform(model, rng)
-        out.append((np.asarray(x0, dtype=np.float64), q))
+            out.append((np.asarray(sample_uniform(model, rng), dtype=np.float64), q))
     return out
 
 
-def run_episode(env, policy, x0: np.ndarray, q: float, seed: int, table=None, keep_trace: bool = True):
-    """One episode from ``x0`` with budget ``q``; returns ``(row, trace)``."""
+def run_episode(env, policy, x0: np.ndarray | None, q: float, seed: int, table=None, keep_trace: bool = True):
+    """One episode from ``x0`` (``None``: the environment's reset draws it) with budget ``q``; returns
+    ``(row, trace)``."""
     base = env.unwrapped
     model = base.model
-    obs, info = env.reset(seed=seed, options={"state": [float(v) for v in x0], "budget": float(q)})
+    options = {"budget": float(q)}
+    if x0 is not None:
+        options["state"] = [float(v) for v in x0]
+    obs, info = env.reset(seed=seed, options=options)
+    x0 = base.state.copy()
     filt = unwrap_filter(env)
     ts, xs, zs = [base.time], [base.state.copy()], [base.budget]
     pol, app, winds, active = [], [], [], []
@@ -356,7 +364,7 @@ def evaluate(spec: EvalSpec, policy_obj: Any = None, progress: bool = False) -> 
         ``act(env, obs)``); ``spec.policy`` is then only its name in the report
     :param progress: show a progress bar
     """
-    check_spec(spec)
+    check_spec(spec, policy_given=policy_obj is not None)
     table_path = spec.table or spec.filter
     table = as_table(table_path) if table_path is not None else None
     oracle = TableOracle(table) if table is not None and table.has_budget else None

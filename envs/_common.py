@@ -5,6 +5,13 @@ The environments simulate the models of :mod:`softreach.reach.models` with the m
 the vector field is ``model.f``, the budget drains at ``model.violation_rate``, landing and crashing are read off
 ``model.target``, ``model.hard_constraint`` and ``model.soft_constraint``. Nothing here re-implements a model.
 
+Per-step speed (:func:`scalar_model`): a model may also define scalar versions of these methods
+(``f_scalar``, ``violation_rate_scalar``, ``hard_constraint_scalar``, ``target_scalar``; the point mass does)
+that take one point of Python floats and repeat the vectorised arithmetic without building arrays. The
+environments then use them for the RK4 stages and the end-of-step checks; the results are the same, bit for
+bit (tests/test_envs_fastpath.py). Otherwise, or where a subclass overrides a vectorised method but not its
+scalar version, the vectorised methods are used as they are.
+
 Integration (:func:`integrate_period`): the control and the wind are held constant over a control period
 (zero-order hold) and the state is advanced by ``n_substeps`` classical Runge-Kutta (RK4) steps. The budget
 ``z`` follows the augmented dynamics ``z' = -h_eps(t, x)`` of the paper: the same RK4 stages give its
@@ -168,7 +175,9 @@ def _kink_cost(model: Model, t: float, x0: Stage, x1: Stage, a: Stage, b: Stage,
             theta = (starts[:, None] + width * grid[None, :]).reshape(-1)
             path = _hermite(theta, x0, f0, x1, f1, h)
         r = model.violation_rate(t + h * theta, path, eps)
-        r = np.broadcast_to(np.asarray(r, dtype=np.float64), theta.shape).reshape(len(starts), samples + 1)
+        if not (type(r) is np.ndarray and r.dtype == np.float64 and r.shape == theta.shape):
+            r = np.broadcast_to(np.asarray(r, dtype=np.float64), theta.shape)
+        r = r.reshape(len(starts), samples + 1)
         left, right = r[:, :-1], r[:, 1:]
         lo, hi = np.minimum(left, right), np.maximum(left, right)
         cell = width / samples * h
@@ -789,14 +798,19 @@ class LandingEnv(gym.Env):
                   and math.isfinite(float(t0)) and 0.0 <= float(t0) < self.horizon):
             raise ValueError(f"options['time'] must be a start time in [0, T) = [0, {self.horizon}) s, got {t0!r}")
         self._x, self._q, self._z, self._t = x, q, q, float(t0)
-        self._g = float(self.model.target(self._t, x))
+        fast = self._fast = scalar_model(self.model)
+        if fast is not None:
+            self._g = fast.target(self._t, x)
+            rate = fast.violation_rate(self._t, x, self.eps)
+            c1 = fast.hard_constraint(self._t, x)
+        else:
+            self._g = float(self.model.target(self._t, x))
+            rate = _rates(self.model, [self._t], [x], self.eps)[0]
+            c1 = float(self.model.hard_constraint(self._t, x))
+        self._rate_now = (self._t, x, rate)
         if self._gust is not None:
             self._gust.reset(rng)
         self._last_a = list(self._a_mid)
-        rate = _rates(self.model, [self._t], [x], self.eps)[0]
-        self._fast = scalar_model(self.model)
-        self._rate_now = (self._t, x, rate)
-        c1 = float(self.model.hard_constraint(self._t, x))
         info = self._info(0.0, rate > 0.0, c1 > 0.0, False, self._a_mid, self._wind_now(), 0.0, 0.0, 0.0)
         self._last_info = info
         if self._history is not None:
@@ -830,8 +844,12 @@ class LandingEnv(gym.Env):
         fast = self._fast
         known = self._rate_now
         rate0 = known[2] if known is not None and known[0] == t and known[1] is self._x else None
-        x, cost, rate_end = integrate_period(model, t, self._x, a, b, h, self.n_substeps, self.eps,
-                                             self.budget_resolution, fast=fast, rate0=rate0)
+        if fast is not None:
+            x, cost, rate_end = _integrate_period_scalar(fast, model, t, self._x, a, b, h, self.n_substeps, self.eps,
+                                                         self.budget_resolution, rate0)
+        else:
+            x, cost, rate_end = integrate_period(model, t, self._x, a, b, h, self.n_substeps, self.eps,
+                                                 self.budget_resolution, fast=None)
         self._rate_now = (t + h, x, rate_end)
         t_new = t + h
         if T - t_new <= 1e-9 * T:

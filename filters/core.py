@@ -17,7 +17,9 @@ cannot leave ``{W_eps <= 0}``:
   not exceed the current value (``a*`` if no point of the segment but ``a*`` qualifies).
 
 ``W`` here is the table's multilinear interpolant ``W~`` in ``(x, z)`` and linear in ``t`` (what
-:meth:`softreach.reach.Table.value` returns); :class:`TableField` evaluates the same numbers faster.
+:meth:`softreach.reach.Table.value` returns) and ``a*`` is :meth:`softreach.reach.Table.optimal_control` (read at
+the budget ``max(z, Table.budget_resolution)``, the Table API's convention: at ``z = 0`` the exact ``W_eps`` is
+flat); :class:`TableField` evaluates the same numbers faster (a single query takes tens of microseconds).
 
 The margin (:class:`MarginField`) is computed from the table, not guessed. For a query in grid cell ``c`` and
 snapshot interval ``k`` (``t`` in ``[t_k, t_k+1]``)::
@@ -52,9 +54,10 @@ tests measure on closed loops instead.
 Special cases, each reported in ``reason`` and never an exception mid-episode: a query outside the grid (or
 with a budget below the grid's lowest), after the table's horizon, or where the table holds a non-finite value
 is treated as unsafe: ``a*`` is applied, evaluated at the nearest point of the table (state and budget clipped
-to the grid, time to the table's span), and where even that is non-finite the documented fallback action
-(default: the centre of the control box). Non-finite or wrongly shaped *inputs* (``t``, ``x``, ``z``, the
-policy's action) are programming errors and raise :class:`ValueError` naming the offending value.
+to the grid, time to the table's span), and where even that is not defined (a non-finite gradient) the
+documented fallback action (``fallback_action``, default: the centre of the control box). Non-finite or wrongly
+shaped *inputs* (``t``, ``x``, ``z``, the policy's action) are programming errors and raise :class:`ValueError`
+naming the offending value.
 """
 
 from __future__ import annotations
@@ -106,7 +109,7 @@ _TIME_TOL = 1e-9
 
 # --------------------------------------------------------------------------------------------- fast field
 class TableField:
-    """Batched ``W~`` and its spatial gradient from a table's ``W_eps`` block, in one gather per query batch.
+    """Batched ``W~`` and its spatial gradient from a table's ``W_eps`` block.
 
     Numerically the same as :meth:`Table.value` and :meth:`Table.gradient` (up to rounding), including their
     conventions: ``+inf`` outside the grid or the time span or below the budget grid; a budget above the grid
@@ -115,20 +118,29 @@ class TableField:
 
     It is faster because the central difference of a multilinear interpolant over exactly one spacing is the
     interpolant (same cell, same weights) of the node-wise central differences ``(W[m+2] - W[m]) / 2h`` with
-    ``m = clip(j - 1, 0, n - 3)`` (which reproduces the inward shift at the edges): one set of weights and one
-    gather serve the value and every gradient component.
+    ``m = clip(j - 1, 0, n - 3)`` (which reproduces the inward shift at the edges): one set of weights serves the
+    value and every gradient component. Two layouts:
+
+    * ``"stacked"`` (default when it fits ``max_bytes``): the node-wise differences are computed once, stored
+      next to the values (float64, ``1 + n`` numbers per node), and a query gathers ``2^D`` rows per snapshot;
+    * ``"stencil"``: nothing is precomputed; a query gathers each corner's value and its ``2n`` difference
+      partners straight from the (memory-mapped) table. For tables too big to copy.
 
     :param table: a table with a ``W_eps`` field
+    :param layout: ``"stacked"``, ``"stencil"`` or ``None`` (stacked if it fits ``max_bytes``)
+    :param max_bytes: memory budget of the stacked copy
     """
 
-    def __init__(self, table: Table):
+    def __init__(self, table: Table, layout: str | None = None, max_bytes: int = 1024 * 2**20):
         if not table.has_budget:
             raise TableError(f"table {table.path} holds only the classical V; the filter needs W_eps (solve it "
                              f"without classical_only)")
+        if layout not in (None, "stacked", "stencil"):
+            raise ValueError(f"layout must be 'stacked', 'stencil' or None, got {layout!r}")
         grid = table.grid("W_eps")
         self.table = table
         self.grid = grid
-        self.n = len(table.model_metadata["state_names"])  # state axes; the last grid axis is the budget z
+        self.n = n = len(table.model_metadata["state_names"])  # state axes; the last grid axis is the budget z
         self.dim = D = grid.ndim
         self.times = table.times("W_eps")
         if len(self.times) < 2:
@@ -151,27 +163,56 @@ class TableField:
         # corners in itertools.product order: axis 0 is the most significant bit
         self.bits = np.array(list(itertools.product((0, 1), repeat=D)), dtype=np.int64)  # (C, D)
         self.corner_offsets = self.bits @ self.strides  # (C,)
-        C, K = len(self.bits), 1 + 2 * self.n
-        # offsets of [value, (minus, plus) per state axis] at every corner and both snapshots of the pair, for a
-        # cell away from the edges; edge cells get a correction (see _stencil)
-        offs = np.empty((2, C, K), dtype=np.int64)
-        for s in range(2):
-            offs[s, :, 0] = self.corner_offsets + s * self.size
-            for a in range(self.n):
-                offs[s, :, 1 + 2 * a] = offs[s, :, 0] - self.strides[a]
-                offs[s, :, 2 + 2 * a] = offs[s, :, 0] + self.strides[a]
-        self._stencil_offsets = offs
-        self._value_offsets = np.ascontiguousarray(offs[:, :, 0])  # (2, C)
-        self._flat_offsets = offs.reshape(-1)
+        C, K = len(self.bits), 1 + 2 * n
+        self._value_offsets = np.stack([self.corner_offsets, self.corner_offsets + self.size])  # (2, C)
         # for each axis (time first), which end's weight every one of the 2C (snapshot, corner) pairs takes
         time_bits = np.array(list(itertools.product((0, 1), repeat=D + 1)), dtype=np.int64)
         self._weight_select = [time_bits[:, a] for a in range(D + 1)]
+
+        if layout is None:
+            layout = "stacked" if self.values.shape[0] * self.size * (1 + n) * 8 <= max_bytes else "stencil"
+        self.layout = layout
+        self.stacked = None
+        if layout == "stacked":
+            self.stacked = self._stack()
+        else:
+            # offsets of [value, (minus, plus) per state axis] at every corner and both snapshots of the pair,
+            # for a cell away from the edges; edge cells get a correction (see _stencil)
+            offs = np.empty((2, C, K), dtype=np.int64)
+            for s in range(2):
+                offs[s, :, 0] = self.corner_offsets + s * self.size
+                for a in range(n):
+                    offs[s, :, 1 + 2 * a] = offs[s, :, 0] - self.strides[a]
+                    offs[s, :, 2 + 2 * a] = offs[s, :, 0] + self.strides[a]
+            self._stencil_offsets = offs
+        self._single_offsets = self._value_offsets.reshape(-1) if layout == "stacked" else \
+            self._stencil_offsets.reshape(-1)
         # scalar fast path constants (Python floats and ints)
         self._py = {
             "lo": self.lo.tolist(), "inv_h": self.inv_h.tolist(), "n1": self.n1.tolist(), "tol": self._tol.tolist(),
             "imax": (self.shape - 2).tolist(), "strides": self.strides.tolist(), "times": self.times.tolist(),
-            "two_h": (2.0 * self.h[: self.n]).tolist(),
+            "two_h": (2.0 * self.h[:n]).tolist(),
         }
+
+    def _stack(self) -> np.ndarray:
+        """``(n_times * size, 1 + n)`` float64: each node's value and its central differences along the states.
+
+        float64, because float32 differences would round the gradient by ~1e-7 relative and flip the sign of
+        bang-bang inputs where the table's own gradient is nearly zero."""
+        n, nt = self.n, self.values.shape[0]
+        out = np.empty((nt,) + tuple(self.shape) + (1 + n,), dtype=np.float64)
+        for k in range(nt):
+            W = np.asarray(self.values[k], dtype=np.float64)
+            out[k, ..., 0] = W
+            for a in range(n):
+                if self.periodic[a]:
+                    d = (np.roll(W, -1, axis=a) - np.roll(W, 1, axis=a)) / (2.0 * self.h[a])
+                else:
+                    j = np.arange(self.shape[a])
+                    m = np.clip(j - 1, 0, self.shape[a] - 3)
+                    d = (np.take(W, m + 2, axis=a) - np.take(W, m, axis=a)) / (2.0 * self.h[a])
+                out[k, ..., 1 + a] = d
+        return out.reshape(nt * self.size, 1 + n)
 
     # ---------------------------------------------------------------- location
     def locate(self, t: np.ndarray, X: np.ndarray) -> dict[str, np.ndarray]:
@@ -224,7 +265,7 @@ class TableField:
         return np.ascontiguousarray(w.T)
 
     def _corner_index(self, loc: dict[str, np.ndarray]) -> np.ndarray:
-        """Flat indices ``(N, 2, C)`` of the cell corners at both snapshots of the pair."""
+        """Flat node indices ``(N, 2, C)`` of the cell corners at both snapshots of the pair."""
         if not self.any_periodic:
             return loc["base"][:, None, None] + self._value_offsets[None]
         J = loc["I"][:, None, :] + self.bits[None, :, :]
@@ -265,7 +306,8 @@ class TableField:
     def value_at(self, loc: dict[str, np.ndarray]) -> np.ndarray:
         """``W~`` at located points; ``+inf`` where not ``inside`` (NaN stays NaN where inside)."""
         N = len(loc["k"])
-        v = self.flat[self._corner_index(loc)].reshape(N, -1).astype(np.float64)  # (N, 2C)
+        # np.take, not fancy indexing: several times faster for row gathers of this size
+        v = np.take(self.flat, self._corner_index(loc)).reshape(N, -1).astype(np.float64)  # (N, 2C)
         w = self._weights(loc["F"], loc["wt"])
         val = np.matmul(w[:, None, :], v[:, :, None])[:, 0, 0]
         return np.where(loc["inside"], val, np.inf)
@@ -282,23 +324,30 @@ class TableField:
         """
         loc = self.locate(t, X)
         N = len(t)
-        v = self.flat[self._stencil(loc)].reshape(N, -1, 1 + 2 * self.n).astype(np.float64)  # (N, 2C, 1 + 2n)
         w = self._weights(loc["F"], loc["wt"])
-        s = np.matmul(w[:, None, :], v)[:, 0, :]  # (N, 1 + 2n); matmul beats einsum here by ~3x
+        if self.stacked is not None:
+            # np.take, not fancy indexing: several times faster for row gathers of this size
+            v = np.take(self.stacked, self._corner_index(loc).reshape(-1), axis=0).reshape(N, -1, 1 + self.n)
+            s = np.matmul(w[:, None, :], v)[:, 0, :]  # (N, 1 + n); matmul beats einsum here by ~3x
+            grad = s[:, 1:]
+        else:
+            v = np.take(self.flat, self._stencil(loc)).reshape(N, -1, 1 + 2 * self.n).astype(np.float64)
+            s = np.matmul(w[:, None, :], v)[:, 0, :]
+            grad = (s[:, 2::2] - s[:, 1::2]) / (2.0 * self.h[: self.n])
         val = np.where(loc["inside"], s[:, 0], np.inf)
-        grad = (s[:, 2::2] - s[:, 1::2]) / (2.0 * self.h[: self.n])
         return val, grad, loc
 
     def single(self, t: float, c: list[float]) -> tuple[float, list[float], int, list[int], bool, bool] | None:
         """The scalar fast path of :meth:`value_and_gradient` for one query in Python floats.
 
         :return: ``(value, gradient, k, I, inside, after)``, or ``None`` where the batch path must answer
-            (periodic grids, cells at a grid edge along a state axis)
+            (periodic grids; with the stencil layout, cells at a grid edge along a state axis)
         """
         if self.any_periodic:
             return None
         py = self._py
         lo, inv_h, n1, tol, imax = py["lo"], py["inv_h"], py["n1"], py["tol"], py["imax"]
+        stencil = self.stacked is None
         inside = True
         I: list[int] = []
         F: list[float] = []
@@ -314,7 +363,7 @@ class TableField:
             i = int(s)
             if i > imax[a]:
                 i = imax[a]
-            if a < self.n and (i == 0 or i == imax[a]):
+            if stencil and a < self.n and (i == 0 or i == imax[a]):
                 return None
             I.append(i)
             F.append(s - i)
@@ -335,10 +384,13 @@ class TableField:
             w = [x for wi in w for x in (wi * g, wi * f)]
         u = 1.0 - wt
         w = np.array([wi * u for wi in w] + [wi * wt for wi in w])
-        vals = self.flat[self._flat_offsets + base].reshape(len(w), -1)
-        s = (w @ vals).tolist()
-        two_h = py["two_h"]
-        grad = [(s[2 + 2 * a] - s[1 + 2 * a]) / two_h[a] for a in range(self.n)]
+        if stencil:
+            s = (w @ np.take(self.flat, self._single_offsets + base).reshape(len(w), -1)).tolist()
+            two_h = py["two_h"]
+            grad = [(s[2 + 2 * a] - s[1 + 2 * a]) / two_h[a] for a in range(self.n)]
+        else:
+            s = (w @ np.take(self.stacked, self._single_offsets + base, axis=0)).tolist()
+            grad = s[1:]
         value = s[0] if inside else math.inf
         return value, grad, k, I, inside, after
 
@@ -467,9 +519,14 @@ class MarginField:
 
         # speed bounds |f_i| over all inputs at the state nodes, as cell maxima (S_z = 1: z' in [-1, 0])
         coords = [grid.axis(i).reshape([-1 if j == i else 1 for j in range(n)]) for i in range(n)]
-        diss = model.dissipation(float(times[0]), coords, None, None)
         state_shape = tuple(grid.shape[:n])
-        speed_nodes = [np.broadcast_to(np.abs(np.asarray(s, dtype=np.float64)), state_shape) for s in diss]
+        # a time-varying model is bounded over every snapshot time at once (conservative; the paper's are autonomous)
+        when = times[:1] if getattr(model, "time_invariant", True) else times
+        speed_nodes = None
+        for tk in when:
+            diss = model.dissipation(float(tk), coords, None, None)
+            now = [np.broadcast_to(np.abs(np.asarray(s, dtype=np.float64)), state_shape) for s in diss]
+            speed_nodes = now if speed_nodes is None else [np.maximum(a, b) for a, b in zip(speed_nodes, now)]
         speed_cells = [_cell_max(s) for s in speed_nodes]
         glob = [float(np.max(s)) for s in speed_nodes]
         if not all(math.isfinite(g) for g in glob):
@@ -697,17 +754,20 @@ class ValueFilter:
     :param interpolation_error: include the interpolation terms in the computed margin
     :param max_margin_bytes: memory budget of the margin field (larger tables are max-pooled)
     :param eps: the ``h_eps`` width used to predict the budget in the smooth rule (default: the table's)
+    :param layout: how :class:`TableField` reads the table (``"stacked"``, ``"stencil"``; default: stacked when
+        the copy fits 1 GiB)
     """
 
     def __init__(self, table: Table, dt: float, *, margin: float | None = None, rule: str = "switch",
                  model: Any = None, fallback_action: Any = None, smooth_iterations: int = 10,
                  smooth_tolerance: float = 0.0, interpolation_error: bool = True,
-                 max_margin_bytes: int = 256 * 2**20, eps: float | None = None):
+                 max_margin_bytes: int = 256 * 2**20, eps: float | None = None, layout: str | None = None):
         if not isinstance(table, Table):
             raise TypeError(f"table must be a softreach.reach.Table (load_table(path)), got {type(table).__name__}")
         if rule not in RULES:
             raise ValueError(f"rule must be one of {RULES}, got {rule!r}")
-        if not (isinstance(dt, (int, float, np.floating)) and not isinstance(dt, bool) and math.isfinite(dt) and dt > 0):
+        if not (isinstance(dt, (int, float, np.floating)) and not isinstance(dt, bool) and math.isfinite(dt)
+                and dt > 0):
             raise ValueError(f"dt must be a finite positive number of seconds, got {dt!r}")
         if margin is not None and not (isinstance(margin, (int, float, np.floating)) and not isinstance(margin, bool)
                                        and math.isfinite(margin) and margin >= 0):
@@ -720,7 +780,7 @@ class ValueFilter:
             table.check_compatible(model)  # TableError on another model or other parameters
         self.table = table
         self.model = model if model is not None else table.model
-        self.field = TableField(table)
+        self.field = TableField(table, layout=layout)
         if self.field.n != self.model.state_dim:
             raise TableError(f"table {table.path} has {self.field.n} states, the model {self.model.state_dim}")
         self.dt = float(dt)
@@ -728,6 +788,8 @@ class ValueFilter:
         self.smooth_iterations = int(smooth_iterations)
         self.smooth_tolerance = float(smooth_tolerance)
         self.eps = float(table.eps if eps is None else eps)
+        #: below this budget a* is read at it (the Table API's convention; half a budget cell)
+        self.budget_resolution = float(getattr(table, "budget_resolution", 0.0))
         self.n, self.m, self.k = self.model.state_dim, self.model.control_dim, self.model.disturbance_dim
         self.a_lo = np.array(self.model.control_bounds[0], dtype=np.float64)
         self.a_hi = np.array(self.model.control_bounds[1], dtype=np.float64)
@@ -796,16 +858,35 @@ class ValueFilter:
 
     # ---------------------------------------------------------------- queries
     def _evaluate(self, tt: np.ndarray, xs: np.ndarray, zz: np.ndarray):
+        """Value, margin, ``a*``, gradient and location flags (``inside``, ``after``) of a validated batch."""
+        N = len(xs)
         X = np.concatenate([xs, zz[:, None]], axis=1)
-        value, grad, loc = self.field.value_and_gradient(tt, X)
+        low = np.nonzero(zz < self.budget_resolution)[0]
+        if len(low):
+            # Table.optimal_control's convention: below the smallest budget the grid resolves, the gradient is read
+            # there (at z = 0 the exact W_eps is flat and its gradient says nothing); value and margin are not.
+            # One call serves both: rows N.. repeat the low-budget queries at their own budget.
+            Xg = X.copy()
+            Xg[low, -1] = self.budget_resolution
+            value, grad, loc = self.field.value_and_gradient(np.concatenate([tt, tt[low]]),
+                                                             np.concatenate([Xg, X[low]]))
+            value[low] = value[N:]
+            value = value[:N]
+            grad = grad[:N]
+            for key in ("inside", "after", "I", "k"):
+                arr = loc[key]
+                arr[low] = arr[N:]
+                loc[key] = arr[:N]
+        else:
+            value, grad, loc = self.field.value_and_gradient(tt, X)
         comps = [X[:, i] for i in range(self.n)]
         # the optimal inputs depend on the gradient only through the model's closed form; z enters neither
-        t_arg = float(tt[0]) if np.all(tt == tt[0]) else tt
+        t_arg = float(tt[0]) if tt[0] == tt[-1] and np.all(tt == tt[0]) else tt
         p = [grad[:, i] for i in range(self.n)]
-        a_star = np.stack([np.broadcast_to(np.asarray(o, dtype=np.float64), (len(xs),))
+        a_star = np.stack([np.broadcast_to(np.asarray(o, dtype=np.float64), (N,))
                            for o in self.model.optimal_control(t_arg, comps, p)], axis=1)
         if self.margin_field is None:
-            margin = np.full(len(xs), self.constant_margin)
+            margin = np.full(N, self.constant_margin)
         else:
             margin = self.margin_field.lookup(loc)
         return value, margin, a_star, grad, loc
@@ -852,10 +933,14 @@ class ValueFilter:
         fz = -np.asarray(self.model.violation_rate(t, comps, self.eps), dtype=np.float64) * np.ones(len(x))
         return fx, fz
 
-    def predicted_value(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray, winds: np.ndarray) -> np.ndarray:
+    def predicted_value(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray,
+                        winds: np.ndarray) -> np.ndarray:
         """Worst predicted ``W~`` after one period: one Heun (RK2) step of ``(x, z)`` with ``a`` and each wind.
 
-        :param t: ``(N,)``; :param x: ``(N, n)``; :param z: ``(N,)``; :param a: ``(N, m)`` physical actions
+        :param t: ``(N,)`` times
+        :param x: ``(N, n)`` states
+        :param z: ``(N,)`` budgets
+        :param a: ``(N, m)`` physical actions
         :param winds: ``(N, J, k)`` candidate winds per row (the table's ``b*`` and the box corners)
         :return: ``(N,)`` the largest predicted value over the winds (``+inf`` where a prediction leaves the table)
         """
@@ -884,7 +969,9 @@ class ValueFilter:
         :param z: remaining budget(s) [s], scalar or ``(N,)``
         :param action: the policy's action(s), ``(N, m)`` or ``(m,)``: physical units, or ``[-1, 1]`` with
             ``normalized=True`` (then every returned action is normalised too)
-        :return: ``(applied, info)``: ``applied`` has the shape of ``action``; ``info`` holds ``value`` (``W~``,
+        :return: ``(applied, info)``: ``applied`` has the shape of ``action`` (where the policy's action passes:
+            the numbers given, with ``normalized=True``, so that an environment receives them bit for bit; clipped
+            to the control box otherwise); ``info`` holds ``value`` (``W~``,
             ``+inf`` outside the table), ``margin``, ``active`` (the filter changed the action), ``reason``
             (codes of :data:`REASONS`), ``optimal_action`` (``a*``, ``(N, m)``), ``blend`` (``1`` where the
             policy's action passed, ``0`` where ``a*`` was applied). Numpy in, numpy out; torch in, torch out
@@ -896,19 +983,22 @@ class ValueFilter:
             if fast is not None:
                 return fast
         tt, xs, zz, act, single, ref = self._inputs(t, x, z, action)
-        pol = self.physical(act) if normalized else np.clip(act, self.a_lo, self.a_hi)
+        # np.minimum/np.maximum rather than np.clip: the same result, without np.clip's Python-level dispatch
+        pol = self.physical(act) if normalized else np.minimum(np.maximum(act, self.a_lo), self.a_hi)
         value, margin, a_star, grad, loc = self._evaluate(tt, xs, zz)
 
         # a* where defined; the fallback where not. A NaN gradient must be caught here: the models' bang-bang
         # closed forms map it silently to the middle of the box (neither sign test holds)
         a_ok = np.isfinite(a_star).all(axis=1) & np.isfinite(grad).all(axis=1)
-        if not a_ok.all():
+        all_ok = bool(a_ok.all())
+        if not all_ok:
             a_star = np.where(a_ok[:, None], a_star, self.fallback_action)
-        a_star = np.clip(a_star, self.a_lo, self.a_hi)
+        a_star = np.minimum(np.maximum(a_star, self.a_lo), self.a_hi)
 
         if self.rule == "switch":
             applied, active = switch_rule(value, margin, pol, a_star)
             lam = (~active).astype(np.float64)
+            reason = np.where(active, OPTIMAL, PASS)
         else:
             def predict(rows: np.ndarray, a: np.ndarray) -> np.ndarray:
                 winds = np.concatenate([
@@ -920,12 +1010,13 @@ class ValueFilter:
             applied, lam = smooth_rule(value, margin, pol, a_star, predict, self.smooth_iterations,
                                        self.smooth_tolerance)
             active = lam < 1.0
-
-        reason = np.where(active, np.where(lam > 0.0, BLEND, OPTIMAL), PASS).astype(np.int64)
+            reason = np.where(active, np.where(lam > 0.0, BLEND, OPTIMAL), PASS)
         if not (loc["inside"].all() and np.isfinite(value).all()):
             reason = np.where(~loc["inside"], np.where(loc["after"], AFTER_HORIZON, OUTSIDE), reason)
             reason = np.where(np.isnan(value), NONFINITE, reason)
-        reason = np.where(~a_ok & active & (lam == 0.0), FALLBACK, reason)
+        if not all_ok:
+            reason = np.where(~a_ok & active & (lam == 0.0), FALLBACK, reason)
+        reason = reason.astype(np.int64, copy=False)
 
         if normalized:
             applied = np.where(active[:, None], np.clip(self.normalized(applied), -1.0, 1.0), act)
@@ -969,6 +1060,11 @@ class ValueFilter:
         if found is None:
             return None
         value, grad, k, I, inside, after = found
+        if zf < self.budget_resolution:  # a* at the smallest resolved budget (see _evaluate)
+            found = self.field.single(tf, xs + [self.budget_resolution])
+            if found is None:
+                return None
+            grad = found[1]
         if not all(math.isfinite(v) for v in grad):
             return None
         a_star = [float(v) for v in self.model.optimal_control(tf, xs, grad)]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -47,15 +48,19 @@ class SafetyFilter(gym.Wrapper):
     :param env: a softreach landing environment (possibly wrapped, e.g. by ``TimeLimit`` or ``Monitor``)
     :param table: a :class:`~softreach.reach.Table` with ``W_eps``, or the path of one
     :param margin: ``None`` for the computed margin, or a constant ``>= 0`` (units of the soft constraint)
-    :param rule: ``"switch"`` (least restrictive) or ``"smooth"``
+    :param rule: ``"switch"`` (least restrictive; the default) or ``"smooth"``
     :param filter_kwargs: passed to :class:`~softreach.filters.ValueFilter` (``fallback_action``,
-        ``smooth_iterations``, ``smooth_tolerance``, ``interpolation_error``, ``max_margin_bytes``)
+        ``smooth_iterations``, ``smooth_tolerance``, ``interpolation_error``, ``max_margin_bytes``, ``layout``)
+    :param value_filter: an existing :class:`~softreach.filters.ValueFilter` to share (its margin field is
+        computed once per table; many environments can use one). Its rule and margin apply; ``table`` may then be
+        ``None``, and ``margin``, ``rule`` and ``filter_kwargs`` must be left out or agree with it
     :raises TableError: the table was solved for another model, other parameters or another ``eps``
     :raises TypeError: the environment does not expose what the filter needs
+    :raises ValueError: a shared ``value_filter`` made for another control period, rule or margin
     """
 
-    def __init__(self, env: gym.Env, table: Table | str | os.PathLike, margin: float | None = None,
-                 rule: str = "switch", **filter_kwargs: Any):
+    def __init__(self, env: gym.Env, table: Table | str | os.PathLike | None = None, margin: float | None = None,
+                 rule: str | None = None, *, value_filter: ValueFilter | None = None, **filter_kwargs: Any):
         super().__init__(env)
         base = env.unwrapped
         missing = [name for name in REQUIRED_ATTRIBUTES if not hasattr(base, name)]
@@ -63,17 +68,40 @@ class SafetyFilter(gym.Wrapper):
             raise TypeError(f"SafetyFilter needs an environment exposing {list(REQUIRED_ATTRIBUTES)} on "
                             f"env.unwrapped (the softreach landing environments do); {type(base).__name__} lacks "
                             f"{missing}")
+        if value_filter is not None:
+            if not isinstance(value_filter, ValueFilter):
+                raise TypeError(f"value_filter must be a softreach.filters.ValueFilter, got "
+                                f"{type(value_filter).__name__}")
+            if table is None:
+                table = value_filter.table
+            if rule is not None and rule != value_filter.rule:
+                raise ValueError(f"rule={rule!r} differs from the shared value_filter's {value_filter.rule!r}")
+            if margin is not None and margin != value_filter.constant_margin:
+                raise ValueError(f"margin={margin!r} differs from the shared value_filter's "
+                                 f"{value_filter.constant_margin!r} (None: computed)")
+            if filter_kwargs:
+                raise ValueError(f"{sorted(filter_kwargs)} cannot apply to a shared value_filter")
+            if not math.isclose(value_filter.dt, float(base.dt), rel_tol=1e-12, abs_tol=0.0):
+                raise ValueError(f"the shared value_filter was made for dt={value_filter.dt}, the environment "
+                                 f"steps dt={base.dt}: the margin covers one control period")
+        if table is None:
+            raise TypeError("SafetyFilter needs a table (a softreach Table or its path) or a value_filter")
         if not isinstance(table, Table):
             table = load_table(table)
+        if value_filter is not None and table is not value_filter.table and \
+                Path(table.path).resolve() != Path(value_filter.table.path).resolve():
+            raise ValueError(f"table {table.path} is not the shared value_filter's {value_filter.table.path}")
         table.check_compatible(base.model)
         if table.has_budget and table.eps is not None and not math.isclose(float(table.eps), float(base.eps),
                                                                               rel_tol=1e-9, abs_tol=0.0):
             raise TableError(f"table {table.path} was solved with eps={table.eps}, but the environment drains the "
                              f"budget with eps={base.eps}; make the environment with eps={table.eps}")
         self.table = table
-        self.value_filter = ValueFilter(table, float(base.dt), margin=margin, rule=rule, model=base.model,
-                                        **filter_kwargs)
-        self.rule = rule
+        if value_filter is None:
+            value_filter = ValueFilter(table, float(base.dt), margin=margin, rule=rule or "switch",
+                                       model=base.model, **filter_kwargs)
+        self.value_filter = value_filter
+        self.rule = value_filter.rule
         self._reset_stats()
 
     # ------------------------------------------------------------------------------------------ episode stats

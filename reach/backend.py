@@ -18,6 +18,11 @@ except ImportError:  # pragma: no cover - exercised only without torch
 
 Array = Any
 
+_ndarray = np.ndarray
+#: numpy's ``clip`` ufunc: ``np.clip`` of a float array with two bounds ends in it after a few Python-level
+#: dispatch steps that cost more than the clip itself on small arrays (``None`` where numpy does not expose it)
+_clip_ufunc = getattr(getattr(getattr(np, "_core", None), "umath", None), "clip", None)
+
 
 def is_torch(x: Any) -> bool:
     """:return: whether ``x`` is a torch tensor."""
@@ -34,6 +39,8 @@ def namespace(*xs: Any):
 
 def maximum(a: Array, b: Array | float) -> Array:
     """Elementwise max; ``b`` may be a Python scalar (``torch.maximum`` refuses scalars)."""
+    if type(a) is _ndarray and (type(b) is _ndarray or type(b) is float):  # the common numpy case, checked first
+        return np.maximum(a, b)
     if is_torch(a) or is_torch(b):
         if not is_torch(a):
             a, b = b, a
@@ -45,6 +52,8 @@ def maximum(a: Array, b: Array | float) -> Array:
 
 def minimum(a: Array, b: Array | float) -> Array:
     """Elementwise min; ``b`` may be a Python scalar."""
+    if type(a) is _ndarray and (type(b) is _ndarray or type(b) is float):
+        return np.minimum(a, b)
     if is_torch(a) or is_torch(b):
         if not is_torch(a):
             a, b = b, a
@@ -56,6 +65,9 @@ def minimum(a: Array, b: Array | float) -> Array:
 
 def clip(a: Array, lo: float, hi: float) -> Array:
     """Elementwise clip to ``[lo, hi]``."""
+    if (_clip_ufunc is not None and type(a) is _ndarray and a.dtype.kind == "f" and lo is not None
+            and hi is not None):
+        return _clip_ufunc(a, lo, hi)  # what np.clip calls for a float array and two bounds, without the detour
     if is_torch(a):
         return torch.clamp(a, min=lo, max=hi)
     return np.clip(a, lo, hi)

@@ -37,6 +37,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--t", type=float, default=0.0, help="time of the sets")
     p.add_argument("--from", dest="starts", action="append", default=[], metavar="X1,X2,...[:Q]",
                    help="simulate the W-derived policy under worst-case disturbance from this state with budget Q (repeatable; write --from=-12,4:0.3 when the state starts with a minus sign)")
+    p.add_argument("--paper-starts", action="store_true",
+                   help="add the paper's representative starts: the highest point just inside RA~_Q for Q = 0, 0.3, 0.6 (Fig. 1, 5)")
     p.add_argument("--out", default="fig.png")
     p.set_defaults(func=run_plot)
 
@@ -118,6 +120,11 @@ def run_plot(args: argparse.Namespace) -> int:
     model = table.model
     budgets = args.budgets if args.budgets is not None else list(getattr(model, "default_budgets", (0.0, 0.06, 0.3, 0.6)))
     starts = [_parse_start(s, model.state_dim) for s in args.starts]
+    if args.paper_starts and table.has_budget:
+        from .plotting import representative_starts
+
+        picks = [q for q in (budgets[0], budgets[len(budgets) // 2], budgets[-1])] if len(budgets) > 2 else budgets
+        starts += representative_starts(table, sorted(set(picks)))
     if model.state_dim == 2:
         from .plotting import plot_sets_2d
 

@@ -57,20 +57,24 @@ def highest_node(table, mask: np.ndarray, axis: int = 0) -> float | None:
     return float(table.state_axes("V" if "V" in table.fields else "W_eps")[axis][idx])
 
 
-def pick_starts(table, budgets: Sequence[float], t: float = 0.0, depth: float = 0.5) -> list[tuple[tuple[float, ...], float]]:
+def pick_starts(table, budgets: Sequence[float], t: float = 0.0, depth: float = 0.5,
+                panel_axes: tuple[int, int] = (1, 0)) -> list[tuple[tuple[float, ...], float]]:
     """One representative start per budget, as in the paper's Fig. 6-8: for each ``Q`` a grid node of ``RA~_Q``
-    that needs the budget (outside the set of the next smaller budget in ``budgets`` when that leaves nodes),
-    as high as possible while well inside the set.
+    that needs the budget, as high as possible while well inside the set.
 
-    "Well inside": among the candidate nodes, those whose ``W_eps(t, x, Q)`` is at most ``depth`` times the
-    smallest value among them (``W`` is negative inside); of those the highest (largest first coordinate), then
-    the one with the smallest ``W``. The start's budget is ``Q`` itself.
+    "Needs the budget": outside the set of the next smaller budget in ``budgets``, preferably outside its
+    projection onto the panel (so that the start is visibly new in the figure); when no node qualifies, the
+    whole set. "Well inside": among the candidate nodes, those whose ``W_eps(t, x, Q)`` is at most ``depth``
+    times the smallest value among them (``W`` is negative inside); of those the highest (largest coordinate
+    along the panel's vertical axis), then the one with the smallest ``W``. The start's budget is ``Q``.
 
     :return: ``[(x, Q), ...]``, one entry per budget whose set is not empty
     """
     grid = table.grid("W_eps")
     n = grid.ndim - 1
     axes = [grid.axis(i) for i in range(n)]
+    ix, iy = panel_axes
+    iz = [i for i in range(n) if i not in (ix, iy)][0]
     out = []
     ordered = sorted(float(q) for q in budgets)
     prev_mask = None
@@ -79,14 +83,17 @@ def pick_starts(table, budgets: Sequence[float], t: float = 0.0, depth: float = 
         if not mask.any():
             prev_mask = mask
             continue
-        cand = mask & ~prev_mask if prev_mask is not None and (mask & ~prev_mask).any() else mask
+        cand = mask
+        if prev_mask is not None:
+            outside_proj = mask & ~np.expand_dims(project(prev_mask, axis=iz), iz)
+            cand = outside_proj if outside_proj.any() else (mask & ~prev_mask if (mask & ~prev_mask).any() else mask)
         w = table._slice("W_eps", t, max(q, table.budget_resolution))
         wc = np.where(cand, w, np.inf)
         floor = float(wc.min())
         deep = cand & (w <= depth * floor) if floor < 0 else cand
         idx = np.argwhere(deep)
-        top = idx[:, 0].max()
-        idx = idx[idx[:, 0] == top]
+        top = idx[:, iy].max()
+        idx = idx[idx[:, iy] == top]
         best = idx[np.argmin([w[tuple(i)] for i in idx])]
         out.append((tuple(float(axes[d][best[d]]) for d in range(n)), q))
         prev_mask = mask
@@ -176,7 +183,7 @@ def plot_sets_nd(table, budgets: Sequence[float], out: str | Path, t: float = 0.
             raise ValueError(f"{len(starts)} starts but {len(qs)} start budgets")
         runs = [(np.asarray(s, float), float(q)) for s, q in zip(starts, qs)]
     elif auto_starts:
-        runs = [(np.asarray(s, float), q) for s, q in pick_starts(table, budgets, t)]
+        runs = [(np.asarray(s, float), q) for s, q in pick_starts(table, budgets, t, panel_axes=panel_axes)]
     ro = None
     if runs:
         x0 = np.stack([r[0] for r in runs])

@@ -198,6 +198,10 @@ class Table:
         return out
 
     def _inputs(self, t: Any, x: Any, z: Any, which: str) -> np.ndarray:
+        if z is not None:
+            # at z = 0 the exact W_eps is flat (>= 0 everywhere, = 0 on RA~_0): its gradient says nothing. Use the
+            # smallest budget the grid resolves, as set_mask does.
+            z = np.maximum(np.asarray(z, dtype=np.float64), self.budget_resolution)
         field, tt, pts, _ = self._queries(t, x, z)
         p = self.gradient(t, x, z)
         n = len(self.model_metadata["state_names"])
@@ -274,8 +278,10 @@ class Table:
           ``RA~_0`` is the flat face ``{W_eps = 0}`` of the set in ``(x, z)``: a slice along it is ill-posed on a
           grid. It is taken as the limit from above (``RA~_0 = ∩_{Q>0} RA~_Q``, Prop. 4) at the smallest budget
           the grid resolves, half a budget cell.
-        * ``margin`` defaults to the paper's proxy: 0 for ``Q = 0``, ``kappa * 1e-3`` (one millisecond of budget)
-          for ``Q > 0``.
+        * ``margin`` (value units) defaults to 0 for every budget, which keeps the sets nested in ``Q`` (Prop. 4).
+          The paper's proxy for ``Q > 0`` (§VI-A: ``W_eps + 1e-3 <= 0`` with ``kappa = 1``, i.e. one millisecond of
+          budget) is ``margin = paper_proxy_margin()``; applied to ``Q > 0`` only it would break the nesting with
+          ``Q = 0`` at a few boundary nodes.
         """
         if budget is None:
             return self._slice("V", float(t)) <= 0
@@ -283,8 +289,12 @@ class Table:
         if not (math.isfinite(q) and q >= 0):
             raise ValueError(f"budget must be a finite number >= 0, got {budget!r}")
         if margin is None:
-            margin = 0.0 if q == 0 else self.budget_scale * PAPER_PROXY_SECONDS
+            margin = 0.0
         return self._slice("W_eps", float(t), max(q, self.budget_resolution)) + margin <= 0
+
+    def paper_proxy_margin(self) -> float:
+        """The paper's ``1e-3`` proxy level in this table's value units (``kappa * 1 ms`` of budget)."""
+        return self.budget_scale * PAPER_PROXY_SECONDS
 
     def cell_volume(self, field: str | None = None) -> float:
         g = self.grid(field)

@@ -8,13 +8,18 @@ units. Models pick the scales and say which in their docstring.
 
 from __future__ import annotations
 
+from itertools import repeat
 from typing import Sequence
+
+import numpy as np
 
 from . import backend as B
 
 Array = B.Array
 
 INF = float("inf")
+_ndarray = np.ndarray
+_ONES = repeat(1.0)
 
 
 def box(x: Sequence[Array], lo: Sequence[float], hi: Sequence[float], scale: Sequence[float] | None = None) -> Array:
@@ -29,17 +34,31 @@ def box(x: Sequence[Array], lo: Sequence[float], hi: Sequence[float], scale: Seq
     :param scale: positive divisor per component (default 1)
     :return: ``max_i max((lo_i - x_i)/s_i, (x_i - hi_i)/s_i)``; negative strictly inside
     """
-    if scale is None:
-        scale = [1.0] * len(x)
+    # max_i max(lo_i - x_i, x_i - hi_i) / s_i: dividing by s_i > 0 is monotone (after rounding too), so each
+    # component is divided once rather than each term, and without scales once in all: the same values.
     out = None
-    for xi, l, h, s in zip(x, lo, hi, scale):
-        terms = []
+    for xi, l, h, s in zip(x, lo, hi, _ONES if scale is None else scale):
         if l != -INF:
-            terms.append((l - xi) / s)
-        if h != INF:
-            terms.append((xi - h) / s)
-        for term in terms:
-            out = term if out is None else B.maximum(out, term)
+            term = B.maximum(l - xi, xi - h) if h != INF else l - xi
+        elif h != INF:
+            term = xi - h
+        else:
+            continue
+        if scale is not None:
+            if s > 0:
+                term = term / s
+            else:  # not a valid scale; kept as it always computed
+                term = _max_terms((l - xi) / s if l != -INF else None, (xi - h) / s if h != INF else None)
+        out = term if out is None else B.maximum(out, term)
     if out is None:
         raise ValueError("box() needs at least one finite bound")
+    if scale is None and not (type(out) is _ndarray and out.dtype.kind == "f"):
+        out = out / 1.0  # the default scale 1: integer inputs give a float result, as before
     return out
+
+
+def _max_terms(a, b):
+    """The larger of two terms, either of which may be missing (``None``)."""
+    if a is None:
+        return b
+    return a if b is None else B.maximum(a, b)

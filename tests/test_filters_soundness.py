@@ -8,7 +8,6 @@ lands, and check the filter against it: the filter can only keep the guarantee t
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
@@ -104,6 +103,18 @@ def test_the_same_random_policy_violates_without_the_filter(table, switch_filter
         assert r.landed.mean() < 0.1, (name, r.landed.mean())
 
 
+def test_the_computed_margin_is_what_keeps_it_safe(table, switch_filter):
+    """Same starts, policy and winds with a constant margin (0, or a guessed 0.1): the policy is let through too
+    close to the boundary and leaves C1 in a good share of the runs (measured: 30-80 % at 0, 5-50 % at 0.05)."""
+    model = table.model
+    q = 0.3
+    starts = deep_starts(switch_filter, table, q)
+    for margin in (0.0, 0.05):
+        vf = ValueFilter(table, DT, margin=margin)
+        r = rollout(model, starts, q, filtered(vf, random_policy(1)), table_disturbance(table), dt=DT, eps=table.eps)
+        assert r.hard_violation.mean() > 0.1, (margin, r.hard_violation.mean())
+
+
 def test_deep_inside_the_filter_never_intervenes(table, switch_filter):
     """At states with W <= -margin every action passes unchanged, the extremes of the box included."""
     rng = np.random.default_rng(2)
@@ -160,6 +171,7 @@ def test_env_random_policy_is_safe_under_the_wrapper(table, switch_filter, wind)
               "constant": dict(wind_value=-10.0)}[wind]
     # the environment's adversarial wind queries the Table API at every step (about 1 ms): fewer episodes there
     limit = 6 if wind == "adversarial" else 15
+    raw_results = []
     for q in BUDGETS:
         starts = deep_starts(switch_filter, table, q, limit=limit, seed=5)
         env = SafetyFilter(gym.make("softreach/PointMassLanding-v0", wind=wind, **kwargs), table)
@@ -167,9 +179,11 @@ def test_env_random_policy_is_safe_under_the_wrapper(table, switch_filter, wind)
             assert landed and not hard and used <= q + DT, (wind, q, landed, hard, used)
             assert summary["max_value"] <= 0.0 and summary["intervention_rate"] < 1.0
         raw = gym.make("softreach/PointMassLanding-v0", wind=wind, **kwargs)
-        results = run_episodes(raw, starts, q, seed=10)
-        assert np.mean([hard for _, hard, _, _ in results]) > 0.25
-        assert np.mean([landed for landed, _, _, _ in results]) < 0.2
+        raw_results += run_episodes(raw, starts, q, seed=10)
+    # the same policy, episodes and winds without the filter: crashes or misses the landing
+    hard = np.array([h for _, h, _, _ in raw_results])
+    failed = np.array([h or not landed for landed, h, _, _ in raw_results])
+    assert hard.mean() > 0.15 and failed.mean() > 0.8, (hard.mean(), failed.mean())
 
 
 # ------------------------------------------------------------------------------------------ glider
@@ -186,7 +200,6 @@ def glider_table(tmp_path_factory):
     return load_table(path)
 
 
-@pytest.mark.slow
 def test_glider_random_policy_is_safe(glider_table):
     model = glider_table.model
     vf = ValueFilter(glider_table, 0.1)

@@ -2,22 +2,19 @@
 
 from __future__ import annotations
 
-import importlib.metadata as md
+import subprocess
+import sys
 
 
-def test_sub_packages_import_under_softreach():
-    import softreach.agents
-    import softreach.envs
-    import softreach.filters
-    import softreach.reach
-
-    assert softreach.reach.load_table and softreach.envs
-
-
-def test_no_bare_top_level_package_is_installed():
-    dist = md.distribution("softreach")
-    top = (dist.read_text("top_level.txt") or "").split()
-    files = [str(f) for f in (dist.files or [])]
-    for bare in ("envs", "reach", "filters", "agents"):
-        assert bare not in top
-        assert not any(f.startswith(f"{bare}/") for f in files), bare
+def test_sub_packages_import_under_softreach_and_no_bare_names(tmp_path):
+    # run outside the repository so that the source folders on the current directory cannot be found
+    code = (
+        "import importlib.util as u, pathlib, softreach.reach, softreach.envs, softreach.filters, softreach.agents\n"
+        "ours = str(pathlib.Path(softreach.reach.__file__).resolve().parents[1])\n"
+        "bare = [n for n in ('envs', 'reach', 'filters', 'agents') if u.find_spec(n) is not None "
+        "and str(pathlib.Path(u.find_spec(n).origin or '').resolve()).startswith(ours)]\n"
+        "print('BARE', bare)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "BARE []" in r.stdout, r.stdout

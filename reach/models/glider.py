@@ -216,7 +216,7 @@ class Glider(Model):
         self.control_bounds = ((float(p.alpha_bounds[0]),), (float(p.alpha_bounds[1]),))
         self.disturbance_bounds = ((-float(p.wind_max),), (float(p.wind_max),))
         self.horizon = p.horizon
-        self.domain = ((-5.0, 58.0, math.radians(-4.0)), (45.0, 86.0, math.radians(1.0)))
+        self.domain = ((-3.0, 58.0, math.radians(-4.0)), (42.0, 86.0, math.radians(1.0)))
         # C1 is unbounded above in h; the start altitudes [0, 40] m stand in for its top so that a grid must hold them
         self.hard_box = ((p.min_altitude, p.hard_speed[0], p.hard_gamma[0]), (40.0, p.hard_speed[1], p.hard_gamma[1]))
         self.default_shape = (41, 29, 21)

@@ -1,0 +1,169 @@
+"""The ``train``, ``evaluate`` and ``demo`` subcommands of the ``softreach`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from .config import ALGOS, MODELS
+
+WIND_CHOICES = ("none", "random", "adversarial")
+RULE_CHOICES = ("switch", "smooth")
+START_CHOICES = ("inside", "paper", "uniform", "env")
+
+
+def _budget(text: str) -> float | tuple[float, float]:
+    """``Q`` or ``LOW:HIGH`` (seconds)."""
+    try:
+        if ":" in text:
+            lo, hi = text.split(":", 1)
+            return (float(lo), float(hi))
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"budget must be Q or LOW:HIGH in seconds, got {text!r}") from None
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """Register ``train``, ``evaluate`` and ``demo`` on the ``softreach`` parser's subparsers."""
+    p = sub.add_parser("train", help="train a landing policy with Stable-Baselines3 (optionally under the safety filter)",
+                       description="Train a PPO or SAC landing policy. With --filter the environment executes the "
+                                   "filtered action (see docs/agents.md for what the learner is told). Defaults: "
+                                   "softreach.agents.config.")
+    p.add_argument("model", choices=MODELS)
+    p.add_argument("--algo", choices=ALGOS, default="ppo")
+    p.add_argument("--filter", metavar="TABLE", default=None, help="W_eps table of the safety filter (default: no filter)")
+    p.add_argument("--rule", choices=RULE_CHOICES, default="switch", help="filter rule (default switch)")
+    p.add_argument("--budget", type=_budget, default=None, metavar="Q|LO:HI",
+                   help="budget Q of every episode, or a range (default: the environment's, point mass 0:0.6)")
+    p.add_argument("--wind", choices=WIND_CHOICES, default=None, help="training wind (default random)")
+    p.add_argument("--table", metavar="TABLE", default=None, help="table of the adversarial wind (default: --filter's)")
+    p.add_argument("--timesteps", type=int, default=None, help="environment steps (default: the model's, see config)")
+    p.add_argument("--n-envs", type=int, default=None, help="environments stepped together (default 8 for PPO)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--intervention-penalty", type=float, default=None,
+                   help="reward subtracted per step in which the filter acted (default 0)")
+    p.add_argument("--action-label", choices=("policy", "applied"), default=None,
+                   help="SAC: store the policy's or the applied action in the replay buffer (default policy)")
+    p.add_argument("--eval-freq", type=int, default=None, help="steps between periodic evaluations (0: none)")
+    p.add_argument("--out", metavar="DIR", default=None,
+                   help="output directory (default runs/train/<model>-<algo>-<filtered|unfiltered>-s<seed>)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run_train)
+
+    p = sub.add_parser("evaluate", help="evaluate a policy (trained, table-optimal or random), filtered or not",
+                       description="Run episodes and report landings, hard violations, budget use and interventions "
+                                   "with 95% confidence intervals.")
+    p.add_argument("model", choices=MODELS)
+    p.add_argument("--policy", required=True, metavar="PATH|optimal|random",
+                   help="a saved policy (model.zip or its run directory), 'optimal' (the table's a*) or 'random'")
+    p.add_argument("--filter", metavar="TABLE", default=None, help="apply the safety filter of this table")
+    p.add_argument("--rule", choices=RULE_CHOICES, default="switch")
+    p.add_argument("--budget", type=float, default=None, metavar="Q",
+                   help="budget Q of every episode (default: drawn from the environment's range)")
+    p.add_argument("--wind", choices=WIND_CHOICES, default="adversarial")
+    p.add_argument("--table", metavar="TABLE", default=None,
+                   help="table for 'optimal', the adversarial wind and inside/paper starts (default: --filter's)")
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--starts", choices=START_CHOICES, default="inside",
+                   help="inside RA~_Q (sampled from the table), the paper's representative points, uniform over C1 "
+                        "(outside the guarantee too), or the environment's own reset distribution")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", dest="json_path", metavar="PATH", default=None, help="write aggregates and episodes here")
+    p.add_argument("--plots", metavar="DIR", default=None, help="write the plots into this directory")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run_evaluate)
+
+    p = sub.add_parser("demo", help="the whole mission: table, filtered training, evaluation, report",
+                       description="Solve a small point-mass table (cached), train PPO briefly with the safety filter, "
+                                   "evaluate the policy with and without the filter and the table-optimal controller "
+                                   "under adversarial and random wind, and write report.md with the plots.")
+    p.add_argument("--out", metavar="DIR", default="runs/demo")
+    p.add_argument("--table", metavar="TABLE", default=None, help="use this table instead of solving the demo's")
+    p.add_argument("--policy", metavar="PATH", default=None, help="evaluate this policy instead of training one")
+    p.add_argument("--timesteps", type=int, default=None, help="training steps (default 150000)")
+    p.add_argument("--n-envs", type=int, default=None)
+    p.add_argument("--episodes", type=int, default=30, help="episodes per row of the report (default 30)")
+    p.add_argument("--budgets", type=float, nargs="+", default=[0.0, 0.3, 0.6])
+    p.add_argument("--winds", choices=("random", "adversarial", "none"), nargs="+", default=["adversarial", "random"])
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=run_demo)
+
+
+def _threads() -> None:
+    """One torch thread unless the user set OMP_NUM_THREADS (small MLPs gain nothing from more)."""
+    import torch
+
+    if "OMP_NUM_THREADS" not in os.environ:
+        torch.set_num_threads(1)
+
+
+def run_train(args: argparse.Namespace) -> int:
+    from .train import TrainSpec, train
+
+    _threads()
+    run_over: dict[str, Any] = {}
+    if args.intervention_penalty is not None:
+        run_over["intervention_penalty"] = args.intervention_penalty
+    if args.eval_freq is not None:
+        run_over["eval_freq"] = args.eval_freq
+    algo_over: dict[str, Any] = {}
+    if args.action_label is not None:
+        if args.algo != "sac":
+            raise ValueError(f"--action-label is a SAC option (PPO must store its own action), got --algo {args.algo}")
+        algo_over["action_label"] = args.action_label
+    spec = TrainSpec(model=args.model, algo=args.algo, filter=args.filter, rule=args.rule, budget=args.budget,
+                     wind=args.wind, table=args.table, timesteps=args.timesteps, n_envs=args.n_envs, seed=args.seed,
+                     out=args.out, progress=not args.quiet, run_overrides=run_over, algo_overrides=algo_over)
+    res = train(spec)
+    print(f"trained {res.timesteps} steps in {res.wall_time_s:.0f} s ({res.timesteps / max(res.wall_time_s, 1e-9):.0f} steps/s)")
+    print(f"policy: {res.model_path}" + (f"  best: {res.best_model_path}" if res.best_model_path else ""))
+    print(f"evaluate: softreach evaluate {args.model} --policy {res.model_path}"
+          + (f" --filter {args.filter}" if args.filter else "") + " --plots " + str(res.out_dir / "plots"))
+    return 0
+
+
+def run_evaluate(args: argparse.Namespace) -> int:
+    from .evaluate import EvalSpec, evaluate
+    from .report import summary_lines, write_json, write_plots
+
+    _threads()
+    if args.json_path:
+        jp = Path(args.json_path)
+        if str(jp.parent) and not jp.parent.is_dir():
+            raise ValueError(f"--json directory {jp.parent} does not exist")
+    spec = EvalSpec(model=args.model, policy=args.policy, filter=args.filter, rule=args.rule, budget=args.budget,
+                    wind=args.wind, table=args.table, episodes=args.episodes, starts=args.starts, seed=args.seed)
+    res = evaluate(spec, progress=not args.quiet)
+    print("\n".join(summary_lines(res)))
+    if args.json_path:
+        print(f"wrote {write_json(res, args.json_path)}")
+    if args.plots:
+        from softreach.reach import load_table
+
+        from .train import run_config_of
+
+        table_path = args.table or args.filter
+        table = load_table(table_path) if table_path else None
+        cfg = run_config_of(args.policy) if args.policy not in ("optimal", "random") else None
+        files = write_plots(res, args.plots, table=table, run_dir=cfg["_dir"] if cfg else None)
+        print("wrote " + ", ".join(str(f) for f in files))
+    return 0
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    from .demo import DEMO_TIMESTEPS, run_demo as demo
+
+    _threads()
+    out = demo(out=args.out, table=args.table, policy=args.policy, timesteps=args.timesteps or DEMO_TIMESTEPS,
+               episodes=args.episodes, budgets=args.budgets, winds=args.winds, seed=args.seed,
+               progress=not args.quiet, n_envs=args.n_envs)
+    print((out["report"].read_text().split("## Plots")[0]).strip())
+    print(f"\nreport: {out['report']}")
+    return 0
+
+
+__all__ = ["add_commands", "run_demo", "run_evaluate", "run_train"]

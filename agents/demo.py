@@ -1,0 +1,193 @@
+"""``softreach demo``: the whole mission in one command.
+
+1. solve a small point-mass ``W_eps`` table (cached: an existing table file is reused);
+2. train a PPO landing policy briefly **with** the safety filter (skipped with ``--policy``);
+3. evaluate the trained policy with the filter, the same policy without it, and the table-optimal controller,
+   from starts inside ``RA~_Q``, under adversarial (and by default random) wind, for several budgets ``Q``;
+4. write ``report.md`` (the comparison table and the plots), ``report.json`` (every evaluation's aggregates)
+   and the plots into ``--out``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+from .evaluate import EvalSpec, EvaluationResult, evaluate
+from .report import comparison_table, evaluation_document, summary_lines, write_plots
+
+#: the demo's table: coarser than the model's default (101 x 101 x 111), solved in well under a minute
+DEMO_GRID = (81, 81)
+DEMO_BUDGET_POINTS = 89
+DEMO_TIMESTEPS = 150_000
+
+
+@dataclass
+class CompareSpec:
+    """A comparison matrix: policies x winds x budgets, all from the same starts (paired).
+
+    :param model: ``"pointmass"`` or ``"glider"``
+    :param table: the ``W_eps`` table (filter, optimal controller, adversarial wind, starts)
+    :param policy: a trained policy (path), evaluated with and without the filter; ``None``: optimal only
+    :param winds: winds to evaluate under
+    :param budgets: budgets ``Q``
+    :param episodes: episodes per cell
+    :param starts: start distribution
+    :param rule: the filter's rule
+    :param seed: evaluation seed (the same for every cell)
+    """
+
+    model: str = "pointmass"
+    table: str = ""
+    policy: str | None = None
+    winds: Sequence[str] = ("adversarial", "random")
+    budgets: Sequence[float] = (0.0, 0.3, 0.6)
+    episodes: int = 50
+    starts: str = "inside"
+    rule: str = "switch"
+    seed: int = 0
+    labels: dict[str, str] = field(default_factory=lambda: {"filtered": "trained + filter",
+                                                            "unfiltered": "trained, no filter",
+                                                            "optimal": "table-optimal a*"})
+
+
+def compare(spec: CompareSpec, progress: bool = True) -> list[tuple[str, str, EvaluationResult]]:
+    """Run the matrix; returns ``[(key, label, result), ...]`` with ``key`` in filtered/unfiltered/optimal."""
+    out = []
+    policy_obj = None
+    if spec.policy is not None:
+        from .train import load_policy
+
+        policy_obj = load_policy(spec.policy)
+    for wind in spec.winds:
+        for q in spec.budgets:
+            runs = []
+            if spec.policy is not None:
+                runs += [("filtered", spec.policy, spec.table), ("unfiltered", spec.policy, None)]
+            runs.append(("optimal", "optimal", None))
+            for key, policy, filt in runs:
+                es = EvalSpec(model=spec.model, policy=policy, filter=filt, rule=spec.rule, budget=float(q), wind=wind,
+                              table=spec.table, episodes=spec.episodes, starts=spec.starts, seed=spec.seed)
+                res = evaluate(es, policy_obj=policy_obj if key != "optimal" else None, progress=progress)
+                out.append((key, spec.labels[key], res))
+    return out
+
+
+def solve_demo_table(path: Path, progress: bool = True) -> Path:
+    """Solve the demo's point-mass table into ``path`` unless it exists already (then it is reused)."""
+    if path.is_file():
+        return path
+    from softreach.reach import SolveConfig, SolverSettings, get_model, solve_table
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cfg = SolveConfig(shape=DEMO_GRID, budget_points=DEMO_BUDGET_POINTS,
+                      settings=SolverSettings.from_accuracy("very_high", dtype="float32"), snapshots=21)
+    solve_table(get_model("pointmass"), cfg, path, progress=progress)
+    return path
+
+
+def write_report(results: list[tuple[str, str, EvaluationResult]], out: Path, table_path: str,
+                 run_dir: str | None, commands: Sequence[str], focus: tuple[str, float] | None = None,
+                 wall: dict[str, float] | None = None) -> Path:
+    """``report.md`` + ``report.json`` + plots (for the ``focus`` wind and budget) into ``out``."""
+    from softreach.reach import load_table
+
+    out.mkdir(parents=True, exist_ok=True)
+    table = load_table(table_path)
+    plots_dir = out / "plots"
+    plot_lines = []
+    if focus is None and results:
+        focus = (results[0][2].config["wind"], results[0][2].config["budget"])
+    for key, label, res in results:
+        c = res.config
+        if focus is not None and (c["wind"], c["budget"]) == focus:
+            files = write_plots(res, plots_dir, table=table, run_dir=run_dir if key == "filtered" else None,
+                                prefix=f"{key}_")
+            plot_lines.append(f"**{label}** ({c['wind']} wind, Q={c['budget']:g}): " +
+                              ", ".join(f"[{f.name}](plots/{f.name})" for f in files))
+    doc = {"schema": "softreach.comparison/1", "table": str(table_path), "policy_run": run_dir,
+           "commands": list(commands), "wall_time_s": wall or {},
+           "evaluations": [{"key": k, "label": lab, **{x: y for x, y in evaluation_document(r).items()
+                                                       if x != "episodes"}} for k, lab, r in results]}
+    (out / "report.json").write_text(json.dumps(doc, indent=1))
+    lines = [f"# softreach: {table.model.name} landing under a soft-constrained safety filter", "",
+             f"Table: `{table_path}`. Policy run: `{run_dir or '(none)'}`. Starts: inside `RA~_Q` "
+             f"(sampled from the table), {results[0][2].config['episodes'] if results else 0} episodes per row, "
+             "the same starts and gusts in every row of a (wind, Q) group.", "",
+             "Rates are shown with Wilson 95% intervals; *hard violations* and *over Q* (budget used above "
+             f"Q + {results[0][2].config['budget_tol'] if results else 0:g} s) are counts of episodes; "
+             "*interventions* is the mean fraction of steps in which the filter replaced the action.", "",
+             comparison_table([(lab, r) for _, lab, r in results]), "", "## Plots", ""]
+    lines += [f"- {p}" for p in plot_lines]
+    lines += ["", "## Details", ""]
+    for _, lab, r in results:
+        lines += ["```", *summary_lines(r), "```"]
+    lines += ["", "## Commands", "", "```", *commands, "```"]
+    if wall:
+        lines += ["", "Wall time: " + ", ".join(f"{k} {v:.0f} s" for k, v in wall.items())]
+    path = out / "report.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def run_demo(out: str | Path = "runs/demo", table: str | None = None, policy: str | None = None,
+             timesteps: int = DEMO_TIMESTEPS, episodes: int = 30, budgets: Sequence[float] = (0.0, 0.3, 0.6),
+             winds: Sequence[str] = ("adversarial", "random"), seed: int = 0, progress: bool = True,
+             n_envs: int | None = None) -> dict[str, Any]:
+    """The demo (module docstring). Returns ``{"report", "table", "policy", "results"}``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    wall: dict[str, float] = {}
+    commands = []
+    t0 = time.perf_counter()
+    if table is None:
+        table_path = solve_demo_table(out / "pointmass_demo.srt", progress=progress)
+        commands.append(f"softreach solve pointmass --grid {DEMO_GRID[0]} {DEMO_GRID[1]} --budget-points "
+                        f"{DEMO_BUDGET_POINTS} --dtype float32 --snapshots 21 --out {table_path}")
+    else:
+        table_path = Path(table)
+        if not table_path.is_file():
+            raise FileNotFoundError(f"table {table} does not exist")
+    from softreach.reach import load_table
+
+    model = load_table(table_path).model.name  # a given table may be the glider's
+    wall["table"] = time.perf_counter() - t0
+    run_dir = None
+    if policy is None:
+        from .train import TrainSpec, train
+
+        t0 = time.perf_counter()
+        tr = train(TrainSpec(model=model, algo="ppo", filter=str(table_path), timesteps=timesteps, seed=seed,
+                             n_envs=n_envs, out=str(out / "train"), progress=progress))
+        wall["train"] = time.perf_counter() - t0
+        policy = str(tr.model_path)
+        run_dir = str(tr.out_dir)
+        commands.append(f"softreach train {model} --filter {table_path} --timesteps {timesteps} --seed {seed} "
+                        f"--out {tr.out_dir}")
+    else:
+        from .train import run_config_of
+
+        cfg = run_config_of(policy)
+        run_dir = cfg["_dir"] if cfg else None
+    t0 = time.perf_counter()
+    cs = CompareSpec(model=model, table=str(table_path), policy=policy, winds=tuple(winds),
+                     budgets=tuple(budgets), episodes=episodes, seed=seed)
+    results = compare(cs, progress=progress)
+    wall["evaluate"] = time.perf_counter() - t0
+    for w in winds:
+        for q in budgets:
+            for key, flag in (("filtered", f"--filter {table_path}"), ("unfiltered", f"--table {table_path}"),
+                              ("optimal", f"--table {table_path}")):
+                pol = "optimal" if key == "optimal" else policy
+                commands.append(f"softreach evaluate {model} --policy {pol} {flag} --wind {w} --budget {q:g} "
+                                f"--episodes {episodes} --starts inside --seed {seed}")
+    focus = ("adversarial", float(budgets[len(budgets) // 2])) if "adversarial" in winds and budgets else None
+    report = write_report(results, out, str(table_path), run_dir, commands, focus=focus, wall=wall)
+    return {"report": report, "table": table_path, "policy": policy, "results": results}
+
+
+__all__ = ["CompareSpec", "DEMO_BUDGET_POINTS", "DEMO_GRID", "DEMO_TIMESTEPS", "compare", "run_demo",
+           "solve_demo_table", "write_report"]

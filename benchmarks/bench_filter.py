@@ -1,0 +1,210 @@
+"""Latency of the safety filter, and a closed-loop comparison of its two rules.
+
+Usage::
+
+    OMP_NUM_THREADS=1 python benchmarks/bench_filter.py [--table pointmass.srt] [--repeats 5] [--json out.json]
+                                                        [--skip-eval]
+
+Without ``--table`` a 61 x 61 x 45 point-mass table is solved first (a few seconds; the one the soundness tests
+use). Each latency is the mean time per call over many calls, on fixed random inputs drawn beforehand, in
+``--repeats`` runs:
+
+* **single query** — ``ValueFilter.filter(t, x, z, action)`` for one state (numpy, switch rule): the call a
+  ``SafetyFilter.step`` makes. Target: under 50 us.
+* **batch of 1,024** — the same call on ``(1024, n)`` states (numpy). Target: under 1 ms.
+* the same for the smooth rule, for torch tensors (CPU) in and out, and, for scale, the ``Table`` API calls the
+  filter replaces (``Table.value`` + ``Table.optimal_control``).
+
+Each figure is given as the best and the median wall-clock time over the runs and the median CPU time of the
+process (on a machine shared with other jobs the wall clock includes their time slices; CPU time does not).
+
+States are drawn over the hard-constraint box, budgets in ``[0, 0.6]`` and times in ``[0, 0.9]``, so that the mix
+of passes and interventions is a realistic one.
+
+Evaluation (``--skip-eval`` to leave it out): a uniformly random policy, filtered by each rule, from the grid nodes
+with ``W_eps(0, x, Q) <= -margin`` for ``Q`` in ``{0.06, 0.3, 0.6}``, under the table's adversarial wind, a random
+switching wind and the two constant extremes (``reach.simulate.rollout``, dt = 0.01 s). Reported per rule: the
+share of runs that land, that leave ``C1`` and that overspend (budget used above ``Q + dt``), the intervention rate
+(steps where the applied action differs from the policy's) and the mean ``|applied - policy|`` [m/s^2]; and, for
+reference, the same policy without a filter.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from softreach.filters import ValueFilter
+from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
+from softreach.reach.simulate import constant, random_switching, rollout, table_disturbance
+
+DT = 0.01
+
+
+def _per_call(fn, calls: int, repeats: int) -> dict[str, float]:
+    """Seconds per call: the best and the median over ``repeats`` runs of ``calls`` calls (after one warm-up
+    call), in wall-clock time, and the median CPU time of this process (which other workers on a shared
+    machine do not inflate)."""
+    fn()
+    wall, cpu = [], []
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        for _ in range(calls):
+            fn()
+        wall.append((time.perf_counter() - t0) / calls)
+        cpu.append((time.process_time() - c0) / calls)
+    return {"wall_best": min(wall), "wall_median": statistics.median(wall), "cpu_median": statistics.median(cpu)}
+
+
+def latency(table, repeats: int) -> dict[str, dict[str, float]]:
+    """Microseconds per call of the filter and of the Table API it replaces."""
+    rng = np.random.default_rng(0)
+    n = 1024
+    x = np.c_[rng.uniform(-15, 15, n), rng.uniform(0, 18, n)]
+    z = rng.uniform(0, 0.6, n)
+    t = rng.uniform(0, 0.9, n)
+    a = rng.uniform(-60, 60, (n, 1))
+    switch = ValueFilter(table, DT)
+    smooth = ValueFilter(table, DT, rule="smooth")
+    # a single query cycles through the drawn states so that caches do not flatter it
+    singles = [(float(t[i]), x[i].copy(), float(z[i]), a[i].copy()) for i in range(256)]
+
+    def single(vf):
+        it = iter(())
+
+        def call():
+            nonlocal it
+            try:
+                args = next(it)
+            except StopIteration:
+                it = iter(singles)
+                args = next(it)
+            vf.filter(*args)
+        return call
+
+    out = {
+        "switch_single_us": _per_call(single(switch), 2000, repeats),
+        "switch_batch1024_us": _per_call(lambda: switch.filter(t, x, z, a), 100, repeats),
+        "smooth_single_us": _per_call(single(smooth), 300, repeats),
+        "smooth_batch1024_us": _per_call(lambda: smooth.filter(t, x, z, a), 20, repeats),
+        "table_api_single_us": _per_call(lambda: (table.value(t[:1], x[:1], z[:1]),
+                                                  table.optimal_control(t[:1], x[:1], z[:1])), 300, repeats),
+        "table_api_batch1024_us": _per_call(lambda: (table.value(t, x, z), table.optimal_control(t, x, z)),
+                                            20, repeats),
+    }
+    try:
+        import torch
+
+        tt, xx, zz, aa = (torch.tensor(v, dtype=torch.float32) for v in (t, x, z, a / 60.0))
+        out["switch_batch1024_torch_cpu_us"] = _per_call(lambda: switch.filter(tt, xx, zz, aa, normalized=True),
+                                                         100, repeats)
+    except ImportError:  # pragma: no cover
+        pass
+    return {k: {kind: v * 1e6 for kind, v in d.items()} for k, d in out.items()}
+
+
+def evaluate(table) -> dict:
+    """Closed-loop comparison of the two rules (and no filter) with a random policy."""
+    model = table.model
+    g = table.grid("V")
+    V, Y = np.meshgrid(g.axis(0), g.axis(1), indexing="ij")
+    xs = np.c_[V.ravel(), Y.ravel()]
+    filters = {"switch": ValueFilter(table, DT), "smooth": ValueFilter(table, DT, rule="smooth")}
+    winds = {"adversarial": lambda: table_disturbance(table),
+             "switching": lambda: random_switching(model, seed=3, hold=0.05),
+             "up": lambda: constant([model.params.d_max]), "down": lambda: constant([-model.params.d_max])}
+    rows = []
+    for q in (0.06, 0.3, 0.6):
+        ref = filters["switch"]
+        starts = xs[ref.value(0.0, xs, q) <= -ref.margin(0.0, xs, q)]
+        for wname, wind in winds.items():
+            for rule in ("none", "switch", "smooth"):
+                rng = np.random.default_rng(1)
+                log = {"active": 0, "steps": 0, "moved": 0.0}
+
+                def control(tq, x, zq, rule=rule, rng=rng, log=log):
+                    pol = rng.uniform(-60, 60, (len(x), 1))
+                    if rule == "none":
+                        return pol
+                    applied, info = filters[rule].filter(tq, x, zq, pol)
+                    log["active"] += int(info["active"].sum())
+                    log["steps"] += len(x)
+                    log["moved"] += float(np.abs(applied - pol).sum())
+                    return applied
+
+                r = rollout(model, starts, q, control, wind(), dt=DT, eps=table.eps)
+                rows.append({"Q": q, "wind": wname, "rule": rule, "starts": len(starts),
+                             "landed": float(r.landed.mean()), "hard_violation": float(r.hard_violation.mean()),
+                             "overspent": float((r.budget_used > q + DT).mean()),
+                             "intervention_rate": log["active"] / log["steps"] if log["steps"] else 0.0,
+                             "mean_abs_change": log["moved"] / log["steps"] if log["steps"] else 0.0})
+    return {"rows": rows}
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--table", help="a point-mass W_eps table (default: solve a 61 x 61 x 45 one)")
+    parser.add_argument("--repeats", type=int, default=5, help="timing runs per figure; the median is kept")
+    parser.add_argument("--skip-eval", action="store_true", help="latency only")
+    parser.add_argument("--json", help="write the results to this JSON file")
+    args = parser.parse_args(argv)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.table:
+            path = Path(args.table)
+        else:
+            path = Path(tmp) / "pointmass_61.srt"
+            cfg = SolveConfig(shape=(61, 61), budget_points=45, snapshots=11,
+                              settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False))
+            t0 = time.perf_counter()
+            solve_table(get_model("pointmass"), cfg, path, progress=False)
+            print(f"solved {path.name} in {time.perf_counter() - t0:.1f} s")
+        table = load_table(path)
+        t0 = time.perf_counter()
+        vf = ValueFilter(table, DT)
+        build = time.perf_counter() - t0
+        results: dict = {
+            "machine": {"python": platform.python_version(), "processor": platform.processor(),
+                        "cpu_count": os.cpu_count(), "numpy": np.__version__,
+                        "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS")},
+            "table": {"grid": table.grid("W_eps").to_dict(), "snapshots": len(table.times())},
+            "filter_construction_s": build,
+            "margin": vf.margin_field.summary(),
+        }
+        print(f"filter construction (margin field): {build * 1e3:.0f} ms")
+        print("margin terms (largest over the table):",
+              ", ".join(f"{k} {v:.3f}" for k, v in results["margin"]["terms_max"].items()))
+        lat = latency(table, args.repeats)
+        results["latency_us"] = lat
+        print(f"{'latency [us]':32s} {'wall best':>10s} {'wall median':>12s} {'cpu median':>11s}")
+        for k, v in lat.items():
+            print(f"{k:32s} {v['wall_best']:10.1f} {v['wall_median']:12.1f} {v['cpu_median']:11.1f}")
+        single, batch = lat["switch_single_us"], lat["switch_batch1024_us"]
+        print(f"targets (wall median / best): single query < 50 us: {single['wall_median'] < 50} / "
+              f"{single['wall_best'] < 50}; batch of 1,024 < 1 ms: {batch['wall_median'] < 1000} / "
+              f"{batch['wall_best'] < 1000}")
+        if not args.skip_eval:
+            ev = evaluate(table)
+            results["evaluation"] = ev
+            print(f"{'Q':>5s} {'wind':12s} {'rule':7s} {'starts':>6s} {'landed':>7s} {'hard':>6s} {'overspent':>9s} "
+                  f"{'interv.':>8s} {'|da|':>7s}")
+            for r in ev["rows"]:
+                print(f"{r['Q']:5.2f} {r['wind']:12s} {r['rule']:7s} {r['starts']:6d} {r['landed']:7.3f} "
+                      f"{r['hard_violation']:6.3f} {r['overspent']:9.3f} {r['intervention_rate']:8.3f} "
+                      f"{r['mean_abs_change']:7.2f}")
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(results, fh, indent=2)
+    return results
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,185 @@
+"""``SafetyFilter`` as a gymnasium wrapper: info keys, episode summary, exact pass-through, errors, vector envs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import gymnasium as gym
+
+import softreach.envs  # noqa: F401  (registers the environments)
+from softreach.filters import SafetyFilter, ValueFilter
+from softreach.reach import TableError
+
+ENV_ID = "softreach/PointMassLanding-v0"
+KEYS = ("filter_active", "policy_action", "applied_action", "value", "margin", "optimal_action", "filter_reason")
+
+
+def deep_start(table, q=0.3, which=0):
+    """A grid node with W <= -margin at t = 0 (from the table itself)."""
+    vf = ValueFilter(table, 0.01)
+    g = table.grid("V")
+    V, Y = np.meshgrid(g.axis(0), g.axis(1), indexing="ij")
+    xs = np.c_[V.ravel(), Y.ravel()]
+    deep = xs[vf.value(0.0, xs, q) <= -vf.margin(0.0, xs, q)]
+    assert len(deep) > which
+    return deep[which]
+
+
+def test_info_and_episode_summary(pointmass_table):
+    env = SafetyFilter(gym.make(ENV_ID), pointmass_table)
+    x0 = deep_start(pointmass_table)
+    obs, info = env.reset(seed=0, options={"state": x0.tolist(), "budget": 0.3})
+    assert info["value"] <= -info["margin"]
+    env.action_space.seed(0)
+    rows = []
+    done = False
+    while not done:
+        action = env.action_space.sample()
+        obs, reward, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+        for key in KEYS:
+            assert key in info
+        assert info["policy_action"].shape == (1,) and info["applied_action"].dtype == np.float32
+        np.testing.assert_array_equal(info["policy_action"], action)
+        # what the environment applied (physical) is what the filter says it applied
+        np.testing.assert_allclose(info["action_physical"], 60.0 * info["applied_action"].astype(float), rtol=1e-6)
+        if info["filter_active"]:
+            np.testing.assert_allclose(info["applied_action"], info["optimal_action"], atol=1e-6)
+            assert info["filter_reason"] in ("optimal", "outside_domain", "after_horizon")
+        else:
+            np.testing.assert_array_equal(info["applied_action"], action)  # bit-exact pass-through
+            assert info["filter_reason"] == "pass" and info["value"] <= -info["margin"]
+        rows.append((info["filter_active"], info["value"]))
+    summary = info["filter_episode"]
+    active = np.array([r[0] for r in rows])
+    values = np.array([r[1] for r in rows])
+    assert summary["steps"] == len(rows)
+    assert summary["interventions"] == active.sum()
+    assert summary["intervention_rate"] == pytest.approx(active.mean())
+    assert summary["min_value"] == values.min() and summary["max_value"] == values.max()
+    assert summary["budget_used"] == pytest.approx(info["budget_used"])
+    assert summary["initial_budget"] == 0.3
+    # a new episode starts new statistics
+    env.reset(options={"state": x0.tolist(), "budget": 0.3})
+    assert env.episode_summary()["steps"] == 0
+
+
+def test_table_path_and_smooth_rule(pointmass_table_path):
+    env = SafetyFilter(gym.make(ENV_ID, wind="random"), pointmass_table_path, rule="smooth")
+    env.reset(seed=1)
+    for _ in range(20):
+        _, _, terminated, truncated, info = env.step(env.action_space.sample())
+        assert info["filter_reason"] in ("pass", "blend", "optimal", "outside_domain")
+        if terminated or truncated:
+            break
+
+
+def test_mismatched_table_is_an_error_at_construction(pointmass_table):
+    with pytest.raises(TableError, match="d_max"):
+        SafetyFilter(gym.make(ENV_ID, model_params={"d_max": 5.0}), pointmass_table)
+    with pytest.raises(TableError, match="glider|pointmass"):
+        SafetyFilter(gym.make("softreach/GliderLanding-v0"), pointmass_table)
+    with pytest.raises(TableError, match="eps"):
+        SafetyFilter(gym.make(ENV_ID, eps=0.01), pointmass_table)
+    with pytest.raises(TypeError, match="state"):
+        SafetyFilter(gym.make("CartPole-v1"), pointmass_table)
+
+
+def test_a_shared_value_filter(pointmass_table):
+    """Many environments can share one core (the margin field is computed once)."""
+    core = ValueFilter(pointmass_table, 0.01)
+    a = SafetyFilter(gym.make(ENV_ID), value_filter=core)
+    b = SafetyFilter(gym.make(ENV_ID), pointmass_table, value_filter=core)
+    assert a.value_filter is core and b.value_filter is core and a.rule == "switch"
+    x0 = deep_start(pointmass_table).tolist()
+    for env in (a, b):
+        env.reset(options={"state": x0, "budget": 0.3})
+    ia = a.step(np.array([0.5], np.float32))[-1]
+    ib = b.step(np.array([0.5], np.float32))[-1]
+    assert ia["value"] == ib["value"] and ia["filter_active"] == ib["filter_active"]
+    with pytest.raises(ValueError, match="dt"):
+        SafetyFilter(gym.make(ENV_ID, dt=0.02, max_episode_steps=50), value_filter=core)
+    with pytest.raises(ValueError, match="rule"):
+        SafetyFilter(gym.make(ENV_ID), value_filter=core, rule="smooth")
+    with pytest.raises(ValueError, match="margin"):
+        SafetyFilter(gym.make(ENV_ID), value_filter=core, margin=0.2)
+    with pytest.raises(TableError, match="d_max"):
+        SafetyFilter(gym.make(ENV_ID, model_params={"d_max": 5.0}), value_filter=core)
+
+
+def test_bad_actions_raise_before_the_env_steps(pointmass_table):
+    env = SafetyFilter(gym.make(ENV_ID), pointmass_table)
+    with pytest.raises(gym.error.ResetNeeded):
+        env.step(np.zeros(1, np.float32))
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="finite"):
+        env.step(np.array([np.nan], np.float32))
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(2, np.float32))
+
+
+def test_unsafe_start_runs_to_the_end(pointmass_table):
+    """A start outside the safe set (too high to land in the time left): the filter applies a* at every step,
+    says so, and the episode ends normally (crash or late), without an exception."""
+    env = SafetyFilter(gym.make(ENV_ID), pointmass_table)
+    _, info = env.reset(options={"state": [0.0, 15.0], "budget": 0.3, "time": 0.9})
+    assert info["value"] > 0
+    done = False
+    while not done:
+        _, _, terminated, truncated, info = env.step(np.array([1.0], np.float32))
+        done = terminated or truncated
+        assert info["filter_active"] and info["filter_reason"] == "optimal"
+    assert not info["landed"] and info["filter_episode"]["intervention_rate"] == 1.0
+
+
+def _make(table_path):
+    def thunk():
+        return SafetyFilter(gym.make(ENV_ID, wind="random"), table_path)
+    return thunk
+
+
+@pytest.mark.parametrize("vector", ["sync", "async"])
+def test_gymnasium_vector_envs(pointmass_table_path, vector):
+    cls = gym.vector.SyncVectorEnv if vector == "sync" else gym.vector.AsyncVectorEnv
+    envs = cls([_make(pointmass_table_path) for _ in range(2)])
+    try:
+        envs.reset(seed=0)
+        filtered_steps = ends = 0
+        for _ in range(120):
+            obs, reward, terminated, truncated, infos = envs.step(envs.action_space.sample())
+            # a step that auto-resets a sub-environment carries its reset info (value, margin) instead
+            assert infos["value"].shape == (2,)
+            if "filter_active" in infos:
+                stepped = infos["_filter_active"]
+                filtered_steps += int(stepped.sum())
+                assert infos["applied_action"].shape == (2, 1)
+                assert np.all(np.isin(infos["filter_reason"][stepped], ["pass", "optimal", "outside_domain"]))
+            if "filter_episode" in infos:
+                ends += int(infos["_filter_episode"].sum())
+                rate = infos["filter_episode"]["intervention_rate"][infos["_filter_episode"]]
+                assert np.all((rate >= 0) & (rate <= 1))
+        assert filtered_steps > 150 and ends >= 2  # episodes (at most 100 steps) ended and reported a summary
+    finally:
+        envs.close()
+
+
+def test_stable_baselines3_make_vec_env(pointmass_table_path):
+    pytest.importorskip("stable_baselines3")
+    from stable_baselines3.common.env_util import make_vec_env
+
+    venv = make_vec_env(ENV_ID, n_envs=2, seed=0, wrapper_class=SafetyFilter,
+                        wrapper_kwargs={"table": pointmass_table_path})
+    try:
+        venv.reset()
+        ends = 0
+        for _ in range(110):
+            _, _, dones, infos = venv.step(np.array([venv.action_space.sample() for _ in range(2)]))
+            for info in infos:
+                if "filter_active" in info:  # (SB3 resets inside step; the terminal step's info is kept)
+                    assert info["applied_action"].shape == (1,) and info["filter_reason"] in ("pass", "optimal")
+                    assert info["filter_active"] == (info["filter_reason"] != "pass")
+            ends += sum("filter_episode" in info for info in infos)
+        assert ends >= 2
+    finally:
+        venv.close()
