@@ -173,8 +173,15 @@ def run_demo(out: str | Path = "runs/demo", table: str | None = None, policy: st
         cfg = run_config_of(policy)
         run_dir = cfg["_dir"] if cfg else None
     t0 = time.perf_counter()
+    labels = CompareSpec().labels
+    from .train import run_config_of
+
+    cfg = run_config_of(policy)
+    if cfg is not None:
+        how = f"{cfg['algo'].upper()} trained {'with' if cfg.get('filter') else 'without'} filter"
+        labels = {**labels, "filtered": f"{how}, + filter", "unfiltered": f"{how}, no filter"}
     cs = CompareSpec(model=model, table=str(table_path), policy=policy, winds=tuple(winds),
-                     budgets=tuple(budgets), episodes=episodes, seed=seed)
+                     budgets=tuple(budgets), episodes=episodes, seed=seed, labels=labels)
     results = compare(cs, progress=progress)
     wall["evaluate"] = time.perf_counter() - t0
     for w in winds:

@@ -60,6 +60,10 @@ def peak_rss_mib() -> float:
 def cmd_solve(args: argparse.Namespace) -> dict[str, Any]:
     from softreach.reach import SolveConfig, SolverSettings, get_model, solve_table
 
+    import torch
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
     model = get_model("glider")
     compile_ = {"auto": None, "yes": True, "no": False}[args.compile]
     settings = SolverSettings.from_accuracy(args.accuracy, dtype=args.dtype, device=args.device, compile=compile_)
@@ -74,7 +78,7 @@ def cmd_solve(args: argparse.Namespace) -> dict[str, Any]:
     nodes = int(np.prod(cfg.shape)) * cfg.budget_points
     out = {"grid": list(cfg.shape), "budget_points": cfg.budget_points, "nodes_W": nodes, "accuracy": args.accuracy,
            "dtype": args.dtype, "device": args.device, "wall_s": wall, "wall_by_field_s": summary["wall_time_s"],
-           "peak_rss_mib": peak_rss_mib(), "load_before": load0, "load_after": _load(), "cpus": os.cpu_count(),
+           "peak_rss_mib": peak_rss_mib(), "torch_threads": torch.get_num_threads(), "load_before": load0, "load_after": _load(), "cpus": os.cpu_count(),
            "platform": platform.platform(), "table": str(args.out), "budget_scale": summary["budget_scale"],
            "classical_measure": summary["classical_measure"], "soft_measure": summary["soft_measure"]}
     print(json.dumps(out, indent=2))
@@ -224,6 +228,8 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--out", required=True)
     s.add_argument("--no-resume", action="store_true")
     s.add_argument("--quiet", action="store_true")
+    s.add_argument("--threads", type=int, default=None,
+                   help="torch intra-op threads (default: torch's, i.e. OMP_NUM_THREADS or the core count)")
     s.add_argument("--json")
     r = sub.add_parser("report")
     r.add_argument("table")

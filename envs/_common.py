@@ -833,7 +833,8 @@ class LandingEnv(gym.Env):
         :return: ``(observation, reward, terminated, truncated, info)``
         :raises ValueError: on a non-finite or wrongly shaped action
         """
-        if self._x is None:
+        x0 = self._x
+        if x0 is None:
             raise gym.error.ResetNeeded("call reset() before step()")
         a = self._action_to_physical(action)
         model = self.model
@@ -842,20 +843,20 @@ class LandingEnv(gym.Env):
         T = self.horizon
         h = min(self.dt, T - t)
         fast = self._fast
-        known = self._rate_now
-        rate0 = known[2] if known is not None and known[0] == t and known[1] is self._x else None
+        known = self._rate_now  # h_eps at (t, x0) when the last step or reset left it there
+        rate0 = known[2] if known is not None and known[0] == t and known[1] is x0 else None
         if fast is not None:
-            x, cost, rate_end = _integrate_period_scalar(fast, model, t, self._x, a, b, h, self.n_substeps, self.eps,
+            x, cost, rate_end = _integrate_period_scalar(fast, model, t, x0, a, b, h, self.n_substeps, self.eps,
                                                          self.budget_resolution, rate0)
         else:
-            x, cost, rate_end = integrate_period(model, t, self._x, a, b, h, self.n_substeps, self.eps,
+            x, cost, rate_end = integrate_period(model, t, x0, a, b, h, self.n_substeps, self.eps,
                                                  self.budget_resolution, fast=None)
-        self._rate_now = (t + h, x, rate_end)
         t_new = t + h
+        self._rate_now = (t_new, x, rate_end)
         if T - t_new <= 1e-9 * T:
             t_new = T
         self._x, self._t = x, t_new
-        self._z -= cost
+        z = self._z = self._z - cost
         if self._gust is not None:
             self._gust.advance(self.np_random, h)
 
@@ -877,23 +878,42 @@ class LandingEnv(gym.Env):
         for ai, mid, half in zip(a, self._a_mid, self._a_half):
             u = (ai - mid) / half
             effort += u * u
-        r_shape = (self.progress_weight * ((self._g if self._g > 0.0 else 0.0) - (g if g > 0.0 else 0.0))
+        g_old = self._g
+        r_shape = (self.progress_weight * ((g_old if g_old > 0.0 else 0.0) - (g if g > 0.0 else 0.0))
                    - self.effort_weight * effort / self._m * h / T)
         self._g = g
         self._last_a = a
-        info = self._info(cost, soft, hard, landed, a, b, r_land, r_fail, r_shape)
-        self._last_info = info
+        # the dict of _info, built here (the hot path; the same keys and values)
+        info = self._last_info = {
+            "t": t_new,
+            "budget": z,
+            "budget_used": self._q - z,
+            "budget_exceeded": z < 0.0,
+            "cost": cost,
+            "soft_violation": soft,
+            "hard_violation": hard,
+            "landed": landed,
+            "is_success": landed,
+            "action_physical": np.array(a, dtype=np.float64),
+            "wind": np.array(b, dtype=np.float64),
+            "reward_landing": r_land,
+            "reward_failure": r_fail,
+            "reward_shaping": r_shape,
+        }
         if self._history is not None:
             self._history.append((t_new, *x))
         if self.render_mode == "human":
             self.render()
-        return self._get_obs(), r_land + r_fail + r_shape, terminated, truncated, info
+        return (np.array(x + [z, T - t_new], dtype=np.float32), r_land + r_fail + r_shape, terminated, truncated,
+                info)
 
     def _get_obs(self) -> np.ndarray:
+        # step() builds the same observation inline
         return np.array(self._x + [self._z, self.horizon - self._t], dtype=np.float32)
 
     def _info(self, cost: float, soft: bool, hard: bool, landed: bool, a: list[float], b: list[float],
               r_land: float, r_fail: float, r_shape: float) -> dict[str, Any]:
+        # step() builds this same dict inline (its hot path): a key added here must be added there too
         z = self._z
         return {
             "t": self._t,

@@ -362,8 +362,8 @@ def test_demo_end_to_end(tmp_path, pointmass_table_path):
     out = run_demo(out=tmp_path / "demo", table=str(pointmass_table_path), timesteps=128, episodes=2,
                    budgets=[0.3], winds=["adversarial"], progress=False, n_envs=2)
     text = out["report"].read_text()
-    assert "| trained + filter | adversarial | 0.3 |" in text
-    assert "| trained, no filter | adversarial | 0.3 |" in text
+    assert "| PPO trained with filter, + filter | adversarial | 0.3 |" in text
+    assert "| PPO trained with filter, no filter | adversarial | 0.3 |" in text
     assert "| table-optimal a* | adversarial | 0.3 |" in text
     doc = json.loads((tmp_path / "demo" / "report.json").read_text())
     assert len(doc["evaluations"]) == 3
