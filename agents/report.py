@@ -203,7 +203,10 @@ def _outcome(tr) -> str:
 
 def _title(result) -> str:
     c = result.config
-    q = "Q drawn per episode" if c.get("budget") is None else f"Q={c['budget']:g}"
+    if c.get("budget") is not None:
+        q = f"Q={c['budget']:g}"
+    else:
+        q = "Q of each paper point" if c.get("starts") == "paper" else "Q drawn per episode"
     return (f"{c['model']}: {c['policy_name']}{' + filter (' + c['rule'] + ')' if c['filtered'] else ' (no filter)'}, "
             f"{c['wind']} wind, {c['starts']} starts, {q}")
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -34,8 +35,11 @@ def as_table(table: Table | str | Any) -> Table:
 class TableOracle:
     """``W~``, ``a*`` and ``b*`` of a ``W_eps`` table, one state at a time.
 
-    The budget is queried at ``max(z, 0)`` (as :func:`softreach.reach.simulate.table_control`): once the budget is
-    spent the best the table knows is the feedback of an empty budget.
+    ``a*`` and ``b*`` are read at the budget ``max(z, r)``, ``r`` the table's :attr:`~Table.budget_resolution`
+    (half a budget cell): the convention of :meth:`softreach.reach.Table.optimal_control` and of the filter. At
+    ``z = 0`` the exact ``W_eps`` is flat (``>= 0`` everywhere, ``= 0`` on ``RA~_0``) and its gradient says
+    nothing; once the budget is spent the best the table knows is the feedback of the smallest budget.
+    :meth:`value` is read at ``max(z, 0)``.
 
     :param table: a table with ``W_eps`` (or its path)
     """
@@ -49,13 +53,14 @@ class TableOracle:
         self.n = self.model.state_dim
         grid = self.table.grid("W_eps")
         self._z_hi = float(grid.hi[-1])
+        self._z_lo = float(self.table.budget_resolution)
         # what an environment checks before it accepts us as wind_table=
         self.model_metadata = self.table.model_metadata
         self.eps = self.table.eps
         self.path = self.table.path
 
-    def _value_grad(self, t: float, x: Sequence[float], z: float) -> tuple[float, list[float]]:
-        zq = min(max(float(z), 0.0), self._z_hi)
+    def _value_grad(self, t: float, x: Sequence[float], z: float, floor: float | None = None) -> tuple[float, list[float]]:
+        zq = min(max(float(z), self._z_lo if floor is None else floor), self._z_hi)
         c = [float(v) for v in x] + [zq]
         found = self.field.single(float(t), c)
         if found is None:  # grid edge cells: the batch path (same numbers)
@@ -65,7 +70,7 @@ class TableOracle:
 
     def value(self, t: float, x: Sequence[float], z: float) -> float:
         """``W~(t, x, max(z, 0))`` (``+inf`` outside the table)."""
-        return self._value_grad(t, x, z)[0]
+        return self._value_grad(t, x, z, floor=0.0)[0]
 
     def optimal_control(self, t: float, x: Sequence[float], z: float) -> np.ndarray:
         """``a*(t, x, z)``, physical units, shape ``(m,)``, clipped to the control box."""
@@ -98,26 +103,21 @@ def safety_filter(env: Any, table: Table | str, rule: str = "switch", margin: fl
     """``SafetyFilter(env, table, margin, rule)``, with the filter's core shared between calls.
 
     The first call for a table file, control period, rule and margin builds the
-    :class:`~softreach.filters.ValueFilter` (and its margin field); later calls reuse it. The wrapper keeps its
-    own episode statistics; the shared core holds only the table and the margin field, which do not change.
+    :class:`~softreach.filters.ValueFilter` (and its margin field); later calls pass it as ``value_filter=``. Each
+    wrapper keeps its own episode statistics; the shared core holds only the table and the margin field.
     """
-    from softreach.filters import SafetyFilter
+    from softreach.filters import SafetyFilter, ValueFilter
 
     table = as_table(table)
     dt = float(env.unwrapped.dt)
-    key = (str(table.path), dt, rule, margin)
+    key = (str(Path(table.path).resolve()), dt, rule, margin)
     core = _FILTER_CACHE.get(key)
     if core is None:
-        wrapped = SafetyFilter(env, table, margin=margin, rule=rule)
+        core = ValueFilter(table, dt, margin=margin, rule=rule, model=env.unwrapped.model)
         if len(_FILTER_CACHE) >= 4:  # keep at most a few margin fields alive
             _FILTER_CACHE.pop(next(iter(_FILTER_CACHE)))
-        _FILTER_CACHE[key] = wrapped.value_filter
-        return wrapped
-    # margin=0.0 skips the margin-field computation; the shared core (with the requested margin) replaces it.
-    # (If SafetyFilter gains a value_filter= argument this becomes SafetyFilter(env, table, value_filter=core).)
-    wrapped = SafetyFilter(env, table, margin=0.0, rule=rule)
-    wrapped.value_filter = core
-    return wrapped
+        _FILTER_CACHE[key] = core
+    return SafetyFilter(env, value_filter=core)
 
 
 def clear_filter_cache() -> None:

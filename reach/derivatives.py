@@ -34,10 +34,8 @@ def pad(u: Array, axis: int, width: int, boundary: str) -> Array:
     last, before = _take(u, axis, n - 1, n), _take(u, axis, n - 2, n - 1)
     slope_lo, slope_hi = first - second, last - before  # per ghost step, outward
     if boundary == "extrapolate_away":
-        xp = B.namespace(u)
         slope_lo = abs(slope_lo) * B.where(first >= 0, 1.0 + 0 * first, -1.0 + 0 * first)
         slope_hi = abs(slope_hi) * B.where(last >= 0, 1.0 + 0 * last, -1.0 + 0 * last)
-        del xp
     elif boundary != "extrapolate":
         raise ValueError(f"unknown boundary {boundary!r}; use 'extrapolate', 'extrapolate_away' or 'periodic'")
     left = [first + k * slope_lo for k in range(width, 0, -1)]

@@ -19,7 +19,6 @@ Array = B.Array
 
 INF = float("inf")
 _ndarray = np.ndarray
-_ONES = repeat(1.0)
 
 
 def box(x: Sequence[Array], lo: Sequence[float], hi: Sequence[float], scale: Sequence[float] | None = None) -> Array:
@@ -37,7 +36,7 @@ def box(x: Sequence[Array], lo: Sequence[float], hi: Sequence[float], scale: Seq
     # max_i max(lo_i - x_i, x_i - hi_i) / s_i: dividing by s_i > 0 is monotone (after rounding too), so each
     # component is divided once rather than each term, and without scales once in all: the same values.
     out = None
-    for xi, l, h, s in zip(x, lo, hi, _ONES if scale is None else scale):
+    for xi, l, h, s in zip(x, lo, hi, (1.0,) * len(lo) if scale is None else scale):  # a tuple: torch.compile traces it
         if l != -INF:
             term = B.maximum(l - xi, xi - h) if h != INF else l - xi
         elif h != INF:

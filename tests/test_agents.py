@@ -21,8 +21,8 @@ from softreach.agents.envs import make_env, unwrap_filter  # noqa: E402
 from softreach.agents.evaluate import BUDGET_TOL, EvalSpec, evaluate, mean_ci, wilson  # noqa: E402
 from softreach.agents.report import (AGGREGATE_FIELDS, EPISODE_FIELDS, EVAL_SCHEMA, evaluation_document,  # noqa: E402
                                      validate_evaluation, write_json, write_plots)
-from softreach.agents.tables import (TableOracle, in_set, paper_starts, safety_filter, sample_inside,  # noqa: E402
-                                     sample_uniform, uniform_box)
+from softreach.agents.tables import (TableOracle, in_set, paper_starts, sample_inside, sample_uniform,  # noqa: E402
+                                     uniform_box)
 from softreach.agents.train import TrainSpec, load_policy, resolve, train  # noqa: E402
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "agents.md"

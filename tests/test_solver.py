@@ -44,10 +44,6 @@ class Advection(Model, ControlAndDisturbanceAffine):
         return -1e6 + 0 * x[0]
 
 
-class Terminal(ReachAvoidProblem):
-    pass
-
-
 def _advect(n, scheme, order, backend="numpy", dtype="float64", T=1.0, compile=False):
     model = Advection(1.0)
     grid = Grid((0.0,), (2 * math.pi,), (n,), periodic=(True,))
@@ -124,3 +120,21 @@ def test_grid_validation():
         Grid((0.0,) * 6, (1.0,) * 6, (3,) * 6)
     with pytest.raises(ValueError, match="finite"):
         Grid((0.0,), (float("nan"),), (5,))
+
+
+def test_compiled_soft_solve_has_no_graph_break():
+    """A graph break sends every step back to eager Python and recompiles for each new time: ~25x slower."""
+    torch = pytest.importorskip("torch")
+    from torch._dynamo.utils import counters
+
+    from softreach.reach import budget_axis, get_model, soft_problem
+
+    model = get_model("pointmass")
+    z_lo, z_hi, nz = budget_axis(1.0, 23)
+    grid = Grid(model.domain[0] + (z_lo,), model.domain[1] + (z_hi,), (21, 21, nz))
+    torch._dynamo.reset()
+    counters.clear()
+    solve(soft_problem(model, 1e-3, model.budget_scale), grid, [0.0, 0.03, 0.06],
+          SolverSettings.from_accuracy("medium", dtype="float32", compile=True))
+    assert not counters["graph_break"], dict(counters["graph_break"])
+    assert sum(counters["stats"].get(k, 0) for k in ("unique_graphs",)) <= 2

@@ -174,14 +174,21 @@ class Glider(Model):
     Control ``alpha`` [rad] in ``alpha_bounds`` (minimises); disturbance ``F_wind`` [N] in
     ``[-wind_max, wind_max]`` (maximises). Defaults (paper §VI-B):
 
-    * hard ``C1 = {V in [61, 83], gamma in [-3 deg, 0 deg], h >= 0}``; soft ``C2 = {V in [66, 78]}``
+    * hard ``C1 = {V in [61, 83], gamma in [-3 deg, 0 deg], h >= -hb}``; soft ``C2 = {V in [66, 78]}``
       (``h`` and ``gamma`` free: only the speed margins cost budget);
-    * target ``T = {|h| <= hb, -V sin(gamma) <= 0.91 m/s}`` with ``hb = 0.5 m``: touchdown at ``h = 0`` as a
-      band that a grid resolves. ``C1`` cuts it to ``h in [0, hb]``; its part below ground only keeps ``h = 0``
-      strictly inside the band, where a grid node sits. Since ``h' <= 0`` in ``C1``, every descent crosses the
-      band, so its width only sets how long before ground contact the sink rate must already be within limits:
-      at most ``hb / 0.91 m/s`` = 0.55 s;
+    * target ``T = {|h| <= hb, -V sin(gamma) <= 0.91 m/s}`` with ``hb = 0.5 m``;
     * horizon ``T = 10 s``.
+
+    **Touchdown.** The paper's target is touchdown at ``h = 0`` with a sink rate of at most 0.91 m/s, and its
+    ``C1`` keeps ``h >= 0``. On a grid the set "at ``h = 0`` and ``h >= 0``" has no interior: every node of it
+    has ``c1 = 0``, so ``W >= 0`` there and the sets hang on exact ties (measured with the ground bound at
+    ``h >= 0``, 21 x 15 x 13 x 21 nodes: ``min W = 0`` exactly, every set was made of ties ``W = 0`` only and
+    empty under the paper's ``W + 1e-3 <= 0`` proxy). Touchdown is therefore the band ``|h| <= hb`` and the
+    ground bound of ``C1`` is the band's bottom, ``h >= -hb``: the aircraft must bring its sink rate within
+    0.91 m/s while within ``hb`` of the ground, and may not pass below the band. Since ``h' = V sin(gamma) <= 0``
+    in ``C1``, a descent that leaves the band downwards without landing can never land afterwards, so the ground
+    bound only cuts off states that are lost anyway. ``T`` and ``C1`` then share the interior
+    ``|h| < hb`` (depth ``hb / altitude_scale`` = 0.5 units at ``h = 0``).
 
     **Scaling of the implicit functions.** Each is a Chebyshev box distance (:func:`softreach.reach.sets.box`)
     with every coordinate divided by its scale: ``h`` by ``altitude_scale`` (1 m), ``V`` by ``speed_scale``
@@ -218,7 +225,8 @@ class Glider(Model):
         self.horizon = p.horizon
         self.domain = ((-3.0, 58.0, math.radians(-4.0)), (42.0, 86.0, math.radians(1.0)))
         # C1 is unbounded above in h; the start altitudes [0, 40] m stand in for its top so that a grid must hold them
-        self.hard_box = ((p.min_altitude, p.hard_speed[0], p.hard_gamma[0]), (40.0, p.hard_speed[1], p.hard_gamma[1]))
+        self.hard_box = ((p.min_altitude - p.touchdown_altitude, p.hard_speed[0], p.hard_gamma[0]),
+                         (40.0, p.hard_speed[1], p.hard_gamma[1]))
         self.default_shape = (41, 29, 21)
         self.default_budget_points = 21
         self.budget_scale = 1.0
