@@ -8,7 +8,6 @@ units. Models pick the scales and say which in their docstring.
 
 from __future__ import annotations
 
-from itertools import repeat
 from typing import Sequence
 
 import numpy as np
