@@ -8,15 +8,17 @@ Usage::
 
     # the numbers of a table: highest verified altitude and measure per Q, Q = 0 against the classical set,
     # the horizon's effect (sets at t > 0 have a shorter horizon), and closed-loop soundness
-    python benchmarks/bench_glider.py report runs/glider.srt --starts 60 --json runs/glider_report.json
+    python benchmarks/bench_glider.py report runs/glider.srt --starts 60 --policies gradient lookahead \
+        --json runs/glider_report.json
 
 Protocol of ``report`` (the soundness part; the same for every table):
 
 * starts: states drawn uniformly from the table's state box (seeded), kept where
   ``W_eps(0, x, max(Q, r)) <= -margin`` (``r`` is the table's budget resolution, the level that
   :meth:`~softreach.reach.query.Table.set_mask` uses for ``Q = 0``), up to ``--starts`` per ``Q``;
-* each start flies from ``t = 0`` with budget ``Q`` under the table's W-derived control (zero-order hold over
-  ``--dt`` with 4 RK4 substeps, :func:`softreach.reach.simulate.rollout`) against each of the winds: the table's
+* each start flies from ``t = 0`` with budget ``Q`` under a W-derived control (the paper's gradient control
+  ``a*``, and optionally :func:`lookahead_control`; zero-order hold over ``--dt`` with 4 RK4 substeps,
+  :func:`softreach.reach.simulate.rollout`) against each of the winds: the table's
   worst case, constant tailwind (+10 kN), constant headwind (-10 kN), calm, and random bang-bang switching
   every 0.5 s and every 0.1 s;
 * counted: hard-constraint violations (``c1 > 0`` at any substep), failures to land by the horizon, budget
@@ -120,6 +122,40 @@ def winds(model, seed: int = 0) -> dict[str, Any]:
             "switch_0.1s": random_switching(model, seed=seed + 1, hold=0.1)}
 
 
+def lookahead_control(table, lookahead: float = 0.1, n_alpha: int = 27):
+    """A second W-derived control: ``argmin_alpha max_F W_eps(t + L, x + L f(x, alpha, F), z - L h_eps(x))`` over
+    ``n_alpha`` angles and the two ends of the wind box (one explicit Euler step of ``L`` seconds).
+
+    The paper's control is ``argmin_alpha max_F grad W . f`` with the gradient from central differences over
+    one grid cell (:func:`softreach.reach.simulate.table_control`). Near the top of the sets, where the 10 s
+    horizon binds, that one drifts away from the flight-path limit and runs out of time; this one compares
+    values a step ahead instead of a smoothed gradient (docs/glider.md, "Soundness").
+    """
+    model = table.model
+    lo, hi = model.control_bounds[0][0], model.control_bounds[1][0]
+    alphas = np.linspace(lo, hi, n_alpha)
+    winds_ = (model.disturbance_bounds[0][0], model.disturbance_bounds[1][0])
+    r = table.budget_resolution
+
+    def policy(t: float, x: np.ndarray, z: np.ndarray) -> np.ndarray:
+        n = len(x)
+        comps = [x[:, i] for i in range(x.shape[1])]
+        z_next = np.maximum(np.maximum(z, r) - lookahead * np.asarray(model.violation_rate(t, comps, table.eps)), r)
+        t_next = min(t + lookahead, table.horizon)
+        best, arg = np.full(n, np.inf), np.zeros(n)
+        for a in alphas:
+            worst = np.full(n, -np.inf)
+            for w in winds_:
+                f = np.stack([np.broadcast_to(np.asarray(fi, float), (n,)) for fi in
+                              model.f(t, comps, [np.full(n, a)], [np.full(n, w)])], axis=1)
+                worst = np.maximum(worst, table.value(t_next, x + lookahead * f, z_next))
+            better = worst < best
+            best, arg = np.where(better, worst, best), np.where(better, a, arg)
+        return arg[:, None]
+
+    return policy
+
+
 def sample_starts(table, q: float, n: int, margin: float, seed: int = 0, pool: int = 200_000) -> np.ndarray:
     """Up to ``n`` states drawn uniformly from the table's state box with ``W_eps(0, x, max(q, r)) <= -margin``."""
     rng = np.random.default_rng(seed)
@@ -153,13 +189,15 @@ def value_change_per_period(table, ro) -> tuple[float, float]:
 
 
 def soundness(table, budgets: Sequence[float] = BUDGETS, n_starts: int = 60, margin: float | None = None,
-              dt: float = 0.01, seed: int = 0, pilot: int = 20, wind_names: Sequence[str] | None = None) -> dict[str, Any]:
-    """Closed-loop check of the sets (module docstring, "Protocol")."""
+              dt: float = 0.01, seed: int = 0, pilot: int = 20, wind_names: Sequence[str] | None = None,
+              policy: str = "gradient") -> dict[str, Any]:
+    """Closed-loop check of the sets (module docstring, "Protocol"); ``policy``: ``gradient`` (the paper's
+    ``a*``, :func:`softreach.reach.simulate.table_control`) or ``lookahead`` (:func:`lookahead_control`)."""
     from softreach.reach.simulate import rollout, table_control, table_disturbance
 
     model = table.model
-    ctrl = table_control(table)
-    out: dict[str, Any] = {"dt": dt, "n_starts_per_Q": n_starts, "seed": seed}
+    ctrl = table_control(table) if policy == "gradient" else lookahead_control(table)
+    out: dict[str, Any] = {"policy": policy, "dt": dt, "n_starts_per_Q": n_starts, "seed": seed}
     changes, rises = [0.0], [0.0]
     for q in budgets:
         x = sample_starts(table, q, pilot, 0.0, seed=seed + 99)
@@ -212,7 +250,9 @@ def cmd_report(args: argparse.Namespace) -> dict[str, Any]:
                            "eps": table.eps, "wall_time_s": table.header.get("wall_time")}
     out["sets"] = set_numbers(table, BUDGETS, times=args.times)
     if args.starts > 0:
-        out["soundness"] = soundness(table, BUDGETS, n_starts=args.starts, margin=args.margin, dt=args.dt, seed=args.seed)
+        for policy in args.policies:
+            out[f"soundness_{policy}"] = soundness(table, BUDGETS, n_starts=args.starts, margin=args.margin, dt=args.dt,
+                                                   seed=args.seed, policy=policy, wind_names=args.winds)
     out["load_after"] = _load()
     print(json.dumps(out, indent=2))
     return out
@@ -244,6 +284,9 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--dt", type=float, default=0.01)
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--times", type=float, nargs="+", default=[0.0, 1.0, 2.0])
+    r.add_argument("--policies", nargs="+", default=["gradient"], choices=["gradient", "lookahead"])
+    r.add_argument("--winds", nargs="+", default=None,
+                   help="subset of worst_case tailwind headwind calm switch_0.5s switch_0.1s (default: all)")
     r.add_argument("--json")
     args = ap.parse_args(argv)
     out = cmd_solve(args) if args.cmd == "solve" else cmd_report(args)
