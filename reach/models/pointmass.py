@@ -119,66 +119,20 @@ class PointMass(Model, ControlAndDisturbanceAffine):
 
     def target_scalar(self, t: float, x) -> float:
         """:meth:`target` at one point ``x = (v, y)`` of finite Python floats."""
-        p = self.params
-        v, y = x
-        (v_lo, v_hi), (y_lo, y_hi) = p.target_speed, p.target_altitude
-        c = v_lo - v
-        d = v - v_hi
-        if d > c:
-            c = d
-        d = y_lo - y
-        if d > c:
-            c = d
-        d = y - y_hi
-        return d if d > c else c
+        return _box_scalar(x, self.params.target_speed, self.params.target_altitude)
 
     def hard_constraint_scalar(self, t: float, x) -> float:
         """:meth:`hard_constraint` at one point ``x = (v, y)`` of finite Python floats."""
-        p = self.params
-        v, y = x
-        (v_lo, v_hi), (y_lo, y_hi) = p.hard_speed, p.altitude
-        c = v_lo - v
-        d = v - v_hi
-        if d > c:
-            c = d
-        d = y_lo - y
-        if d > c:
-            c = d
-        d = y - y_hi
-        return d if d > c else c
+        return _box_scalar(x, self.params.hard_speed, self.params.altitude)
 
     def soft_constraint_scalar(self, t: float, x) -> float:
         """:meth:`soft_constraint` at one point ``x = (v, y)`` of finite Python floats."""
-        p = self.params
-        v, y = x
-        (v_lo, v_hi), (y_lo, y_hi) = p.soft_speed, p.altitude
-        c = v_lo - v
-        d = v - v_hi
-        if d > c:
-            c = d
-        d = y_lo - y
-        if d > c:
-            c = d
-        d = y - y_hi
-        return d if d > c else c
+        return _box_scalar(x, self.params.soft_speed, self.params.altitude)
 
     def violation_rate_scalar(self, t: float, x, eps: float) -> float:
         """:meth:`violation_rate` ``h_eps = min(1, max(0, c2 / eps))`` at one point ``x = (v, y)`` of finite Python
-        floats (:meth:`soft_constraint_scalar` written out: four calls per environment step)."""
-        p = self.params
-        v, y = x
-        (v_lo, v_hi), (y_lo, y_hi) = p.soft_speed, p.altitude
-        c = v_lo - v
-        d = v - v_hi
-        if d > c:
-            c = d
-        d = y_lo - y
-        if d > c:
-            c = d
-        d = y - y_hi
-        if d > c:
-            c = d
-        r = c / eps
+        floats."""
+        r = _box_scalar(x, self.params.soft_speed, self.params.altitude) / eps
         return 0.0 if r <= 0.0 else (1.0 if r >= 1.0 else r)
 
     def exact_ceiling(self) -> float:
@@ -200,3 +154,18 @@ class PointMass(Model, ControlAndDisturbanceAffine):
             raise ValueError("horizon too short for the bang-coast-bang profile; no closed form here")
         drop = 0.5 * acc_down * t1**2 + v_lim * t2 + (v_lim * t3 - 0.5 * acc_brake * t3**2)
         return drop + p.target_altitude[1]
+
+
+def _box_scalar(x, speed: tuple[float, float], altitude: tuple[float, float]) -> float:
+    """:func:`softreach.reach.sets.box` at one point ``(v, y)``: the same differences, the larger kept, in the same
+    order (so the same float), with the maxima written out (cheaper than ``max()`` on four floats)."""
+    v, y = x
+    c = speed[0] - v
+    d = v - speed[1]
+    if d > c:
+        c = d
+    d = altitude[0] - y
+    if d > c:
+        c = d
+    d = y - altitude[1]
+    return d if d > c else c
