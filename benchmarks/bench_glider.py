@@ -228,6 +228,10 @@ def soundness(table, budgets: Sequence[float] = BUDGETS, n_starts: int = 60, mar
                 res = {"hard_violations": int(ro.hard_violation.sum()), "not_landed": int((~ro.landed).sum()),
                        "budget_overruns": int(over.sum()), "max_budget_used_minus_Q": float(np.max(ro.budget_used - q)),
                        "max_landing_time_s": float(np.nanmax(ro.landing_time)) if ro.landed.any() else None,
+                       # where the runs that did not land were at the horizon: altitude [m] and sink rate [m/s]
+                       "not_landed_end": [[float(ro.x[ro.steps[j], j, 0]),
+                                           float(-ro.x[ro.steps[j], j, 1] * np.sin(ro.x[ro.steps[j], j, 2]))]
+                                          for j in np.nonzero(~ro.landed & ~ro.hard_violation)[0]],
                        "wall_s": time.perf_counter() - t0}
                 entry[name] = res
                 totals["runs"] += len(x)

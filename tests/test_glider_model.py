@@ -257,11 +257,15 @@ def test_sets_signs_and_scaling(model):
     # hard constraint: scaled distances in m, m/s and degrees
     assert math.isclose(at(model.hard_constraint, 10, 72, -1.5), -1.5)  # 1.5 deg from both gamma edges
     assert math.isclose(at(model.hard_constraint, 10, 82, -1.5), -1.0)  # 1 m/s below 83
-    assert math.isclose(at(model.hard_constraint, 0.5, 72, -1.5), -0.5)  # 0.5 m above ground
+    # the ground bound is the bottom of the touchdown band, h >= -0.5 m (Glider docstring, "Touchdown")
+    assert math.isclose(at(model.hard_constraint, 0.5, 72, -1.5), -1.0)  # 1 m above the bound
+    assert math.isclose(at(model.hard_constraint, 0.0, 72, -1.5), -0.5)  # ground level: inside C1 and the band
+    assert at(model.hard_constraint, 0.0, 72, -1.5) < 0 and at(model.target, 0.0, 72, -0.5) < 0
     assert math.isclose(at(model.hard_constraint, 10, 60, -1.5), 1.0)
     assert math.isclose(at(model.hard_constraint, 10, 72, -4.0), 1.0)
     assert math.isclose(at(model.hard_constraint, 10, 72, 0.5), 0.5)
-    assert math.isclose(at(model.hard_constraint, -1, 72, -1.5), 1.0)
+    assert math.isclose(at(model.hard_constraint, -1, 72, -1.5), 0.5)
+    assert math.isclose(at(model.hard_constraint, -0.5, 72, -1.5), 0.0)
     assert at(model.hard_constraint, 1000, 72, -1.5) < 0  # no ceiling
     # soft constraint: the speed margins only
     assert math.isclose(at(model.soft_constraint, 10, 72, -1.5), -6.0)

@@ -197,10 +197,12 @@ class Glider(Model):
     sink_rate_scale`` (1 m/s); its slope along ``gamma`` is ``V cos(gamma)`` m/s per rad, about 1.26 per
     degree at 72 m/s, the same order as the box terms. ``c2`` is in m/s, so ``eps`` is in m/s too.
 
-    **Default grid box** (:attr:`domain`): ``h in [-5, 45] m``, ``V in [58, 86] m/s``,
-    ``gamma in [-4 deg, 1 deg]``: a few m/s, one degree and 5 m beyond ``C1`` and the 40 m start altitudes,
-    so the sets' boundaries lie inside the grid, away from its edges. With 101 x 57 x 51 nodes (0.5 m,
-    0.5 m/s, 0.1 deg) every set boundary (0, 0.5 m; 61, 66, 78, 83 m/s; -3, 0 deg) falls on a node.
+    **Default grid box** (:attr:`domain`): ``h in [-3, 42] m``, ``V in [58, 86] m/s``,
+    ``gamma in [-4 deg, 1 deg]``: 2.5 m below the ground bound, 2 m above the 40 m start altitudes, 3 m/s and
+    one degree beyond ``C1``, so the sets' boundaries lie inside the grid, away from its edges. The default
+    grid, 91 x 29 x 31 nodes (0.5 m, 1 m/s, 1/6 deg) with 31 budget nodes, puts ``h = 0``, ``+-hb``, the speed
+    limits 61, 66, 78, 83 m/s and the flight-path limits -3, 0 deg on nodes; so do 46 (1 m) or 181 (0.25 m)
+    altitude nodes, 57 (0.5 m/s) speed nodes and 21, 41 or 51 (0.25, 0.125, 0.1 deg) flight-path nodes.
 
     **Units.** The grid path (:meth:`f`, :meth:`hamiltonian`, ...) takes radians and checks nothing, for speed.
     The batched-point path :meth:`f_array` checks its inputs with :meth:`validate_state` and
@@ -227,8 +229,13 @@ class Glider(Model):
         # C1 is unbounded above in h; the start altitudes [0, 40] m stand in for its top so that a grid must hold them
         self.hard_box = ((p.min_altitude - p.touchdown_altitude, p.hard_speed[0], p.hard_gamma[0]),
                          (40.0, p.hard_speed[1], p.hard_gamma[1]))
-        self.default_shape = (41, 29, 21)
-        self.default_budget_points = 21
+        # 0.5 m x 1 m/s x 1/6 deg x 0.37 s: about 3 min for V and W_eps at --accuracy very_high with one torch
+        # thread on the shared 2-core machine (docs/glider.md has the grid study and a finer grid)
+        self.default_shape = (91, 29, 31)
+        self.default_budget_points = 31
+        # kappa [m/s per s]: about the rate at which the inputs change the speed margin c2 (|V'| from drag, gravity
+        # and wind is 0.5-2 m/s^2 in C1); measured: the set measures change by at most 10% for kappa in [0.5, 5],
+        # and kappa = 1 keeps the most of RA~_0 (docs/glider.md)
         self.budget_scale = 1.0
         self.default_budgets = (0.0, 5.0, 10.0)
         self.default_snapshots = 21
