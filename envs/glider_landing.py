@@ -179,8 +179,9 @@ class GliderLandingEnv(LandingEnv):
             "title": "GliderLanding",
             "horizon": self.horizon,
             "altitude_range": (self.state_low[0], self.state_high[0]),
-            "altitude_limits": (p.min_altitude, math.inf),
-            "target_altitude": (p.min_altitude, p.touchdown_altitude),
+            # C1's ground is the bottom of the touchdown band (see GliderParams): draw what the model checks
+            "altitude_limits": (p.min_altitude - p.touchdown_altitude, math.inf),
+            "target_altitude": (p.min_altitude - p.touchdown_altitude, p.min_altitude + p.touchdown_altitude),
             "speed_name": "V [m/s]",
             "speed_range": (self.state_low[1], self.state_high[1]),
             "speed_soft": p.soft_speed,

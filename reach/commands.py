@@ -28,6 +28,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--classical", action="store_true", help="solve only the classical V")
     p.add_argument("--no-resume", action="store_true", help="ignore an unfinished .partial file and start over")
     p.add_argument("--budgets", type=float, nargs="+", default=None, help="budgets for the summary (default 0 0.06 0.3 0.6 for the point mass)")
+    p.add_argument("--threads", type=int, default=None,
+                   help="torch CPU threads (default: torch's; on a loaded machine 1 can be several times faster than 2)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run_solve)
 
@@ -39,6 +41,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="simulate the W-derived policy under worst-case disturbance from this state with budget Q (repeatable; write --from=-12,4:0.3 when the state starts with a minus sign)")
     p.add_argument("--paper-starts", action="store_true",
                    help="add the paper's representative starts: the highest point just inside RA~_Q for Q = 0, 0.3, 0.6 (Fig. 1, 5)")
+    p.add_argument("--slice", dest="slices", type=float, action="append", default=[], metavar="VALUE",
+                   help="models with more than 2 states: also outline the sets at this value of the third state (radians for angles; repeatable)")
     p.add_argument("--out", default="fig.png")
     p.set_defaults(func=run_plot)
 
@@ -66,6 +70,12 @@ def run_solve(args: argparse.Namespace) -> int:
     from .compute import DEFAULT_BUDGETS, SolveConfig, solve_table
     from .models import get_model
 
+    if args.threads is not None:
+        if args.threads < 1:
+            raise ValueError(f"--threads must be >= 1, got {args.threads}")
+        import torch
+
+        torch.set_num_threads(args.threads)
     model = get_model(args.model)
     cfg = SolveConfig(
         shape=tuple(args.grid) if args.grid else model.default_shape,
@@ -133,7 +143,8 @@ def run_plot(args: argparse.Namespace) -> int:
     else:
         from .plotting_nd import plot_sets_nd
 
-        out = plot_sets_nd(table, budgets, args.out, t=args.t, starts=[s for s, _ in starts], start_budgets=[q for _, q in starts])
+        out = plot_sets_nd(table, budgets, args.out, t=args.t, starts=[s for s, _ in starts], start_budgets=[q for _, q in starts],
+                           slices=args.slices)
     print(f"wrote {out}")
     return 0
 

@@ -36,6 +36,7 @@ def test_solve_writes_table_and_summary(tmp_path, capsys):
     (["--eps", "nan"], "eps must be a finite number > 0, got nan"),
     (["--budget-scale", "0"], "budget scale must be a finite number > 0"),
     (["--out", "/nonexistent-dir/x.srt"], "output directory /nonexistent-dir does not exist"),
+    (["--threads", "0"], "--threads must be >= 1, got 0"),
 ])
 def test_bad_input_is_a_clear_error(args, message, capsys, tmp_path):
     base = ["solve", "pointmass", "--quiet", "--compile", "no"]
