@@ -883,23 +883,7 @@ class LandingEnv(gym.Env):
                    - self.effort_weight * effort / self._m * h / T)
         self._g = g
         self._last_a = a
-        # the dict of _info, built here (the hot path; the same keys and values)
-        info = self._last_info = {
-            "t": t_new,
-            "budget": z,
-            "budget_used": self._q - z,
-            "budget_exceeded": z < 0.0,
-            "cost": cost,
-            "soft_violation": soft,
-            "hard_violation": hard,
-            "landed": landed,
-            "is_success": landed,
-            "action_physical": np.array(a, dtype=np.float64),
-            "wind": np.array(b, dtype=np.float64),
-            "reward_landing": r_land,
-            "reward_failure": r_fail,
-            "reward_shaping": r_shape,
-        }
+        info = self._last_info = self._info(cost, soft, hard, landed, a, b, r_land, r_fail, r_shape)
         if self._history is not None:
             self._history.append((t_new, *x))
         if self.render_mode == "human":
@@ -913,7 +897,6 @@ class LandingEnv(gym.Env):
 
     def _info(self, cost: float, soft: bool, hard: bool, landed: bool, a: list[float], b: list[float],
               r_land: float, r_fail: float, r_shape: float) -> dict[str, Any]:
-        # step() builds this same dict inline (its hot path): a key added here must be added there too
         z = self._z
         return {
             "t": self._t,
