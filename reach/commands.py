@@ -83,7 +83,7 @@ def run_solve(args: argparse.Namespace) -> int:
         eps=args.eps,
         budget_scale=args.budget_scale,
         settings=_settings(args),
-        snapshots=args.snapshots or getattr(model, "default_snapshots", 21),
+        snapshots=args.snapshots or model.default_snapshots,
         classical_only=args.classical,
     )
     out = Path(args.out or f"{args.model}.srt")

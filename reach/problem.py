@@ -42,6 +42,7 @@ class Model(Dynamics):
     #: default state grid and number of budget nodes for ``softreach solve``
     default_shape: tuple[int, ...] = ()
     default_budget_points: int = 101
+    default_snapshots: int = 21
     #: default ``kappa`` in ``l = max(c2, -kappa z, g)``, in units of ``c2`` per second. The zero sublevel set does
     #: not depend on it, the numerics do: outside ``C2`` at zero budget ``W`` grows like ``kappa`` times the time
     #: needed to get back, while the classical ``V`` grows like ``c2``. Matching the two (``kappa`` about the rate

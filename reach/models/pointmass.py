@@ -80,6 +80,7 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         self.hard_box = ((p.hard_speed[0], p.altitude[0]), (p.hard_speed[1], p.altitude[1]))
         self.default_shape = (101, 101)
         self.default_budget_points = 111
+        self.default_snapshots = 41  # every 25 ms: the filter and the W-derived control read W(t, .) over the horizon
         # c2 is a speed margin [m/s]; the net authority u_max - d_max [m/s^2] is how fast it can be restored
         self.budget_scale = p.u_max - p.d_max
 
