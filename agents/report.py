@@ -188,6 +188,17 @@ def validate_evaluation(doc: dict[str, Any]) -> None:
 OUTCOME_COLOURS = {"landed": "tab:green", "hard_violation": "tab:red", "timeout": "tab:orange"}
 
 
+def _save(fig, out: str | Path) -> Path:
+    """Lay out, write and close a figure; every plot of the report ends here."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    out = Path(out)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
 def _plt():
     import matplotlib
 
@@ -278,11 +289,7 @@ def plot_trajectories(result, out: str | Path, table=None, max_episodes: int = 4
             ax.set_ylabel(f"{names[alt]} [{model.state_units[alt]}]")
         axs[0, 0].legend(handles=handles, fontsize=7)
         fig.suptitle(_title(result), fontsize=8)
-    fig.tight_layout()
-    out = Path(out)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, out)
 
 
 def plot_budget_curves(result, out: str | Path, max_episodes: int = 60) -> Path:
@@ -295,11 +302,7 @@ def plot_budget_curves(result, out: str | Path, max_episodes: int = 60) -> Path:
     ax.set_xlabel("t [s]")
     ax.set_ylabel("remaining budget z [s]")
     ax.set_title("budget depletion: " + _title(result), fontsize=8)
-    fig.tight_layout()
-    out = Path(out)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, out)
 
 
 def plot_budget_histogram(result, out: str | Path) -> Path:
@@ -321,11 +324,7 @@ def plot_budget_histogram(result, out: str | Path) -> Path:
     axs[1].set_xlabel("budget used - Q [s]")
     axs[1].legend(fontsize=8)
     fig.suptitle(_title(result), fontsize=8)
-    fig.tight_layout()
-    out = Path(out)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, out)
 
 
 def plot_interventions(result, out: str | Path) -> Path:
@@ -348,11 +347,7 @@ def plot_interventions(result, out: str | Path) -> Path:
     ax.set_xlabel("t [s]")
     ax.set_ylabel("fraction of episodes filtered")
     ax.set_title("filter interventions: " + _title(result), fontsize=8)
-    fig.tight_layout()
-    out = Path(out)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, out)
 
 
 def learning_data(run_dir: str | Path) -> dict[str, Any]:
@@ -412,11 +407,7 @@ def plot_learning_curves(run_dir: str | Path, out: str | Path) -> Path | None:
     for ax in axs:
         ax.legend(fontsize=8)
     fig.suptitle(f"learning curves: {Path(run_dir)}", fontsize=8)
-    fig.tight_layout()
-    out = Path(out)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, out)
 
 
 def write_plots(result, out_dir: str | Path, table=None, run_dir: str | Path | None = None,
