@@ -14,6 +14,7 @@ import numpy as np
 from . import backend as B
 from .grid import Grid, budget_axis
 from .problem import Model, classical_problem, soft_problem
+from .held import solve_held
 from .solver import SolverSettings, solve
 from .table import TableWriter
 
@@ -42,6 +43,11 @@ class SolveConfig:
     snapshots: int = 21
     classical_only: bool = False
     domain: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    #: ``None``: the continuous-time game (the paper's). A period [s]: the sampled-data game, actions held for
+    #: that long (:mod:`softreach.reach.held`); snapshots are then the sample times, ``snapshots`` is ignored
+    control_period: float | None = None
+    #: candidate held actions per control axis (sampled-data game only)
+    held_levels: int = 5
 
 
 def validate(model: Model, cfg: SolveConfig, out: str | os.PathLike | None) -> tuple[Grid, Grid | None]:
@@ -57,6 +63,8 @@ def validate(model: Model, cfg: SolveConfig, out: str | os.PathLike | None) -> t
         raise ValueError(f"eps must be a finite number > 0, got {cfg.eps!r}")
     if cfg.budget_scale is not None and not (math.isfinite(cfg.budget_scale) and cfg.budget_scale > 0):
         raise ValueError(f"budget scale must be a finite number > 0, got {cfg.budget_scale!r}")
+    if cfg.control_period is not None:
+        sample_times(model.horizon, cfg.control_period)  # raises on a period that does not divide the horizon
     if isinstance(cfg.snapshots, bool) or not isinstance(cfg.snapshots, int) or cfg.snapshots < 2:
         raise ValueError(f"snapshots must be an integer >= 2, got {cfg.snapshots!r}")
     lo, hi = cfg.domain or model.domain
@@ -84,6 +92,16 @@ def validate(model: Model, cfg: SolveConfig, out: str | os.PathLike | None) -> t
     return state_grid, aug
 
 
+def sample_times(horizon: float, period: float) -> list[float]:
+    """``[0, dt, 2 dt, ..., T]``: the sample times of a controller with period ``dt`` over the horizon ``T``."""
+    if not (isinstance(period, (int, float)) and math.isfinite(period) and period > 0):
+        raise ValueError(f"control period must be a finite number > 0, got {period!r}")
+    n = round(horizon / period)
+    if n < 1 or abs(n * period - horizon) > 1e-9 * max(1.0, horizon):
+        raise ValueError(f"control period {period} must divide the horizon {horizon} into whole periods")
+    return [float(k * period) for k in range(n)] + [float(horizon)]
+
+
 def _progress(total: float, desc: str, enabled: bool):
     if not enabled:
         return None
@@ -101,15 +119,22 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
     """
     state_grid, aug = validate(model, cfg, out)
     kappa = cfg.budget_scale if cfg.budget_scale is not None else model.budget_scale
-    times = [float(t) for t in np.linspace(0.0, model.horizon, cfg.snapshots)]
+    held = cfg.control_period is not None
+    if held:
+        times = sample_times(model.horizon, cfg.control_period)
+        controls = [list(a) for a in model.held_candidates(cfg.held_levels)]
+    else:
+        times = [float(t) for t in np.linspace(0.0, model.horizon, cfg.snapshots)]
+    game = {"control_period": float(cfg.control_period), "held_controls": controls} if held else {"control_period": None}
     fields: dict[str, dict[str, Any]] = {}
     problems = {}
     fields["V"] = {"grid": state_grid.to_dict(), "times": times, "problem": classical_problem(model).metadata(),
-                   "settings": cfg.settings.to_dict()}
+                   "settings": cfg.settings.to_dict(), **game}
     problems["V"] = (classical_problem(model), state_grid)
     if aug is not None:
         sp = soft_problem(model, cfg.eps, kappa)
-        fields["W_eps"] = {"grid": aug.to_dict(), "times": times, "problem": sp.metadata(), "settings": cfg.settings.to_dict()}
+        fields["W_eps"] = {"grid": aug.to_dict(), "times": times, "problem": sp.metadata(),
+                           "settings": cfg.settings.to_dict(), **game}
         problems["W_eps"] = (sp, aug)
     header = {"model": model.metadata(), "fields": fields}
     writer = TableWriter(out, header, resume=resume)
@@ -123,8 +148,12 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
             span = times[-1] - times[0] if k is None else times[k] - times[0]
             bar = _progress(span, f"{name} {'x'.join(map(str, grid.shape))}", progress)
             t0 = time.perf_counter()
-            solve(problem, grid, times, cfg.settings, start=start, progress=bar,
-                  sink=lambda kk, tt, u, _n=name: writer.write_snapshot(_n, kk, u))
+            sink = lambda kk, tt, u, _n=name: writer.write_snapshot(_n, kk, u)  # noqa: E731
+            if held:
+                solve_held(problem, grid, times, cfg.settings, np.asarray(controls), start=start, progress=bar,
+                           sink=sink)
+            else:
+                solve(problem, grid, times, cfg.settings, start=start, progress=bar, sink=sink)
             walls[name] = time.perf_counter() - t0
             if bar is not None:
                 bar.close()
@@ -140,6 +169,7 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
     summary["settings"] = cfg.settings.to_dict()
     summary["eps"] = cfg.eps if aug is not None else None
     summary["budget_scale"] = kappa if aug is not None else None
+    summary["control_period"] = cfg.control_period
     return summary
 
 

@@ -14,6 +14,7 @@ the dissipation bounds ``alpha_i >= |dH/dp_i|`` that the Lax-Friedrichs scheme n
 
 from __future__ import annotations
 
+import itertools
 from abc import ABC, abstractmethod
 from typing import Any, Sequence
 
@@ -96,6 +97,41 @@ class Dynamics(ABC):
     def parameters(self) -> dict[str, Any]:
         """Model parameters recorded in table metadata (override to add more)."""
         return {}
+
+    #: extra actions worth holding for a control period (e.g. the point mass's hover thrust ``u = g``)
+    trim_controls: tuple[tuple[float, ...], ...] = ()
+
+    def held_candidates(self, levels: int = 5) -> list[tuple[float, ...]]:
+        """Actions a sampled-data controller may hold for one period: ``levels`` evenly spaced values along each
+        control axis (the box's corners and, for odd ``levels``, its centre among them) and :attr:`trim_controls`.
+
+        :param levels: values per control axis (>= 2)
+        """
+        if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 2:
+            raise ValueError(f"levels must be an integer >= 2, got {levels!r}")
+        axes = [np.linspace(lo, hi, int(levels)) for lo, hi in zip(*self.control_bounds)]
+        out = [tuple(float(v) for v in a) for a in itertools.product(*axes)]
+        for a in self.trim_controls:
+            a = tuple(float(v) for v in a)
+            if len(a) != self.control_dim or not all(lo <= v <= hi for v, lo, hi in zip(a, *self.control_bounds)):
+                raise ValueError(f"{self.name}: trim control {a!r} is not in the control box {self.control_bounds}")
+            if a not in out:
+                out.append(a)
+        return out
+
+    def held_enclosure(self, t: float, x: np.ndarray, a: np.ndarray, dt: float):
+        """Boxes containing every trajectory of one control period with the control ``a`` held and any
+        disturbance signal in the box (switching at any instant): ``(tube_lo, tube_hi, end_lo, end_hi)``, each
+        ``(N, n)``; the tube holds ``x(s)`` for all ``s`` in ``[0, dt]``, the end box ``x(dt)``.
+
+        The safety filter's one-period look-ahead needs it; a model that cannot bound its motion is refused there.
+
+        :param x: ``(N, n)`` states
+        :param a: ``(N, m)`` physical controls
+        :param dt: the control period [s]
+        """
+        raise NotImplementedError(f"{self.name} does not provide held_enclosure(t, x, a, dt); the safety filter "
+                                  f"needs a validated one-period enclosure of its motion")
 
 
 def _unstack(x: Array) -> list[Array]:

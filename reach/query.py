@@ -94,6 +94,13 @@ class Table:
     def budget_scale(self) -> float:
         return self.header["fields"]["W_eps"]["problem"]["budget_scale"] if self.has_budget else 1.0
 
+    @property
+    def control_period(self) -> float | None:
+        """The period [s] of the sampled-data game the table was solved for (actions held that long, snapshots
+        at the sample times); ``None`` for the continuous-time game."""
+        value = self.header["fields"][self._default_field()].get("control_period")
+        return None if value is None else float(value)
+
     def grid(self, field: str | None = None) -> Grid:
         return field_grid(self.header, field or self._default_field())
 

@@ -202,7 +202,7 @@ def solve(
     if len(times) < 2 or any(not math.isfinite(t) for t in times) or any(b <= a for a, b in zip(times, times[1:])):
         raise ValueError(f"times must be finite and strictly increasing with at least two entries, got {times!r}")
     op = HamiltonianOperator(problem, grid, settings)
-    stepper = _Stepper(op, settings)
+    stepper = Stepper(op, settings)
     if start is None:
         k0, u = len(times) - 1, op.terminal(times[-1])
         if sink is not None:
@@ -214,25 +214,37 @@ def solve(
             raise ValueError(f"resume value has shape {tuple(u.shape)}, the grid {grid.shape}")
     t = times[k0]
     for k in range(k0 - 1, -1, -1):
-        target = times[k]
-        while t - target > 1e-12 * max(1.0, abs(target)):
-            rate, speed = stepper.rate(t, u)
-            remaining = t - target
-            dt_max = settings.cfl / speed if speed > 0 else remaining
-            steps = max(1, math.ceil(remaining / dt_max - 1e-9))
-            dt = remaining / steps
-            u = stepper.step(t, u, rate, dt)
-            t -= dt
-            if progress is not None:
-                # report exact positions: summed float steps would overshoot the bar's total
-                progress.update(max(0.0, min(times[-1] - t, progress.total or math.inf) - progress.n))
-        t = target
+        u = march(stepper, t, u, times[k], progress)
+        t = times[k]
         if sink is not None:
             sink(k, t, u)
     return u
 
 
-class _Stepper:
+def march(stepper: "Stepper", t: float, u: Array, target: float, progress: Any = None) -> Array:
+    """Step ``u`` from time ``t`` back to ``target < t`` with CFL-limited steps that land exactly on ``target``.
+
+    The one time-integration loop of the solver: the continuous solve and every sub-solve of the sampled-data
+    game (:mod:`softreach.reach.held`) run it.
+    """
+    while t - target > 1e-12 * max(1.0, abs(target)):
+        rate, speed = stepper.rate(t, u)
+        if not math.isfinite(speed):
+            raise FloatingPointError(f"the dissipation speed is {speed} at t = {t:.6g}: the value or the model's "
+                                     f"dissipation is not finite (a NaN in the table or an unbounded f)")
+        remaining = t - target
+        dt_max = stepper.settings.cfl / speed if speed > 0 else remaining
+        steps = max(1, math.ceil(remaining / dt_max - 1e-9))
+        dt = remaining / steps
+        u = stepper.step(t, u, rate, dt)
+        t -= dt
+        if progress is not None:
+            # clamp: summed float steps would overshoot the bar's total
+            progress.update(max(0.0, min(dt, (progress.total or math.inf) - progress.n)))
+    return u
+
+
+class Stepper:
     """Runs :func:`tvd_rk_step`, fused by ``torch.compile`` where that is enabled and possible.
 
     A compiled graph must not see a changing Python float (it would recompile every step), so the compiled
@@ -273,3 +285,4 @@ class _Stepper:
 
         warnings.warn(f"torch.compile failed ({type(exc).__name__}: {exc}); continuing without it", RuntimeWarning)
         self.compiled = False
+

@@ -6,6 +6,8 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+import numpy as np
+
 from .. import sets
 from ..dynamics import ControlAndDisturbanceAffine
 from ..problem import Model
@@ -83,6 +85,10 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         self.default_snapshots = 41  # every 25 ms: the filter and the W-derived control read W(t, .) over the horizon
         # c2 is a speed margin [m/s]; the net authority u_max - d_max [m/s^2] is how fast it can be restored
         self.budget_scale = p.u_max - p.d_max
+        #: the environment's control period [s]: the sampled-data table and the filter hold actions this long
+        self.control_period = 0.01
+        # hover (v' = d): the held action that rides a speed limit with the least drift
+        self.trim_controls = ((p.gravity,),) if p.gravity <= p.u_max else ()
 
     def parameters(self) -> dict[str, Any]:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self.params).items()}
@@ -96,6 +102,38 @@ class PointMass(Model, ControlAndDisturbanceAffine):
 
     def disturbance_matrix(self, t, x):
         return [[1.0], [0]]
+
+    def held_enclosure(self, t: float, x: np.ndarray, a: np.ndarray, dt: float):
+        """Exact bounds of one period with the thrust ``u`` held (see :meth:`Dynamics.held_enclosure`).
+
+        ``v(s) = v + (u - g) s + D(s)`` and ``y(s) = y + v s + (u - g) s^2 / 2 + int_0^s D`` with
+        ``D(s) = int_0^s d``, ``|D(s)| <= d_max s``: so ``v(s)`` lies between the two straight lines of slopes
+        ``u - g -+ d_max`` and ``y(s)`` between the two parabolas ``y + v s + (u - g -+ d_max) s^2 / 2``. Every
+        bound is reached by a constant extreme wind, so the boxes are the tightest boxes (the reachable set itself
+        is a lens inside the end box).
+        """
+        p = self.params
+        x = np.asarray(x, dtype=np.float64)
+        u = np.asarray(a, dtype=np.float64)[..., 0]
+        v, y = x[..., 0], x[..., 1]
+        acc_lo, acc_hi = u - p.gravity - p.d_max, u - p.gravity + p.d_max
+        v_end_lo, v_end_hi = v + acc_lo * dt, v + acc_hi * dt
+        y_end_lo = y + v * dt + 0.5 * acc_lo * dt * dt
+        y_end_hi = y + v * dt + 0.5 * acc_hi * dt * dt
+        # extremes of the parabolas inside the period: where their slope v + acc s vanishes
+        y_lo, y_hi = np.minimum(y, y_end_lo), np.maximum(y, y_end_hi)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s_lo = np.where(acc_lo != 0, -v / acc_lo, -1.0)
+            s_hi = np.where(acc_hi != 0, -v / acc_hi, -1.0)
+        in_lo = (s_lo > 0) & (s_lo < dt)
+        in_hi = (s_hi > 0) & (s_hi < dt)
+        y_lo = np.where(in_lo, np.minimum(y_lo, y + v * s_lo + 0.5 * acc_lo * s_lo * s_lo), y_lo)
+        y_hi = np.where(in_hi, np.maximum(y_hi, y + v * s_hi + 0.5 * acc_hi * s_hi * s_hi), y_hi)
+        tube_lo = np.stack([np.minimum(v, v_end_lo), y_lo], axis=-1)
+        tube_hi = np.stack([np.maximum(v, v_end_hi), y_hi], axis=-1)
+        end_lo = np.stack([v_end_lo, y_end_lo], axis=-1)
+        end_hi = np.stack([v_end_hi, y_end_hi], axis=-1)
+        return tube_lo, tube_hi, end_lo, end_hi
 
     # sets
     def target(self, t, x):

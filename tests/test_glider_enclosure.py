@@ -1,0 +1,165 @@
+"""Glider.held_enclosure: validated boxes for one control period with the angle of attack held.
+
+The boxes are checked against fine RK4 trajectories of the true dynamics under extreme wind signals (constant,
+random switching, bang-bang); a box that is too small fails the containment tests, a uselessly wide one the
+tightness tests.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from softreach.reach.models.glider import Glider
+
+DEG = math.pi / 180.0
+SUBSTEPS = 200
+REL_TOL = 1e-9
+
+
+@pytest.fixture(scope="module")
+def model() -> Glider:
+    return Glider()
+
+
+def random_inputs(model: Glider, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """States in the hard-constraint box of the default domain and angles of attack in the control box."""
+    x = np.stack([rng.uniform(0.0, 40.0, n), rng.uniform(61.0, 83.0, n), rng.uniform(-3 * DEG, 0.0, n)], axis=1)
+    (a_lo,), (a_hi,) = model.control_bounds
+    a = rng.uniform(a_lo, a_hi, (n, 1))
+    a[:3, 0] = (a_lo, a_hi, a_hi)  # the ends of the control box too
+    return x, a
+
+
+def rk4_path(model: Glider, x0: np.ndarray, a: np.ndarray, winds: np.ndarray, dt: float) -> np.ndarray:
+    """States at every substep, shape (SUBSTEPS + 1, N, 3), of x' = f(x, a, wind) with the wind of substep k
+    ``winds[:, k]`` held over that substep (so RK4 never steps across a switch)."""
+    h = dt / SUBSTEPS
+
+    def f(x: np.ndarray, w: np.ndarray) -> np.ndarray:
+        return np.stack(model.f(0.0, [x[:, 0], x[:, 1], x[:, 2]], [a[:, 0]], [w]), axis=1)
+
+    path = [x0]
+    x = x0
+    for k in range(SUBSTEPS):
+        w = winds[:, k]
+        k1 = f(x, w)
+        k2 = f(x + 0.5 * h * k1, w)
+        k3 = f(x + 0.5 * h * k2, w)
+        k4 = f(x + h * k3, w)
+        x = x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+        path.append(x)
+    return np.stack(path)
+
+
+def wind_signals(model: Glider, rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
+    """Per-row wind per substep, (N, SUBSTEPS), each at +-wind_max."""
+    w = model.params.wind_max
+    ones = np.ones((n, SUBSTEPS))
+    k = np.arange(SUBSTEPS)
+    # 10 random switch instants per row (on the substep grid), starting sign random
+    switches = np.sort(rng.integers(1, SUBSTEPS, (n, 10)), axis=1)
+    parity = (k[None, None, :] >= switches[:, :, None]).sum(axis=1) % 2
+    start = rng.choice([-1.0, 1.0], (n, 1))
+    return {
+        "const+": w * ones,
+        "const-": -w * ones,
+        "switching": w * start * np.where(parity == 0, 1.0, -1.0),
+        "bang+-": w * np.where(k < SUBSTEPS // 2, 1.0, -1.0)[None, :] * ones,
+        "bang-+": w * np.where(k < SUBSTEPS // 2, -1.0, 1.0)[None, :] * ones,
+    }
+
+
+def assert_inside(value: np.ndarray, lo: np.ndarray, hi: np.ndarray, what: str) -> None:
+    lo, hi = np.broadcast_to(lo, value.shape), np.broadcast_to(hi, value.shape)
+    tol_lo = REL_TOL * np.maximum(np.abs(lo), 1.0)
+    tol_hi = REL_TOL * np.maximum(np.abs(hi), 1.0)
+    below = value < lo - tol_lo
+    above = value > hi + tol_hi
+    if np.any(below | above):
+        idx = np.argwhere(below | above)[0]
+        raise AssertionError(f"{what}: value {value[tuple(idx)]!r} outside [{lo[tuple(idx)]!r}, "
+                             f"{hi[tuple(idx)]!r}] at index {tuple(idx)}")
+
+
+@pytest.mark.parametrize("dt", [0.1, 0.01])
+def test_trajectories_stay_in_the_boxes(model: Glider, dt: float):
+    rng = np.random.default_rng(20240611 + int(dt * 1000))
+    n = 200
+    x, a = random_inputs(model, rng, n)
+    tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure(0.0, x, a, dt)
+    for arr in (tube_lo, tube_hi, end_lo, end_hi):
+        assert arr.shape == (n, 3) and arr.dtype == np.float64 and np.all(np.isfinite(arr))
+    assert np.all(tube_lo <= end_lo) and np.all(end_lo <= end_hi) and np.all(end_hi <= tube_hi)
+    assert np.all(tube_lo <= x) and np.all(x <= tube_hi)
+    for name, winds in wind_signals(model, rng, n).items():
+        path = rk4_path(model, x, a, winds, dt)
+        assert_inside(path, tube_lo[None], tube_hi[None], f"tube, wind {name}, dt {dt}")
+        assert_inside(path[-1], end_lo, end_hi, f"end, wind {name}, dt {dt}")
+
+
+@pytest.mark.parametrize("dt", [0.1, 0.01])
+def test_boxes_are_tight(model: Glider, dt: float):
+    rng = np.random.default_rng(7 + int(dt * 1000))
+    n = 50
+    x, a = random_inputs(model, rng, n)
+    tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure(0.0, x, a, dt)
+    winds = wind_signals(model, rng, n)
+    v_plus = rk4_path(model, x, a, winds["const+"], dt)[-1, :, 1]
+    v_minus = rk4_path(model, x, a, winds["const-"], dt)[-1, :, 1]
+    spread = v_plus - v_minus
+    assert np.all(spread > 0)
+    assert np.all(end_hi[:, 1] - end_lo[:, 1] <= 3.0 * spread)
+    # h' = V sin(gamma) is at most 83 sin(3 deg) = 4.3 m/s in magnitude: the h tube is about |h'| dt wide
+    assert np.all(tube_hi[:, 0] - tube_lo[:, 0] <= 1.2 * 4.35 * dt)
+    if dt == 0.1:
+        assert np.all(tube_hi[:, 0] - tube_lo[:, 0] < 1.0)
+
+
+def test_reference_state_widths(model: Glider):
+    """(20 m, 72 m/s, -2 deg), alpha = 5 deg, dt = 0.1: the widths the report quotes, within a factor 2."""
+    x = np.array([[20.0, 72.0, -2 * DEG]])
+    a = np.array([[5 * DEG]])
+    tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure(0.0, x, a, 0.1)
+    tube_w, end_w = (tube_hi - tube_lo)[0], (end_hi - end_lo)[0]
+    # sink 72 sin(2 deg) = 2.51 m/s; wind alone spreads V by 2 * 10000 / 60000 * 0.1 = 0.0333 m/s
+    assert 0.25 <= tube_w[0] <= 0.26
+    assert 0.0333 <= end_w[1] <= 0.05
+    assert end_w[0] < 0.01 and end_w[2] < 1e-4 and tube_w[2] < 1e-3
+
+
+def test_empty_batch(model: Glider):
+    out = model.held_enclosure(0.0, np.empty((0, 3)), np.empty((0, 1)), 0.1)
+    assert all(o.shape == (0, 3) for o in out)
+
+
+@pytest.mark.parametrize("state", [(20.0, 0.0, -0.03), (20.0, -72.0, -0.03), (20.0, 72.0, 5.0),
+                                   (20.0, 72.0, -5.0), (float("nan"), 72.0, -0.03)])
+def test_bad_state_raises(model: Glider, state):
+    x = np.array([[20.0, 72.0, -0.03], state])
+    with pytest.raises(ValueError):
+        model.held_enclosure(0.0, x, np.full((2, 1), 5 * DEG), 0.1)
+
+
+def test_bad_arguments_raise(model: Glider):
+    x = np.array([[20.0, 72.0, -0.03]])
+    a = np.array([[5 * DEG]])
+    with pytest.raises(ValueError):
+        model.held_enclosure(0.0, x, a, 0.0)
+    with pytest.raises(ValueError):
+        model.held_enclosure(0.0, x, a, -0.1)
+    with pytest.raises(ValueError):
+        model.held_enclosure(0.0, x, np.array([[5.0]]), 0.1)  # degrees
+    with pytest.raises(ValueError):
+        model.held_enclosure(0.0, x[0], a, 0.1)  # not (N, 3)
+    with pytest.raises(ValueError):
+        model.held_enclosure(0.0, x, np.zeros((2, 1)), 0.1)  # one control per state
+
+
+def test_too_long_period_raises_naming_the_row(model: Glider):
+    """Over 1000 s no box passes the Picard test (V or gamma leave the model's domain): an error, not a box."""
+    x = np.array([[20.0, 72.0, -0.03], [10.0, 65.0, -0.01]])
+    with pytest.raises(ValueError, match="row 0"):
+        model.held_enclosure(0.0, x, np.full((2, 1), 5 * DEG), 1000.0)
