@@ -20,12 +20,13 @@ REQUIRED_ATTRIBUTES = ("model", "dt", "eps", "state", "time", "budget")
 
 
 class SafetyFilter(gym.Wrapper):
-    """Filter any policy's actions with a ``W_eps`` table so that the paper's guarantee holds.
+    """Filter any policy's actions with a table so that the sampled-data guarantee holds.
 
-    From any start inside ``RA~_Q`` with margin (``W_eps(0, x0, Q) <= -margin``), whatever the wind within its
-    bounds, the vehicle lands, never leaves the hard constraint and spends at most ``Q`` of budget, while the
-    policy acts unchanged wherever one control period of any action cannot leave the safe set. See
-    :mod:`softreach.filters.core` for the rules and the computed margin.
+    From a start the filter certifies (``info["certified"]`` at ``reset``), for every policy and every wind within
+    its bounds (switching at any instant, also in answer to the filter), each step holds an action that provably
+    keeps the vehicle in ``C1`` for the whole period, spends no more budget than is left, and ends in a certified
+    state; at the horizon that means landed. The policy's own action passes whenever holding it for one period
+    does that. See :mod:`softreach.filters.core` and :mod:`softreach.filters.lookahead`.
 
     A ``gymnasium.Wrapper`` rather than an ``ActionWrapper``, because the filter needs the state, time and
     remaining budget, which it reads from ``env.unwrapped`` (``state``, ``time``, ``budget``); observations and
@@ -36,22 +37,25 @@ class SafetyFilter(gym.Wrapper):
 
     * ``filter_active`` — the filter replaced (or, with ``rule="smooth"``, moved) the policy's action;
     * ``policy_action`` / ``applied_action`` — the normalised action the policy gave / the one applied;
-    * ``value`` — ``W~(t, x, z)`` at the state the decision was taken in (``+inf`` outside the table);
-    * ``margin``, ``optimal_action`` (normalised ``a*``), ``filter_reason`` (``"pass"``, ``"blend"``,
-      ``"optimal"``, ``"outside_domain"``, ``"after_horizon"``, ``"nonfinite_value"``, ``"fallback"``);
+    * ``value`` — the certificate ``min(V~, W~_eps)`` at the state the decision was taken in (``+inf`` outside);
+    * ``margin`` (the extra tightening, 0 by default), ``optimal_action`` (the normalised candidate the filter
+      chose, NaN where the policy passed), ``filter_reason`` (``"pass"``, ``"blend"``, ``"optimal"``,
+      ``"outside_domain"``, ``"after_horizon"``, ``"nonfinite_value"``, ``"fallback"``, ``"uncertified"``);
+    * ``certified`` — the applied action passed the one-period test; ``lookahead`` — its worst next certificate;
     * on the last step of an episode, ``filter_episode``: ``steps``, ``interventions``, ``intervention_rate``,
       ``min_value`` and ``max_value`` (over the decisions; ``max_value <= 0`` means the episode never left the
       table's safe set), ``budget_used`` and ``initial_budget``.
 
-    ``reset`` adds ``value`` and ``margin`` of the start, so a caller can check it lies in the filter's safe set.
+    ``reset`` adds ``value``, ``margin``, ``certified`` and ``certified_reason`` (one of
+    :data:`~softreach.filters.core.CERTIFY_REASONS`) of the start.
 
     :param env: a softreach landing environment (possibly wrapped, e.g. by ``TimeLimit`` or ``Monitor``)
     :param table: a :class:`~softreach.reach.Table` with ``W_eps``, or the path of one
-    :param margin: ``None`` for the computed margin, or a constant ``>= 0`` (units of the soft constraint)
+    :param margin: ``None`` (0) or an extra tightening ``>= 0`` of the next-state test (value units)
     :param rule: ``"switch"`` (least restrictive; the default) or ``"smooth"``
     :param filter_kwargs: passed to :class:`~softreach.filters.ValueFilter` (``fallback_action``,
-        ``smooth_iterations``, ``smooth_tolerance``, ``interpolation_error``, ``max_margin_bytes``, ``layout``)
-    :param value_filter: an existing :class:`~softreach.filters.ValueFilter` to share (its margin field is
+        ``smooth_iterations``, ``eps``)
+    :param value_filter: an existing :class:`~softreach.filters.ValueFilter` to share (one core,
         computed once per table; many environments can use one). Its rule and margin apply; ``table`` may then be
         ``None``, and ``margin``, ``rule`` and ``filter_kwargs`` must be left out or agree with it
     :raises TableError: the table was solved for another model, other parameters or another ``eps``
@@ -83,7 +87,7 @@ class SafetyFilter(gym.Wrapper):
                 raise ValueError(f"{sorted(filter_kwargs)} cannot apply to a shared value_filter")
             if not math.isclose(value_filter.dt, float(base.dt), rel_tol=1e-12, abs_tol=0.0):
                 raise ValueError(f"the shared value_filter was made for dt={value_filter.dt}, the environment "
-                                 f"steps dt={base.dt}: the margin covers one control period")
+                                 f"steps dt={base.dt}: actions are held for one control period")
         if table is None:
             raise TypeError("SafetyFilter needs a table (a softreach Table or its path) or a value_filter")
         if not isinstance(table, Table):
@@ -111,6 +115,7 @@ class SafetyFilter(gym.Wrapper):
         self._min_value = math.inf
         self._max_value = -math.inf
         self._initial_budget = math.nan
+        self._certified_start = False
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Reset the environment and the episode statistics; ``info`` adds ``value`` and ``margin`` of the start."""
@@ -122,6 +127,10 @@ class SafetyFilter(gym.Wrapper):
         info = dict(info)
         info["value"] = float(vf.value(base.time, base.state, base.budget))
         info["margin"] = float(vf.margin(base.time, base.state, base.budget))
+        certified, why, _ = vf.certify(base.time, base.state, base.budget)
+        info["certified"] = bool(certified)
+        info["certified_reason"] = why
+        self._certified_start = bool(certified)
         return obs, info
 
     def step(self, action: Any):
@@ -153,6 +162,8 @@ class SafetyFilter(gym.Wrapper):
         info["margin"] = float(f["margin"])
         info["optimal_action"] = np.asarray(f["optimal_action"], dtype=dtype).reshape(self.action_space.shape)
         info["filter_reason"] = REASONS[int(f["reason"])]
+        info["certified"] = bool(f["certified"])
+        info["lookahead"] = float(f["lookahead"])
         if terminated or truncated:
             info["filter_episode"] = self.episode_summary(info)
         return obs, reward, terminated, truncated, info
@@ -171,4 +182,5 @@ class SafetyFilter(gym.Wrapper):
             "max_value": self._max_value,
             "budget_used": float(used),
             "initial_budget": self._initial_budget,
+            "certified_start": self._certified_start,
         }

@@ -65,3 +65,67 @@ def interpolate(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray
         for dk, wk in time_corners:
             out += (w * wk) * flat[k + dk, lin]
     return out, inside
+
+
+def box_max(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray, lo: np.ndarray,
+            hi: np.ndarray) -> np.ndarray:
+    """The exact maximum of the interpolant at time ``t[j]`` over the box ``[lo[j], hi[j]]``, per row.
+
+    At a fixed time the interpolant is multilinear inside each grid cell, so over a box its maximum is reached at a
+    corner of one of the sub-boxes that the grid lines cut the box into: the candidates along an axis are the
+    box's two ends and the grid nodes strictly between them. Rows whose box holds more than one node along some
+    axis take the largest node value of every cell the box touches instead (an upper bound: inside a cell the
+    interpolant is a convex combination of the cell's node values). A box that leaves the grid gets ``+inf``.
+
+    :param values: ``(len(times), *grid.shape)``
+    :param t: ``(N,)`` query times, inside the table's span
+    :param lo: ``(N, d)`` lower corners
+    :param hi: ``(N, d)`` upper corners (``>= lo``)
+    :return: ``(N,)`` float64
+    """
+    N, d = lo.shape
+    out = np.full(N, -np.inf)
+    ok = np.ones(N, bool)
+    axes = []
+    for a in range(d):
+        h = grid.spacing[a]
+        s_lo = (lo[:, a] - grid.lo[a]) / h
+        s_hi = (hi[:, a] - grid.lo[a]) / h
+        if grid.periodic[a]:
+            inside = np.ones(N, bool)
+        else:
+            tol = 1e-9 * max(1.0, grid.shape[a])
+            inside = (s_lo >= -tol) & (s_hi <= grid.shape[a] - 1 + tol)
+        first = np.floor(s_lo).astype(np.int64) + 1  # the first node strictly above lo (or lo itself, once)
+        count = np.ceil(s_hi).astype(np.int64) - first  # nodes strictly inside (lo, hi)
+        ok &= inside & (count <= 1)
+        mid = np.where(count == 1, grid.lo[a] + first * h, lo[:, a])
+        axes.append((lo[:, a], mid, hi[:, a], inside, count))
+    rows = np.nonzero(ok)[0]
+    if len(rows):
+        pts = np.stack(np.meshgrid(*[np.arange(3)] * d, indexing="ij"), -1).reshape(-1, d)  # (3^d, d)
+        P = len(pts)
+        coords = np.empty((len(rows), P, d))
+        for a in range(d):
+            choice = np.stack([axes[a][0][rows], axes[a][1][rows], axes[a][2][rows]], axis=1)  # (R, 3)
+            coords[:, :, a] = choice[:, pts[:, a]]
+        v, _ = interpolate(values, times, grid, np.repeat(t[rows], P), coords.reshape(-1, d))
+        out[rows] = v.reshape(len(rows), P).max(axis=1)
+    for r in np.nonzero(~ok)[0]:
+        if not all(ax[3][r] for ax in axes):
+            out[r] = np.inf
+            continue
+        # a wide box: every node of every cell it touches, at both snapshots around t
+        sl = []
+        for a in range(d):
+            h = grid.spacing[a]
+            i0 = int(np.floor((lo[r, a] - grid.lo[a]) / h))
+            i1 = int(np.ceil((hi[r, a] - grid.lo[a]) / h))
+            if grid.periodic[a]:
+                sl.append(np.arange(i0, i1 + 1) % grid.shape[a])
+            else:
+                sl.append(np.arange(max(i0, 0), min(i1, grid.shape[a] - 1) + 1))
+        k = int(np.clip(np.searchsorted(times, t[r], side="right") - 1, 0, max(len(times) - 2, 0)))
+        ks = [k] if len(times) == 1 else [k, k + 1]
+        out[r] = max(float(np.max(np.asarray(values[kk])[np.ix_(*sl)])) for kk in ks)
+    return out

@@ -1,0 +1,149 @@
+"""The one-period look-ahead: does holding an action for one control period provably keep the state certified?
+
+The certificate is the table's interpolant ``D(t, x, z) = min(V~(t, x), W~(t, x, z))`` (``V~`` only with
+``z >= 0``): ``V <= 0`` lands without spending budget, ``W_eps <= 0`` lands spending at most ``z``. For a
+held action ``a`` and *every* disturbance signal in its box (switching at any instant, also in answer to ``a``),
+the model's :meth:`~softreach.reach.dynamics.Dynamics.held_enclosure` gives a box ``T`` holding the whole
+motion of the period and a box ``E`` holding its end point. The action is **admissible** when
+
+1. ``max_T c1 <= 0``: the motion stays in ``C1`` for the whole period. ``c1`` is convex (a box distance), so its
+   maximum over ``T`` is at a corner of ``T``;
+2. ``z' = z - dt max_T h_eps >= 0``: the budget spent in the period, crossings of ``C2`` included, is at most
+   ``dt`` times the largest violation rate over ``T`` (``h_eps`` grows with ``c2``, also convex), so the budget
+   never goes negative: exact, with no allowance of a control period;
+3. ``max_{E x [z', z]} D(t + dt, .) <= -margin``: every possible end state is certified at the next sample time.
+   The maximum of the interpolant over the box is exact (:func:`softreach.reach.interpolation.box_max`), so no
+   interpolation allowance is needed: the certificate *is* the interpolant. ``margin`` (default 0) is an extra
+   tightening a user may ask for.
+
+At the horizon the table holds the terminal value ``max(c1, c2, -kappa z, g)``, whose interpolant is ``<= 0``
+only inside the target (it is convex, and a multilinear interpolant of a convex function lies above it): a chain
+of admissible actions from ``t = 0`` therefore ends landed by ``T``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from typing import Any
+
+import numpy as np
+
+from softreach.reach import Table
+from softreach.reach.interpolation import box_max, interpolate
+
+
+class Lookahead:
+    """One-period admissibility of held actions against a table's certificate (see the module docstring).
+
+    :param table: a table with ``V`` and ``W_eps`` (ideally solved with ``--held`` for this period)
+    :param model: the model the table was solved for
+    :param dt: the control period [s]
+    :param eps: the ``h_eps`` width with which the environment drains the budget
+    :param margin: extra tightening ``>= 0`` of the end-state condition (value units)
+    """
+
+    def __init__(self, table: Table, model: Any, dt: float, eps: float, margin: float = 0.0):
+        self.table, self.model, self.dt, self.eps, self.margin = table, model, float(dt), float(eps), float(margin)
+        self.n = model.state_dim
+        self.fields = {}
+        for name in ("V", "W_eps"):
+            if name in table.header["fields"]:
+                self.fields[name] = (table.values(name), table.times(name), table.grid(name))
+        if "W_eps" not in self.fields:
+            raise ValueError(f"table {table.path} holds only the classical V; the filter needs W_eps")
+        self.z_top = self.fields["W_eps"][2].hi[-1]
+        self.horizon = float(self.fields["W_eps"][1][-1])
+        self.corners = np.array(list(itertools.product((0, 1), repeat=self.n)), dtype=bool)  # (2^n, n)
+        held = table.header["fields"]["W_eps"].get("held_controls")
+        self.candidates = np.asarray(held if held else model.held_candidates(5), dtype=np.float64)
+
+    # ---------------------------------------------------------------- the certificate
+    def certificate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """``D(t, x, z)``: ``+inf`` outside the table (unsafe), at a negative budget or after the horizon."""
+        W, Wt, Wg = self.fields["W_eps"]
+        X = np.concatenate([x, np.minimum(z, self.z_top)[:, None]], axis=1)
+        w, inside = interpolate(W, Wt, Wg, t, X)
+        out = np.where(inside & (z >= Wg.lo[-1]) & np.isfinite(w), w, np.inf)
+        if "V" in self.fields:
+            V, Vt, Vg = self.fields["V"]
+            v, vin = interpolate(V, Vt, Vg, t, x)
+            out = np.minimum(out, np.where(vin & (z >= 0) & np.isfinite(v), v, np.inf))
+        return out
+
+    def _corner_max(self, fn, t: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        N, C = len(lo), len(self.corners)
+        pts = np.where(self.corners[None, :, :], hi[:, None, :], lo[:, None, :]).reshape(N * C, self.n)
+        t_arg = float(t[0]) if np.all(t == t[0]) else np.repeat(t, C)
+        vals = np.asarray(fn(t_arg, [pts[:, i] for i in range(self.n)]), dtype=np.float64)
+        return np.broadcast_to(vals, (N * C,)).reshape(N, C).max(axis=1)
+
+    def _enclose(self, t: np.ndarray, x: np.ndarray, a: np.ndarray):
+        t0 = float(t[0]) if np.all(t == t[0]) else t
+        try:
+            return self.model.held_enclosure(t0, x, a, self.dt), np.ones(len(x), bool)
+        except ValueError:
+            # a row the model cannot bound (it would leave the model's domain): inadmissible, the others go on
+            boxes = [np.full((len(x), self.n), np.nan) for _ in range(4)]
+            ok = np.zeros(len(x), bool)
+            for r in range(len(x)):
+                try:
+                    one = self.model.held_enclosure(t0 if np.isscalar(t0) else t0[r], x[r:r + 1], a[r:r + 1], self.dt)
+                except ValueError:
+                    continue
+                for b, o in zip(boxes, one):
+                    b[r] = o[0]
+                ok[r] = True
+            return tuple(np.where(ok[:, None], b, x) for b in boxes), ok
+
+    # ---------------------------------------------------------------- one period
+    def check(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Admissibility of holding ``a`` for one period from each row.
+
+        :param t: ``(N,)`` times; ``x``: ``(N, n)`` states; ``z``: ``(N,)`` budgets; ``a``: ``(N, m)`` physical
+        :return: ``(admissible, next_value)``: ``next_value`` is the largest certificate over the possible end
+            states (``+inf`` where the motion may leave ``C1``, overspend the budget, or leave the table)
+        """
+        (tube_lo, tube_hi, end_lo, end_hi), bounded = self._enclose(t, x, a)
+        c1 = self._corner_max(self.model.hard_constraint, t, tube_lo, tube_hi)
+        c2 = self._corner_max(self.model.soft_constraint, t, tube_lo, tube_hi)
+        rate = np.clip(c2 / self.eps, 0.0, 1.0)
+        z_end = z - self.dt * rate
+        t_next = t + self.dt
+        in_time = t_next <= self.horizon + 1e-9 * max(1.0, self.horizon)
+        t_next = np.minimum(t_next, self.horizon)
+        ok = bounded & (c1 <= 0) & (z_end >= 0) & in_time
+        nxt = np.full(len(x), np.inf)
+        rows = np.nonzero(ok)[0]
+        if len(rows):
+            W, Wt, Wg = self.fields["W_eps"]
+            lo = np.concatenate([end_lo[rows], z_end[rows, None]], axis=1)
+            hi = np.concatenate([end_hi[rows], np.minimum(z[rows], self.z_top)[:, None]], axis=1)
+            best = box_max(W, Wt, Wg, t_next[rows], lo, hi)
+            if "V" in self.fields:
+                V, Vt, Vg = self.fields["V"]
+                best = np.minimum(best, box_max(V, Vt, Vg, t_next[rows], end_lo[rows], end_hi[rows]))
+            nxt[rows] = np.where(np.isnan(best), np.inf, best)
+        return ok & (nxt <= -self.margin), nxt
+
+    def best_candidate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The candidate held action with the lowest worst-case next certificate, per row.
+
+        :return: ``(action (N, m), admissible (N,), next_value (N,))``
+        """
+        N, J = len(x), len(self.candidates)
+        rep = lambda v: np.repeat(v, J, axis=0)  # noqa: E731 - each row's candidates are contiguous
+        a = np.tile(self.candidates, (N, 1))
+        ok, nxt = self.check(rep(t), rep(x), rep(z), a)
+        nxt = nxt.reshape(N, J)
+        score = np.where(ok.reshape(N, J), nxt, math.inf)
+        j = np.argmin(np.where(np.isfinite(score).any(axis=1, keepdims=True), score, nxt), axis=1)
+        rows = np.arange(N)
+        return self.candidates[j], ok.reshape(N, J)[rows, j], nxt[rows, j]
+
+    def admissible_candidates(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(admissible (N, J), next_value (N, J))`` of every candidate at every row."""
+        N, J = len(x), len(self.candidates)
+        rep = lambda v: np.repeat(v, J, axis=0)  # noqa: E731
+        ok, nxt = self.check(rep(t), rep(x), rep(z), np.tile(self.candidates, (N, 1)))
+        return ok.reshape(N, J), nxt.reshape(N, J)
