@@ -9,7 +9,7 @@
 from .core import (AFTER_HORIZON, BLEND, CERTIFY_REASONS, FALLBACK, NONFINITE, OPTIMAL, OUTSIDE, PASS, REASONS, RULES,
                    UNCERTIFIED, ValueFilter)
 from .field import TableField
-from .lookahead import Lookahead
+from softreach.reach.lookahead import Lookahead
 from .wrapper import SafetyFilter
 
 __all__ = ["AFTER_HORIZON", "BLEND", "CERTIFY_REASONS", "FALLBACK", "Lookahead", "NONFINITE", "OPTIMAL", "OUTSIDE",

@@ -4,7 +4,7 @@ What the user runs: the policy's action is held for the environment's control pe
 change at any instant, also inside the period and in answer to the filter. The filter therefore never judges an
 action by the value at the current state (the pointwise ``a*`` of a continuous-time table, held for ``dt``, can
 overshoot the constraint it is riding); it judges the *held* action by where one period of it can go
-(:class:`~softreach.filters.lookahead.Lookahead`):
+(:class:`~softreach.reach.lookahead.Lookahead`):
 
 * the policy's action passes when holding it for one period provably keeps the state in ``C1``, the budget
   non-negative and every possible next state certified (``D <= -margin``, ``D = min(V~, W~_eps)``);
@@ -33,7 +33,7 @@ import numpy as np
 
 from softreach.reach import Table, TableError
 
-from .lookahead import Lookahead
+from softreach.reach.lookahead import Lookahead
 
 try:  # torch is a base dependency, but keep numpy-only use possible
     import torch
@@ -147,7 +147,7 @@ class ValueFilter:
         period = table.control_period
         #: the table was solved for the sampled-data game at this period: certification is possible
         self.sampled = period is not None and math.isclose(period, self.dt, rel_tol=1e-9, abs_tol=0.0)
-        self.lookahead = Lookahead(table, self.model, self.dt, self.eps, margin=self.constant_margin or 0.0)
+        self.lookahead = Lookahead.from_table(table, self.model, self.dt, self.eps, margin=self.constant_margin or 0.0)
 
     # ---------------------------------------------------------------- conversions
     def physical(self, action: Any) -> np.ndarray:

@@ -26,7 +26,7 @@ class SafetyFilter(gym.Wrapper):
     its bounds (switching at any instant, also in answer to the filter), each step holds an action that provably
     keeps the vehicle in ``C1`` for the whole period, spends no more budget than is left, and ends in a certified
     state; at the horizon that means landed. The policy's own action passes whenever holding it for one period
-    does that. See :mod:`softreach.filters.core` and :mod:`softreach.filters.lookahead`.
+    does that. See :mod:`softreach.filters.core` and :mod:`softreach.reach.lookahead`.
 
     A ``gymnasium.Wrapper`` rather than an ``ActionWrapper``, because the filter needs the state, time and
     remaining budget, which it reads from ``env.unwrapped`` (``state``, ``time``, ``budget``); observations and

@@ -14,7 +14,7 @@ import numpy as np
 from . import backend as B
 from .grid import Grid, budget_axis
 from .problem import Model, classical_problem, soft_problem
-from .held import solve_held
+from .held import make_consistent, solve_held
 from .solver import SolverSettings, solve
 from .table import TableWriter
 
@@ -48,6 +48,9 @@ class SolveConfig:
     control_period: float | None = None
     #: candidate held actions per control axis (sampled-data game only)
     held_levels: int = 5
+    #: sampled-data game only: nodes with values in ``[-band, 0]`` are made consistent with the filter's
+    #: one-period test (:func:`softreach.reach.held.make_consistent`); value units
+    consistency_band: float = 0.1
 
 
 def validate(model: Model, cfg: SolveConfig, out: str | os.PathLike | None) -> tuple[Grid, Grid | None]:
@@ -157,6 +160,20 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
             walls[name] = time.perf_counter() - t0
             if bar is not None:
                 bar.close()
+        if held and aug is not None and not writer.header.get("consistency"):
+            t0 = time.perf_counter()
+            arrays = {name: (np.stack([writer.read_snapshot(name, k) for k in range(len(times))]), times, grid)
+                      for name, (_, grid) in problems.items()}
+            bar = _progress(len(times) - 1, "consistency with the filter's test", progress)
+            stats = make_consistent(model, arrays, cfg.control_period, cfg.eps, np.asarray(controls),
+                                    band=cfg.consistency_band, progress=bar)
+            if bar is not None:
+                bar.close()
+            for name, (vals, _, _) in arrays.items():
+                for k in range(len(times)):
+                    writer.write_snapshot(name, k, vals[k])
+            walls["consistency"] = time.perf_counter() - t0
+            writer.set(consistency={"band": cfg.consistency_band, **stats})
         writer.set(wall_time=walls)
         path = writer.finalize()
     finally:

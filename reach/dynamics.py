@@ -133,6 +133,14 @@ class Dynamics(ABC):
         raise NotImplementedError(f"{self.name} does not provide held_enclosure(t, x, a, dt); the safety filter "
                                   f"needs a validated one-period enclosure of its motion")
 
+    def held_tube_pieces(self, t: float, x: np.ndarray, a: np.ndarray, dt: float, pieces: int):
+        """Boxes ``(lo, hi)``, each ``(pieces, N, n)``, holding the motion over each of ``pieces`` equal
+        sub-intervals of the period (control held, any disturbance signal). The budget bound of the safety filter
+        charges each piece by its own box. By default every piece gets the whole period's tube (sound; a model
+        with a sharper bound overrides this)."""
+        lo, hi, _, _ = self.held_enclosure(t, x, a, dt)
+        return np.broadcast_to(lo, (pieces,) + lo.shape), np.broadcast_to(hi, (pieces,) + hi.shape)
+
 
 def _unstack(x: Array) -> list[Array]:
     return [x[..., i] for i in range(x.shape[-1])]

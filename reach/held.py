@@ -166,3 +166,77 @@ def solve_held(problem: ReachAvoidProblem, grid: Grid, times: Sequence[float], s
         if sink is not None:
             sink(k, times[k], u)
     return u
+
+
+def make_consistent(model: Any, fields: dict[str, tuple[Any, list[float], Grid]], dt: float, eps: float,
+                    controls: np.ndarray, band: float, progress: Any = None) -> dict[str, Any]:
+    """Raise node values of the sampled-data table where the filter's one-period test disagrees with the PDE.
+
+    The PDE sub-solves and the filter's test (:class:`~softreach.reach.lookahead.Lookahead`: exact enclosures of
+    the held period, the exact maximum of the interpolant over them, the budget bound) approximate the same
+    minimum over held actions with different errors; where the PDE is the lower one, a state the table
+    certifies can have no action that passes the test (a dead end). Backwards from the horizon, every node with
+    a value in ``[-band, 0]`` gets ``max(value, min_a test(node, a))`` against the already consistent next
+    snapshot (``V`` nodes at ``z = 0``), capped at ``band`` where no action passes; nodes in the target have
+    landed and keep their value. Values only rise: the sets
+    only shrink, and at every node the table now promises nothing the test cannot deliver.
+
+    :param fields: ``{"V": (values, times, grid), "W_eps": (...)}``, values writable ``(n_t, *grid)``
+    :param band: depth below 0 that is checked (nodes deeper are counted, not changed: see the return)
+    :return: statistics per field: nodes checked and raised, dead ends, the largest raise, and of a sample of
+        64 deeper nodes per snapshot how many have no action that passes the test (``deep_inconsistent``,
+        expected 0: the band is deep enough)
+    """
+    from .lookahead import Lookahead
+
+    stats = {name: {"checked": 0, "raised": 0, "dead_ends": 0, "largest_raise": 0.0, "deep_sampled": 0,
+                    "deep_inconsistent": 0} for name in fields}
+    rng = np.random.default_rng(0)
+    times = fields["W_eps"][1]
+    for k in range(len(times) - 2, -1, -1):
+        nxt = {name: (vals[k + 1:k + 2], np.asarray(tt[k + 1:k + 2]), g) for name, (vals, tt, g) in fields.items()}
+        la = Lookahead(nxt, model, dt, eps, controls)
+        for name, (vals, _, grid) in fields.items():
+            cur = np.asarray(vals[k], dtype=np.float64)
+            # nodes deeper than the band are assumed consistent; a sample of them checks that assumption
+            deep = np.flatnonzero(cur < -band)
+            deep = np.unravel_index(rng.choice(deep, size=min(64, len(deep)), replace=False), cur.shape)
+            idx = np.nonzero((cur <= 0) & (cur >= -band))
+            idx = tuple(np.concatenate([i, d]) for i, d in zip(idx, deep))
+            n_deep = len(deep[0])
+            if len(idx[0]) == 0:
+                continue
+            pts = np.stack([np.asarray(grid.lo[a]) + idx[a] * grid.spacing[a] for a in range(grid.ndim)], axis=1)
+            n = model.state_dim
+            x = pts[:, :n]
+            z = pts[:, n] if name == "W_eps" else np.zeros(len(pts))
+            # a node in the target (inside C2 and C1) has landed: the episode ends there, no action is needed
+            comps = [x[:, i] for i in range(n)]
+            landed = ((np.asarray(model.target(times[k], comps)) <= 0) & (np.asarray(model.soft_constraint(
+                times[k], comps)) <= 0) & (np.asarray(model.hard_constraint(times[k], comps)) <= 0) & (z >= 0))
+            keep = ~landed
+            is_deep = (np.arange(len(x)) >= len(x) - n_deep)[keep]
+            idx = tuple(i[keep] for i in idx)
+            x, z = x[keep], z[keep]
+            if len(x) == 0:
+                continue
+            ok, best = la.admissible_candidates(np.full(len(x), times[k]), x, np.maximum(z, 0.0))
+            score = np.where(ok, best, np.inf).min(axis=1)
+            # below z = 0 the budget is already overspent: nothing there is certified by the test
+            score = np.where(z < 0, np.inf, score)
+            new = np.maximum(cur[idx], np.minimum(score, band))
+            raised = (new > cur[idx]) & ~is_deep
+            s = stats[name]
+            s["deep_sampled"] += int(is_deep.sum())
+            s["deep_inconsistent"] += int(((score > 0) & is_deep).sum())
+            new = np.where(is_deep, cur[idx], new)
+            s["checked"] += int(len(x) - is_deep.sum())
+            s["raised"] += int(raised.sum())
+            s["dead_ends"] += int((~np.isfinite(score) & ~is_deep).sum())
+            if raised.any():
+                s["largest_raise"] = max(s["largest_raise"], float((new - cur[idx])[raised].max()))
+                cur[idx] = new
+                vals[k] = cur.astype(vals.dtype)
+        if progress is not None:
+            progress.update(1)
+    return stats

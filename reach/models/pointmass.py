@@ -112,28 +112,32 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         bound is reached by a constant extreme wind, so the boxes are the tightest boxes (the reachable set itself
         is a lens inside the end box).
         """
+        lo, hi = self.held_tube_pieces(t, x, a, dt, 1)
+        end_lo, end_hi = self._held_box(x, a, dt, dt)
+        return lo[0], hi[0], end_lo, end_hi
+
+    def held_tube_pieces(self, t: float, x: np.ndarray, a: np.ndarray, dt: float, pieces: int):
+        """Exact boxes of the motion over each of ``pieces`` sub-intervals (see :meth:`held_enclosure`)."""
+        edges = np.linspace(0.0, dt, pieces + 1)
+        los, his = [], []
+        for s0, s1 in zip(edges[:-1], edges[1:]):
+            lo, hi = self._held_box(x, a, s0, s1)
+            los.append(lo)
+            his.append(hi)
+        return np.stack(los), np.stack(his)
+
+    def _held_box(self, x: np.ndarray, a: np.ndarray, s0: float, s1: float) -> tuple[np.ndarray, np.ndarray]:
+        """The box of every state reachable at some time in ``[s0, s1]`` of the held period."""
         p = self.params
         x = np.asarray(x, dtype=np.float64)
         u = np.asarray(a, dtype=np.float64)[..., 0]
         v, y = x[..., 0], x[..., 1]
         acc_lo, acc_hi = u - p.gravity - p.d_max, u - p.gravity + p.d_max
-        v_end_lo, v_end_hi = v + acc_lo * dt, v + acc_hi * dt
-        y_end_lo = y + v * dt + 0.5 * acc_lo * dt * dt
-        y_end_hi = y + v * dt + 0.5 * acc_hi * dt * dt
-        # extremes of the parabolas inside the period: where their slope v + acc s vanishes
-        y_lo, y_hi = np.minimum(y, y_end_lo), np.maximum(y, y_end_hi)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s_lo = np.where(acc_lo != 0, -v / acc_lo, -1.0)
-            s_hi = np.where(acc_hi != 0, -v / acc_hi, -1.0)
-        in_lo = (s_lo > 0) & (s_lo < dt)
-        in_hi = (s_hi > 0) & (s_hi < dt)
-        y_lo = np.where(in_lo, np.minimum(y_lo, y + v * s_lo + 0.5 * acc_lo * s_lo * s_lo), y_lo)
-        y_hi = np.where(in_hi, np.maximum(y_hi, y + v * s_hi + 0.5 * acc_hi * s_hi * s_hi), y_hi)
-        tube_lo = np.stack([np.minimum(v, v_end_lo), y_lo], axis=-1)
-        tube_hi = np.stack([np.maximum(v, v_end_hi), y_hi], axis=-1)
-        end_lo = np.stack([v_end_lo, y_end_lo], axis=-1)
-        end_hi = np.stack([v_end_hi, y_end_hi], axis=-1)
-        return tube_lo, tube_hi, end_lo, end_hi
+        # v lies between two lines: their extremes are at the interval's ends
+        v_lo = np.minimum(v + acc_lo * s0, v + acc_lo * s1)
+        v_hi = np.maximum(v + acc_hi * s0, v + acc_hi * s1)
+        return (np.stack([v_lo, _parabola(y, v, acc_lo, s0, s1, np.minimum)], axis=-1),
+                np.stack([v_hi, _parabola(y, v, acc_hi, s0, s1, np.maximum)], axis=-1))
 
     # sets
     def target(self, t, x):
@@ -193,6 +197,19 @@ class PointMass(Model, ControlAndDisturbanceAffine):
             raise ValueError("horizon too short for the bang-coast-bang profile; no closed form here")
         drop = 0.5 * acc_down * t1**2 + v_lim * t2 + (v_lim * t3 - 0.5 * acc_brake * t3**2)
         return drop + p.target_altitude[1]
+
+
+def _parabola(y, v, acc, s0: float, s1: float, pick) -> np.ndarray:
+    """The smallest (``pick=np.minimum``) or largest (``np.maximum``) value of ``y + v s + acc s^2 / 2`` over
+    ``s`` in ``[s0, s1]``: at an end or where its slope ``v + acc s`` vanishes."""
+    def q(s):
+        return y + v * s + 0.5 * acc * s * s
+
+    out = pick(q(s0), q(s1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(acc != 0, -v / acc, -1.0)
+    inside = (s > s0) & (s < s1)
+    return np.where(inside, pick(out, q(np.where(inside, s, s0))), out)
 
 
 def _box_scalar(x, speed: tuple[float, float], altitude: tuple[float, float]) -> float:

@@ -8,9 +8,10 @@ motion of the period and a box ``E`` holding its end point. The action is **admi
 
 1. ``max_T c1 <= 0``: the motion stays in ``C1`` for the whole period. ``c1`` is convex (a box distance), so its
    maximum over ``T`` is at a corner of ``T``;
-2. ``z' = z - dt max_T h_eps >= 0``: the budget spent in the period, crossings of ``C2`` included, is at most
-   ``dt`` times the largest violation rate over ``T`` (``h_eps`` grows with ``c2``, also convex), so the budget
-   never goes negative: exact, with no allowance of a control period;
+2. ``z' = z - sum_j (dt / P) max_{T_j} h_eps >= 0``, ``T_j`` a box holding the motion over the ``j``-th of ``P``
+   equal pieces of the period (:meth:`~softreach.reach.dynamics.Dynamics.held_tube_pieces`): the budget
+   spent in the period, crossings of ``C2`` included, is at most that (``h_eps`` grows with ``c2``, also convex,
+   so each maximum is at a corner), and the budget never goes negative: exact, with no allowance of a period;
 3. ``max_{E x [z', z]} D(t + dt, .) <= -margin``: every possible end state is certified at the next sample time.
    The maximum of the interpolant over the box is exact (:func:`softreach.reach.interpolation.box_max`), so no
    interpolation allowance is needed: the certificate *is* the interpolant. ``margin`` (default 0) is an extra
@@ -29,34 +30,43 @@ from typing import Any
 
 import numpy as np
 
-from softreach.reach import Table
-from softreach.reach.interpolation import box_max, interpolate
+from .interpolation import box_max, interpolate
 
 
 class Lookahead:
     """One-period admissibility of held actions against a table's certificate (see the module docstring).
 
-    :param table: a table with ``V`` and ``W_eps`` (ideally solved with ``--held`` for this period)
+    :param fields: ``{"V": (values, times, grid), "W_eps": (...)}`` (``V`` optional), values ``(n_t, *grid)``
     :param model: the model the table was solved for
     :param dt: the control period [s]
     :param eps: the ``h_eps`` width with which the environment drains the budget
+    :param candidates: ``(J, m)`` physical held actions the filter may fall back on
     :param margin: extra tightening ``>= 0`` of the end-state condition (value units)
+    :param pieces: sub-intervals of the period for the budget bound (item 2)
     """
 
-    def __init__(self, table: Table, model: Any, dt: float, eps: float, margin: float = 0.0):
-        self.table, self.model, self.dt, self.eps, self.margin = table, model, float(dt), float(eps), float(margin)
+    def __init__(self, fields: dict[str, tuple[Any, np.ndarray, Any]], model: Any, dt: float, eps: float,
+                 candidates: Any, margin: float = 0.0, pieces: int = 4):
+        self.model, self.dt, self.eps, self.margin = model, float(dt), float(eps), float(margin)
+        self.pieces = int(pieces)
         self.n = model.state_dim
-        self.fields = {}
-        for name in ("V", "W_eps"):
-            if name in table.header["fields"]:
-                self.fields[name] = (table.values(name), table.times(name), table.grid(name))
+        self.fields = dict(fields)
         if "W_eps" not in self.fields:
-            raise ValueError(f"table {table.path} holds only the classical V; the filter needs W_eps")
+            raise ValueError("the one-period test needs W_eps (the classical V alone does not say how much budget)")
         self.z_top = self.fields["W_eps"][2].hi[-1]
         self.horizon = float(self.fields["W_eps"][1][-1])
         self.corners = np.array(list(itertools.product((0, 1), repeat=self.n)), dtype=bool)  # (2^n, n)
+        self.candidates = np.asarray(candidates, dtype=np.float64)
+
+    @classmethod
+    def from_table(cls, table: Any, model: Any, dt: float, eps: float, margin: float = 0.0) -> "Lookahead":
+        """The test against a solved table's ``V`` and ``W_eps``, with the candidates it was solved with."""
+        fields = {name: (table.values(name), table.times(name), table.grid(name))
+                  for name in ("V", "W_eps") if name in table.header["fields"]}
+        if "W_eps" not in fields:
+            raise ValueError(f"table {table.path} holds only the classical V; the filter needs W_eps")
         held = table.header["fields"]["W_eps"].get("held_controls")
-        self.candidates = np.asarray(held if held else model.held_candidates(5), dtype=np.float64)
+        return cls(fields, model, dt, eps, held if held else model.held_candidates(5), margin)
 
     # ---------------------------------------------------------------- the certificate
     def certificate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -78,17 +88,18 @@ class Lookahead:
         vals = np.asarray(fn(t_arg, [pts[:, i] for i in range(self.n)]), dtype=np.float64)
         return np.broadcast_to(vals, (N * C,)).reshape(N, C).max(axis=1)
 
-    def _enclose(self, t: np.ndarray, x: np.ndarray, a: np.ndarray):
+    def _enclose(self, t: np.ndarray, x: np.ndarray, a: np.ndarray, dt: float | None = None):
         t0 = float(t[0]) if np.all(t == t[0]) else t
+        dt = self.dt if dt is None else dt
         try:
-            return self.model.held_enclosure(t0, x, a, self.dt), np.ones(len(x), bool)
+            return self.model.held_enclosure(t0, x, a, dt), np.ones(len(x), bool)
         except ValueError:
             # a row the model cannot bound (it would leave the model's domain): inadmissible, the others go on
             boxes = [np.full((len(x), self.n), np.nan) for _ in range(4)]
             ok = np.zeros(len(x), bool)
             for r in range(len(x)):
                 try:
-                    one = self.model.held_enclosure(t0 if np.isscalar(t0) else t0[r], x[r:r + 1], a[r:r + 1], self.dt)
+                    one = self.model.held_enclosure(t0 if np.isscalar(t0) else t0[r], x[r:r + 1], a[r:r + 1], dt)
                 except ValueError:
                     continue
                 for b, o in zip(boxes, one):
@@ -106,9 +117,20 @@ class Lookahead:
         """
         (tube_lo, tube_hi, end_lo, end_hi), bounded = self._enclose(t, x, a)
         c1 = self._corner_max(self.model.hard_constraint, t, tube_lo, tube_hi)
-        c2 = self._corner_max(self.model.soft_constraint, t, tube_lo, tube_hi)
-        rate = np.clip(c2 / self.eps, 0.0, 1.0)
-        z_end = z - self.dt * rate
+        # budget: piece j of the period is charged at the largest violation rate over a box holding every state
+        # of that piece, so a short excursion out of C2 costs only its pieces, and never less than the
+        # environment's exact integral of h_eps
+        spent = np.zeros(len(x))
+        if bounded.all():
+            piece_lo, piece_hi = self.model.held_tube_pieces(float(t[0]) if np.all(t == t[0]) else t, x, a,
+                                                             self.dt, self.pieces)
+        else:
+            piece_lo = np.broadcast_to(tube_lo, (self.pieces,) + tube_lo.shape)
+            piece_hi = np.broadcast_to(tube_hi, (self.pieces,) + tube_hi.shape)
+        for j in range(self.pieces):
+            c2 = self._corner_max(self.model.soft_constraint, t, piece_lo[j], piece_hi[j])
+            spent += (self.dt / self.pieces) * np.clip(c2 / self.eps, 0.0, 1.0)
+        z_end = z - spent
         t_next = t + self.dt
         in_time = t_next <= self.horizon + 1e-9 * max(1.0, self.horizon)
         t_next = np.minimum(t_next, self.horizon)
