@@ -276,26 +276,29 @@ class ValueFilter:
         chosen = np.full((N, self.m), np.nan)
         rows = np.nonzero(~ok)[0]
         if len(rows):
-            cand_ok, cand_next = la.admissible_candidates(tt[rows], xs[rows], zz[rows])
-            score = np.where(cand_ok, cand_next, np.inf)
+            cand_ok, cand_next, cand_bad = la.admissible_candidates(tt[rows], xs[rows], zz[rows])
             any_ok = cand_ok.any(axis=1)
+            # switch: the passing candidate with the lowest next certificate (where none passes: the least bad,
+            # C1 first); smooth: the passing candidate closest to the policy's action
+            score = cand_bad
             if self.rule == "smooth":
                 dist = np.linalg.norm((la.candidates[None, :, :] - pol[rows][:, None, :]) / self.a_half, axis=2)
-                score = np.where(cand_ok, dist, np.inf)
-            j = np.argmin(np.where(any_ok[:, None], score, cand_next), axis=1)
+                score = np.where(any_ok[:, None], np.where(cand_ok, dist, np.inf), cand_bad)
+            j = np.argmin(score, axis=1)
             best = la.candidates[j]
             best_next = cand_next[np.arange(len(rows)), j]
+            best_bad = cand_bad[np.arange(len(rows)), j]
             lam = np.zeros(len(rows))
             if self.rule == "smooth" and self.smooth_iterations:
                 lam, best_next = self._bisect(tt[rows], xs[rows], zz[rows], best, pol[rows], any_ok, best_next)
             a = best + lam[:, None] * (pol[rows] - best)
-            applied[rows] = np.where(np.isfinite(best_next)[:, None] | any_ok[:, None], a, self.fallback_action)
+            applied[rows] = np.where(np.isfinite(best_bad)[:, None], a, self.fallback_action)
             chosen[rows] = best
             nxt[rows] = best_next
             ok[rows] = any_ok
             blend[rows] = lam
             r = np.where(any_ok, np.where(lam > 0, BLEND, OPTIMAL), UNCERTIFIED)
-            r = np.where(~any_ok & ~np.isfinite(cand_next).any(axis=1), FALLBACK, r)
+            r = np.where(~np.isfinite(best_bad), FALLBACK, r)
             reason[rows] = r
         # where the state itself is off the table, say so (the action above is still the least bad)
         after = tt >= la.horizon - 1e-9

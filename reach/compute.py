@@ -14,7 +14,7 @@ import numpy as np
 from . import backend as B
 from .grid import Grid, budget_axis
 from .problem import Model, classical_problem, soft_problem
-from .held import make_consistent, solve_held
+from .held import consistency_gaps, make_consistent, solve_held
 from .solver import SolverSettings, solve
 from .table import TableWriter
 
@@ -172,8 +172,9 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
             for name, (vals, _, _) in arrays.items():
                 for k in range(len(times)):
                     writer.write_snapshot(name, k, vals[k])
+            gaps = consistency_gaps(model, arrays, cfg.control_period, cfg.eps, np.asarray(controls))
             walls["consistency"] = time.perf_counter() - t0
-            writer.set(consistency={"band": cfg.consistency_band, **stats})
+            writer.set(consistency={"band": cfg.consistency_band, **stats, "between_nodes": gaps})
         writer.set(wall_time=walls)
         path = writer.finalize()
     finally:

@@ -220,7 +220,7 @@ def make_consistent(model: Any, fields: dict[str, tuple[Any, list[float], Grid]]
             x, z = x[keep], z[keep]
             if len(x) == 0:
                 continue
-            ok, best = la.admissible_candidates(np.full(len(x), times[k]), x, np.maximum(z, 0.0))
+            ok, best, _ = la.admissible_candidates(np.full(len(x), times[k]), x, np.maximum(z, 0.0))
             score = np.where(ok, best, np.inf).min(axis=1)
             # below z = 0 the budget is already overspent: nothing there is certified by the test
             score = np.where(z < 0, np.inf, score)
@@ -240,3 +240,45 @@ def make_consistent(model: Any, fields: dict[str, tuple[Any, list[float], Grid]]
         if progress is not None:
             progress.update(1)
     return stats
+
+
+def consistency_gaps(model: Any, fields: dict[str, tuple[Any, list[float], Grid]], dt: float, eps: float,
+                     controls: np.ndarray, samples: int = 20000, seed: int = 0) -> dict[str, Any]:
+    """How far the interpolated certificate promises more than the best held action delivers, between nodes.
+
+    At each sample time ``t_k``, for ``samples`` uniform states of the grid box with ``D_k <= 0`` (not landed),
+    the *gap* ``min_a test(x, a) - D_k(x)`` (:class:`~softreach.reach.lookahead.Lookahead`): where it is positive
+    the best action ends slightly shallower than where it started, and a state riding the set's boundary can
+    reach a dead end (no action passes). :func:`make_consistent` removes the gap at the nodes; this measures
+    what remains in between.
+
+    :return: ``{"max_gap": [...], "p99_gap": [...], "dead_ends": [...], "sampled": [...]}`` per sample time
+    """
+    from .lookahead import Lookahead
+
+    rng = np.random.default_rng(seed)
+    Wv, Wt, Wg = fields["W_eps"]
+    n = model.state_dim
+    lo, hi = np.asarray(Wg.lo), np.asarray(Wg.hi)
+    out: dict[str, list] = {"max_gap": [], "p99_gap": [], "dead_ends": [], "sampled": []}
+    for k in range(len(Wt) - 1):
+        now = {name: (vals[k:k + 2], np.asarray(tt[k:k + 2]), g) for name, (vals, tt, g) in fields.items()}
+        la = Lookahead(now, model, dt, eps, controls)
+        pts = rng.uniform(np.append(lo[:n], max(0.0, lo[-1])), hi, size=(samples, n + 1))
+        x, z = pts[:, :n], pts[:, n]
+        t = np.full(samples, float(Wt[k]))
+        d = la.certificate(t, x, z)
+        comps = [x[:, i] for i in range(n)]
+        landed = ((np.asarray(model.target(t[0], comps)) <= 0) & (np.asarray(model.soft_constraint(t[0], comps)) <= 0)
+                  & (np.asarray(model.hard_constraint(t[0], comps)) <= 0))
+        keep = (d <= 0) & ~landed
+        x, z, d = x[keep], z[keep], d[keep]
+        ok, best, _ = la.admissible_candidates(t[: len(x)], x, z)
+        score = np.where(ok, best, np.inf).min(axis=1) if len(x) else np.zeros(0)
+        finite = np.isfinite(score)
+        gap = score[finite] - d[finite]
+        out["max_gap"].append(float(gap.max()) if len(gap) else 0.0)
+        out["p99_gap"].append(float(np.quantile(gap, 0.99)) if len(gap) else 0.0)
+        out["dead_ends"].append(int((~finite).sum()))
+        out["sampled"].append(int(len(x)))
+    return out

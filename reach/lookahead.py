@@ -25,7 +25,6 @@ of admissible actions from ``t = 0`` therefore ends landed by ``T``.
 from __future__ import annotations
 
 import itertools
-import math
 from typing import Any
 
 import numpy as np
@@ -115,6 +114,18 @@ class Lookahead:
         :return: ``(admissible, next_value)``: ``next_value`` is the largest certificate over the possible end
             states (``+inf`` where the motion may leave ``C1``, overspend the budget, or leave the table)
         """
+        ok, nxt, _ = self.assess(t, x, z, a)
+        return ok, nxt
+
+    def assess(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray):
+        """:meth:`check` plus a ``badness`` per row that ranks actions where none passes: first those that keep the
+        period in ``C1`` (then the least overspend, then the lowest next certificate), then the rest by how far
+        they may leave ``C1``. Safety comes before the budget, the budget before landing on time.
+
+        :return: ``(admissible, next_value, badness)``; ``badness == next_value`` where the action passes
+        """
+        if len(x) == 0:
+            return np.zeros(0, bool), np.zeros(0), np.zeros(0)
         (tube_lo, tube_hi, end_lo, end_hi), bounded = self._enclose(t, x, a)
         c1 = self._corner_max(self.model.hard_constraint, t, tube_lo, tube_hi)
         # budget: piece j of the period is charged at the largest violation rate over a box holding every state
@@ -146,7 +157,12 @@ class Lookahead:
                 V, Vt, Vg = self.fields["V"]
                 best = np.minimum(best, box_max(V, Vt, Vg, t_next[rows], end_lo[rows], end_hi[rows]))
             nxt[rows] = np.where(np.isnan(best), np.inf, best)
-        return ok & (nxt <= -self.margin), nxt
+        # ranks (lower is better): pass/next < 1e6 (end state off the table) < 2e6 + overspend < 3e6 + c1 < inf
+        bad = np.where(ok, np.minimum(nxt, 1e6), np.inf)
+        in_c1 = bounded & (c1 <= 0)
+        bad = np.where(in_c1 & ~ok, 2e6 + np.maximum(-z_end, 0.0), bad)
+        bad = np.where(bounded & (c1 > 0), 3e6 + c1, bad)
+        return ok & (nxt <= -self.margin), nxt, bad
 
     def best_candidate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The candidate held action with the lowest worst-case next certificate, per row.
@@ -156,16 +172,14 @@ class Lookahead:
         N, J = len(x), len(self.candidates)
         rep = lambda v: np.repeat(v, J, axis=0)  # noqa: E731 - each row's candidates are contiguous
         a = np.tile(self.candidates, (N, 1))
-        ok, nxt = self.check(rep(t), rep(x), rep(z), a)
-        nxt = nxt.reshape(N, J)
-        score = np.where(ok.reshape(N, J), nxt, math.inf)
-        j = np.argmin(np.where(np.isfinite(score).any(axis=1, keepdims=True), score, nxt), axis=1)
+        ok, nxt, bad = self.assess(rep(t), rep(x), rep(z), a)
+        j = np.argmin(bad.reshape(N, J), axis=1)
         rows = np.arange(N)
-        return self.candidates[j], ok.reshape(N, J)[rows, j], nxt[rows, j]
+        return self.candidates[j], ok.reshape(N, J)[rows, j], nxt.reshape(N, J)[rows, j]
 
-    def admissible_candidates(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(admissible (N, J), next_value (N, J))`` of every candidate at every row."""
+    def admissible_candidates(self, t: np.ndarray, x: np.ndarray, z: np.ndarray):
+        """``(admissible, next_value, badness)``, each ``(N, J)``, of every candidate at every row."""
         N, J = len(x), len(self.candidates)
         rep = lambda v: np.repeat(v, J, axis=0)  # noqa: E731
-        ok, nxt = self.check(rep(t), rep(x), rep(z), np.tile(self.candidates, (N, 1)))
-        return ok.reshape(N, J), nxt.reshape(N, J)
+        ok, nxt, bad = self.assess(rep(t), rep(x), rep(z), np.tile(self.candidates, (N, 1)))
+        return ok.reshape(N, J), nxt.reshape(N, J), bad.reshape(N, J)
