@@ -146,22 +146,28 @@ class Lookahead:
         in_time = t_next <= self.horizon + 1e-9 * max(1.0, self.horizon)
         t_next = np.minimum(t_next, self.horizon)
         ok = bounded & (c1 <= 0) & (z_end >= 0) & in_time
+        in_c1 = bounded & (c1 <= 0) & in_time
         nxt = np.full(len(x), np.inf)
-        rows = np.nonzero(ok)[0]
+        rows = np.nonzero(in_c1)[0]
         if len(rows):
             W, Wt, Wg = self.fields["W_eps"]
-            lo = np.concatenate([end_lo[rows], z_end[rows, None]], axis=1)
-            hi = np.concatenate([end_hi[rows], np.minimum(z[rows], self.z_top)[:, None]], axis=1)
+            # rows that overspend are valued at the lowest budget (for ranking them only; they never pass)
+            z_lo = np.maximum(z_end[rows], Wg.lo[-1])
+            lo = np.concatenate([end_lo[rows], z_lo[:, None]], axis=1)
+            hi = np.concatenate([end_hi[rows], np.maximum(np.minimum(z[rows], self.z_top), z_lo)[:, None]], axis=1)
             best = box_max(W, Wt, Wg, t_next[rows], lo, hi)
             if "V" in self.fields:
                 V, Vt, Vg = self.fields["V"]
-                best = np.minimum(best, box_max(V, Vt, Vg, t_next[rows], end_lo[rows], end_hi[rows]))
+                v = box_max(V, Vt, Vg, t_next[rows], end_lo[rows], end_hi[rows])
+                best = np.minimum(best, np.where(z_end[rows] >= 0, v, np.inf))
             nxt[rows] = np.where(np.isnan(best), np.inf, best)
-        # ranks (lower is better): pass/next < 1e6 (end state off the table) < 2e6 + overspend < 3e6 + c1 < inf
+        # ranks (lower is better): passing, by next value < 1e6 (end off the table) < 2e6 + overspend (ties broken
+        # by the next value) < 3e6 + how far C1 may be left < inf (not bounded)
+        tie = np.arctan(np.nan_to_num(nxt, posinf=1e12)) / np.pi
         bad = np.where(ok, np.minimum(nxt, 1e6), np.inf)
-        in_c1 = bounded & (c1 <= 0)
-        bad = np.where(in_c1 & ~ok, 2e6 + np.maximum(-z_end, 0.0), bad)
-        bad = np.where(bounded & (c1 > 0), 3e6 + c1, bad)
+        bad = np.where(in_c1 & ~ok, 2e6 + 1e3 * np.maximum(-z_end, 0.0) + tie, bad)
+        bad = np.where(bounded & ~in_c1, 3e6 + np.maximum(c1, 0.0), bad)
+        nxt = np.where(ok, nxt, np.inf)
         return ok & (nxt <= -self.margin), nxt, bad
 
     def best_candidate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

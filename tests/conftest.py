@@ -25,3 +25,15 @@ def pointmass_table(tmp_path_factory):
 @pytest.fixture(scope="session")
 def pointmass_table_path(pointmass_table):
     return pointmass_table.path
+
+
+@pytest.fixture(scope="session")
+def pointmass_held_table(tmp_path_factory):
+    """A coarse point-mass table of the sampled-data game (actions held 0.01 s): 41 x 41 x 45, ENO2/RK2."""
+    from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
+
+    path = tmp_path_factory.mktemp("tables") / "pointmass_held.srt"
+    cfg = SolveConfig(shape=(41, 41), budget_points=45, control_period=0.01,
+                      settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False))
+    solve_table(get_model("pointmass"), cfg, path, progress=False)
+    return load_table(path)

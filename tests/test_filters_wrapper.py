@@ -46,10 +46,10 @@ def test_info_and_episode_summary(pointmass_table):
         np.testing.assert_allclose(info["action_physical"], 60.0 * info["applied_action"].astype(float), rtol=1e-6)
         if info["filter_active"]:
             np.testing.assert_allclose(info["applied_action"], info["optimal_action"], atol=1e-6)
-            assert info["filter_reason"] in ("optimal", "outside_domain", "after_horizon")
+            assert info["filter_reason"] in ("optimal", "uncertified", "outside_domain", "after_horizon")
         else:
             np.testing.assert_array_equal(info["applied_action"], action)  # bit-exact pass-through
-            assert info["filter_reason"] == "pass" and info["value"] <= -info["margin"]
+            assert info["filter_reason"] == "pass" and info["lookahead"] <= -info["margin"] and info["certified"]
         rows.append((info["filter_active"], info["value"]))
     summary = info["filter_episode"]
     active = np.array([r[0] for r in rows])
@@ -70,7 +70,7 @@ def test_table_path_and_smooth_rule(pointmass_table_path):
     env.reset(seed=1)
     for _ in range(20):
         _, _, terminated, truncated, info = env.step(env.action_space.sample())
-        assert info["filter_reason"] in ("pass", "blend", "optimal", "outside_domain")
+        assert info["filter_reason"] in ("pass", "blend", "optimal", "uncertified", "outside_domain")
         if terminated or truncated:
             break
 
@@ -120,16 +120,17 @@ def test_bad_actions_raise_before_the_env_steps(pointmass_table):
 
 
 def test_unsafe_start_runs_to_the_end(pointmass_table):
-    """A start outside the safe set (too high to land in the time left): the filter applies a* at every step,
-    says so, and the episode ends normally (crash or late), without an exception."""
+    """A start outside the safe set (too high to land in the time left): the filter is not certified there, acts at
+    every step, says so, and the episode ends normally (crash or late), without an exception."""
     env = SafetyFilter(gym.make(ENV_ID), pointmass_table)
     _, info = env.reset(options={"state": [0.0, 15.0], "budget": 0.3, "time": 0.9})
-    assert info["value"] > 0
+    assert info["value"] > 0 and not info["certified"]
     done = False
     while not done:
         _, _, terminated, truncated, info = env.step(np.array([1.0], np.float32))
         done = terminated or truncated
-        assert info["filter_active"] and info["filter_reason"] == "optimal"
+        assert info["filter_active"] and info["filter_reason"] in ("uncertified", "after_horizon")
+        assert not info["certified"]
     assert not info["landed"] and info["filter_episode"]["intervention_rate"] == 1.0
 
 
@@ -154,7 +155,7 @@ def test_gymnasium_vector_envs(pointmass_table_path, vector):
                 stepped = infos["_filter_active"]
                 filtered_steps += int(stepped.sum())
                 assert infos["applied_action"].shape == (2, 1)
-                assert np.all(np.isin(infos["filter_reason"][stepped], ["pass", "optimal", "outside_domain"]))
+                assert np.all(np.isin(infos["filter_reason"][stepped], ["pass", "optimal", "uncertified", "outside_domain"]))
             if "filter_episode" in infos:
                 ends += int(infos["_filter_episode"].sum())
                 rate = infos["filter_episode"]["intervention_rate"][infos["_filter_episode"]]
@@ -177,7 +178,7 @@ def test_stable_baselines3_make_vec_env(pointmass_table_path):
             _, _, dones, infos = venv.step(np.array([venv.action_space.sample() for _ in range(2)]))
             for info in infos:
                 if "filter_active" in info:  # (SB3 resets inside step; the terminal step's info is kept)
-                    assert info["applied_action"].shape == (1,) and info["filter_reason"] in ("pass", "optimal")
+                    assert info["applied_action"].shape == (1,) and info["filter_reason"] in ("pass", "optimal", "uncertified")
                     assert info["filter_active"] == (info["filter_reason"] != "pass")
             ends += sum("filter_episode" in info for info in infos)
         assert ends >= 2
