@@ -35,12 +35,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-import softreach.filters.audit as _audit_mod
 from softreach.filters.audit import POLICIES, WINDS, Row, _policy, _wind, audit, run_episode
 from softreach.filters.core import PASS, ValueFilter
 from softreach.reach import load_table
 
-_integrate = _audit_mod.integrate_period
 
 POINTMASS_BUDGETS = (0.0, 0.06, 0.3, 0.6)
 #: issue 10: (label, (v, y), Q, policy, wind)
@@ -126,8 +124,7 @@ def totals(rows: list[Row]) -> list[dict[str, Any]]:
 
 
 def issue10(vf: ValueFilter, args) -> list[dict[str, Any]]:
-    """The four starts of issue 10, each with a fresh :class:`Row`. ``Row`` keeps no budget used, so the episode's
-    ``integrate_period`` calls are counted here (without the unneeded check, whose calls would mix in)."""
+    """The four starts of issue 10, each with a fresh :class:`Row`."""
     rng = np.random.default_rng(args.seed)
     out = []
     for label, x0, q, pname, wname in ISSUE10:
@@ -136,22 +133,16 @@ def issue10(vf: ValueFilter, args) -> list[dict[str, Any]]:
         row = Row(pname, wname, f"issue10-{label}", True)
         pol = _policy(pname, vf, np.random.default_rng(rng.integers(1 << 31)))
         wind = _wind(wname, vf, np.random.default_rng(rng.integers(1 << 31)), args.pieces)
-        spent = [0.0]
-
-        def counted(*a, **kw):
-            xs, cost, extra = _integrate(*a, **kw)
-            spent[0] += cost
-            return xs, cost, extra
-        _audit_mod.integrate_period = counted
-        try:
-            run_episode(vf, vf, x0, q, pol, wind, args.pieces, args.substeps, row, False)
-        finally:
-            _audit_mod.integrate_period = _integrate
+        outcome = run_episode(vf, vf, x0, q, pol, wind, args.pieces, args.substeps, row, True)
         out.append({"label": label, "start": x0.tolist(), "Q": q, "policy": pname, "wind": wname,
                     "certified": bool(cert), "reason": reason, "best_next": float(nxt),
-                    "hard": bool(row.hard_violations), "budget_used": spent[0], "overspent": bool(row.overspends),
+                    "hard": bool(row.hard_violations), "budget_used": outcome["budget_used"], "overspent": bool(row.overspends),
                     "landed": bool(row.landed), "row": row.as_dict()})
     return out
+
+
+def _num(v: Any) -> str:
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.3f}"
 
 
 def _clean(v: Any) -> Any:
@@ -227,13 +218,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     for r in res["rows"]:
         print(f"{r['starts']:10s} {r['policy']:13s} {r['wind']:17s} {'yes' if r['filtered'] else 'no':>4s} "
               f"{r['episodes']:4d} {r['hard_violations']:4d} {r['overspends']:4d} {r['largest_overspend']:8.4f} "
-              f"{r['landed']:4d} {r['policy_acting']:6.3f} {r['unneeded_fraction']:6.3f} {r['uncertified_steps']:6d}")
+              f"{r['landed']:4d} {_num(r['policy_acting']):>6s} {r['unneeded_fraction']:6.3f} {r['uncertified_steps']:6d}")
     res["totals"] = totals(rows)
     print(f"\ntotals\n{'kind':10s} {'filt':>4s} {'eps':>5s} {'hard':>4s} {'over':>4s} {'max over':>8s} {'land':>5s} "
           f"{'acting':>6s} {'unneeded/interv.':>16s}")
     for s in res["totals"]:
         print(f"{s['kind']:10s} {'yes' if s['filtered'] else 'no':>4s} {s['episodes']:5d} {s['hard_violations']:4d} "
-              f"{s['overspends']:4d} {s['largest_overspend']:8.4f} {s['landed']:5d} {s['policy_acting_mean']:6.3f} "
+              f"{s['overspends']:4d} {s['largest_overspend']:8.4f} {s['landed']:5d} {_num(s['policy_acting_mean']):>6s} "
               f"{str(s['unneeded']) + '/' + str(s['interventions']):>16s}")
 
     if is_pm:

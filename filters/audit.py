@@ -11,7 +11,6 @@ held, would have kept every sampled end state certified: see :func:`exact_pass`)
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -158,8 +157,9 @@ def exact_pass(vf: ValueFilter, t: float, x: np.ndarray, z: float, a: np.ndarray
 
 
 def run_episode(vf: ValueFilter | None, ref: ValueFilter, x0: np.ndarray, budget: float, policy, wind,
-                pieces: int, substeps: int, row: Row, check_unneeded: bool) -> None:
-    """One episode from ``(0, x0, budget)``; adds its counts to ``row``."""
+                pieces: int, substeps: int, row: Row, check_unneeded: bool) -> dict[str, Any]:
+    """One episode from ``(0, x0, budget)``; adds its counts to ``row`` and returns its outcome
+    (``hard``, ``budget_used``, ``landed``)."""
     model, dt, T = ref.model, ref.dt, ref.lookahead.horizon
     x, z, t = np.asarray(x0, dtype=float), float(budget), 0.0
     was = False
@@ -203,6 +203,7 @@ def run_episode(vf: ValueFilter | None, ref: ValueFilter, x0: np.ndarray, budget
     if hard or over > budget + 1e-9 or (vf is not None and not landed):
         row.failures.append({"start": list(map(float, x0)), "budget": budget, "hard": hard,
                              "overspend": max(0.0, over - budget), "landed": landed})
+    return {"hard": hard, "budget_used": over, "landed": landed}
 
 
 def sample_starts(vf: ValueFilter, budget: float, kind: str, n: int, rng: np.random.Generator,
