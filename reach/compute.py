@@ -51,6 +51,8 @@ class SolveConfig:
     #: sampled-data game only: nodes with values in ``[-band, 0]`` are made consistent with the filter's
     #: one-period test (:func:`softreach.reach.held.make_consistent`); value units
     consistency_band: float = 0.1
+    #: sampled-data game only: states per sample time for the between-node gap diagnostics
+    consistency_samples: int = 20000
 
 
 def validate(model: Model, cfg: SolveConfig, out: str | os.PathLike | None) -> tuple[Grid, Grid | None]:
@@ -172,7 +174,8 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
             for name, (vals, _, _) in arrays.items():
                 for k in range(len(times)):
                     writer.write_snapshot(name, k, vals[k])
-            gaps = consistency_gaps(model, arrays, cfg.control_period, cfg.eps, np.asarray(controls))
+            gaps = consistency_gaps(model, arrays, cfg.control_period, cfg.eps, np.asarray(controls),
+                                    samples=cfg.consistency_samples)
             walls["consistency"] = time.perf_counter() - t0
             writer.set(consistency={"band": cfg.consistency_band, **stats, "between_nodes": gaps})
         writer.set(wall_time=walls)
