@@ -51,8 +51,12 @@ def interpolate(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray
         inside &= ok
     out = np.zeros(len(t))
     flat = values.reshape(values.shape[0], -1) if isinstance(values, np.ndarray) else values
+    if isinstance(flat, np.memmap):
+        flat = flat.view(np.ndarray)  # a memmap's own __getitem__ costs more than the gather itself
     strides = np.array([int(np.prod(grid.shape[a + 1:])) for a in range(grid.ndim)], dtype=np.int64)
     time_corners = ((0, 1 - wt), (1, wt)) if n_t > 1 else ((0, 1 - wt),)
+    if n_t > 1 and not np.any(wt):  # queries on a snapshot (the sampled-data filter's): one time layer
+        time_corners = ((0, 1 - wt),)
     for corner in itertools.product((0, 1), repeat=grid.ndim):
         w = np.ones(len(t))
         lin = np.zeros(len(t), np.int64)
