@@ -7,7 +7,9 @@ overshoot the constraint it is riding); it judges the *held* action by where one
 (:class:`~softreach.reach.lookahead.Lookahead`):
 
 * the policy's action passes when holding it for one period provably keeps the state in ``C1``, the budget
-  non-negative and every possible next state certified (``D <= -margin``, ``D = min(V~, W~_eps)``);
+  non-negative and every possible next state inside the certificate (``D <= -margin``, ``D = min(V~, W~_eps)``),
+  and, where the model bounds boxes of starts, when some candidate passes again from every possible next state
+  (so the next state is certified whatever the wind did);
 * otherwise the filter applies a candidate held action (the table's, :meth:`Dynamics.held_candidates`) that
   passes the same test: with ``rule="switch"`` the one whose worst next certificate is lowest, with
   ``rule="smooth"`` the point closest to the policy's action on the segment from such a candidate.
@@ -269,21 +271,22 @@ class ValueFilter:
         pol = self.physical(act) if normalized else np.minimum(np.maximum(act, self.a_lo), self.a_hi)
         la = self.lookahead
         value = la.certificate(tt, xs, zz)
-        ok, nxt = la.check(tt, xs, zz, pol)
+        _, nxt, _, ok = la.passes(tt, xs, zz, pol)
         applied = pol.copy()
         reason = np.full(N, PASS, dtype=np.int64)
         blend = np.ones(N)
         chosen = np.full((N, self.m), np.nan)
         rows = np.nonzero(~ok)[0]
         if len(rows):
-            cand_ok, cand_next, cand_bad = la.admissible_candidates(tt[rows], xs[rows], zz[rows])
+            cand_ok, cand_next, cand_bad, cand_keeps = la.candidates_pass(tt[rows], xs[rows], zz[rows])
             any_ok = cand_ok.any(axis=1)
-            # switch: the passing candidate with the lowest next certificate (where none passes: the least bad,
-            # C1 first); smooth: the passing candidate closest to the policy's action
-            score = cand_bad
+            # switch: a candidate after which a passing action exists again (by its next certificate), else one
+            # that passes (the next state may then be a dead end), else the least bad, C1 first; smooth: the
+            # passing candidate closest to the policy's action, by the same preference
+            score = np.where(cand_keeps, cand_next, np.where(cand_ok, 5e5 + np.minimum(cand_next, 1e5), cand_bad))
             if self.rule == "smooth":
                 dist = np.linalg.norm((la.candidates[None, :, :] - pol[rows][:, None, :]) / self.a_half, axis=2)
-                score = np.where(any_ok[:, None], np.where(cand_ok, dist, np.inf), cand_bad)
+                score = np.where(cand_keeps, dist, np.where(cand_ok, 10.0 + dist, cand_bad))
             j = np.argmin(score, axis=1)
             best = la.candidates[j]
             best_next = cand_next[np.arange(len(rows)), j]
@@ -327,7 +330,7 @@ class ValueFilter:
         nxt = best_next.copy()
         for _ in range(self.smooth_iterations):
             mid = 0.5 * (lo + hi)
-            ok, val = self.lookahead.check(t, x, z, best + mid[:, None] * (pol - best))
+            _, val, _, ok = self.lookahead.passes(t, x, z, best + mid[:, None] * (pol - best))
             ok &= any_ok
             lo = np.where(ok, mid, lo)
             hi = np.where(ok, hi, mid)

@@ -133,6 +133,18 @@ class Dynamics(ABC):
         raise NotImplementedError(f"{self.name} does not provide held_enclosure(t, x, a, dt); the safety filter "
                                   f"needs a validated one-period enclosure of its motion")
 
+    def held_enclosure_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float):
+        """:meth:`held_enclosure` for every start in the box ``[x_lo, x_hi]`` (rows of ``(N, n)``). Optional: the
+        filter then asks, before it lets the policy act, that a passing action exists from the whole end box.
+        """
+        raise NotImplementedError(f"{self.name} does not provide held_enclosure_box")
+
+    def held_tube_pieces_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float,
+                             pieces: int):
+        """:meth:`held_tube_pieces` for every start in the box ``[x_lo, x_hi]``; by default the whole tube."""
+        lo, hi, _, _ = self.held_enclosure_box(t, x_lo, x_hi, a, dt)
+        return np.broadcast_to(lo, (pieces,) + lo.shape), np.broadcast_to(hi, (pieces,) + hi.shape)
+
     def held_tube_pieces(self, t: float, x: np.ndarray, a: np.ndarray, dt: float, pieces: int):
         """Boxes ``(lo, hi)``, each ``(pieces, N, n)``, holding the motion over each of ``pieces`` equal
         sub-intervals of the period (control held, any disturbance signal). The budget bound of the safety filter

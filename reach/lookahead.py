@@ -56,6 +56,10 @@ class Lookahead:
         self.horizon = float(self.fields["W_eps"][1][-1])
         self.corners = np.array(list(itertools.product((0, 1), repeat=self.n)), dtype=bool)  # (2^n, n)
         self.candidates = np.asarray(candidates, dtype=np.float64)
+        from .dynamics import Dynamics
+
+        #: the model bounds boxes of starts: the filter can ask that the next state be certified again
+        self.box_support = type(model).held_enclosure_box is not Dynamics.held_enclosure_box
 
     @classmethod
     def from_table(cls, table: Any, model: Any, dt: float, eps: float, margin: float = 0.0) -> "Lookahead":
@@ -117,24 +121,39 @@ class Lookahead:
         ok, nxt, _ = self.assess(t, x, z, a)
         return ok, nxt
 
-    def assess(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray):
+    def assess(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray, x_hi: np.ndarray | None = None,
+               z_hi: np.ndarray | None = None, ends: bool = False):
         """:meth:`check` plus a ``badness`` per row that ranks actions where none passes: first those that keep the
         period in ``C1`` (then the least overspend, then the lowest next certificate), then the rest by how far
         they may leave ``C1``. Safety comes before the budget, the budget before landing on time.
 
-        :return: ``(admissible, next_value, badness)``; ``badness == next_value`` where the action passes
+        With ``x_hi`` (and ``z_hi``) the rows are boxes of states ``[x, x_hi] x [z, z_hi]``, and an action passes
+        when it passes from every state of the box (:meth:`Dynamics.held_enclosure_box`).
+
+        :return: ``(admissible, next_value, badness)``; ``badness == next_value`` where the action passes; with
+            ``ends=True`` also the end box and the lowest end budget ``(end_lo, end_hi, z_end)``
         """
         if len(x) == 0:
-            return np.zeros(0, bool), np.zeros(0), np.zeros(0)
-        (tube_lo, tube_hi, end_lo, end_hi), bounded = self._enclose(t, x, a)
+            empty = (np.zeros(0, bool), np.zeros(0), np.zeros(0))
+            return empty + (np.zeros((0, self.n)), np.zeros((0, self.n)), np.zeros(0)) if ends else empty
+        if x_hi is None:
+            (tube_lo, tube_hi, end_lo, end_hi), bounded = self._enclose(t, x, a)
+        else:
+            tube_lo, tube_hi, end_lo, end_hi = self.model.held_enclosure_box(
+                float(t[0]) if np.all(t == t[0]) else t, x, x_hi, a, self.dt)
+            bounded = np.isfinite(tube_lo).all(axis=1) & np.isfinite(tube_hi).all(axis=1)
+        z_top = z if z_hi is None else z_hi
         c1 = self._corner_max(self.model.hard_constraint, t, tube_lo, tube_hi)
         # budget: piece j of the period is charged at the largest violation rate over a box holding every state
         # of that piece, so a short excursion out of C2 costs only its pieces, and never less than the
         # environment's exact integral of h_eps
         spent = np.zeros(len(x))
-        if bounded.all():
+        if bounded.all() and x_hi is None:
             piece_lo, piece_hi = self.model.held_tube_pieces(float(t[0]) if np.all(t == t[0]) else t, x, a,
                                                              self.dt, self.pieces)
+        elif bounded.all():
+            piece_lo, piece_hi = self.model.held_tube_pieces_box(float(t[0]) if np.all(t == t[0]) else t, x, x_hi,
+                                                                 a, self.dt, self.pieces)
         else:
             piece_lo = np.broadcast_to(tube_lo, (self.pieces,) + tube_lo.shape)
             piece_hi = np.broadcast_to(tube_hi, (self.pieces,) + tube_hi.shape)
@@ -154,21 +173,58 @@ class Lookahead:
             # rows that overspend are valued at the lowest budget (for ranking them only; they never pass)
             z_lo = np.maximum(z_end[rows], Wg.lo[-1])
             lo = np.concatenate([end_lo[rows], z_lo[:, None]], axis=1)
-            hi = np.concatenate([end_hi[rows], np.maximum(np.minimum(z[rows], self.z_top), z_lo)[:, None]], axis=1)
+            hi = np.concatenate([end_hi[rows], np.maximum(np.minimum(z_top[rows], self.z_top), z_lo)[:, None]],
+                                axis=1)
             best = box_max(W, Wt, Wg, t_next[rows], lo, hi)
             if "V" in self.fields:
                 V, Vt, Vg = self.fields["V"]
                 v = box_max(V, Vt, Vg, t_next[rows], end_lo[rows], end_hi[rows])
                 best = np.minimum(best, np.where(z_end[rows] >= 0, v, np.inf))
             nxt[rows] = np.where(np.isnan(best), np.inf, best)
-        # ranks (lower is better): passing, by next value < 1e6 (end off the table) < 2e6 + overspend (ties broken
-        # by the next value) < 3e6 + how far C1 may be left < inf (not bounded)
+        # ranks (lower is better): passing, by next value (<= 0) < 1e6 + next (the end may leave the certificate)
+        # < 2e6 + overspend (ties broken by the next value) < 3e6 + how far C1 may be left < inf (not bounded)
+        passing = ok & (nxt <= -self.margin)
         tie = np.arctan(np.nan_to_num(nxt, posinf=1e12)) / np.pi
-        bad = np.where(ok, np.minimum(nxt, 1e6), np.inf)
+        bad = np.where(passing, nxt, np.where(ok, 1e6 + np.minimum(nxt, 1e5), np.inf))
         bad = np.where(in_c1 & ~ok, 2e6 + 1e3 * np.maximum(-z_end, 0.0) + tie, bad)
         bad = np.where(bounded & ~in_c1, 3e6 + np.maximum(c1, 0.0), bad)
         nxt = np.where(ok, nxt, np.inf)
-        return ok & (nxt <= -self.margin), nxt, bad
+        out = (passing, nxt, bad)
+        return out + (end_lo, end_hi, z_end) if ends else out
+
+    def passes(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray):
+        """The one-period test and, where the model bounds boxes of starts, the stronger one the filter asks of
+        an action: some candidate passes again from every possible end state (so the next state is certified,
+        whatever the wind did). On the last period the end states must only be certified.
+
+        :return: ``(admissible, next_value, badness, keeps)``; ``keeps`` implies ``admissible``
+        """
+        ok, nxt, bad, end_lo, end_hi, z_end = self.assess(t, x, z, a, ends=True)
+        keeps = ok.copy()
+        if self.box_support:
+            last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
+            rows = np.nonzero(ok & ~last)[0]
+            keeps[rows] = self.keeps_certified(t[rows] + self.dt, end_lo[rows], end_hi[rows], z_end[rows], z[rows])
+        return ok, nxt, bad, keeps
+
+    def keeps_certified(self, t: np.ndarray, end_lo: np.ndarray, end_hi: np.ndarray, z_lo: np.ndarray,
+                        z_hi: np.ndarray) -> np.ndarray:
+        """Does some candidate pass the test from *every* state of each box at ``t`` (the end box of a period)?
+        Then whatever the wind did, the state after the period is certified. ``False`` where the model gives no
+        box enclosure or the box is off the table's time span.
+
+        :return: ``(N,)`` bool
+        """
+        N, J = len(end_lo), len(self.candidates)
+        if N == 0:
+            return np.zeros(0, bool)
+        rep = lambda v: np.repeat(v, J, axis=0)  # noqa: E731
+        try:
+            ok, _, _ = self.assess(rep(t), rep(end_lo), rep(np.maximum(z_lo, 0.0)), np.tile(self.candidates, (N, 1)),
+                                   x_hi=rep(end_hi), z_hi=rep(z_hi))
+        except NotImplementedError:
+            return np.zeros(N, bool)
+        return ok.reshape(N, J).any(axis=1)
 
     def best_candidate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The candidate held action with the lowest worst-case next certificate, per row.
@@ -182,6 +238,13 @@ class Lookahead:
         j = np.argmin(bad.reshape(N, J), axis=1)
         rows = np.arange(N)
         return self.candidates[j], ok.reshape(N, J)[rows, j], nxt.reshape(N, J)[rows, j]
+
+    def candidates_pass(self, t: np.ndarray, x: np.ndarray, z: np.ndarray):
+        """:meth:`passes` for every candidate at every row: four ``(N, J)`` arrays."""
+        N, J = len(x), len(self.candidates)
+        rep = lambda v: np.repeat(v, J, axis=0)  # noqa: E731
+        out = self.passes(rep(t), rep(x), rep(z), np.tile(self.candidates, (N, 1)))
+        return tuple(o.reshape(N, J) for o in out)
 
     def admissible_candidates(self, t: np.ndarray, x: np.ndarray, z: np.ndarray):
         """``(admissible, next_value, badness)``, each ``(N, J)``, of every candidate at every row."""

@@ -112,32 +112,41 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         bound is reached by a constant extreme wind, so the boxes are the tightest boxes (the reachable set itself
         is a lens inside the end box).
         """
-        lo, hi = self.held_tube_pieces(t, x, a, dt, 1)
-        end_lo, end_hi = self._held_box(x, a, dt, dt)
-        return lo[0], hi[0], end_lo, end_hi
+        return self.held_enclosure_box(t, x, x, a, dt)
 
     def held_tube_pieces(self, t: float, x: np.ndarray, a: np.ndarray, dt: float, pieces: int):
         """Exact boxes of the motion over each of ``pieces`` sub-intervals (see :meth:`held_enclosure`)."""
+        return self.held_tube_pieces_box(t, x, x, a, dt, pieces)
+
+    def held_enclosure_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float):
+        """:meth:`held_enclosure` from every start in ``[x_lo, x_hi]``: every bound grows with ``v`` and ``y``
+        (the motion is monotone in the start), so the lower bounds come from ``x_lo``, the upper from ``x_hi``."""
+        lo, hi = self.held_tube_pieces_box(t, x_lo, x_hi, a, dt, 1)
+        end_lo, end_hi = self._held_box(x_lo, x_hi, a, dt, dt)
+        return lo[0], hi[0], end_lo, end_hi
+
+    def held_tube_pieces_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float,
+                             pieces: int):
         edges = np.linspace(0.0, dt, pieces + 1)
         los, his = [], []
         for s0, s1 in zip(edges[:-1], edges[1:]):
-            lo, hi = self._held_box(x, a, s0, s1)
+            lo, hi = self._held_box(x_lo, x_hi, a, s0, s1)
             los.append(lo)
             his.append(hi)
         return np.stack(los), np.stack(his)
 
-    def _held_box(self, x: np.ndarray, a: np.ndarray, s0: float, s1: float) -> tuple[np.ndarray, np.ndarray]:
-        """The box of every state reachable at some time in ``[s0, s1]`` of the held period."""
+    def _held_box(self, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, s0: float, s1: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """The box of every state reachable at some time in ``[s0, s1]`` of the held period from ``[x_lo, x_hi]``."""
         p = self.params
-        x = np.asarray(x, dtype=np.float64)
+        x_lo, x_hi = np.asarray(x_lo, dtype=np.float64), np.asarray(x_hi, dtype=np.float64)
         u = np.asarray(a, dtype=np.float64)[..., 0]
-        v, y = x[..., 0], x[..., 1]
         acc_lo, acc_hi = u - p.gravity - p.d_max, u - p.gravity + p.d_max
         # v lies between two lines: their extremes are at the interval's ends
-        v_lo = np.minimum(v + acc_lo * s0, v + acc_lo * s1)
-        v_hi = np.maximum(v + acc_hi * s0, v + acc_hi * s1)
-        return (np.stack([v_lo, _parabola(y, v, acc_lo, s0, s1, np.minimum)], axis=-1),
-                np.stack([v_hi, _parabola(y, v, acc_hi, s0, s1, np.maximum)], axis=-1))
+        v_lo = np.minimum(x_lo[..., 0] + acc_lo * s0, x_lo[..., 0] + acc_lo * s1)
+        v_hi = np.maximum(x_hi[..., 0] + acc_hi * s0, x_hi[..., 0] + acc_hi * s1)
+        return (np.stack([v_lo, _parabola(x_lo[..., 1], x_lo[..., 0], acc_lo, s0, s1, np.minimum)], axis=-1),
+                np.stack([v_hi, _parabola(x_hi[..., 1], x_hi[..., 0], acc_hi, s0, s1, np.maximum)], axis=-1))
 
     # sets
     def target(self, t, x):
