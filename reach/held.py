@@ -29,7 +29,7 @@ from . import backend as B
 from .dynamics import Dynamics
 from .grid import Grid
 from .problem import ReachAvoidProblem
-from .solver import HamiltonianOperator, SnapshotSink, SolverSettings, Stepper, march
+from .solver import HamiltonianOperator, SnapshotSink, SolverSettings, Stepper, initial_value, march, output_times
 
 
 class HeldControl(Dynamics):
@@ -137,9 +137,7 @@ def solve_held(problem: ReachAvoidProblem, grid: Grid, times: Sequence[float], s
     :param progress: optional tqdm-like object, advanced in model seconds
     :return: the value at ``times[0]``
     """
-    times = [float(t) for t in times]
-    if len(times) < 2 or any(not math.isfinite(t) for t in times) or any(b <= a for a, b in zip(times, times[1:])):
-        raise ValueError(f"times must be finite and strictly increasing with at least two entries, got {times!r}")
+    times = output_times(times)
     controls = np.asarray(controls, dtype=np.float64)
     if controls.ndim != 2 or controls.shape[1] != problem.dynamics.control_dim or not np.isfinite(controls).all():
         raise ValueError(f"controls must be finite with shape (J, {problem.dynamics.control_dim}), got {controls.shape}")
@@ -147,13 +145,7 @@ def solve_held(problem: ReachAvoidProblem, grid: Grid, times: Sequence[float], s
     op = HamiltonianOperator(replace(problem, dynamics=held), grid, settings)
     held.bind(op.x[0])
     stepper = Stepper(op, settings)
-    if start is None:
-        k0, u = len(times) - 1, op.terminal(times[-1])
-        if sink is not None:
-            sink(k0, times[k0], u)
-    else:
-        k0, u = start
-        u = B.asarray(u, settings.backend, settings.dtype, settings.device)
+    k0, u = initial_value(op, times, start, sink)
     for k in range(k0 - 1, -1, -1):
         best = None
         for a in controls:

@@ -198,20 +198,10 @@ def solve(
     :return: the value at ``times[0]``
     """
     settings = settings or SolverSettings()
-    times = [float(t) for t in times]
-    if len(times) < 2 or any(not math.isfinite(t) for t in times) or any(b <= a for a, b in zip(times, times[1:])):
-        raise ValueError(f"times must be finite and strictly increasing with at least two entries, got {times!r}")
+    times = output_times(times)
     op = HamiltonianOperator(problem, grid, settings)
     stepper = Stepper(op, settings)
-    if start is None:
-        k0, u = len(times) - 1, op.terminal(times[-1])
-        if sink is not None:
-            sink(k0, times[k0], u)
-    else:
-        k0, u = start
-        u = B.asarray(u, settings.backend, settings.dtype, settings.device)
-        if tuple(u.shape) != grid.shape:
-            raise ValueError(f"resume value has shape {tuple(u.shape)}, the grid {grid.shape}")
+    k0, u = initial_value(op, times, start, sink)
     t = times[k0]
     for k in range(k0 - 1, -1, -1):
         u = march(stepper, t, u, times[k], progress)
@@ -219,6 +209,30 @@ def solve(
         if sink is not None:
             sink(k, t, u)
     return u
+
+
+def output_times(times: Sequence[float]) -> list[float]:
+    """``times`` as floats, checked: finite, strictly increasing, at least two."""
+    times = [float(t) for t in times]
+    if len(times) < 2 or any(not math.isfinite(t) for t in times) or any(b <= a for a, b in zip(times, times[1:])):
+        raise ValueError(f"times must be finite and strictly increasing with at least two entries, got {times!r}")
+    return times
+
+
+def initial_value(op: HamiltonianOperator, times: list[float], start: tuple[int, Array] | None,
+                  sink: SnapshotSink | None) -> tuple[int, Array]:
+    """``(k, value)`` to march from: the terminal condition at ``times[-1]`` (handed to ``sink``), or ``start``."""
+    settings = op.settings
+    if start is None:
+        k0, u = len(times) - 1, op.terminal(times[-1])
+        if sink is not None:
+            sink(k0, times[k0], u)
+        return k0, u
+    k0, u = start
+    u = B.asarray(u, settings.backend, settings.dtype, settings.device)
+    if tuple(u.shape) != op.grid.shape:
+        raise ValueError(f"resume value has shape {tuple(u.shape)}, the grid {op.grid.shape}")
+    return k0, u
 
 
 def march(stepper: "Stepper", t: float, u: Array, target: float, progress: Any = None) -> Array:
