@@ -29,6 +29,23 @@ def test_solve_writes_table_and_summary(tmp_path, capsys):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_solve_held_writes_the_sampled_data_game(tmp_path, capsys):
+    out, js = tmp_path / "held.srt", tmp_path / "held.json"
+    rc = main(["solve", "pointmass", "--held", "--grid", "21", "21", "--budget-points", "23", "--accuracy", "low",
+               "--compile", "no", "--out", str(out), "--json", str(js), "--quiet"])
+    assert rc == 0
+    s = json.loads(js.read_text())
+    assert s["control_period"] == 0.01 and "W_eps" in s["wall_time_s"] and "consistency" in s["wall_time_s"]
+    from softreach.reach import load_table
+
+    table = load_table(out)
+    assert table.control_period == 0.01 and len(table.times()) == 101  # every sample time of the 1 s horizon
+    assert table.header["fields"]["W_eps"]["held_controls"] == [[-60.0], [-30.0], [0.0], [30.0], [60.0], [9.8]]
+    assert "actions held for 0.01 s" in capsys.readouterr().out
+    assert main(["solve", "pointmass", "--control-period", "0.03", "--quiet", "--out", str(tmp_path / "x.srt")]) == 2
+    assert "must divide the horizon" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("args,message", [
     (["--grid", "0", "31"], "grid size for v must be an integer >= 5, got 0"),
     (["--grid", "31"], "--grid needs 2 sizes"),
