@@ -29,6 +29,8 @@ from .. import backend as B
 from .. import sets
 from ..dynamics import Components
 from ..problem import Model
+from ..intervals import (round_down, round_up, iv_point, iv_add, iv_sub, iv_mul,
+                         iv_div_pos, iv_sqr_pos, iv_sin, iv_cos, iv_hull_step, HALF_PI)
 
 Array = B.Array
 
@@ -82,93 +84,6 @@ def _check_radians(name: str, value: Any) -> None:
             f"radians expected for {name}, got {worst!r} (looks like degrees; "
             f"convert with softreach.reach.models.glider.degrees_to_radians)"
         )
-
-
-# ---------------------------------------------------------------------------------------- interval arithmetic
-# Intervals are ``(lo, hi)`` pairs of numpy arrays (or scalars), used by :meth:`Glider.held_enclosure`. Every
-# result is widened outwards by a few units in the last place: numpy rounds to nearest, so an unwidened end could
-# sit up to half an ulp inside the true range (and libm's sin/cos up to about one ulp), which would make the
-# enclosure unsound by a rounding error. 4 eps relative plus the smallest normal number covers either.
-_ROUND_REL = 4.0 * float(np.finfo(np.float64).eps)
-_ROUND_ABS = float(np.finfo(np.float64).tiny)
-_HALF_PI = 0.5 * math.pi  # rounds below the true pi/2, so "< _HALF_PI" is inside the real open interval
-
-
-def _round_down(v: Any) -> Any:
-    return v - (np.abs(v) * _ROUND_REL + _ROUND_ABS)
-
-
-def _round_up(v: Any) -> Any:
-    return v + (np.abs(v) * _ROUND_REL + _ROUND_ABS)
-
-
-def _iv_point(c: Any) -> tuple[Any, Any]:
-    return c, c
-
-
-def _iv_add(x: tuple[Any, Any], y: tuple[Any, Any]) -> tuple[Any, Any]:
-    return _round_down(x[0] + y[0]), _round_up(x[1] + y[1])
-
-
-def _iv_sub(x: tuple[Any, Any], y: tuple[Any, Any]) -> tuple[Any, Any]:
-    return _round_down(x[0] - y[1]), _round_up(x[1] - y[0])
-
-
-def _iv_mul(x: tuple[Any, Any], y: tuple[Any, Any]) -> tuple[Any, Any]:
-    # the extremes of a bilinear function over a box lie at its corners, whatever the signs
-    p1, p2, p3, p4 = x[0] * y[0], x[0] * y[1], x[1] * y[0], x[1] * y[1]
-    lo = np.minimum(np.minimum(p1, p2), np.minimum(p3, p4))
-    hi = np.maximum(np.maximum(p1, p2), np.maximum(p3, p4))
-    return _round_down(lo), _round_up(hi)
-
-
-def _iv_div_pos(x: tuple[Any, Any], y: tuple[Any, Any], name: str = "divisor") -> tuple[Any, Any]:
-    """``x / y`` for an interval ``y`` with ``y_lo > 0`` (1/y is then decreasing, so its ends swap)."""
-    y_lo, y_hi = (np.ravel(v) for v in np.broadcast_arrays(y[0], y[1]))
-    bad = ~(y_lo > 0)  # NaN fails too
-    if np.any(bad):
-        i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"interval {name} [{float(y_lo[i])!r}, {float(y_hi[i])!r}] reaches <= 0; cannot divide by it")
-    recip = (_round_down(1.0 / y[1]), _round_up(1.0 / y[0]))
-    return _iv_mul(x, recip)
-
-
-def _iv_sqr_pos(x: tuple[Any, Any]) -> tuple[Any, Any]:
-    """``x^2`` for ``x_lo > 0``, where squaring is increasing (tighter than ``x * x``, which ignores that both
-    factors are the same number)."""
-    if np.any(~(np.asarray(x[0]) > 0)):
-        raise ValueError(f"square of a positive interval expected, got lower end {float(np.min(x[0]))!r}")
-    return _round_down(x[0] * x[0]), _round_up(x[1] * x[1])
-
-
-def _check_gamma_interval(g: tuple[np.ndarray, np.ndarray]) -> None:
-    bad = ~((g[0] > -_HALF_PI) & (g[1] < _HALF_PI))  # NaN fails too
-    if np.any(bad):
-        i = int(np.flatnonzero(np.ravel(bad))[0])
-        raise ValueError(f"flight-path angle interval [{float(np.ravel(g[0])[i])!r}, {float(np.ravel(g[1])[i])!r}] "
-                         f"rad leaves (-pi/2, pi/2), where the interval sin/cos below are valid")
-
-
-def _iv_sin(g: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """sin over ``g`` inside ``(-pi/2, pi/2)``, where sin is increasing."""
-    _check_gamma_interval(g)
-    return _round_down(np.sin(g[0])), _round_up(np.sin(g[1]))
-
-
-def _iv_cos(g: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """cos over ``g`` inside ``(-pi/2, pi/2)``: increasing up to 0, decreasing after, so its minimum is at an end
-    and its maximum is 1 where the interval holds 0."""
-    _check_gamma_interval(g)
-    c_lo, c_hi = np.cos(g[0]), np.cos(g[1])
-    top = np.where((g[0] <= 0) & (g[1] >= 0), 1.0, np.maximum(c_lo, c_hi))
-    return _round_down(np.minimum(c_lo, c_hi)), _round_up(top)
-
-
-def _iv_hull_step(x: np.ndarray, dt: float, d: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """``x + [0, dt] * d``: every ``x + s v`` with ``s`` in ``[0, dt]`` and ``v`` in ``d`` (``dt > 0``)."""
-    lo = _round_down(dt * np.minimum(d[0], 0.0))
-    hi = _round_up(dt * np.maximum(d[1], 0.0))
-    return _round_down(x + lo), _round_up(x + hi)
 
 
 @dataclass(frozen=True)
@@ -426,15 +341,15 @@ class Glider(Model):
             i = int(np.flatnonzero(~(V[0] > 0))[0])
             raise ValueError(f"airspeed interval [{float(V[0][i])!r}, {float(V[1][i])!r}] m/s reaches <= 0 "
                              f"(row {i}); gamma' divides by V")
-        sg, cg = _iv_sin(g), _iv_cos(g)
-        mass = _iv_point(p.mass)
-        h_dot = _iv_mul(V, sg)
-        drag_coef = _iv_add(_iv_point(p.cd0), _iv_mul(_iv_point(p.cd_k), _iv_mul(c, c)))
-        drag_acc = _iv_div_pos(_iv_mul(drag_coef, _iv_sqr_pos(V)), mass, "mass")
-        wind_acc = _iv_div_pos((-float(p.wind_max), float(p.wind_max)), mass, "mass")
-        V_dot = _iv_sub(_iv_sub(wind_acc, drag_acc), _iv_mul(_iv_point(p.gravity), sg))
-        lift_acc = _iv_div_pos(_iv_mul(_iv_mul(_iv_point(p.half_rho_s), c), V), mass, "mass")
-        gamma_dot = _iv_sub(lift_acc, _iv_div_pos(_iv_mul(_iv_point(p.gravity), cg), V, "airspeed"))
+        sg, cg = iv_sin(g), iv_cos(g)
+        mass = iv_point(p.mass)
+        h_dot = iv_mul(V, sg)
+        drag_coef = iv_add(iv_point(p.cd0), iv_mul(iv_point(p.cd_k), iv_mul(c, c)))
+        drag_acc = iv_div_pos(iv_mul(drag_coef, iv_sqr_pos(V)), mass, "mass")
+        wind_acc = iv_div_pos((-float(p.wind_max), float(p.wind_max)), mass, "mass")
+        V_dot = iv_sub(iv_sub(wind_acc, drag_acc), iv_mul(iv_point(p.gravity), sg))
+        lift_acc = iv_div_pos(iv_mul(iv_mul(iv_point(p.half_rho_s), c), V), mass, "mass")
+        gamma_dot = iv_sub(lift_acc, iv_div_pos(iv_mul(iv_point(p.gravity), cg), V, "airspeed"))
         out_lo = np.stack(np.broadcast_arrays(h_dot[0], V_dot[0], gamma_dot[0]), axis=1)
         out_hi = np.stack(np.broadcast_arrays(h_dot[1], V_dot[1], gamma_dot[1]), axis=1)
         return out_lo, out_hi
@@ -495,7 +410,7 @@ class Glider(Model):
         self.validate_control(alpha)
         p = self.params
         # C_L is computed once per row as an interval: the float product cl_alpha * alpha is itself rounded
-        c = _iv_add(_iv_point(p.cl0), _iv_mul(_iv_point(p.cl_alpha), _iv_point(alpha)))
+        c = iv_add(iv_point(p.cl0), iv_mul(iv_point(p.cl_alpha), iv_point(alpha)))
 
         def describe(i: int) -> str:
             return (f"row {i}: state (h, V, gamma) = ({float(x[i, 0])!r} m, {float(x[i, 1])!r} m/s, "
@@ -504,7 +419,7 @@ class Glider(Model):
         def field(lo: np.ndarray, hi: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             # the helpers name only the offending interval; add which row and state it came from
             bad_V = ~(lo[:, 1] > 0)
-            bad_g = ~((lo[:, 2] > -_HALF_PI) & (hi[:, 2] < _HALF_PI))
+            bad_g = ~((lo[:, 2] > -HALF_PI) & (hi[:, 2] < HALF_PI))
             if np.any(bad_V | bad_g):
                 k = int(np.flatnonzero(bad_V | bad_g)[0])
                 what = (f"V in [{float(lo[k, 1])!r}, {float(hi[k, 1])!r}] m/s reaches <= 0" if bad_V[k] else
@@ -519,11 +434,11 @@ class Glider(Model):
             return lo - pad, hi + pad
 
         all_rows = np.arange(n)
-        X_lo, X_hi = inflate(*_iv_hull_step(x, dt, field(x, x, all_rows)), all_rows)
+        X_lo, X_hi = inflate(*iv_hull_step(x, dt, field(x, x, all_rows)), all_rows)
         tube_lo, tube_hi = np.empty((n, 3)), np.empty((n, 3))
         todo = all_rows
         for _ in range(self._ENCLOSURE_MAX_TRIES):
-            Y_lo, Y_hi = _iv_hull_step(x[todo], dt, field(X_lo, X_hi, todo))
+            Y_lo, Y_hi = iv_hull_step(x[todo], dt, field(X_lo, X_hi, todo))
             # strict containment: the exit-time argument needs Y inside the interior of X
             ok = np.all((Y_lo > X_lo) & (Y_hi < X_hi), axis=1)
             # Y (not X) is kept: it is contained in X and holds the trajectories too (step 3)
@@ -537,12 +452,12 @@ class Glider(Model):
                              f"candidates ({todo.size} rows failed); shorten dt")
 
         for _ in range(self._ENCLOSURE_REFINE):
-            Y_lo, Y_hi = _iv_hull_step(x, dt, field(tube_lo, tube_hi, all_rows))
+            Y_lo, Y_hi = iv_hull_step(x, dt, field(tube_lo, tube_hi, all_rows))
             tube_lo, tube_hi = np.maximum(tube_lo, Y_lo), np.minimum(tube_hi, Y_hi)
 
         d_lo, d_hi = field(tube_lo, tube_hi, all_rows)
-        end_lo = np.maximum(_round_down(x + _round_down(dt * d_lo)), tube_lo)
-        end_hi = np.minimum(_round_up(x + _round_up(dt * d_hi)), tube_hi)
+        end_lo = np.maximum(round_down(x + round_down(dt * d_lo)), tube_lo)
+        end_hi = np.minimum(round_up(x + round_up(dt * d_hi)), tube_hi)
         return tube_lo, tube_hi, end_lo, end_hi
 
     # ------------------------------------------------------------------------------------------ game
