@@ -125,10 +125,12 @@ def _wind(name: str, vf: ValueFilter, rng: np.random.Generator, pieces: int):
 
 def exact_pass(vf: ValueFilter, t: float, x: np.ndarray, z: float, a: np.ndarray, n_winds: int = 9,
                substeps: int = 8) -> bool:
-    """A finer one-step check of holding ``a``: integrate the period under constant winds on a grid of the box
-    and one-switch bang-bang winds (which reach the extreme end states of an input-affine period), check ``c1``
-    at the path's nodes, the budget, and the certificate at every end state. It samples the wind, so it can only
-    say "passes" more often than the true check: the unneeded fraction it gives is an upper bound."""
+    """A finer check that holding ``a`` for one period keeps the state certified: integrate the period under
+    constant winds on a grid of the box and one-switch bang-bang winds (which reach the extreme end states of an
+    input-affine period), check ``c1`` at the path's nodes and the budget, and that a held action passes again
+    from every end state (on the last period: that every end state is inside the target's certificate). It
+    samples the wind, so it can only say "passes" more often than the true check: the unneeded fraction it
+    gives is an upper bound."""
     model, dt, eps = vf.model, vf.dt, vf.eps
     b_lo, b_hi = (np.asarray(v, dtype=float) for v in model.disturbance_bounds)
     winds = [[(1.0, b_lo + s * (b_hi - b_lo))] for s in np.linspace(0, 1, n_winds)]
@@ -152,8 +154,12 @@ def exact_pass(vf: ValueFilter, t: float, x: np.ndarray, z: float, a: np.ndarray
         ends.append(xc)
         zs.append(zc)
     ends = np.asarray(ends)
-    d = vf.lookahead.certificate(np.full(len(ends), t + dt), ends, np.asarray(zs))
-    return bool(np.all(d <= -vf.lookahead.margin))
+    t_next, zs = np.full(len(ends), t + dt), np.asarray(zs)
+    if t + dt >= vf.lookahead.horizon - 1e-9:  # the last period: the end states must be inside the target
+        return bool(np.all(vf.lookahead.certificate(t_next, ends, zs) <= -vf.lookahead.margin))
+    # "keeps the state certified": from every sampled end state some held action passes again
+    _, ok, _ = vf.lookahead.best_candidate(t_next, ends, zs)
+    return bool(np.all(ok))
 
 
 def run_episode(vf: ValueFilter | None, ref: ValueFilter, x0: np.ndarray, budget: float, policy, wind,
