@@ -114,14 +114,6 @@ class HeldControl(Dynamics):
         return out
 
 
-def candidate_controls(dynamics: Dynamics, levels: int = 5) -> np.ndarray:
-    """The held actions the sampled-data value minimises over: :meth:`Dynamics.held_candidates`.
-
-    :return: ``(J, m)`` physical actions
-    """
-    return np.asarray(dynamics.held_candidates(levels), dtype=np.float64)
-
-
 def solve_held(problem: ReachAvoidProblem, grid: Grid, times: Sequence[float], settings: SolverSettings,
                controls: np.ndarray, *, sink: SnapshotSink | None = None, start: tuple[int, Any] | None = None,
                progress: Any = None) -> Any:

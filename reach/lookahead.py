@@ -12,7 +12,8 @@ motion of the period and a box ``E`` holding its end point. The action is **admi
    equal pieces of the period (:meth:`~softreach.reach.dynamics.Dynamics.held_tube_pieces`): the budget
    spent in the period, crossings of ``C2`` included, is at most that (``h_eps`` grows with ``c2``, also convex,
    so each maximum is at a corner), and the budget never goes negative: exact, with no allowance of a period;
-3. ``max_{E x [z', z]} D(t + dt, .) <= -margin``: every possible end state is certified at the next sample time.
+3. ``max_{E x [z', z]} D(t + dt, .) <= -margin``: every possible end state lies inside the certificate at the
+   next sample time.
    The maximum of the interpolant over the box is exact (:func:`softreach.reach.interpolation.box_max`), so no
    interpolation allowance is needed: the certificate *is* the interpolant. ``margin`` (default 0) is an extra
    tightening a user may ask for.
@@ -84,15 +85,22 @@ class Lookahead:
             out = np.minimum(out, np.where(vin & (z >= 0) & np.isfinite(v), v, np.inf))
         return out
 
+    def _each_candidate(self, *rows: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Every row repeated once per candidate (contiguously), and the candidates tiled beside them."""
+        J = len(self.candidates)
+        N = len(rows[0])
+        return tuple(np.repeat(r, J, axis=0) for r in rows) + (np.tile(self.candidates, (N, 1)),)
+
     def _corner_max(self, fn, t: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         N, C = len(lo), len(self.corners)
         pts = np.where(self.corners[None, :, :], hi[:, None, :], lo[:, None, :]).reshape(N * C, self.n)
-        t_arg = float(t[0]) if np.all(t == t[0]) else np.repeat(t, C)
+        t_arg = _time_arg(t)
+        t_arg = t_arg if np.isscalar(t_arg) else np.repeat(t, C)
         vals = np.asarray(fn(t_arg, [pts[:, i] for i in range(self.n)]), dtype=np.float64)
         return np.broadcast_to(vals, (N * C,)).reshape(N, C).max(axis=1)
 
     def _enclose(self, t: np.ndarray, x: np.ndarray, a: np.ndarray, dt: float | None = None):
-        t0 = float(t[0]) if np.all(t == t[0]) else t
+        t0 = _time_arg(t)
         dt = self.dt if dt is None else dt
         try:
             return self.model.held_enclosure(t0, x, a, dt), np.ones(len(x), bool)
@@ -139,8 +147,7 @@ class Lookahead:
         if x_hi is None:
             (tube_lo, tube_hi, end_lo, end_hi), bounded = self._enclose(t, x, a)
         else:
-            tube_lo, tube_hi, end_lo, end_hi = self.model.held_enclosure_box(
-                float(t[0]) if np.all(t == t[0]) else t, x, x_hi, a, self.dt)
+            tube_lo, tube_hi, end_lo, end_hi = self.model.held_enclosure_box(_time_arg(t), x, x_hi, a, self.dt)
             bounded = np.isfinite(tube_lo).all(axis=1) & np.isfinite(tube_hi).all(axis=1)
         z_top = z if z_hi is None else z_hi
         c1 = self._corner_max(self.model.hard_constraint, t, tube_lo, tube_hi)
@@ -149,11 +156,9 @@ class Lookahead:
         # environment's exact integral of h_eps
         spent = np.zeros(len(x))
         if bounded.all() and x_hi is None:
-            piece_lo, piece_hi = self.model.held_tube_pieces(float(t[0]) if np.all(t == t[0]) else t, x, a,
-                                                             self.dt, self.pieces)
+            piece_lo, piece_hi = self.model.held_tube_pieces(_time_arg(t), x, a, self.dt, self.pieces)
         elif bounded.all():
-            piece_lo, piece_hi = self.model.held_tube_pieces_box(float(t[0]) if np.all(t == t[0]) else t, x, x_hi,
-                                                                 a, self.dt, self.pieces)
+            piece_lo, piece_hi = self.model.held_tube_pieces_box(_time_arg(t), x, x_hi, a, self.dt, self.pieces)
         else:
             piece_lo = np.broadcast_to(tube_lo, (self.pieces,) + tube_lo.shape)
             piece_hi = np.broadcast_to(tube_hi, (self.pieces,) + tube_hi.shape)
@@ -218,10 +223,9 @@ class Lookahead:
         N, J = len(end_lo), len(self.candidates)
         if N == 0:
             return np.zeros(0, bool)
-        rep = lambda v: np.repeat(v, J, axis=0)  # noqa: E731
+        tt, lo, zl, hi, zh, a = self._each_candidate(t, end_lo, np.maximum(z_lo, 0.0), end_hi, z_hi)
         try:
-            ok, _, _ = self.assess(rep(t), rep(end_lo), rep(np.maximum(z_lo, 0.0)), np.tile(self.candidates, (N, 1)),
-                                   x_hi=rep(end_hi), z_hi=rep(z_hi))
+            ok, _, _ = self.assess(tt, lo, zl, a, x_hi=hi, z_hi=zh)
         except NotImplementedError:
             return np.zeros(N, bool)
         return ok.reshape(N, J).any(axis=1)
@@ -232,9 +236,7 @@ class Lookahead:
         :return: ``(action (N, m), admissible (N,), next_value (N,))``
         """
         N, J = len(x), len(self.candidates)
-        rep = lambda v: np.repeat(v, J, axis=0)  # noqa: E731 - each row's candidates are contiguous
-        a = np.tile(self.candidates, (N, 1))
-        ok, nxt, bad = self.assess(rep(t), rep(x), rep(z), a)
+        ok, nxt, bad = self.assess(*self._each_candidate(t, x, z))
         j = np.argmin(bad.reshape(N, J), axis=1)
         rows = np.arange(N)
         return self.candidates[j], ok.reshape(N, J)[rows, j], nxt.reshape(N, J)[rows, j]
@@ -242,13 +244,14 @@ class Lookahead:
     def candidates_pass(self, t: np.ndarray, x: np.ndarray, z: np.ndarray):
         """:meth:`passes` for every candidate at every row: four ``(N, J)`` arrays."""
         N, J = len(x), len(self.candidates)
-        rep = lambda v: np.repeat(v, J, axis=0)  # noqa: E731
-        out = self.passes(rep(t), rep(x), rep(z), np.tile(self.candidates, (N, 1)))
-        return tuple(o.reshape(N, J) for o in out)
+        return tuple(o.reshape(N, J) for o in self.passes(*self._each_candidate(t, x, z)))
 
     def admissible_candidates(self, t: np.ndarray, x: np.ndarray, z: np.ndarray):
         """``(admissible, next_value, badness)``, each ``(N, J)``, of every candidate at every row."""
         N, J = len(x), len(self.candidates)
-        rep = lambda v: np.repeat(v, J, axis=0)  # noqa: E731
-        ok, nxt, bad = self.assess(rep(t), rep(x), rep(z), np.tile(self.candidates, (N, 1)))
-        return ok.reshape(N, J), nxt.reshape(N, J), bad.reshape(N, J)
+        return tuple(o.reshape(N, J) for o in self.assess(*self._each_candidate(t, x, z)))
+
+
+def _time_arg(t: np.ndarray) -> Any:
+    """One float where every row has the same time (the models evaluate faster on a scalar), else the array."""
+    return float(t[0]) if len(t) and np.all(t == t[0]) else t
