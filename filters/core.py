@@ -55,7 +55,8 @@ OPTIMAL = 2
 OUTSIDE = 3
 #: the time is at or after the table's horizon
 AFTER_HORIZON = 4
-#: the certificate is not finite at the state (a NaN in the table)
+#: kept for scripts that test for it; this filter reads a non-finite table value as unsafe (``+inf``) and reports
+#: the state as ``UNCERTIFIED`` or ``OUTSIDE``
 NONFINITE = 5
 #: no candidate could even be bounded (the model's enclosure failed): the fallback action was applied
 FALLBACK = 6
@@ -307,7 +308,6 @@ class ValueFilter:
         after = tt >= la.horizon - 1e-9
         off = ~self.table.inside(tt, xs, np.maximum(zz, 0.0))
         reason = np.where(after, AFTER_HORIZON, np.where(off & (reason != PASS), OUTSIDE, reason))
-        reason = np.where(np.isnan(value), NONFINITE, reason)
         active = reason != PASS
         if normalized:
             applied = np.where(active[:, None], np.clip(self.normalized(applied), -1.0, 1.0), act)

@@ -24,9 +24,11 @@ class SafetyFilter(gym.Wrapper):
 
     From a start the filter certifies (``info["certified"]`` at ``reset``), for every policy and every wind within
     its bounds (switching at any instant, also in answer to the filter), each step holds an action that provably
-    keeps the vehicle in ``C1`` for the whole period, spends no more budget than is left, and ends in a certified
-    state; at the horizon that means landed. The policy's own action passes whenever holding it for one period
-    does that. See :mod:`softreach.filters.core` and :mod:`softreach.reach.lookahead`.
+    keeps the vehicle in ``C1`` for the whole period, spends no more budget than is left, and ends inside the
+    table's certificate; at the horizon that means landed. This holds as long as the filter never reports
+    ``"uncertified"`` (a state between grid nodes from which no held action passes; ``docs/filters.md`` gives
+    the audit's counts). The policy's own action passes whenever holding it for one period keeps the state
+    certified. See :mod:`softreach.filters.core` and :mod:`softreach.reach.lookahead`.
 
     A ``gymnasium.Wrapper`` rather than an ``ActionWrapper``, because the filter needs the state, time and
     remaining budget, which it reads from ``env.unwrapped`` (``state``, ``time``, ``budget``); observations and
@@ -118,7 +120,8 @@ class SafetyFilter(gym.Wrapper):
         self._certified_start = False
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        """Reset the environment and the episode statistics; ``info`` adds ``value`` and ``margin`` of the start."""
+        """Reset the environment and the episode statistics; ``info`` adds ``value``, ``margin``, ``certified`` and
+        ``certified_reason`` of the start."""
         obs, info = self.env.reset(seed=seed, options=options)
         self._reset_stats()
         base = self.env.unwrapped
