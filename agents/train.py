@@ -247,7 +247,8 @@ def train(spec: TrainSpec) -> TrainResult:
     else:
         model = _sac_class(algo_cfg.action_label)("MlpPolicy", venv, seed=spec.seed, verbose=0, device="cpu",
                                                   **kwargs)
-    model.set_logger(configure(str(out), ["csv"]))
+    logger = configure(str(out), ["csv"])
+    model.set_logger(logger)
 
     callbacks = []
     eval_env = None
@@ -286,6 +287,7 @@ def train(spec: TrainSpec) -> TrainResult:
         venv.close()
         if eval_env is not None:
             eval_env.close()
+        logger.close()  # progress.csv: left open, the garbage collector closes it later with a ResourceWarning
     wall = time.perf_counter() - t0
     model_path = out / "model.zip"
     model.save(model_path)
