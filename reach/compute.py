@@ -13,7 +13,7 @@ import numpy as np
 
 from . import backend as B
 from .grid import Grid, budget_axis
-from .problem import Model, classical_problem, soft_problem
+from .problem import Model, avoid_problem, classical_problem, soft_problem
 from .held import consistency_gaps, make_consistent, solve_held
 from .solver import SolverSettings, solve
 from .table import TableWriter
@@ -136,6 +136,11 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
     fields["V"] = {"grid": state_grid.to_dict(), "times": times, "problem": classical_problem(model).metadata(),
                    "settings": cfg.settings.to_dict(), **game}
     problems["V"] = (classical_problem(model), state_grid)
+    if held:
+        # where the landing guarantee is lost, the filter still keeps C1 as long as it can (reach/lookahead.py)
+        fields["V_safe"] = {"grid": state_grid.to_dict(), "times": times, "problem": avoid_problem(model).metadata(),
+                            "settings": cfg.settings.to_dict(), **game}
+        problems["V_safe"] = (avoid_problem(model), state_grid)
     if aug is not None:
         sp = soft_problem(model, cfg.eps, kappa)
         fields["W_eps"] = {"grid": aug.to_dict(), "times": times, "problem": sp.metadata(),

@@ -174,13 +174,13 @@ def make_consistent(model: Any, fields: dict[str, tuple[Any, list[float], Grid]]
     from .lookahead import Lookahead
 
     stats = {name: {"checked": 0, "raised": 0, "dead_ends": 0, "largest_raise": 0.0, "deep_sampled": 0,
-                    "deep_inconsistent": 0} for name in fields}
+                    "deep_inconsistent": 0} for name in ("V", "W_eps") if name in fields}
     rng = np.random.default_rng(0)
     times = fields["W_eps"][1]
     for k in range(len(times) - 2, -1, -1):
         nxt = {name: (vals[k + 1:k + 2], np.asarray(tt[k + 1:k + 2]), g) for name, (vals, tt, g) in fields.items()}
         la = Lookahead(nxt, model, dt, eps, controls)
-        for name, (vals, _, grid) in fields.items():
+        for name, (vals, _, grid) in ((n, fields[n]) for n in ("V", "W_eps") if n in fields):
             cur = np.asarray(vals[k], dtype=np.float64)
             # nodes deeper than the band are assumed consistent; a sample of them checks that assumption
             deep = np.flatnonzero(cur < -band)

@@ -66,7 +66,7 @@ class Lookahead:
     def from_table(cls, table: Any, model: Any, dt: float, eps: float, margin: float = 0.0) -> "Lookahead":
         """The test against a solved table's ``V`` and ``W_eps``, with the candidates it was solved with."""
         fields = {name: (table.values(name), table.times(name), table.grid(name))
-                  for name in ("V", "W_eps") if name in table.header["fields"]}
+                  for name in ("V", "W_eps", "V_safe") if name in table.header["fields"]}
         if "W_eps" not in fields:
             raise ValueError(f"table {table.path} holds only the classical V; the filter needs W_eps")
         held = table.header["fields"]["W_eps"].get("held_controls")
@@ -186,13 +186,20 @@ class Lookahead:
                 v = box_max(V, Vt, Vg, t_next[rows], end_lo[rows], end_hi[rows])
                 best = np.minimum(best, np.where(z_end[rows] >= 0, v, np.inf))
             nxt[rows] = np.where(np.isnan(best), np.inf, best)
-        # ranks (lower is better): passing, by next value (<= 0) < 1e6 + next (the end may leave the certificate)
-        # < 2e6 + overspend (ties broken by the next value) < 3e6 + how far C1 may be left < inf (not bounded)
+        # where no action passes, the hard constraint comes first: an action whose end box lies where C1 can
+        # still be kept until T (V_safe <= 0, the held game of staying in C1) beats one that keeps only the budget
+        safe = in_c1.copy()
+        if "V_safe" in self.fields and len(rows):
+            S, St, Sg = self.fields["V_safe"]
+            safe[rows] = box_max(S, St, Sg, t_next[rows], end_lo[rows], end_hi[rows]) <= 0
+        # ranks, lower is better: passing, by next value (<= 0) < 1e6 safe, budget kept < 2e6 safe, overspent
+        # < 3e6 budget kept < 4e6 overspent < 5e6 + how far C1 may be left < inf (not bounded); within a rank
+        # the next value, then the overspend, breaks ties
         passing = ok & (nxt <= -self.margin)
-        tie = np.arctan(np.nan_to_num(nxt, posinf=1e12)) / np.pi
-        bad = np.where(passing, nxt, np.where(ok, 1e6 + np.minimum(nxt, 1e5), np.inf))
-        bad = np.where(in_c1 & ~ok, 2e6 + 1e3 * np.maximum(-z_end, 0.0) + tie, bad)
-        bad = np.where(bounded & ~in_c1, 3e6 + np.maximum(c1, 0.0), bad)
+        tie = np.arctan(np.nan_to_num(nxt, posinf=1e12)) / np.pi + 1e3 * np.maximum(-z_end, 0.0)
+        rank = np.where(safe, 1e6, 3e6) + np.where(ok, 0.0, 1e6)
+        bad = np.where(passing, nxt, np.where(in_c1, rank + tie, np.inf))
+        bad = np.where(bounded & ~in_c1, 5e6 + np.maximum(c1, 0.0), bad)
         nxt = np.where(ok, nxt, np.inf)
         out = (passing, nxt, bad)
         return out + (end_lo, end_hi, z_end) if ends else out

@@ -11,6 +11,8 @@ Names from the paper, used across softreach:
   ``(x, z)`` with target function ``l = max(c2, -kappa z, g)`` and constraint ``c1``. Its zero sublevel set at
   ``z = Q`` is ``RA~_Q``, the states that can land spending at most ``Q`` seconds outside ``C2``.
 * ``V(t, x)`` — the classical value (Prop. 2): target ``g``, constraint ``max(c1, c2)``. ``{V <= 0} = RA~_0``.
+* ``V_safe(t, x)`` — the value of staying in ``C1`` until ``T`` (no target, no budget): the states from which a
+  safety filter can still keep the hard constraint after its landing guarantee is lost.
 """
 
 from __future__ import annotations
@@ -115,12 +117,14 @@ class ReachAvoidProblem:
 
     dynamics: Dynamics
     model: Model
-    kind: str  # "classical" or "soft"
+    kind: str  # "classical", "soft" or "avoid"
     eps: float | None = None
     budget_scale: float = 1.0
 
     def target_function(self, t: float, x: Components) -> Array:
-        """``l``: ``g`` (classical) or ``max(c2, -kappa z, g)`` (soft)."""
+        """``l``: ``g`` (classical), ``max(c2, -kappa z, g)`` (soft), ``+inf`` (avoid: nothing to reach)."""
+        if self.kind == "avoid":
+            return self.model.hard_constraint(t, x) * 0 + math.inf
         if self.kind == "classical":
             return self.model.target(t, x)
         xs, z = x[:-1], x[-1]
@@ -134,15 +138,23 @@ class ReachAvoidProblem:
         ``l`` can take along a trajectory is at least ``-kappa z``. Enforcing it keeps high-order schemes from
         undershooting into spurious safety (it matters most at ``z = 0``, where the exact ``W`` is ``>= 0``).
         """
-        if self.kind == "classical":
+        if self.kind != "soft":
             return None
         return -self.budget_scale * x[-1]
 
     def constraint_function(self, t: float, x: Components) -> Array:
-        """``c``: ``max(c1, c2)`` (classical) or ``c1`` (soft)."""
+        """``c``: ``max(c1, c2)`` (classical) or ``c1`` (soft, avoid)."""
+        if self.kind == "avoid":
+            return self.model.hard_constraint(t, x)
         if self.kind == "classical":
             return B.maximum(self.model.hard_constraint(t, x), self.model.soft_constraint(t, x))
         return self.model.hard_constraint(t, x[:-1])
+
+    @property
+    def has_target(self) -> bool:
+        """Whether the game ends on reaching a target (reach-avoid) or only asks to stay (avoid): the terminal
+        value is ``max(c, l)`` in the first case, ``c`` in the second."""
+        return self.kind != "avoid"
 
     def metadata(self) -> dict[str, Any]:
         return {"kind": self.kind, "eps": self.eps, "budget_scale": self.budget_scale, "model": self.model.metadata()}
@@ -151,6 +163,11 @@ class ReachAvoidProblem:
 def classical_problem(model: Model) -> ReachAvoidProblem:
     """The classical reach-avoid problem of Prop. 2 (value ``V``)."""
     return ReachAvoidProblem(dynamics=model, model=model, kind="classical")
+
+
+def avoid_problem(model: Model) -> ReachAvoidProblem:
+    """Stay in ``C1`` until ``T`` (value ``V_safe``): no target, no soft constraint."""
+    return ReachAvoidProblem(dynamics=model, model=model, kind="avoid")
 
 
 def soft_problem(model: Model, eps: float = 1e-3, budget_scale: float = 1.0) -> ReachAvoidProblem:

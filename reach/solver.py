@@ -121,9 +121,9 @@ class HamiltonianOperator:
         return self.l, self.c
 
     def terminal(self, t: float) -> Array:
-        """``W(T) = max(c, l)``."""
+        """``W(T) = max(c, l)`` (``c`` for a game without a target)."""
         l, c = self._sets(t)
-        return B.maximum(c, l)
+        return B.maximum(c, l) if self.problem.has_target else c
 
     def project(self, t: float, u: Array) -> Array:
         """``max(c, min(l, u))``: the obstacles of the variational inequality."""

@@ -258,3 +258,24 @@ def test_torch_in_torch_out(vfilter):
     np.testing.assert_array_equal(out.numpy(), ref)
     one, one_info = vfilter.filter(0.1, torch.tensor([0.0, 5.0]), 0.3, torch.tensor([0.5]))
     assert isinstance(one, torch.Tensor) and one.shape == (1,) and one_info["value"].shape == ()
+
+
+def test_the_safety_value_keeps_c1_where_braking_can(pointmass_held_table):
+    """``V_safe``: stay in C1 until T. Falling at speed v from height y can be stopped before the ground iff
+    v^2 / (2 (u_max - g - d_max)) < y (full thrust against the worst wind)."""
+    table = pointmass_held_table
+    assert table.header["fields"]["V_safe"]["problem"]["kind"] == "avoid"
+    S = np.asarray(table.values("V_safe")[0])
+    g = table.grid("V_safe")
+    v, y = np.meshgrid(g.lo[0] + g.spacing[0] * np.arange(g.shape[0]), g.lo[1] + g.spacing[1] * np.arange(g.shape[1]),
+                       indexing="ij")
+    stop = v ** 2 / (2 * (60.0 - 9.8 - 10.0))
+    inside_c1 = (np.abs(v) < 14.0) & (y > 1.0) & (y < 17.0)
+    falling = inside_c1 & (v < 0)
+    # clear cases, a cell away from the threshold either way
+    can, cannot = falling & (stop < y - 1.5), falling & (stop > y + 1.5)
+    assert can.sum() > 50 and cannot.sum() > 10
+    assert np.all(S[can] <= 0) and np.all(S[cannot] > 0)
+    # every landing-certified node can also keep C1 (the sets are nested)
+    V = np.asarray(table.values("V")[0])
+    assert np.all(S[V <= -0.05] <= 0)
