@@ -196,8 +196,7 @@ def run_episode(vf: ValueFilter | None, ref: ValueFilter, x0: np.ndarray, budget
         x, t = np.asarray(xs), (k + 1) * dt
         if hard:
             break
-        comps = [np.float64(v) for v in x]
-        if float(model.soft_constraint(t, comps)) <= 0 and float(model.target(t, comps)) <= 0:
+        if bool(model.landed(t, [np.float64(v) for v in x])):
             landed = True
             break
     over = budget - z

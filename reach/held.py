@@ -195,17 +195,14 @@ def make_consistent(model: Any, fields: dict[str, tuple[Any, list[float], Grid]]
             x = pts[:, :n]
             z = pts[:, n] if name == "W_eps" else np.zeros(len(pts))
             # a node in the target (inside C2 and C1) has landed: the episode ends there, no action is needed
-            comps = [x[:, i] for i in range(n)]
-            landed = ((np.asarray(model.target(times[k], comps)) <= 0) & (np.asarray(model.soft_constraint(
-                times[k], comps)) <= 0) & (np.asarray(model.hard_constraint(times[k], comps)) <= 0) & (z >= 0))
-            keep = ~landed
+            keep = ~(np.asarray(model.landed(times[k], [x[:, i] for i in range(n)])) & (z >= 0))
             is_deep = (np.arange(len(x)) >= len(x) - n_deep)[keep]
             idx = tuple(i[keep] for i in idx)
             x, z = x[keep], z[keep]
             if len(x) == 0:
                 continue
-            ok, best, _ = la.admissible_candidates(np.full(len(x), times[k]), x, np.maximum(z, 0.0))
-            score = np.where(ok, best, np.inf).min(axis=1)
+            _, ok, best = la.best_candidate(np.full(len(x), times[k]), x, np.maximum(z, 0.0))
+            score = np.where(ok, best, np.inf)
             # below z = 0 the budget is already overspent: nothing there is certified by the test
             score = np.where(z < 0, np.inf, score)
             new = np.maximum(cur[idx], np.minimum(score, band))
@@ -252,13 +249,10 @@ def consistency_gaps(model: Any, fields: dict[str, tuple[Any, list[float], Grid]
         x, z = pts[:, :n], pts[:, n]
         t = np.full(samples, float(Wt[k]))
         d = la.certificate(t, x, z)
-        comps = [x[:, i] for i in range(n)]
-        landed = ((np.asarray(model.target(t[0], comps)) <= 0) & (np.asarray(model.soft_constraint(t[0], comps)) <= 0)
-                  & (np.asarray(model.hard_constraint(t[0], comps)) <= 0))
-        keep = (d <= 0) & ~landed
+        keep = (d <= 0) & ~np.asarray(model.landed(t[0], [x[:, i] for i in range(n)]))
         x, z, d = x[keep], z[keep], d[keep]
-        ok, best, _ = la.admissible_candidates(t[: len(x)], x, z)
-        score = np.where(ok, best, np.inf).min(axis=1) if len(x) else np.zeros(0)
+        _, ok, best = la.best_candidate(t[: len(x)], x, z)
+        score = np.where(ok, best, np.inf)
         finite = np.isfinite(score)
         gap = score[finite] - d[finite]
         out["max_gap"].append(float(gap.max()) if len(gap) else 0.0)

@@ -63,6 +63,10 @@ class Model(Dynamics):
     def soft_constraint(self, t: float, x: Components) -> Array:
         """``c2``: ``<= 0`` on the soft-constraint set ``C2``."""
 
+    def landed(self, t: float, x: Components) -> Array:
+        """In the target, inside ``C2`` and ``C1``: where an episode ends landed (no action is needed there)."""
+        return (self.target(t, x) <= 0) & (self.soft_constraint(t, x) <= 0) & (self.hard_constraint(t, x) <= 0)
+
     def violation_rate(self, t: float, x: Components, eps: float) -> Array:
         """``h_eps(t, x) = min(1, max(0, c2 / eps))``: the rate at which the budget drains."""
         return B.clip(self.soft_constraint(t, x) / eps, 0.0, 1.0)

@@ -113,8 +113,7 @@ def test_held_table_is_consistent_with_the_test_at_its_nodes(pointmass_held_tabl
     nodes = g.lo + idx * np.asarray(g.spacing)
     nodes = nodes[nodes[:, 2] >= 0][::7]
     x, z = nodes[:, :2], nodes[:, 2]
-    model = vf.model
-    landed = (model.target(0, [x[:, 0], x[:, 1]]) <= 0) & (model.soft_constraint(0, [x[:, 0], x[:, 1]]) <= 0)
+    landed = vf.model.landed(0, [x[:, 0], x[:, 1]])
     x, z = x[~landed], z[~landed]
     ok, _, _ = vf.lookahead.admissible_candidates(np.full(len(x), 40 * DT), x, z)
     d = vf.value(40 * DT, x, z)
