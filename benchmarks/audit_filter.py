@@ -187,7 +187,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     is_pm = getattr(model, "name", "") == "pointmass"
     budgets = args.budgets or list(POINTMASS_BUDGETS if is_pm else getattr(model, "default_budgets", POINTMASS_BUDGETS))
     t0 = time.perf_counter()
-    vf = ValueFilter(table, dt)
+    # the environment checks landing at its sub-step ends; the filter may count on exactly those
+    vf = ValueFilter(table, dt, target_checks=model.substeps)
     res: dict[str, Any] = {"table": args.table, "dt": dt, "build_s": time.perf_counter() - t0, "budgets": budgets,
                            "sampled": vf.sampled, "consistency": table.header.get("consistency")}
     print(f"table {args.table}: grid {table.grid('W_eps').shape}, dt {dt} s, sampled-data table: {vf.sampled}")

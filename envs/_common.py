@@ -23,6 +23,11 @@ output (cubic Hermite interpolant), resolving the kink to ``budget_resolution`` 
 by the violation time to within about ``budget_resolution`` per crossing. The state path does not depend on
 this (it is the fixed-step RK4 path); excursions out of ``C2`` shorter than a sub-step that no RK4 stage sees
 are missed.
+
+Events: the episode ends at the first sub-step end where the state is out of ``C1`` (a hard violation) or
+landed (in the target and inside ``C2``), as in the paper's game, which ends when the target is reached at any
+instant. The sub-steps are therefore also the instants at which landing is detected: the safety filter counts
+on landing only at those instants (:class:`~softreach.reach.lookahead.Lookahead`, ``target_checks``).
 """
 
 from __future__ import annotations
@@ -198,7 +203,8 @@ _AUTO: Any = object()  # integrate_period(fast=...): look the model's scalar fas
 
 def integrate_period(model: Model, t: float, x: Sequence[float], a: Sequence[float], b: Sequence[float],
                      h: float, n_substeps: int, eps: float, budget_resolution: float, *, fast: Any = _AUTO,
-                     rate0: float | None = None) -> tuple[list[float], float, float]:
+                     rate0: float | None = None, stop: Callable | None = None
+                     ) -> tuple[list[float], float, float, float]:
     """Advance the budget-augmented state over one control period with ``a`` and ``b`` held.
 
     :param model: the model whose ``f`` and ``violation_rate`` are integrated
@@ -213,30 +219,40 @@ def integrate_period(model: Model, t: float, x: Sequence[float], a: Sequence[flo
     :param fast: the model's scalar fast path (:func:`scalar_model`), ``None`` for the vectorised methods;
         by default it is looked up. Both give the same numbers (the fast path repeats the same arithmetic).
     :param rate0: ``h_eps(t, x)`` if already known (the fast path then does not evaluate it again)
-    :return: ``(x_end, cost, rate_end)``: the state at ``t + h``, the budget spent ``int h_eps dt`` over the
-        period, and ``h_eps`` at the end state (``> 0`` exactly when the end state is outside ``C2``)
+    :param stop: ``stop(t, x, rate) -> bool`` asked at every substep end (``rate`` is ``h_eps`` there); the
+        period ends at the first substep where it says yes (the environments' events: landed, or out of ``C1``)
+    :return: ``(x_end, cost, rate_end, elapsed)``: the state where the period ended, the budget spent
+        ``int h_eps dt`` until then, ``h_eps`` at that state (``> 0`` exactly when it is outside ``C2``), and the
+        time elapsed (``h`` unless ``stop`` ended it early)
     """
     if fast is _AUTO:
         fast = scalar_model(model)
     if fast is not None:
-        return _integrate_period_scalar(fast, model, t, x, a, b, h, n_substeps, eps, budget_resolution, rate0)
+        return _integrate_period_scalar(fast, model, t, x, a, b, h, n_substeps, eps, budget_resolution, rate0,
+                                        stop)
     f = model.f
     hs = h / n_substeps
     path: list[Stage] = [list(x)]
     points: list[Stage] = []
     times: list[float] = []
     xc = path[0]
+    done = n_substeps
     for j in range(n_substeps):
         tc = t + j * hs
         xc, stages = rk4_stages(f, tc, xc, a, b, hs)
         path.append(xc)
         points.extend(stages)
         times.extend((tc, tc + 0.5 * hs, tc + 0.5 * hs, tc + hs))
+        if stop is not None and j < n_substeps - 1:
+            te = tc + hs
+            if stop(te, xc, float(model.violation_rate(te, [np.float64(v) for v in xc], eps))):
+                done = j + 1
+                break
     points.append(xc)
-    times.append(t + h)
+    times.append(t + h if done == n_substeps else t + done * hs)
     r = _rates(model, times, points, eps)
-    cost = 0.0
-    for j in range(n_substeps):
+    costs: list[float] = []  # summed with math.fsum: whole sub-steps out of C2 add up to exactly h
+    for j in range(done):
         v = r[4 * j: 4 * j + 4]
         piece = _piece_cost(v, hs)
         if piece is None:
@@ -244,13 +260,14 @@ def integrate_period(model: Model, t: float, x: Sequence[float], a: Sequence[flo
                 piece = _simpson(v, hs)
             else:
                 piece = _kink_cost(model, t + j * hs, path[j], path[j + 1], a, b, hs, eps, budget_resolution)
-        cost += piece
-    return xc, cost, r[-1]
+        costs.append(piece)
+    return xc, math.fsum(costs), r[-1], (h if done == n_substeps else done * hs)
 
 
 def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Sequence[float], a: Sequence[float],
                              b: Sequence[float], h: float, n_substeps: int, eps: float, budget_resolution: float,
-                             rate0: float | None) -> tuple[list[float], float, float]:
+                             rate0: float | None, stop: Callable | None = None
+                             ) -> tuple[list[float], float, float, float]:
     """:func:`integrate_period` on the model's scalar fast path: the same RK4 stages, stage times and budget
     pieces with the same arithmetic, evaluated point by point on Python floats instead of in one vectorised
     call (two-component states, the point mass, have the stage updates written out)."""
@@ -261,7 +278,7 @@ def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Seque
     xc = x if type(x) is list else list(x)
     r0 = rate(t, xc, eps) if rate0 is None else rate0
     two = len(xc) == 2
-    cost = 0.0
+    costs: list[float] = []  # summed with math.fsum: whole sub-steps out of C2 add up to exactly h
     for j in range(n_substeps):
         tc = t + j * hs
         tm = tc + hh
@@ -298,10 +315,12 @@ def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Seque
                 piece = _simpson(v, hs)
             else:
                 piece = _kink_cost(model, tc, xc, xn, a, b, hs, eps, budget_resolution, f=f)
-        cost += piece
+        costs.append(piece)
         xc = xn
-        r0 = rate(t + h if j == n_substeps - 1 else t + (j + 1) * hs, xn, eps)
-    return xc, cost, r0
+        r0 = rate(t + h if j == n_substeps - 1 else te, xn, eps)
+        if stop is not None and j < n_substeps - 1 and stop(te, xn, r0):
+            return xc, math.fsum(costs), r0, (j + 1) * hs
+    return xc, math.fsum(costs), r0, h
 
 
 # --------------------------------------------------------------------------------------------- scalar fast path
@@ -846,11 +865,11 @@ class LandingEnv(gym.Env):
         known = self._rate_now  # h_eps at (t, x0) when the last step or reset left it there
         rate0 = known[2] if known is not None and known[0] == t and known[1] is x0 else None
         if fast is not None:
-            x, cost, rate_end = _integrate_period_scalar(fast, model, t, x0, a, b, h, self.n_substeps, self.eps,
-                                                         self.budget_resolution, rate0)
+            x, cost, rate_end, h = _integrate_period_scalar(fast, model, t, x0, a, b, h, self.n_substeps, self.eps,
+                                                            self.budget_resolution, rate0, self._event)
         else:
-            x, cost, rate_end = integrate_period(model, t, x0, a, b, h, self.n_substeps, self.eps,
-                                                 self.budget_resolution, fast=None)
+            x, cost, rate_end, h = integrate_period(model, t, x0, a, b, h, self.n_substeps, self.eps,
+                                                    self.budget_resolution, fast=None, stop=self._event)
         t_new = t + h
         self._rate_now = (t_new, x, rate_end)
         if T - t_new <= 1e-9 * T:
@@ -890,6 +909,18 @@ class LandingEnv(gym.Env):
             self.render()
         return (np.array(x + [z, T - t_new], dtype=np.float32), r_land + r_fail + r_shape, terminated, truncated,
                 info)
+
+    def _event(self, t: float, x: list[float], rate: float) -> bool:
+        """Does the episode end at this substep end: out of ``C1``, or landed (target, inside ``C2``)?"""
+        fast = self._fast
+        if fast is not None:
+            if fast.hard_constraint(t, x) > 0.0:
+                return True
+            return rate == 0.0 and fast.target(t, x) <= 0.0
+        xs = [np.float64(v) for v in x]
+        if float(self.model.hard_constraint(t, xs)) > 0.0:
+            return True
+        return rate == 0.0 and float(self.model.target(t, xs)) <= 0.0
 
     def _get_obs(self) -> np.ndarray:
         # step() builds the same observation inline

@@ -36,8 +36,8 @@ class GliderLandingEnv(LandingEnv):
     **Time stepping.** One step is a control period of ``dt = 0.1 s`` (100 steps per episode); the action and
     the wind are held over it and the state is advanced by ``n_substeps = 2`` RK4 steps (0.05 s; against a
     tolerance-1e-12 solution of the same ``f`` the error is below 1e-9 in every component). The budget uses the
-    RK4 stages with bisection at the kinks of ``h_eps`` (``budget_resolution``); constraints and the target are
-    checked at the end of each period. Inside ``C1`` the aircraft sinks at most ``83 sin(3 deg) = 4.3 m/s``,
+    RK4 stages with bisection at the kinks of ``h_eps`` (``budget_resolution``); ``C1`` and the target are checked
+    at every sub-step end, and the episode ends at the first one where the aircraft has landed or left ``C1``. Inside ``C1`` the aircraft sinks at most ``83 sin(3 deg) = 4.3 m/s``,
     i.e. 0.43 m per period, less than the 0.5 m touchdown band: a descent always ends a period inside the band
     before it reaches the ground.
 
@@ -85,7 +85,8 @@ class GliderLandingEnv(LandingEnv):
 
     ## Episode End
 
-    ``terminated`` on landing (``info["landed"]``) or on leaving ``C1`` (``info["hard_violation"]``);
+    ``terminated`` on landing (``info["landed"]``) or on leaving ``C1`` (``info["hard_violation"]``), whichever comes
+    first at a sub-step end (the step then ends there);
     ``truncated`` at ``T = 10 s`` otherwise (``max_episode_steps = 100``).
 
     ## Info
@@ -118,7 +119,7 @@ class GliderLandingEnv(LandingEnv):
         budget: float | tuple[float, float] = (0.0, 10.0),
         eps: float = 1e-3,
         dt: float = 0.1,
-        n_substeps: int = 2,
+        n_substeps: int | None = None,
         budget_resolution: float = 1e-5,
         init_state_low: tuple[float, float, float] = (2.0, 66.0, math.radians(-2.5)),
         init_state_high: tuple[float, float, float] = (40.0, 78.0, math.radians(-0.5)),
@@ -138,7 +139,8 @@ class GliderLandingEnv(LandingEnv):
         :param budget: ``Q`` [s] or a ``(low, high)`` range for the reset distribution, within ``[0, T]``
         :param eps: ``eps`` of ``h_eps`` [m/s]
         :param dt: control period [s]
-        :param n_substeps: RK4 steps per control period
+        :param n_substeps: RK4 steps per control period; their ends are where landing and ``C1`` are checked
+            (default: the model's ``substeps``, 2)
         :param budget_resolution: bisection length of the budget integral at ``C2`` crossings [s]
         :param init_state_low: lower corner of the start box ``(h, V, gamma)`` [m, m/s, rad]
         :param init_state_high: upper corner of the start box ``(h, V, gamma)`` [m, m/s, rad]
@@ -150,7 +152,8 @@ class GliderLandingEnv(LandingEnv):
         """
         model = get_model("glider", **(model_params or {}))
         super().__init__(
-            model=model, dt=dt, n_substeps=n_substeps, eps=eps, init_state_low=init_state_low,
+            model=model, dt=dt, n_substeps=model.substeps if n_substeps is None else n_substeps, eps=eps,
+            init_state_low=init_state_low,
             init_state_high=init_state_high, budget=budget, wind=wind, wind_value=wind_value,
             wind_table=wind_table, gust_std=gust_std, gust_tau=gust_tau, clip_wind=clip_wind,
             landing_reward=landing_reward, failure_penalty=failure_penalty, progress_weight=progress_weight,

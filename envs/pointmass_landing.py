@@ -28,10 +28,11 @@ class PointMassLandingEnv(LandingEnv):
     speed is outside ``C2``. An episode goes on after ``z < 0``; ``info["budget_exceeded"]`` reports it.
 
     **Time stepping.** One step is a control period of ``dt = 0.01 s`` (100 steps per episode). The action and
-    the wind are held over the period and the state is advanced by RK4 with ``n_substeps`` steps (default 1,
-    which is exact here: with inputs held, the solution is a quadratic polynomial in time). The budget uses
-    the same RK4 stages, with bisection where ``h_eps`` has a kink (``budget_resolution``); constraints and the
-    target are checked at the end of each period. If the start time is not a multiple of ``dt``, the last
+    the wind are held over the period and the state is advanced by RK4 with ``n_substeps`` steps (default 10;
+    RK4 is exact at any count here, since with inputs held the solution is a quadratic polynomial in time). The
+    budget uses the same RK4 stages, with bisection where ``h_eps`` has a kink (``budget_resolution``). ``C1``
+    and the target are checked at every sub-step end (every millisecond by default): the episode ends at the
+    first one where the vehicle has landed or left ``C1``, so a touchdown inside a period counts as a landing. If the start time is not a multiple of ``dt``, the last
     period is shortened so that the episode ends exactly at ``T``.
 
     ## Action Space
@@ -81,7 +82,7 @@ class PointMassLandingEnv(LandingEnv):
     ## Episode End
 
     * ``terminated``: landed (``info["landed"]``), or the state left the hard constraint ``C1``
-      (``info["hard_violation"]``);
+      (``info["hard_violation"]``), whichever comes first at a sub-step end (the step then ends there);
     * ``truncated``: the horizon ``T = 1 s`` was reached without either (the registered id also has
       ``max_episode_steps = 100``).
 
@@ -126,7 +127,7 @@ class PointMassLandingEnv(LandingEnv):
         budget: float | tuple[float, float] = (0.0, 0.6),
         eps: float = 1e-3,
         dt: float = 0.01,
-        n_substeps: int = 1,
+        n_substeps: int | None = None,
         budget_resolution: float = 1e-6,
         init_state_low: tuple[float, float] = (-5.0, 1.0),
         init_state_high: tuple[float, float] = (5.0, 12.0),
@@ -146,7 +147,8 @@ class PointMassLandingEnv(LandingEnv):
         :param budget: ``Q`` [s] or a ``(low, high)`` range for the reset distribution, within ``[0, T]``
         :param eps: ``eps`` of ``h_eps`` [m/s]
         :param dt: control period [s]
-        :param n_substeps: RK4 steps per control period
+        :param n_substeps: RK4 steps per control period; their ends are where landing and ``C1`` are checked
+            (default: the model's ``substeps``, 10)
         :param budget_resolution: bisection length of the budget integral at ``C2`` crossings [s]
         :param init_state_low: lower corner of the start box ``(v, y)``
         :param init_state_high: upper corner of the start box ``(v, y)``
@@ -158,7 +160,8 @@ class PointMassLandingEnv(LandingEnv):
         """
         model = get_model("pointmass", **(model_params or {}))
         super().__init__(
-            model=model, dt=dt, n_substeps=n_substeps, eps=eps, init_state_low=init_state_low,
+            model=model, dt=dt, n_substeps=model.substeps if n_substeps is None else n_substeps, eps=eps,
+            init_state_low=init_state_low,
             init_state_high=init_state_high, budget=budget, wind=wind, wind_value=wind_value,
             wind_table=wind_table, gust_std=gust_std, gust_tau=gust_tau, clip_wind=clip_wind,
             landing_reward=landing_reward, failure_penalty=failure_penalty, progress_weight=progress_weight,

@@ -3,15 +3,17 @@
 Each episode runs the filter at its control period and integrates with the environments' own integrator
 (:func:`softreach.envs._common.integrate_period`), but splits every period into ``pieces`` sub-intervals so that
 the wind can switch *inside* a period; the hard constraint is checked at every sub-interval end (and the budget
-accounts for every crossing of ``C2``, as the environment does). Counted per row: hard violations, overspends
-(budget used beyond ``Q``), landings (target inside ``C2`` at a sample time, the environments' rule), the fraction
-of steps the policy acts, and the interventions that a finer one-step check finds unneeded (the policy's action,
-held, would have kept every sampled end state certified: see :func:`exact_pass`).
+accounts for every crossing of ``C2``, as the environment does). Landing is checked where the environment
+checks it, at its sub-step ends (``ValueFilter.target_checks``), and the first event ends the episode. Counted
+per row: hard violations, overspends (budget used beyond ``Q``), landings, the fraction of steps the policy acts,
+and the interventions that a finer one-step check finds unneeded (the policy's action, held, would have kept
+every sampled end state certified: see :func:`exact_pass`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from fractions import Fraction
 from typing import Any, Callable
 
 import numpy as np
@@ -143,7 +145,7 @@ def exact_pass(vf: ValueFilter, t: float, x: np.ndarray, z: float, a: np.ndarray
         for frac, b in w:
             for _ in range(2):
                 h = 0.5 * frac * dt
-                xc, cost, _ = integrate_period(model, tc, xc, list(map(float, a)), list(map(float, b)), h,
+                xc, cost, _, _ = integrate_period(model, tc, xc, list(map(float, a)), list(map(float, b)), h,
                                                max(1, substeps // 2), eps, 1e-6)
                 tc += h
                 zc -= cost
@@ -187,17 +189,28 @@ def run_episode(vf: ValueFilter | None, ref: ValueFilter, x0: np.ndarray, budget
         b = wind(t, x, z, pol, app, act, was)
         was = act
         xs = list(map(float, x))
-        for j in range(pieces):
-            xs, cost, _ = integrate_period(model, t + j * dt / pieces, xs, list(map(float, app)),
-                                           list(map(float, b[j])), dt / pieces, substeps, ref.eps, 1e-6)
+        # segments end at every wind switch and every landing check of the environment (its sub-step ends);
+        # C1 is checked at every segment end, landing at the check instants: the first event ends the episode
+        checks = ref.target_checks
+        cuts = sorted({Fraction(j, pieces) for j in range(1, pieces + 1)} | {Fraction(i, checks)
+                                                                               for i in range(1, checks + 1)})
+        start = Fraction(0)
+        for cut in cuts:
+            j = min(int(start * pieces), pieces - 1)
+            ts, h = t + float(start) * dt, float(cut - start) * dt
+            xs, cost, _, _ = integrate_period(model, ts, xs, list(map(float, app)), list(map(float, b[j])), h,
+                                              substeps, ref.eps, 1e-6)
             z -= cost
-            if float(model.hard_constraint(t + (j + 1) * dt / pieces, [np.float64(v) for v in xs])) > 0:
+            start = cut
+            pt = [np.float64(v) for v in xs]
+            if float(model.hard_constraint(ts + h, pt)) > 0:
                 hard = True
+                break
+            if (cut * checks).denominator == 1 and bool(model.landed(ts + h, pt)):
+                landed = True
+                break
         x, t = np.asarray(xs), (k + 1) * dt
-        if hard:
-            break
-        if bool(model.landed(t, [np.float64(v) for v in x])):
-            landed = True
+        if hard or landed:
             break
     over = budget - z
     row.hard_violations += int(hard)

@@ -103,11 +103,14 @@ class ValueFilter:
     :param fallback_action: physical action where no candidate can be bounded; default the control box's centre
     :param smooth_iterations: bisection steps of the smooth rule
     :param eps: the ``h_eps`` width with which the environment drains the budget (default: the table's)
+    :param target_checks: the equally spaced instants per period at which the environment checks for landing
+        (its sub-step ends; :class:`SafetyFilter` passes the env's ``n_substeps``). An action that surely lands
+        at one of them passes. The default 1 (the period's end) is right for any environment.
     """
 
     def __init__(self, table: Table, dt: float, *, margin: float | None = None, rule: str = "switch",
                  model: Any = None, fallback_action: Any = None, smooth_iterations: int = 8,
-                 eps: float | None = None):
+                 eps: float | None = None, target_checks: int = 1):
         if not isinstance(table, Table):
             raise TypeError(f"table must be a softreach.reach.Table (load_table(path)), got {type(table).__name__}")
         if rule not in RULES:
@@ -150,7 +153,9 @@ class ValueFilter:
         period = table.control_period
         #: the table was solved for the sampled-data game at this period: certification is possible
         self.sampled = period is not None and math.isclose(period, self.dt, rel_tol=1e-9, abs_tol=0.0)
-        self.lookahead = Lookahead.from_table(table, self.model, self.dt, self.eps, margin=self.constant_margin or 0.0)
+        self.lookahead = Lookahead.from_table(table, self.model, self.dt, self.eps, margin=self.constant_margin or 0.0,
+                                              target_checks=target_checks)
+        self.target_checks = self.lookahead.target_checks
 
     # ---------------------------------------------------------------- conversions
     def physical(self, action: Any) -> np.ndarray:

@@ -90,6 +90,11 @@ class SafetyFilter(gym.Wrapper):
             if not math.isclose(value_filter.dt, float(base.dt), rel_tol=1e-12, abs_tol=0.0):
                 raise ValueError(f"the shared value_filter was made for dt={value_filter.dt}, the environment "
                                  f"steps dt={base.dt}: actions are held for one control period")
+            substeps = int(getattr(base, "n_substeps", 1))
+            if substeps % value_filter.target_checks:
+                raise ValueError(f"the shared value_filter counts on landing checks at {value_filter.target_checks}"
+                                 f" instants per period, the environment checks at its {substeps} sub-step ends; "
+                                 f"make it with target_checks dividing {substeps}")
         if table is None:
             raise TypeError("SafetyFilter needs a table (a softreach Table or its path) or a value_filter")
         if not isinstance(table, Table):
@@ -104,6 +109,7 @@ class SafetyFilter(gym.Wrapper):
                              f"budget with eps={base.eps}; make the environment with eps={table.eps}")
         self.table = table
         if value_filter is None:
+            filter_kwargs.setdefault("target_checks", int(getattr(base, "n_substeps", 1)))
             value_filter = ValueFilter(table, float(base.dt), margin=margin, rule=rule or "switch",
                                        model=base.model, **filter_kwargs)
         self.value_filter = value_filter

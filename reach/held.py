@@ -179,7 +179,7 @@ def make_consistent(model: Any, fields: dict[str, tuple[Any, list[float], Grid]]
     times = fields["W_eps"][1]
     for k in range(len(times) - 2, -1, -1):
         nxt = {name: (vals[k + 1:k + 2], np.asarray(tt[k + 1:k + 2]), g) for name, (vals, tt, g) in fields.items()}
-        la = Lookahead(nxt, model, dt, eps, controls)
+        la = Lookahead(nxt, model, dt, eps, controls, target_checks=model.substeps)
         for name, (vals, _, grid) in ((n, fields[n]) for n in ("V", "W_eps") if n in fields):
             cur = np.asarray(vals[k], dtype=np.float64)
             # nodes deeper than the band are assumed consistent; a sample of them checks that assumption
@@ -244,7 +244,7 @@ def consistency_gaps(model: Any, fields: dict[str, tuple[Any, list[float], Grid]
     out: dict[str, list] = {"max_gap": [], "p99_gap": [], "dead_ends": [], "sampled": []}
     for k in range(len(Wt) - 1):
         now = {name: (vals[k:k + 2], np.asarray(tt[k:k + 2]), g) for name, (vals, tt, g) in fields.items()}
-        la = Lookahead(now, model, dt, eps, controls)
+        la = Lookahead(now, model, dt, eps, controls, target_checks=model.substeps)
         pts = rng.uniform(np.append(lo[:n], max(0.0, lo[-1])), hi, size=(samples, n + 1))
         x, z = pts[:, :n], pts[:, n]
         t = np.full(samples, float(Wt[k]))

@@ -18,6 +18,13 @@ motion of the period and a box ``E`` holding its end point. The action is **admi
    interpolation allowance is needed: the certificate *is* the interpolant. ``margin`` (default 0) is an extra
    tightening a user may ask for.
 
+The episode also ends when the target is reached *inside* a period: the environments check ``C1`` and the
+target at ``target_checks`` equally spaced instants of each period (their integrator's sub-step ends), and the
+paper's game ends at the first instant in the target. So an action also passes when, for some check instant
+``s``, the box of the states at ``s`` lies in the target and inside ``C2`` (every corner, the target and ``c2``
+being convex or monotone along each axis on such boxes), the motion over ``[0, s]`` stays in ``C1``, and the
+budget spent until ``s`` is at most ``z``: every run then ends landed at ``s`` at the latest.
+
 At the horizon the table holds the terminal value ``max(c1, c2, -kappa z, g)``, whose interpolant is ``<= 0``
 only inside the target (it is convex, and a multilinear interpolant of a convex function lies above it): a chain
 of admissible actions from ``t = 0`` therefore ends landed by ``T``.
@@ -43,12 +50,17 @@ class Lookahead:
     :param candidates: ``(J, m)`` physical held actions the filter may fall back on
     :param margin: extra tightening ``>= 0`` of the end-state condition (value units)
     :param pieces: sub-intervals of the period for the budget bound (item 2)
+    :param target_checks: the instants per period at which the environment checks for landing (its sub-steps);
+        it must check at least there (the point-mass env has 10 sub-steps, the glider's 2)
     """
 
     def __init__(self, fields: dict[str, tuple[Any, np.ndarray, Any]], model: Any, dt: float, eps: float,
-                 candidates: Any, margin: float = 0.0, pieces: int = 4):
+                 candidates: Any, margin: float = 0.0, pieces: int = 4, target_checks: int = 1):
         self.model, self.dt, self.eps, self.margin = model, float(dt), float(eps), float(margin)
         self.pieces = int(pieces)
+        if not (isinstance(target_checks, (int, np.integer)) and target_checks >= 1):
+            raise ValueError(f"target_checks must be a positive integer, got {target_checks!r}")
+        self.target_checks = int(target_checks)
         self.n = model.state_dim
         self.fields = dict(fields)
         if "W_eps" not in self.fields:
@@ -63,14 +75,16 @@ class Lookahead:
         self.box_support = type(model).held_enclosure_box is not Dynamics.held_enclosure_box
 
     @classmethod
-    def from_table(cls, table: Any, model: Any, dt: float, eps: float, margin: float = 0.0) -> "Lookahead":
+    def from_table(cls, table: Any, model: Any, dt: float, eps: float, margin: float = 0.0,
+                   target_checks: int = 1) -> "Lookahead":
         """The test against a solved table's ``V`` and ``W_eps``, with the candidates it was solved with."""
         fields = {name: (table.values(name), table.times(name), table.grid(name))
                   for name in ("V", "W_eps", "V_safe") if name in table.header["fields"]}
         if "W_eps" not in fields:
             raise ValueError(f"table {table.path} holds only the classical V; the filter needs W_eps")
         held = table.header["fields"]["W_eps"].get("held_controls")
-        return cls(fields, model, dt, eps, held if held else model.held_candidates(5), margin)
+        return cls(fields, model, dt, eps, held if held else model.held_candidates(5), margin,
+                   target_checks=target_checks)
 
     # ---------------------------------------------------------------- the certificate
     def certificate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -138,7 +152,8 @@ class Lookahead:
         With ``x_hi`` (and ``z_hi``) the rows are boxes of states ``[x, x_hi] x [z, z_hi]``, and an action passes
         when it passes from every state of the box (:meth:`Dynamics.held_enclosure_box`).
 
-        :return: ``(admissible, next_value, badness)``; ``badness == next_value`` where the action passes; with
+        :return: ``(admissible, next_value, badness)``; ``badness == next_value`` where the action passes
+            (``-inf`` where every run surely lands inside the period); with
             ``ends=True`` also the end box and the lowest end budget ``(end_lo, end_hi, z_end)``
         """
         if len(x) == 0:
@@ -196,13 +211,58 @@ class Lookahead:
         # < 3e6 budget kept < 4e6 overspent < 5e6 + how far C1 may be left < inf (not bounded); within a rank
         # the next value, then the overspend, breaks ties
         passing = ok & (nxt <= -self.margin)
+        lands = self._lands(t, x, z, a, x_hi, ~passing & bounded & in_time)
+        passing |= lands
+        ok |= lands
+        nxt = np.where(lands, -np.inf, nxt)
         tie = np.arctan(np.nan_to_num(nxt, posinf=1e12)) / np.pi + 1e3 * np.maximum(-z_end, 0.0)
         rank = np.where(safe, 1e6, 3e6) + np.where(ok, 0.0, 1e6)
         bad = np.where(passing, nxt, np.where(in_c1, rank + tie, np.inf))
-        bad = np.where(bounded & ~in_c1, 5e6 + np.maximum(c1, 0.0), bad)
+        bad = np.where(bounded & ~in_c1 & ~lands, 5e6 + np.maximum(c1, 0.0), bad)
         nxt = np.where(ok, nxt, np.inf)
         out = (passing, nxt, bad)
         return out + (end_lo, end_hi, z_end) if ends else out
+
+    def _lands(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray, x_hi: np.ndarray | None,
+               rows: np.ndarray) -> np.ndarray:
+        """Rows (among ``rows``) whose every run surely lands at one of the period's check instants (the module
+        docstring): staying in ``C1`` and within the budget until then."""
+        out = np.zeros(len(x), bool)
+        todo = np.nonzero(rows)[0]
+        model = self.model
+        for j in range(1, self.target_checks + 1):
+            # only rows whose motion over the period comes near the target can land; cheap rows first
+            if len(todo) == 0:
+                break
+            s = self.dt * j / self.target_checks
+            tr = t[todo]
+            lo = x[todo]
+            hi = lo if x_hi is None else x_hi[todo]
+            if x_hi is None:
+                (tube_lo, tube_hi, end_lo, end_hi), good = self._enclose(tr, lo, a[todo], s)
+            else:
+                tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure_box(_time_arg(tr), lo, hi, a[todo], s)
+                good = np.isfinite(tube_lo).all(axis=1) & np.isfinite(tube_hi).all(axis=1)
+            ts = tr + s
+            good &= self._corner_max(model.target, ts, end_lo, end_hi) <= 0
+            good &= self._corner_max(model.soft_constraint, ts, end_lo, end_hi) <= 0
+            good &= self._corner_max(model.hard_constraint, tr, tube_lo, tube_hi) <= 0
+            idx = np.nonzero(good)[0]
+            if len(idx):
+                if x_hi is None:
+                    piece_lo, piece_hi = model.held_tube_pieces(_time_arg(tr[idx]), lo[idx], a[todo][idx], s,
+                                                                self.pieces)
+                else:
+                    piece_lo, piece_hi = model.held_tube_pieces_box(_time_arg(tr[idx]), lo[idx], hi[idx],
+                                                                    a[todo][idx], s, self.pieces)
+                spent = np.zeros(len(idx))
+                for k in range(self.pieces):
+                    c2 = self._corner_max(model.soft_constraint, tr[idx], piece_lo[k], piece_hi[k])
+                    spent += (s / self.pieces) * np.clip(c2 / self.eps, 0.0, 1.0)
+                done = idx[z[todo][idx] - spent >= 0]
+                out[todo[done]] = True
+                todo = np.delete(todo, done)
+        return out
 
     def passes(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray):
         """The one-period test and, where the model bounds boxes of starts, the stronger one the filter asks of
@@ -215,7 +275,7 @@ class Lookahead:
         keeps = ok.copy()
         if self.box_support:
             last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
-            rows = np.nonzero(ok & ~last)[0]
+            rows = np.nonzero(ok & ~last & np.isfinite(nxt))[0]  # a run that surely lands needs no next step
             keeps[rows] = self.keeps_certified(t[rows] + self.dt, end_lo[rows], end_hi[rows], z_end[rows], z[rows])
         return ok, nxt, bad, keeps
 

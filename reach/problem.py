@@ -50,6 +50,10 @@ class Model(Dynamics):
     #: needed to get back, while the classical ``V`` grows like ``c2``. Matching the two (``kappa`` about the rate
     #: at which the controls can change ``c2``) keeps the budget slices as well resolved as ``V``.
     budget_scale: float = 1.0
+    #: the environment's control period [s] (``None``: no sampled-data game), and its RK4 sub-steps per period,
+    #: whose ends are where an episode checks landing and ``C1``
+    control_period: float | None = None
+    substeps: int = 1
 
     @abstractmethod
     def target(self, t: float, x: Components) -> Array:

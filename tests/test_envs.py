@@ -201,8 +201,8 @@ def test_budget_pointmass_without_refinement_would_be_coarse():
     model = get_model("pointmass")
     x = [-9.9, 15.0]
     # one 0.01 s period at full down-thrust crossing v = -10 early in the period
-    _, cost_fine, _ = integrate_period(model, 0.0, x, [-60.0], [0.0], 0.01, 1, 1e-3, 1e-7)
-    _, cost_coarse, _ = integrate_period(model, 0.0, x, [-60.0], [0.0], 0.01, 1, 1e-3, 1.0)
+    _, cost_fine, _, _ = integrate_period(model, 0.0, x, [-60.0], [0.0], 0.01, 1, 1e-3, 1e-7)
+    _, cost_coarse, _, _ = integrate_period(model, 0.0, x, [-60.0], [0.0], 0.01, 1, 1e-3, 1.0)
     v1 = -9.9 - 69.8 * 0.01
     exact = _exact_heps_integral(-10.0 + 9.9, -10.0 - v1, 0.01, 1e-3)
     assert cost_fine == pytest.approx(exact, abs=1e-6)

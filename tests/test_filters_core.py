@@ -40,7 +40,7 @@ def test_pointmass_enclosure_holds_every_switching_wind_and_is_tight():
             winds = rng.choice([-10.0, 10.0], size=pieces) if trial > 1 else np.full(pieces, 10.0 * (2 * trial - 1))
             xs = list(x[i])
             for j in range(pieces):
-                xs, _, _ = integrate_period(model, j * DT / pieces, xs, [a[i, 0]], [winds[j]], DT / pieces, 2,
+                xs, _, _, _ = integrate_period(model, j * DT / pieces, xs, [a[i, 0]], [winds[j]], DT / pieces, 2,
                                             1e-3, 1e-6)
                 assert np.all(np.array(xs) >= tube_lo[i] - 1e-9) and np.all(np.array(xs) <= tube_hi[i] + 1e-9)
             ends.append(xs)

@@ -87,6 +87,9 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         self.budget_scale = p.u_max - p.d_max
         #: the environment's control period [s]: the sampled-data table and the filter hold actions this long
         self.control_period = 0.01
+        #: RK4 sub-steps per control period in the environment; their ends are where landing and ``C1`` are checked
+        #: (every millisecond; RK4 is exact at any count for this quadratic motion)
+        self.substeps = 10
         # hover (v' = d): the held action that rides a speed limit with the least drift
         self.trim_controls = ((p.gravity,),) if p.gravity <= p.u_max else ()
 
