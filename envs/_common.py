@@ -768,7 +768,7 @@ class LandingEnv(gym.Env):
             return list(self.wind_value)
         if mode == "adversarial":
             out = self.wind_table.worst_disturbance(self._t, np.array([self._x], dtype=np.float64),
-                                                    np.array([self._z], dtype=np.float64))
+                                                    np.array([self._z], dtype=np.float64), outside="nearest")
             b = np.asarray(out, dtype=np.float64).reshape(-1)
             if b.shape != (self._k,) or not np.all(np.isfinite(b)):
                 raise ValueError(f"wind_table.worst_disturbance returned {out!r} at t={self._t}, x={self._x}, "

@@ -69,7 +69,7 @@ def _policy(name: str, vf: ValueFilter, rng: np.random.Generator) -> Callable[[i
         return lambda k, t, x, z: rng.uniform(lo, hi)
     if name == "anti_optimal":
         def anti(k, t, x, z):
-            a = vf.table.optimal_control(t, x[None], [max(z, vf.table.budget_resolution)])[0]
+            a = vf.table.optimal_control(t, x[None], [max(z, vf.table.budget_resolution)], outside="nearest")[0]
             return np.clip(2 * mid - a, lo, hi)
         return anti
     if name == "budget_burner":

@@ -252,7 +252,7 @@ class ValueFilter:
     def worst_disturbance(self, t: Any, x: Any, z: Any) -> np.ndarray:
         """The table's ``b*(t, x, z)`` (:meth:`Table.worst_disturbance`), ``(N, k)`` physical; numpy out."""
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
-        out = self.table.worst_disturbance(tt, xs, np.maximum(zz, self.table.budget_resolution))
+        out = self.table.worst_disturbance(tt, xs, np.maximum(zz, self.table.budget_resolution), outside="nearest")
         return out[0] if single else out
 
     # ---------------------------------------------------------------- the filter

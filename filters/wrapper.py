@@ -166,7 +166,9 @@ class SafetyFilter(gym.Wrapper):
         info = dict(info)
         info["filter_active"] = active
         info["policy_action"] = np.array(action, dtype=dtype, copy=True).reshape(self.action_space.shape)
-        info["applied_action"] = np.array(to_env, dtype=dtype, copy=True).reshape(self.action_space.shape)
+        # what the environment applies: it clips a finite out-of-range action to [-1, 1]
+        info["applied_action"] = np.clip(np.array(to_env, dtype=dtype, copy=True), -1.0, 1.0).reshape(
+            self.action_space.shape)
         info["value"] = value
         info["margin"] = float(f["margin"])
         info["optimal_action"] = np.asarray(f["optimal_action"], dtype=dtype).reshape(self.action_space.shape)

@@ -266,8 +266,10 @@ class Lookahead:
 
     def passes(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray):
         """The one-period test and, where the model bounds boxes of starts, the stronger one the filter asks of
-        an action: some candidate passes again from every possible end state (so the next state is certified,
-        whatever the wind did). On the last period the end states must only be certified.
+        an action: from every possible end state some candidate passes again (so the next state is certified,
+        whatever the wind did): one candidate for the whole end box, or else one for each of its ``2^n`` halves
+        (split at the centre along every state axis). On the last period the end states must only be
+        certified, and an action that surely lands needs nothing more.
 
         :return: ``(admissible, next_value, badness, keeps)``; ``keeps`` implies ``admissible``
         """
@@ -277,6 +279,21 @@ class Lookahead:
             last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
             rows = np.nonzero(ok & ~last & np.isfinite(nxt))[0]  # a run that surely lands needs no next step
             keeps[rows] = self.keeps_certified(t[rows] + self.dt, end_lo[rows], end_hi[rows], z_end[rows], z[rows])
+            # where no one candidate serves the whole end box, one per half along each axis may: the next state
+            # lies in one of the parts, and that part's candidate passes from it
+            rows = rows[~keeps[rows]]
+            if len(rows):
+                mid = 0.5 * (end_lo[rows] + end_hi[rows])
+                parts = np.ones(len(rows), bool)
+                for corner in self.corners:
+                    lo = np.where(corner, mid, end_lo[rows])
+                    hi = np.where(corner, end_hi[rows], mid)
+                    todo = np.nonzero(parts)[0]
+                    if len(todo) == 0:
+                        break
+                    parts[todo] = self.keeps_certified(t[rows][todo] + self.dt, lo[todo], hi[todo],
+                                                       z_end[rows][todo], z[rows][todo])
+                keeps[rows] = parts
         return ok, nxt, bad, keeps
 
     def keeps_certified(self, t: np.ndarray, end_lo: np.ndarray, end_hi: np.ndarray, z_lo: np.ndarray,

@@ -166,7 +166,11 @@ class Table:
         return field, tt, pts, unsafe
 
     def value(self, t: Any, x: Any, z: Any = None) -> np.ndarray:
-        """``V(t, x)`` (``z=None``) or ``W_eps(t, x, z)`` by multilinear interpolation; ``+inf`` outside."""
+        """``V(t, x)`` (``z=None``) or ``W_eps(t, x, z)`` by multilinear interpolation; ``+inf`` outside.
+
+        A budget above the table's largest is read at the largest: exact when that is at least the horizon (no
+        episode can spend more than its time), conservative otherwise (``W_eps`` falls with the budget).
+        """
         field, tt, pts, unsafe = self._queries(t, x, z)
         val, inside = interpolate(self.values(field), self.times(field), self.grid(field), tt, pts)
         return np.where(inside & ~unsafe, val, np.inf)
@@ -175,15 +179,27 @@ class Table:
         """Whether each query lies inside the table's grid and time span."""
         return np.isfinite(self.value(t, x, z))
 
-    def gradient(self, t: Any, x: Any, z: Any = None) -> np.ndarray:
+    def gradient(self, t: Any, x: Any, z: Any = None, outside: str = "raise") -> np.ndarray:
         """Spatial gradient (including ``dW/dz`` for ``W_eps``) by central differences of the interpolant.
 
-        Each difference spans one grid spacing on either side (shifted inwards at the grid's edges). Points
-        outside the grid use the nearest point of the grid box; check :meth:`inside` where that matters.
+        Each difference spans one grid spacing on either side (shifted inwards at the grid's edges).
+
+        :param outside: for queries off the table's grid or time span: ``"raise"`` (a ``ValueError`` naming the
+            first such query) or ``"nearest"`` (use the nearest point of the grid box and time span: a
+            feedback that keeps acting, e.g. a wind model, where :meth:`inside` says it is extrapolating)
         """
+        if outside not in ("raise", "nearest"):
+            raise ValueError(f"outside must be 'raise' or 'nearest', got {outside!r}")
         field, tt, pts, _ = self._queries(t, x, z)
         grid = self.grid(field)
         times = self.times(field)
+        if outside == "raise":
+            _, inside = interpolate(self.values(field), times, grid, tt, pts)
+            if not inside.all():
+                i = int(np.argmin(inside))
+                raise ValueError(f"query t={tt[i]!r}, point {pts[i].tolist()} lies outside table {self.path} (grid "
+                                 f"box {list(grid.lo)}..{list(grid.hi)}, times {times[0]}..{times[-1]}): no gradient "
+                                 f"there; pass outside='nearest' to use the nearest grid point")
         tt = np.clip(tt, times[0], times[-1])
         lo, hi, h = np.array(grid.lo), np.array(grid.hi), np.array(grid.spacing)
         per = np.array(grid.periodic)
@@ -204,13 +220,13 @@ class Table:
             out[:, a] = (vp - vm) / (plus[:, a] - minus[:, a])
         return out
 
-    def _inputs(self, t: Any, x: Any, z: Any, which: str) -> np.ndarray:
+    def _inputs(self, t: Any, x: Any, z: Any, which: str, outside: str) -> np.ndarray:
         if z is not None:
             # at z = 0 the exact W_eps is flat (>= 0 everywhere, = 0 on RA~_0): its gradient says nothing. Use the
             # smallest budget the grid resolves, as set_mask does.
             z = np.maximum(np.asarray(z, dtype=np.float64), self.budget_resolution)
         field, tt, pts, _ = self._queries(t, x, z)
-        p = self.gradient(t, x, z)
+        p = self.gradient(t, x, z, outside)
         n = len(self.model_metadata["state_names"])
         xs = [pts[:, i] for i in range(n)]
         ps = [p[:, i] for i in range(n)]
@@ -219,13 +235,19 @@ class Table:
         out = fn(float(tt[0]) if np.all(tt == tt[0]) else tt, xs, ps)
         return np.stack([np.broadcast_to(np.asarray(o, dtype=np.float64), (len(pts),)) for o in out], axis=1)
 
-    def optimal_control(self, t: Any, x: Any, z: Any = None) -> np.ndarray:
-        """``a* = argmin_a max_b grad W . f`` at each query, shape ``(N, m)``, physical units."""
-        return self._inputs(t, x, z, "control")
+    def optimal_control(self, t: Any, x: Any, z: Any = None, outside: str = "raise") -> np.ndarray:
+        """``a* = argmin_a max_b grad W . f`` at each query, shape ``(N, m)``, physical units.
 
-    def worst_disturbance(self, t: Any, x: Any, z: Any = None) -> np.ndarray:
-        """``b* = argmax_b`` against the optimal control, shape ``(N, k)``, physical units."""
-        return self._inputs(t, x, z, "disturbance")
+        :param outside: off the table: ``"raise"`` or ``"nearest"`` (see :meth:`gradient`)
+        """
+        return self._inputs(t, x, z, "control", outside)
+
+    def worst_disturbance(self, t: Any, x: Any, z: Any = None, outside: str = "raise") -> np.ndarray:
+        """``b* = argmax_b`` against the optimal control, shape ``(N, k)``, physical units.
+
+        :param outside: off the table: ``"raise"`` or ``"nearest"`` (see :meth:`gradient`)
+        """
+        return self._inputs(t, x, z, "disturbance", outside)
 
     # ------------------------------------------------------------------ budgets and sets
     def q_min(self, t: Any, x: Any) -> np.ndarray:

@@ -35,12 +35,14 @@ class Rollout:
 
 def table_control(table) -> Policy:
     """The table's optimal control ``a*(t, x, z)`` as a policy (negative budgets are queried at 0)."""
-    return lambda t, x, z: table.optimal_control(t, x, np.maximum(z, 0.0) if table.has_budget else None)
+    return lambda t, x, z: table.optimal_control(t, x, np.maximum(z, 0.0) if table.has_budget else None,
+                                                 outside="nearest")
 
 
 def table_disturbance(table) -> Policy:
     """The table's worst-case disturbance ``b*(t, x, z)`` as a policy."""
-    return lambda t, x, z: table.worst_disturbance(t, x, np.maximum(z, 0.0) if table.has_budget else None)
+    return lambda t, x, z: table.worst_disturbance(t, x, np.maximum(z, 0.0) if table.has_budget else None,
+                                                   outside="nearest")
 
 
 def constant(value: Any) -> Policy:

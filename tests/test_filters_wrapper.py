@@ -184,3 +184,18 @@ def test_stable_baselines3_make_vec_env(pointmass_table_path):
         assert ends >= 2
     finally:
         venv.close()
+
+
+def test_applied_action_is_what_the_env_applies_for_out_of_range_actions(pointmass_held_table):
+    env = SafetyFilter(gym.make(ENV_ID), pointmass_held_table)
+    env.reset(seed=0, options={"state": [0.0, 5.0], "budget": 0.3})
+    seen = set()
+    for action in (5.0, -7.5, 5.0, 1.5):
+        _, _, terminated, truncated, info = env.step(np.array([action], dtype=np.float32))
+        seen.add(info["filter_active"])
+        assert abs(float(info["applied_action"][0])) <= 1.0
+        np.testing.assert_allclose(info["action_physical"], 60.0 * info["applied_action"].astype(float), rtol=1e-6)
+        assert info["policy_action"][0] == np.float32(action)  # the policy's own action is reported as given
+        if terminated or truncated:
+            break
+    assert False in seen  # at least one out-of-range action passed the filter (the case that was misreported)

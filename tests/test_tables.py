@@ -130,7 +130,15 @@ def test_queries_outside_are_unsafe_never_nan(pointmass_table):
     assert np.isposinf(t.value(2.0, x[:1], 0.3)).all()  # after the horizon
     assert np.isfinite(t.value(0.0, x[:1], 5.0)).all()  # more budget than the horizon: as much as the horizon
     np.testing.assert_allclose(t.value(0.0, x[:1], 5.0), t.value(0.0, x[:1], 1.0))
-    assert not np.isnan(t.gradient(0.0, x, np.full(4, 0.3))).any()
+    # a gradient off the table is an error that names the query, or, asked for, the nearest grid point's
+    with pytest.raises(ValueError, match=r"point \[100.0, 5.0, 0.3\] lies outside table"):
+        t.gradient(0.0, x, np.full(4, 0.3))
+    with pytest.raises(ValueError, match="outside table"):
+        t.optimal_control(0.0, x[2:3], [0.3])
+    near = t.gradient(0.0, x, np.full(4, 0.3), outside="nearest")
+    assert np.isfinite(near).all()
+    np.testing.assert_array_equal(near[1], t.gradient(0.0, [[t.grid().hi[0], 5.0]], [0.3])[0])
+    assert np.isfinite(t.worst_disturbance(0.0, x, np.full(4, 0.3), outside="nearest")).all()
 
 
 def test_bad_queries_name_the_bad_value(pointmass_table):
