@@ -17,7 +17,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--budget-points", type=int, metavar="NZ", help="nodes along the budget axis z (default: the model's)")
     p.add_argument("--eps", type=float, default=1e-3, help="width of h_eps (default 1e-3)")
     p.add_argument("--budget-scale", type=float, help="kappa in l = max(c2, -kappa z, g) (default: the model's)")
-    p.add_argument("--accuracy", choices=["low", "medium", "high", "very_high"], default="very_high")
+    p.add_argument("--accuracy", choices=["low", "medium", "high", "very_high"], default="very_high",
+                   help="scheme: low first order/RK1, medium ENO2/RK2, high WENO3/RK3, very_high WENO5/RK3 (default)")
     p.add_argument("--device", default="cpu", help="cpu or cuda[:k] (torch backend)")
     p.add_argument("--backend", choices=["torch", "numpy"], default="torch")
     p.add_argument("--dtype", choices=["float32", "float64"], default="float32")
@@ -42,7 +43,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("plot", help="draw the sets of a table (Fig. 1 style)")
     p.add_argument("table")
-    p.add_argument("--budgets", type=float, nargs="+", default=None)
+    p.add_argument("--budgets", type=float, nargs="+", default=None,
+                   help="budgets Q [s] whose sets RA~_Q are drawn (default: the model's)")
     p.add_argument("--t", type=float, default=0.0, help="time of the sets")
     p.add_argument("--from", dest="starts", action="append", default=[], metavar="X1,X2,...[:Q]",
                    help="simulate the W-derived policy under worst-case disturbance from this state with budget Q (repeatable; write --from=-12,4:0.3 when the state starts with a minus sign)")
@@ -50,19 +52,23 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="add the paper's representative starts: the highest point just inside RA~_Q for Q = 0, 0.3, 0.6 (Fig. 1, 5)")
     p.add_argument("--slice", dest="slices", type=float, action="append", default=[], metavar="VALUE",
                    help="models with more than 2 states: also outline the sets at this value of the third state (radians for angles; repeatable)")
-    p.add_argument("--out", default="fig.png")
+    p.add_argument("--out", default="fig.png", help="image path (default fig.png)")
     p.set_defaults(func=run_plot)
 
     p = sub.add_parser("study", help="convergence studies of the paper (Fig. 2, Fig. 3)")
     p.add_argument("which", choices=["grid-convergence", "eps-convergence"])
-    p.add_argument("--sizes", type=int, nargs="+", default=[50, 100, 150, 200, 300])
-    p.add_argument("--budget-points", type=int, default=200)
-    p.add_argument("--eps-list", type=float, nargs="+", default=[10.0, 3.0, 1.0, 0.1, 1e-2, 1e-3])
-    p.add_argument("--grid", type=int, nargs=2, default=[101, 101])
-    p.add_argument("--samples", type=int, default=50_000)
-    p.add_argument("--accuracy", choices=["low", "medium", "high", "very_high"], default="very_high")
-    p.add_argument("--workdir", default="runs/study")
-    p.add_argument("--json", dest="json_path", default=None)
+    p.add_argument("--sizes", type=int, nargs="+", default=[50, 100, 150, 200, 300],
+                   help="grid-convergence: state grid sizes N of the N x N grids (default 50 100 150 200 300)")
+    p.add_argument("--budget-points", type=int, default=200, help="nodes along the budget axis z (default 200)")
+    p.add_argument("--eps-list", type=float, nargs="+", default=[10.0, 3.0, 1.0, 0.1, 1e-2, 1e-3],
+                   help="eps-convergence: the eps values compared in turn (default 10 3 1 0.1 0.01 0.001)")
+    p.add_argument("--grid", type=int, nargs=2, default=[101, 101], help="eps-convergence: state grid (default 101 101)")
+    p.add_argument("--samples", type=int, default=50_000,
+                   help="grid-convergence: points sampled on the boundary of RA (default 50000)")
+    p.add_argument("--accuracy", choices=["low", "medium", "high", "very_high"], default="very_high",
+                   help="scheme: low first order/RK1, medium ENO2/RK2, high WENO3/RK3, very_high WENO5/RK3 (default)")
+    p.add_argument("--workdir", default="runs/study", help="where the solved tables are kept (default runs/study)")
+    p.add_argument("--json", dest="json_path", default=None, help="write the results here")
     p.set_defaults(func=run_study)
 
 
@@ -90,7 +96,7 @@ def run_solve(args: argparse.Namespace) -> int:
         eps=args.eps,
         budget_scale=args.budget_scale,
         settings=_settings(args),
-        snapshots=args.snapshots or model.default_snapshots,
+        snapshots=model.default_snapshots if args.snapshots is None else args.snapshots,
         classical_only=args.classical,
         control_period=args.control_period if args.control_period is not None else (
             model.control_period if args.held else None),
@@ -98,16 +104,32 @@ def run_solve(args: argparse.Namespace) -> int:
     )
     out = Path(args.out or (f"{args.model}-held.srt" if cfg.control_period is not None else f"{args.model}.srt"))
     if args.json_path:
-        jp = Path(args.json_path)
-        if not jp.parent.is_dir() if str(jp.parent) else False:
-            raise ValueError(f"--json directory {jp.parent} does not exist")
+        _check_writable(Path(args.json_path), "--json")
     budgets = args.budgets if args.budgets is not None else getattr(model, "default_budgets", DEFAULT_BUDGETS)
-    summary = solve_table(model, cfg, out, resume=not args.no_resume, progress=not args.quiet, budgets=budgets)
+    try:
+        summary = solve_table(model, cfg, out, resume=not args.no_resume, progress=not args.quiet, budgets=budgets)
+    except KeyboardInterrupt:
+        print(f"\nsoftreach: interrupted. Finished snapshots are kept in {out}.partial; run the same command again to "
+              f"resume from them (--no-resume starts over).", file=sys.stderr)
+        return 130
     summary["table"] = str(out)
     print(_format_summary(summary))
     if args.json_path:
         Path(args.json_path).write_text(json.dumps(summary, indent=2))
     return 0
+
+
+def _check_writable(path: Path, option: str) -> None:
+    """Fail before a long run, not after it, when its output file cannot be written."""
+    import os
+
+    if path.is_dir():
+        raise ValueError(f"{option} {path} is a directory")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise ValueError(f"{option} directory {parent} does not exist")
+    if not os.access(path if path.exists() else parent, os.W_OK):
+        raise PermissionError(f"{option} {path} is not writable")
 
 
 def _format_summary(s: dict[str, Any]) -> str:
@@ -164,6 +186,8 @@ def run_plot(args: argparse.Namespace) -> int:
 def run_study(args: argparse.Namespace) -> int:
     from . import studies
 
+    if args.json_path:
+        _check_writable(Path(args.json_path), "--json")
     if args.which == "grid-convergence":
         result = studies.grid_convergence(args.sizes, args.budget_points, samples=args.samples, accuracy=args.accuracy, workdir=args.workdir)
     else:

@@ -153,18 +153,26 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
         for name, (problem, grid) in problems.items():
             k = writer.resume_point(name)
             if k == 0:
+                walls[name] = float(writer.header["fields"][name].get("wall_s", 0.0))
                 continue
             start = None if k is None else (k, writer.read_snapshot(name, k))
-            span = times[-1] - times[0] if k is None else times[k] - times[0]
-            bar = _progress(span, f"{name} {'x'.join(map(str, grid.shape))}", progress)
+            # a resumed solve shows the whole horizon, with the finished part already done
+            bar = _progress(times[-1] - times[0], f"{name} {'x'.join(map(str, grid.shape))}", progress)
+            if bar is not None and k is not None:
+                bar.update(times[-1] - times[k])
+            spec = writer.header["fields"][name]
+            before = float(spec.get("wall_s", 0.0))
             t0 = time.perf_counter()
-            sink = lambda kk, tt, u, _n=name: writer.write_snapshot(_n, kk, u)  # noqa: E731
+
+            def sink(kk, tt, u, _n=name, _spec=spec, _before=before, _t0=t0):
+                _spec["wall_s"] = _before + time.perf_counter() - _t0
+                writer.write_snapshot(_n, kk, u)
             if held:
                 solve_held(problem, grid, times, cfg.settings, np.asarray(controls), start=start, progress=bar,
                            sink=sink)
             else:
                 solve(problem, grid, times, cfg.settings, start=start, progress=bar, sink=sink)
-            walls[name] = time.perf_counter() - t0
+            walls[name] = before + time.perf_counter() - t0
             if bar is not None:
                 bar.close()
         if held and aug is not None and not writer.header.get("consistency"):

@@ -78,6 +78,8 @@ class TableWriter:
                 raise TableError(f"{self.partial} was started with other settings ({mismatch}); delete it or pass resume=False / --no-resume")
             for name, spec in header["fields"].items():
                 spec["done"] = old["fields"][name]["done"]
+                # solver time already spent on this field, so that a resumed solve reports the whole cost
+                spec["wall_s"] = old["fields"][name].get("wall_s", 0.0)
             header["created"] = old.get("created")
             self.header = header
             self._f = open(self.partial, "r+b")

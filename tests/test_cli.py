@@ -54,6 +54,8 @@ def test_solve_held_writes_the_sampled_data_game(tmp_path, capsys):
     (["--budget-scale", "0"], "budget scale must be a finite number > 0"),
     (["--out", "/nonexistent-dir/x.srt"], "output directory /nonexistent-dir does not exist"),
     (["--threads", "0"], "--threads must be >= 1, got 0"),
+    (["--snapshots", "0"], "snapshots must be an integer >= 2, got 0"),
+    (["--json", "/nonexistent-dir/s.json"], "--json directory /nonexistent-dir does not exist"),
 ])
 def test_bad_input_is_a_clear_error(args, message, capsys, tmp_path):
     base = ["solve", "pointmass", "--quiet", "--compile", "no"]
@@ -74,3 +76,32 @@ def test_plot_refuses_a_corrupted_table(tmp_path, capsys):
 def test_console_script_is_installed():
     r = subprocess.run([sys.executable, "-m", "softreach.cli", "--help"], capture_output=True, text=True)
     assert r.returncode == 0 and "solve" in r.stdout and "plot" in r.stdout and "study" in r.stdout
+
+
+def test_ctrl_c_keeps_the_work_and_the_rerun_resumes_with_the_whole_wall_time(tmp_path, capsys, monkeypatch):
+    from softreach.reach import table as table_mod
+
+    out, js = tmp_path / "pm.srt", tmp_path / "pm.json"
+    args = ["solve", "pointmass", "--grid", "21", "21", "--budget-points", "15", "--accuracy", "low",
+            "--snapshots", "6", "--compile", "no", "--out", str(out), "--json", str(js), "--quiet"]
+    original = table_mod.TableWriter.write_snapshot
+    calls = []
+
+    def interrupted(self, field, k, value):
+        if field == "W_eps" and len([c for c in calls if c == "W_eps"]) == 3:
+            raise KeyboardInterrupt
+        calls.append(field)
+        return original(self, field, k, value)
+
+    monkeypatch.setattr(table_mod.TableWriter, "write_snapshot", interrupted)
+    assert main(args) == 130
+    err = capsys.readouterr().err
+    assert "pm.srt.partial" in err and "run the same command again to resume" in err and "Traceback" not in err
+    partial = table_mod.read_header(tmp_path / "pm.srt.partial", allow_incomplete=True)
+    spent = partial["fields"]["W_eps"]["wall_s"]
+    assert spent > 0 and sum(partial["fields"]["W_eps"]["done"]) == 3
+    monkeypatch.setattr(table_mod.TableWriter, "write_snapshot", original)
+    assert main(args) == 0
+    s = json.loads(js.read_text())
+    assert s["wall_time_s"]["W_eps"] >= spent  # the interrupted part counts
+    assert s["wall_time_s"]["V"] == pytest.approx(partial["fields"]["V"]["wall_s"])  # V was finished before
