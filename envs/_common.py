@@ -442,6 +442,12 @@ def _as_float_list(name: str, value: Any, k: int, unit: str = "") -> list[float]
     return arr.tolist()
 
 
+def _table_type() -> type:
+    from softreach.reach.query import Table
+
+    return Table
+
+
 def load_wind_table(wind_table: Any, model: Model, eps: float | None = None) -> Any:
     """Resolve ``wind_table=`` to an object with ``worst_disturbance(t, x, z)``, checking it fits ``model``.
 
@@ -767,8 +773,12 @@ class LandingEnv(gym.Env):
         if mode == "constant":
             return list(self.wind_value)
         if mode == "adversarial":
-            out = self.wind_table.worst_disturbance(self._t, np.array([self._x], dtype=np.float64),
-                                                    np.array([self._z], dtype=np.float64), outside="nearest")
+            table = self.wind_table
+            args = (self._t, np.array([self._x], dtype=np.float64), np.array([self._z], dtype=np.float64))
+            # a softreach Table refuses gradients off its grid; the wind keeps blowing there (an episode goes on
+            # with z < 0, below the table's budgets), read at the nearest grid point
+            out = (table.worst_disturbance(*args, outside="nearest") if isinstance(table, _table_type())
+                   else table.worst_disturbance(*args))
             b = np.asarray(out, dtype=np.float64).reshape(-1)
             if b.shape != (self._k,) or not np.all(np.isfinite(b)):
                 raise ValueError(f"wind_table.worst_disturbance returned {out!r} at t={self._t}, x={self._x}, "
