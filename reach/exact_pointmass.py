@@ -17,11 +17,12 @@ braking reaches it soonest (``(vt_lo - v0) / U <= S``), highest (``y0 - (v0^2 - 
 least time below ``s_lo``, ``b = (s_lo - v0)^+ / U <= Q'``. (iv) Descent: every admissible profile on
 ``[0, tau]``, ``tau <= S``, satisfies ``v >= v* = max(v0 - D s, h_lo, vt_lo - U (tau - s))`` (slope bounds, hard
 limit, final speed ``>= vt_lo``), and lengthening ``tau`` to ``S`` at the final speed costs no budget, so take
-``tau = S``. The budget bounds the time below ``s_lo``: an excursion below ``s_lo`` of length ``L`` gains at most
-``G(L) = int_0^L min(D x, U (L - x), s_lo - h_lo) dx`` of descent over ``|s_lo|`` per unit time, and ``G`` is
-convex with ``G(0) = 0``, hence superadditive: one excursion beats several. When ``v0 < s_lo`` the excursion
-forced at ``s = 0`` absorbs the rest of the budget (prolonging it gains at least ``G`` of the added length). So the
-largest descent is ``Dmax(S, Q') = -int_0^S v_opt`` with
+``tau = S``. ``Q'`` bounds the time below ``s_lo``. Outside the excursions below ``s_lo`` a profile descends at
+most ``min(|s_lo|, -v*)`` per unit time; an excursion of length ``L`` (it leaves and re-enters ``s_lo`` with the
+slopes bounded) descends at most ``G(L) = int_0^L min(D x, U (L - x), s_lo - h_lo) dx`` further, and ``G`` is convex
+with ``G(0) = 0``, hence superadditive: one excursion beats several. When ``v0 < s_lo`` the excursion forced at
+``s = 0`` takes the whole budget (prolonging it gains at least ``G`` of the added length). So the largest descent
+is ``Dmax(S, Q') = -int_0^S v_opt`` with
 
     v_opt(s) = max(v*(s), s_lo - U (e - s)^+),   e = (v0 - s_lo)^+ / D + Q',
 
@@ -37,7 +38,9 @@ end, in the target's speed band); their final altitude moves continuously from t
 
 ``Q_min = q_up + min{Q' >= b : y0 - Dmax(S, Q') <= yt_hi}`` (``+inf`` if (i)-(iii) fail or no ``Q' <= S`` does),
 found by bisection: ``Dmax`` is continuous and nondecreasing in ``Q'``. The sets are closed (as ``W <= 0``): the
-inequalities hold up to ``tol``. Assumes what the paper's parameters satisfy: ``h_lo <= s_lo <= vt_lo`` and
+inequalities hold up to ``tol``. These are Def. 1's sets, the ``eps -> 0`` limit: ``W_eps`` charges
+``h_eps = min(1, c2^+ / eps) <= 1{c2 > 0}``, so its sets contain these, by a margin of order ``eps`` (a speed
+``eps`` past ``s_lo`` costs a full unit of budget), far below a grid cell. Assumes what the paper's parameters satisfy: ``h_lo <= s_lo <= vt_lo`` and
 ``s_hi <= h_hi`` (target inside ``C2`` inside ``C1``), the target's speeds end at 0 and its floor is the ground,
 ``U > 0``; other parameters raise.
 """
@@ -135,7 +138,7 @@ def max_descent(v0: Any, time_left: Any, budget: Any, params: PointMassParams | 
 def _stop_and_brake(v: np.ndarray, y: np.ndarray, S: np.ndarray, c: _Consts, tol: float
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Conditions (i)-(iii) without the budget; the forced time above ``s_hi`` and below ``s_lo``."""
-    ok = (v >= c.h_lo - tol) & (v <= c.h_hi + tol) & (y >= -tol) & (y <= c.y_max + tol)
+    ok = (v >= c.h_lo - tol) & (v <= c.h_hi + tol) & (y >= -tol) & (y <= c.y_max + tol) & (S >= 0)
     up = np.maximum(v, 0.0)
     ok &= (y + up**2 / (2 * c.D) <= c.y_max + tol) & (up <= c.D * S + tol)
     fall = np.maximum(c.vt_lo - v, 0.0)
