@@ -32,6 +32,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         "free at every instant): the table the safety filter certifies with")
     p.add_argument("--control-period", type=float, default=None, metavar="SECONDS",
                    help="the sampled-data game at this period instead of the model's (implies --held)")
+    p.add_argument("--budget-surface", action="store_true",
+                   help="solve the budget surface Q_min(t, x) on the state grid instead of W_eps on (x, z): "
+                        "RA~_Q = {Q_min <= Q} for every Q at the cost of one state-grid solve")
     p.add_argument("--held-levels", type=int, default=5, metavar="K",
                    help="candidate held actions per control axis, corners and centre included (default 5)")
     p.add_argument("--no-resume", action="store_true", help="ignore an unfinished .partial file and start over")
@@ -101,8 +104,10 @@ def run_solve(args: argparse.Namespace) -> int:
         control_period=args.control_period if args.control_period is not None else (
             model.control_period if args.held else None),
         held_levels=args.held_levels,
+        budget_surface=args.budget_surface,
     )
-    out = Path(args.out or (f"{args.model}-held.srt" if cfg.control_period is not None else f"{args.model}.srt"))
+    suffix = "-held" if cfg.control_period is not None else "-qmin" if cfg.budget_surface else ""
+    out = Path(args.out or f"{args.model}{suffix}.srt")
     if args.json_path:
         _check_writable(Path(args.json_path), "--json")
     budgets = args.budgets if args.budgets is not None else getattr(model, "default_budgets", DEFAULT_BUDGETS)

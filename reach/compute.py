@@ -14,6 +14,7 @@ import numpy as np
 from . import backend as B
 from .grid import Grid, budget_axis
 from .problem import Model, avoid_problem, classical_problem, soft_problem
+from .budget_surface import budget_problem
 from .held import consistency_gaps, make_consistent, solve_held
 from .solver import SolverSettings, solve
 from .table import TableWriter
@@ -53,6 +54,9 @@ class SolveConfig:
     consistency_band: float = 0.1
     #: sampled-data game only: states per sample time for the between-node gap diagnostics
     consistency_samples: int = 20000
+    #: solve the budget surface ``Q_min`` on the state grid instead of ``W_eps`` on ``(x, z)``
+    #: (:mod:`softreach.reach.budget_surface`); ``budget_points`` is then unused
+    budget_surface: bool = False
 
 
 def validate(model: Model, cfg: SolveConfig, out: str | os.PathLike | None) -> tuple[Grid, Grid | None]:
@@ -81,8 +85,11 @@ def validate(model: Model, cfg: SolveConfig, out: str | os.PathLike | None) -> t
             if a > ca or b < cb:
                 raise ValueError(f"the grid domain along {name}, [{a}, {b}], does not contain the hard-constraint set's [{ca}, {cb}]")
     state_grid = Grid(tuple(lo), tuple(hi), shape, names=tuple(model.state_names))
+    if cfg.budget_surface and (cfg.classical_only or cfg.control_period is not None):
+        raise ValueError("the budget surface is solved for the continuous-time game with V beside it: drop "
+                         "--classical and --held")
     aug = None
-    if not cfg.classical_only:
+    if not cfg.classical_only and not cfg.budget_surface:
         z_lo, z_hi, nz = budget_axis(model.horizon, cfg.budget_points)
         aug = Grid(tuple(lo) + (z_lo,), tuple(hi) + (z_hi,), shape + (nz,), names=tuple(model.state_names) + ("z",))
     if out is not None:
@@ -141,6 +148,11 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
         fields["V_safe"] = {"grid": state_grid.to_dict(), "times": times, "problem": avoid_problem(model).metadata(),
                             "settings": cfg.settings.to_dict(), **game}
         problems["V_safe"] = (avoid_problem(model), state_grid)
+    if cfg.budget_surface:
+        bp = budget_problem(model, cfg.eps)
+        fields["Q_min"] = {"grid": state_grid.to_dict(), "times": times, "problem": bp.metadata(),
+                           "settings": cfg.settings.to_dict(), **game}
+        problems["Q_min"] = (bp, state_grid)
     if aug is not None:
         sp = soft_problem(model, cfg.eps, kappa)
         fields["W_eps"] = {"grid": aug.to_dict(), "times": times, "problem": sp.metadata(),
@@ -201,7 +213,7 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
     summary = summarize(table, budgets)
     summary["wall_time_s"] = walls
     summary["settings"] = cfg.settings.to_dict()
-    summary["eps"] = cfg.eps if aug is not None else None
+    summary["eps"] = cfg.eps if aug is not None or cfg.budget_surface else None
     summary["budget_scale"] = kappa if aug is not None else None
     summary["control_period"] = cfg.control_period
     return summary
@@ -213,9 +225,10 @@ def summarize(table, budgets: Sequence[float] = DEFAULT_BUDGETS, t: float = 0.0)
     ra = table.set_mask(t)
     vol = table.cell_volume("V")
     out["classical_measure"] = float(ra.sum()) * vol
-    if table.has_budget:
-        out["budget_grid"] = table.grid("W_eps").to_dict()
-        out["budget_resolution"] = table.budget_resolution
+    if table.has_budget or table.has_budget_surface:
+        if table.has_budget:
+            out["budget_grid"] = table.grid("W_eps").to_dict()
+            out["budget_resolution"] = table.budget_resolution
         out["budgets"] = [float(q) for q in budgets]
         out["soft_measure"] = [table.set_measure(t, q) for q in budgets]
         ra0 = table.set_mask(t, 0.0)
@@ -224,7 +237,8 @@ def summarize(table, budgets: Sequence[float] = DEFAULT_BUDGETS, t: float = 0.0)
             "in_soft_not_classical": float((ra0 & ~ra).sum()) * vol,
             "in_classical_not_soft": float((ra & ~ra0).sum()) * vol,
             "relative": float((ra0 ^ ra).sum()) / max(1, int(ra.sum())),
-            # the raw slice {W_eps(t, x, 0) <= 0} for reference (ill-posed: see Table.set_mask)
-            "raw_slice_measure": float((table._slice("W_eps", t, 0.0) <= 0).sum()) * vol,
         }
+        if table.has_budget:
+            # the raw slice {W_eps(t, x, 0) <= 0} for reference (ill-posed: see Table.set_mask)
+            out["q0_vs_classical"]["raw_slice_measure"] = float((table._slice("W_eps", t, 0.0) <= 0).sum()) * vol
     return out

@@ -125,7 +125,7 @@ class ReachAvoidProblem:
 
     dynamics: Dynamics
     model: Model
-    kind: str  # "classical", "soft" or "avoid"
+    kind: str  # "classical", "soft", "avoid" or "budget" (:mod:`softreach.reach.budget_surface`)
     eps: float | None = None
     budget_scale: float = 1.0
 

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from .grid import Grid
+from .budget_surface import no_budget_suffices
 from .interpolation import interpolate
 from .table import TableError, field_grid, open_field, read_header, verify
 
@@ -87,8 +88,16 @@ class Table:
         return "W_eps" in self.header["fields"]
 
     @property
+    def has_budget_surface(self) -> bool:
+        """Whether the table holds ``Q_min(t, x)`` on the state grid (``softreach solve --budget-surface``)."""
+        return "Q_min" in self.header["fields"]
+
+    @property
     def eps(self) -> float | None:
-        return self.header["fields"]["W_eps"]["problem"]["eps"] if self.has_budget else None
+        for name in ("W_eps", "Q_min"):
+            if name in self.header["fields"]:
+                return self.header["fields"][name]["problem"]["eps"]
+        return None
 
     @property
     def budget_scale(self) -> float:
@@ -113,7 +122,10 @@ class Table:
 
     @property
     def budget_resolution(self) -> float:
-        """Half a budget cell: the smallest budget the grid resolves (see :meth:`set_mask`)."""
+        """Half a budget cell: the smallest budget the grid resolves (see :meth:`set_mask`); 0 for a budget-surface
+        table, which resolves every budget."""
+        if not self.has_budget:
+            return 0.0
         return 0.5 * self.grid("W_eps").spacing[-1]
 
     def values(self, field: str) -> np.ndarray:
@@ -147,9 +159,11 @@ class Table:
             if "V" not in self.header["fields"]:
                 raise ValueError(f"table {self.path} holds only W_eps: pass the budget z")
             return "V"
-        if not self.has_budget:
-            raise ValueError(f"table {self.path} holds only the classical V: call without z")
-        return "W_eps"
+        if self.has_budget:
+            return "W_eps"
+        if self.has_budget_surface:
+            return "Q_min"
+        raise ValueError(f"table {self.path} holds only the classical V: call without z")
 
     def _queries(self, t: Any, x: Any, z: Any) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
         field = self._field_for(z)
@@ -163,6 +177,8 @@ class Table:
             unsafe = zz < grid.lo[-1]
             zz = np.minimum(zz, grid.hi[-1])
             pts = np.concatenate([pts, zz[:, None]], axis=1)
+        elif field == "Q_min":
+            unsafe = _as_column(z, len(pts), "z") < 0
         return field, tt, pts, unsafe
 
     def value(self, t: Any, x: Any, z: Any = None) -> np.ndarray:
@@ -173,6 +189,12 @@ class Table:
         """
         field, tt, pts, unsafe = self._queries(t, x, z)
         val, inside = interpolate(self.values(field), self.times(field), self.grid(field), tt, pts)
+        if field == "Q_min":
+            # the certificate of a budget-surface table: Q_min - z, <= 0 exactly where the budget z suffices
+            # (RA~_0 from V, as set_mask reads it)
+            val = val - _as_column(z, len(pts), "z")
+            v, vin = interpolate(self.values("V"), self.times("V"), self.grid("V"), tt, pts)
+            val = np.where(vin & (v <= 0), np.minimum(val, v), val)
         return np.where(inside & ~unsafe, val, np.inf)
 
     def inside(self, t: Any, x: Any, z: Any = None) -> np.ndarray:
@@ -221,7 +243,7 @@ class Table:
         return out
 
     def _inputs(self, t: Any, x: Any, z: Any, which: str, outside: str) -> np.ndarray:
-        if z is not None:
+        if z is not None and self.has_budget:
             # at z = 0 the exact W_eps is flat (>= 0 everywhere, = 0 on RA~_0): its gradient says nothing. Use the
             # smallest budget the grid resolves, as set_mask does.
             z = np.maximum(np.asarray(z, dtype=np.float64), self.budget_resolution)
@@ -256,10 +278,14 @@ class Table:
         Found along the budget nodes and refined linearly between them; budgets below
         :attr:`budget_resolution` are reported as 0, consistently with :meth:`set_mask`.
         """
-        grid = self.grid("W_eps")
         n = len(self.model_metadata["state_names"])
         pts = _as_points(x, n, "x")
         tt = _as_column(t, len(pts), "t")
+        if self.has_budget_surface and not self.has_budget:
+            q, inside = interpolate(self.values("Q_min"), self.times("Q_min"), self.grid("Q_min"), tt, pts)
+            q = np.where(inside & ~no_budget_suffices(q, self.horizon - tt), np.maximum(q, 0.0), np.inf)
+            return np.where(self.value(tt, pts) <= 0, 0.0, q)  # RA~_0 from V, as set_mask reads it
+        grid = self.grid("W_eps")
         z_nodes = grid.axis(grid.ndim - 1)
         z_nodes = np.concatenate([[self.budget_resolution], z_nodes[z_nodes > self.budget_resolution]])
         vals = np.stack([self.value(tt, pts, np.full(len(pts), z)) for z in z_nodes], axis=1)
@@ -311,6 +337,7 @@ class Table:
           The paper's proxy for ``Q > 0`` (§VI-A: ``W_eps + 1e-3 <= 0`` with ``kappa = 1``, i.e. one millisecond of
           budget) is ``margin = paper_proxy_margin()``; applied to ``Q > 0`` only it would break the nesting with
           ``Q = 0`` at a few boundary nodes.
+        * A budget-surface table (``Q_min`` on the state grid): ``RA~_Q = {Q_min(t, x) + margin <= Q}``.
         """
         if budget is None:
             return self._slice("V", float(t)) <= 0
@@ -319,6 +346,10 @@ class Table:
             raise ValueError(f"budget must be a finite number >= 0, got {budget!r}")
         if margin is None:
             margin = 0.0
+        if not self.has_budget and self.has_budget_surface:
+            # {Q_min <= 0} is a flat face of Q_min, as {W_eps(., 0) <= 0} is of W_eps: the classical V beside it
+            # gives RA~_0 (Prop. 3), and every RA~_Q contains it
+            return (self._slice("Q_min", float(t)) + margin <= q) | (self._slice("V", float(t)) + margin <= 0)
         return self._slice("W_eps", float(t), max(q, self.budget_resolution)) + margin <= 0
 
     def paper_proxy_margin(self) -> float:
@@ -332,7 +363,7 @@ class Table:
 
     def set_measure(self, t: float = 0.0, budget: float | None = None, margin: float | None = None) -> float:
         """Measure of :meth:`set_mask` in state units (node count times cell volume)."""
-        field = "V" if budget is None else "W_eps"
+        field = "V" if budget is None else self._field_for(budget)
         return float(self.set_mask(t, budget, margin).sum()) * self.cell_volume(field)
 
     def budget_band_mask(self, t: float, q1: float, q2: float) -> np.ndarray:

@@ -1,0 +1,106 @@
+"""The budget surface ``Q_min(t, x)``, solved on the state grid: no budget axis.
+
+``z`` is a monotone integrator (``z' = -h_eps(t, x)``, no player enters it), so the whole ``W_eps`` table carries
+one surface: ``RA~_Q = {x : Q_min(t, x) <= Q}`` (paper, eq. Q_min). That surface is itself the value of a game on
+``x`` alone, a reach-avoid game with a running cost:
+
+    Q_min(t, x) = inf_a sup_b  int_t^tau h_eps(s, x(s)) ds,
+
+over the strategies that reach the target inside ``C2`` at some ``tau <= T`` and stay in ``C1`` on ``[t, tau]``
+(``+inf`` where none does). Dynamic programming gives the variational inequality
+
+    0 = max{ c_Q - Q,  min[ l_Q - Q,  Q_t + min_a max_b grad Q . f + h_eps ] },   Q(T) = max(c_Q, l_Q),
+
+with ``l_Q = 0`` on the target inside ``C2`` (stopping there costs nothing more) and ``+inf`` elsewhere, and
+``c_Q = +inf`` outside ``C1`` (``0`` inside: a budget is never negative). It is the ``W_eps`` equation read along
+its zero level set: where ``W_eps(t, x, Q_min(t, x)) = 0`` with ``dW/dz < 0``, ``Q_x = -W_x / W_z`` and
+``Q_t = -W_t / W_z``, and dividing ``W_t + min_a max_b (W_x . f) - W_z h_eps = 0`` by ``-W_z > 0`` gives the
+equation above. The ``eps`` of ``h_eps`` enters exactly as in ``W_eps``: the running cost is ``h_eps``, not the
+indicator of ``x`` outside ``C2``, so ``Q_min`` is at most the exact (``eps -> 0``) one by about the time spent in
+the ``eps`` band.
+
+**Bounded transform.** ``+inf`` is replaced by ``cap = 2 T`` (more than any budget can be used: ``h_eps <= 1``
+over at most ``T``), so ``Q_min > T - t`` reads as "no budget suffices". The obstacles are then indicator
+functions on the nodes, exact there: a node outside ``C1`` holds ``cap``, a node on the target inside ``C2`` at
+most ``0``. The schemes see a jump of ``cap`` at the edge of the feasible set; WENO reconstructs it without
+oscillation and the monotone Lax-Friedrichs flux smears it over about a cell, which blurs the sets' edges by a
+cell, as the ``W_eps`` solve does (``benchmarks/grade_pointmass.py`` measures both against the exact sets).
+
+Costs: one state-grid solve instead of ``n_z`` (111 to 200) times that, so the same memory buys a far finer state
+grid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from . import backend as B
+from .dynamics import Components, Dynamics
+from .problem import Array, Model, ReachAvoidProblem
+
+
+class RunningCost(Dynamics):
+    """A model's dynamics with the running cost ``h_eps`` in the Hamiltonian: ``H(t, x, p) + h_eps(t, x)``.
+
+    ``h_eps`` depends on neither player, so the optimal inputs and the dissipation are the model's.
+    """
+
+    def __init__(self, model: Model, eps: float):
+        self.model = model
+        self.eps = float(eps)
+        self.name = f"{model.name}+running-cost"
+        self.state_names = tuple(model.state_names)
+        self.state_units = tuple(model.state_units)
+        self.control_bounds = model.control_bounds
+        self.disturbance_bounds = model.disturbance_bounds
+
+    def f(self, t, x, a, b):
+        return self.model.f(t, x, a, b)
+
+    def hamiltonian(self, t, x, p):
+        return self.model.hamiltonian(t, x, p) + self.model.violation_rate(t, x, self.eps)
+
+    def optimal_control(self, t, x, p):
+        return self.model.optimal_control(t, x, p)
+
+    def worst_disturbance(self, t, x, p):
+        return self.model.worst_disturbance(t, x, p)
+
+    def dissipation(self, t, x, p_lo=None, p_hi=None):
+        return self.model.dissipation(t, x, p_lo, p_hi)
+
+
+@dataclass(frozen=True)
+class BudgetSurfaceProblem(ReachAvoidProblem):
+    """The game of ``Q_min`` (module docstring) in the solver's form ``max(c, min(l, .))``."""
+
+    cap: float = 2.0
+
+    def target_function(self, t: float, x: Components) -> Array:
+        """``l_Q``: ``0`` on the target inside ``C2``, ``cap`` elsewhere."""
+        inside = B.maximum(self.model.target(t, x), self.model.soft_constraint(t, x))
+        return B.where(inside <= 0, 0.0, self.cap)
+
+    def constraint_function(self, t: float, x: Components) -> Array:
+        """``c_Q``: ``cap`` outside ``C1``, ``0`` inside (a budget is never negative)."""
+        return B.where(self.model.hard_constraint(t, x) > 0, self.cap, 0.0)
+
+    def floor_function(self, t: float, x: Components) -> Array | None:
+        return None
+
+    def metadata(self) -> dict[str, Any]:
+        return {**super().metadata(), "cap": self.cap}
+
+
+def budget_problem(model: Model, eps: float = 1e-3) -> BudgetSurfaceProblem:
+    """The ``Q_min`` game of ``model`` with the running cost ``h_eps`` of width ``eps``."""
+    if not eps > 0:
+        raise ValueError(f"eps must be a finite positive number, got {eps!r}")
+    return BudgetSurfaceProblem(dynamics=RunningCost(model, eps), model=model, kind="budget", eps=float(eps),
+                                cap=2.0 * float(model.horizon))
+
+
+def no_budget_suffices(q: Any, time_left: Any) -> Any:
+    """Where a solved ``Q_min`` says that no budget suffices: above the time left (the capped values)."""
+    return q > time_left + 1e-9
