@@ -301,13 +301,15 @@ class ValueFilter:
             if self.rule == "smooth" and self.smooth_iterations:
                 lam, best_next = self._bisect(tt[rows], xs[rows], zz[rows], best, pol[rows], any_ok, best_next)
             a = best + lam[:, None] * (pol[rows] - best)
-            applied[rows] = np.where(np.isfinite(best_bad)[:, None], a, self.fallback_action)
+            # -inf: the period surely ends landed; +inf: no candidate could be bounded at all
+            bounded = best_bad < np.inf
+            applied[rows] = np.where(bounded[:, None], a, self.fallback_action)
             chosen[rows] = best
             nxt[rows] = best_next
             ok[rows] = any_ok
             blend[rows] = lam
             r = np.where(any_ok, np.where(lam > 0, BLEND, OPTIMAL), UNCERTIFIED)
-            r = np.where(~np.isfinite(best_bad), FALLBACK, r)
+            r = np.where(~bounded, FALLBACK, r)
             reason[rows] = r
         # where the state itself is off the table, say so (the action above is still the least bad)
         after = tt >= la.horizon - 1e-9

@@ -98,3 +98,17 @@ def test_every_landing_pass_lands_under_adversarial_winds(pointmass_held_table):
                     break
             assert landed, (x[r], a, wind)
             assert spent <= z[r] + 1e-12
+
+
+def test_the_filter_applies_a_landing_candidate_not_the_fallback(pointmass_held_table):
+    """At the brink only landing passes, and the filter must apply it (a landing candidate ranks -inf, which once
+    read as "could not be bounded" and sent the box centre: traced in the audit as a crash from a certified start)."""
+    from softreach.filters import FALLBACK
+
+    vf = ValueFilter(pointmass_held_table, DT, target_checks=10)
+    applied, info = vf.filter(0.5, np.array(BRINK), 0.3, np.array([-42.8]))
+    assert info["reason"] != FALLBACK and info["lookahead"] == -np.inf and info["certified"] and applied[0] > 0
+    env = gym.make("softreach/PointMassLanding-v0", wind="constant", wind_value=-10.0, budget=0.3)
+    env.reset(seed=0, options={"state": list(BRINK), "budget": 0.3, "time": 0.5})
+    _, _, terminated, _, out = env.step(np.array([applied[0] / 60.0], dtype=np.float32))
+    assert terminated and out["landed"] and not out["hard_violation"]
