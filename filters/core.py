@@ -123,6 +123,9 @@ class ValueFilter:
             raise ValueError(f"margin must be None or a finite number >= 0, got {margin!r}")
         if not (isinstance(smooth_iterations, (int, np.integer)) and smooth_iterations >= 0):
             raise ValueError(f"smooth_iterations must be a non-negative integer, got {smooth_iterations!r}")
+        if not table.has_budget and table.has_budget_surface:
+            raise TableError(f"table {table.path} holds the budget surface Q_min; the filter's one-period test reads "
+                             f"W_eps over budget boxes: solve MODEL --held for a table it certifies with")
         if not table.has_budget:
             raise TableError(f"table {table.path} holds only the classical V; the filter needs W_eps (solve it "
                              f"without --classical)")
