@@ -40,7 +40,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-resume", action="store_true", help="ignore an unfinished .partial file and start over")
     p.add_argument("--budgets", type=float, nargs="+", default=None, help="budgets for the summary (default 0 0.06 0.3 0.6 for the point mass)")
     p.add_argument("--threads", type=int, default=None,
-                   help="torch CPU threads (default: torch's; on a loaded machine 1 can be several times faster than 2)")
+                   help="torch CPU threads (default: one per idle core, at least one; OMP_NUM_THREADS, if set, wins)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run_solve)
 
@@ -75,6 +75,27 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_study)
 
 
+def idle_cores() -> int | None:
+    """Torch threads for a CPU solve: one per core that the load average leaves idle, at least one; ``None``
+    (torch's own choice) when ``OMP_NUM_THREADS`` is set.
+
+    torch starts one thread per core and synchronises them at every kernel, so one busy core stalls them all:
+    on the shared 2-core machine with one other job running, the default point-mass solve took 64 s with two
+    threads and 34 s with one (``/usr/bin/time softreach solve pointmass --threads N``); on an idle machine two
+    threads are about 1.5 times faster than one (README, "Threads").
+    """
+    import os
+
+    if "OMP_NUM_THREADS" in os.environ:
+        return None
+    cores = os.cpu_count() or 1
+    try:
+        load = os.getloadavg()[0]
+    except OSError:  # no load average on this platform
+        return cores
+    return max(1, min(cores, int(cores - load + 0.5)))
+
+
 def _settings(args: argparse.Namespace):
     from .solver import SolverSettings
 
@@ -86,12 +107,13 @@ def run_solve(args: argparse.Namespace) -> int:
     from .compute import DEFAULT_BUDGETS, SolveConfig, solve_table
     from .models import get_model
 
-    if args.threads is not None:
-        if args.threads < 1:
-            raise ValueError(f"--threads must be >= 1, got {args.threads}")
+    if args.threads is not None and args.threads < 1:
+        raise ValueError(f"--threads must be >= 1, got {args.threads}")
+    threads = args.threads if args.threads is not None else idle_cores()
+    if threads is not None and args.backend == "torch" and args.device == "cpu":
         import torch
 
-        torch.set_num_threads(args.threads)
+        torch.set_num_threads(threads)
     model = get_model(args.model)
     cfg = SolveConfig(
         shape=tuple(args.grid) if args.grid else model.default_shape,
@@ -118,6 +140,10 @@ def run_solve(args: argparse.Namespace) -> int:
               f"resume from them (--no-resume starts over).", file=sys.stderr)
         return 130
     summary["table"] = str(out)
+    if args.device == "cpu" and args.backend == "torch":
+        import torch
+
+        summary["threads"] = torch.get_num_threads()
     print(_format_summary(summary))
     if args.json_path:
         Path(args.json_path).write_text(json.dumps(summary, indent=2))

@@ -105,3 +105,20 @@ def test_ctrl_c_keeps_the_work_and_the_rerun_resumes_with_the_whole_wall_time(tm
     s = json.loads(js.read_text())
     assert s["wall_time_s"]["W_eps"] >= spent  # the interrupted part counts
     assert s["wall_time_s"]["V"] == pytest.approx(partial["fields"]["V"]["wall_s"])  # V was finished before
+
+
+def test_default_threads_follow_the_idle_cores(monkeypatch):
+    import os
+
+    from softreach.reach.commands import idle_cores
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(os, "getloadavg", lambda: (1.1, 1.0, 1.0))
+    assert idle_cores() == 1  # one core busy elsewhere: one thread
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.1, 0.1, 0.1))
+    assert idle_cores() == 2
+    monkeypatch.setattr(os, "getloadavg", lambda: (7.0, 7.0, 7.0))
+    assert idle_cores() == 1  # never fewer than one
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    assert idle_cores() is None  # the user's setting wins

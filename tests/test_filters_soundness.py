@@ -24,7 +24,8 @@ ISSUE10 = [((-11.617215615759317, 11.37983843354814), 0.6, "random", "random_ste
 
 @pytest.fixture(scope="module")
 def vf(pointmass_held_table):
-    return ValueFilter(pointmass_held_table, DT)
+    # landing is checked where the env checks it, at its sub-step ends (the audit does the same)
+    return ValueFilter(pointmass_held_table, DT, target_checks=get_model("pointmass").substeps)
 
 
 def test_audit_from_certified_starts_never_leaves_c1_nor_overspends(vf):
@@ -83,7 +84,7 @@ def glider_held_table(tmp_path_factory):
 
 
 def test_glider_audit_from_certified_starts(glider_held_table):
-    vf = ValueFilter(glider_held_table, 0.1)
+    vf = ValueFilter(glider_held_table, 0.1, target_checks=get_model("glider").substeps)
     assert vf.sampled
     rows = audit(vf, [5.0, 10.0], starts_per_row=2, kinds=("certified",), policies=("random", "always_max"),
                  winds=("worst_case", "switch_inside", "switch_on_filter"), pieces=2, seed=0, check_unneeded=False)
