@@ -154,7 +154,8 @@ class Lookahead:
 
         :return: ``(admissible, next_value, badness)``; ``badness == next_value`` where the action passes
             (``-inf`` where every run surely lands inside the period); with
-            ``ends=True`` also the end box and the lowest end budget ``(end_lo, end_hi, z_end)``
+            ``ends=True`` also the end box, the lowest end budget and whether the period surely keeps ``C1`` and
+            the budget (or lands) ``(end_lo, end_hi, z_end, kept)``
         """
         if len(x) == 0:
             empty = (np.zeros(0, bool), np.zeros(0), np.zeros(0))
@@ -221,7 +222,7 @@ class Lookahead:
         bad = np.where(bounded & ~in_c1 & ~lands, 5e6 + np.maximum(c1, 0.0), bad)
         nxt = np.where(ok, nxt, np.inf)
         out = (passing, nxt, bad)
-        return out + (end_lo, end_hi, z_end) if ends else out
+        return out + (end_lo, end_hi, z_end, ok) if ends else out
 
     def _lands(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray, x_hi: np.ndarray | None,
                rows: np.ndarray) -> np.ndarray:
@@ -265,35 +266,24 @@ class Lookahead:
         return out
 
     def passes(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray):
-        """The one-period test and, where the model bounds boxes of starts, the stronger one the filter asks of
-        an action: from every possible end state some candidate passes again (so the next state is certified,
-        whatever the wind did): one candidate for the whole end box, or else one for each of its ``2^n`` halves
-        (split at the centre along every state axis). On the last period the end states must only be
-        certified, and an action that surely lands needs nothing more.
+        """What the filter asks of the policy's action. Where the model bounds boxes of starts: the period keeps
+        ``C1`` and the budget, and one candidate passes the one-period test again from every possible end state,
+        so the next state is certified whatever the wind did (its ``D`` may be positive: the interpolant is
+        conservative there). Elsewhere: the one-period test. On the last period the end states must be certified
+        (``D <= 0``), and an action that surely lands needs nothing more.
 
-        :return: ``(admissible, next_value, badness, keeps)``; ``keeps`` implies ``admissible``
+        :return: ``(admissible, next_value, badness, keeps)``; ``keeps`` implies that the period keeps ``C1`` and
+            the budget, not that every end state has ``D <= 0`` (``next_value`` may be positive)
         """
-        ok, nxt, bad, end_lo, end_hi, z_end = self.assess(t, x, z, a, ends=True)
+        ok, nxt, bad, end_lo, end_hi, z_end, kept = self.assess(t, x, z, a, ends=True)
         keeps = ok.copy()
         if self.box_support:
             last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
-            rows = np.nonzero(ok & ~last & np.isfinite(nxt))[0]  # a run that surely lands needs no next step
+            # a run that surely lands needs no next step; on the last period the end states must be certified.
+            # Otherwise the end box need not lie in {D <= 0}: that a candidate passes from every end state is
+            # what keeps the chain going, and it holds also where the interpolant is conservative (D > 0)
+            rows = np.nonzero(kept & ~last & (nxt > -np.inf))[0]
             keeps[rows] = self.keeps_certified(t[rows] + self.dt, end_lo[rows], end_hi[rows], z_end[rows], z[rows])
-            # where no one candidate serves the whole end box, one per half along each axis may: the next state
-            # lies in one of the parts, and that part's candidate passes from it
-            rows = rows[~keeps[rows]]
-            if len(rows):
-                mid = 0.5 * (end_lo[rows] + end_hi[rows])
-                parts = np.ones(len(rows), bool)
-                for corner in self.corners:
-                    lo = np.where(corner, mid, end_lo[rows])
-                    hi = np.where(corner, end_hi[rows], mid)
-                    todo = np.nonzero(parts)[0]
-                    if len(todo) == 0:
-                        break
-                    parts[todo] = self.keeps_certified(t[rows][todo] + self.dt, lo[todo], hi[todo],
-                                                       z_end[rows][todo], z[rows][todo])
-                keeps[rows] = parts
         return ok, nxt, bad, keeps
 
     def keeps_certified(self, t: np.ndarray, end_lo: np.ndarray, end_hi: np.ndarray, z_lo: np.ndarray,

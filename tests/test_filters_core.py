@@ -130,8 +130,24 @@ def test_the_policy_passes_exactly_when_its_held_period_keeps_the_state_certifie
     applied, info = vfilter.filter(t, x, z, a)
     one, nxt, _, ok = vfilter.lookahead.passes(t, x, z, a)
     assert vfilter.lookahead.box_support  # the point mass bounds boxes of starts: the stronger test applies
-    assert np.all(one[ok])  # keeping the next state certified implies passing the one-period test
     np.testing.assert_array_equal(info["reason"] == PASS, ok)
+    # where the policy passes, every end state of its held period is certified again, also where the end box
+    # reaches D > 0 (the interpolant is conservative there): winds switching inside the period, then a
+    # candidate must pass from each end state
+    model = vfilter.model
+    rows = np.nonzero(ok & (t < 0.9))[0][:80]
+    wind_rng = np.random.default_rng(7)
+    for winds in ([-10.0] * 4, [10.0] * 4, [10.0, 10.0, -10.0, -10.0], list(wind_rng.choice([-10.0, 10.0], 4))):
+        ends, zs = [], []
+        for i in rows:
+            xs, zi = list(x[i]), z[i]
+            for j, w in enumerate(winds):
+                xs, cost, _, _ = integrate_period(model, t[i] + j * DT / 4, xs, [a[i, 0]], [w], DT / 4, 2, 1e-3, 1e-6)
+                zi -= cost
+            ends.append(xs)
+            zs.append(zi)
+        _, again, _ = vfilter.lookahead.best_candidate(t[rows] + DT, np.array(ends), np.array(zs))
+        assert again.all(), (x[rows][~again], winds)
     np.testing.assert_array_equal(applied[ok], a[ok])  # the policy's own numbers
     np.testing.assert_array_equal(info["lookahead"][ok], nxt[ok])
     assert ok.any() and (~ok).any()
@@ -143,7 +159,9 @@ def test_a_certified_state_gets_an_action_that_passes(vfilter):
         a = np.full((len(x), 1), -60.0)  # full down: often refused
         applied, info = vfilter.filter(0.0, x, q, a)
         ok, _ = vfilter.lookahead.check(np.zeros(len(x)), x, np.full(len(x), q), applied)
-        assert ok.all() and info["certified"].all()
+        keeps = vfilter.lookahead.passes(np.zeros(len(x)), x, np.full(len(x), q), applied)[3]
+        # every applied action passes the one-period test or keeps the next state certified (the policy's rule)
+        assert (ok | keeps).all() and keeps[info["reason"] == PASS].all() and info["certified"].all()
         assert set(np.unique(info["reason"])) <= {PASS, OPTIMAL}
         assert (info["reason"] == OPTIMAL).any()
 
@@ -161,8 +179,9 @@ def test_smooth_rule_moves_the_action_less_and_still_passes(pointmass_held_table
     sw, si = vfilter.filter(0.0, x, 0.3, a)
     sm, mi = smooth.filter(0.0, x, 0.3, a)
     assert np.all(np.abs(sm - a) <= np.abs(sw - a) + 1e-9)
-    ok, _ = smooth.lookahead.check(np.zeros(len(x)), x, np.full(len(x), 0.3), sm)
-    assert ok.all() and (mi["reason"] == BLEND).any()
+    one, _ = smooth.lookahead.check(np.zeros(len(x)), x, np.full(len(x), 0.3), sm)
+    keeps = smooth.lookahead.passes(np.zeros(len(x)), x, np.full(len(x), 0.3), sm)[3]
+    assert (one | keeps).all() and (mi["reason"] == BLEND).any()
 
 
 def test_outside_after_horizon_and_negative_budget_are_not_certified(vfilter):
