@@ -67,17 +67,18 @@ def plot_sets_2d(table, budgets: Sequence[float], out: str | Path, t: float = 0.
     _set_region(ax, model, axes, model.soft_constraint, t, colors=[(0.93, 0.85, 0.7)])
     X, Y, g = _set_region(ax, model, axes, model.target, t, colors=[(0.6, 0.6, 0.6)])
     ax.contour(X, Y, g, levels=[0], colors="k", linewidths=1)
-    handles = [Line2D([], [], color=(1.0, 0.8, 0.8), lw=8, label="hard C1"),
-               Line2D([], [], color=(0.93, 0.85, 0.7), lw=8, label="soft C2"),
+    handles = [Line2D([], [], color=(1.0, 0.8, 0.8), lw=8, label="hard C1 (allowed; outside is a crash)"),
+               Line2D([], [], color=(0.93, 0.85, 0.7), lw=8, label="soft C2 (outside costs budget)"),
                Line2D([], [], color=(0.6, 0.6, 0.6), lw=8, label="target")]
-    if "V" in table.fields:
-        ra = table.set_mask(t).astype(float)
-        ax.contour(X, Y, ra, levels=[0.5], colors="k", linestyles="--", linewidths=1.5)
-        handles.append(Line2D([], [], color="k", ls="--", label="classical RA"))
     for i, q in enumerate(budgets):
         m = table.set_mask(t, q).astype(float)
-        ax.contour(X, Y, m, levels=[0.5], colors=[_colour(i)], linewidths=2)
+        ax.contour(X, Y, m, levels=[0.5], colors=[_colour(i)], linewidths=2, zorder=2)
         handles.append(Line2D([], [], color=_colour(i), lw=2, label=f"RA~ Q={q:g}"))
+    if "V" in table.fields:
+        # on top: RA and RA~_0 nearly coincide (Prop. 3), and the dashes must stay visible over the Q = 0 line
+        ra = table.set_mask(t).astype(float)
+        ax.contour(X, Y, ra, levels=[0.5], colors="k", linestyles=[(0, (4, 3))], linewidths=1.2, zorder=3)
+        handles.append(Line2D([], [], color="k", ls=(0, (4, 3)), lw=1.2, label="classical RA"))
     names, units = model.state_names, model.state_units
     ax.set_xlabel(f"{names[0]} [{units[0]}]")
     ax.set_ylabel(f"{names[1]} [{units[1]}]")
@@ -89,10 +90,12 @@ def plot_sets_2d(table, budgets: Sequence[float], out: str | Path, t: float = 0.
         for j in range(len(x0)):
             c = _colour(list(budgets).index(qs[j]) if qs[j] in list(budgets) else j)
             n = ro.steps[j] + 1
-            ax.plot(ro.x[:n, j, 0], ro.x[:n, j, 1], ls="--", color=c, lw=1.5)
-            ax.plot(*x0[j], "o", color=c, mec="k")
+            ax.plot(ro.x[:n, j, 0], ro.x[:n, j, 1], ls=":", color=c, lw=1.8, zorder=4)
+            ax.plot(*x0[j], "o", color=c, mec="k", zorder=5)
             axs[0, 1].plot(ro.t[:n], ro.z[:n, j], color=c, label=f"Q={qs[j]:g}: used {ro.budget_used[j]:.3f}"
                            + (" landed" if ro.landed[j] else " NOT landed") + (" HARD VIOLATION" if ro.hard_violation[j] else ""))
+        handles.append(Line2D([], [], color="0.3", ls=":", lw=1.8, marker="o", mec="k",
+                              label="W-derived path, worst-case wind"))
         axs[0, 1].axhline(0, color="k", lw=0.8)
         axs[0, 1].set_xlabel("t [s]")
         axs[0, 1].set_ylabel("remaining budget z [s]")
