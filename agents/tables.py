@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 
 from softreach.reach import Table, load_table
-from softreach.reach.query import PAPER_PROXY_SECONDS
 
 #: the state axis that is the altitude, per model (for the "paper" starts: as high as possible)
 ALTITUDE_AXIS = {"pointmass": 1, "glider": 0}
@@ -127,17 +126,10 @@ def clear_filter_cache() -> None:
 
 # --------------------------------------------------------------------------------------------- starts
 
-def _membership_margin(table: Table, q: float) -> float:
-    """The margin of :meth:`Table.set_mask`: the paper's proxy (one millisecond of budget) for ``Q > 0``."""
-    return 0.0 if q == 0 else table.budget_scale * PAPER_PROXY_SECONDS
-
-
 def in_set(table: Table, x: Sequence[float], q: float, t: float = 0.0) -> bool:
-    """Whether ``x`` lies in ``RA~_Q`` at time ``t``, by the definition of :meth:`Table.set_mask` evaluated at
-    ``x`` itself: ``W_eps(t, x, max(Q, r)) + margin <= 0`` (``r`` the table's budget resolution)."""
-    z = max(float(q), table.budget_resolution)
-    v = float(table.value(t, np.asarray(x, dtype=np.float64)[None, :], np.array([z]))[0])
-    return v + _membership_margin(table, q) <= 0
+    """Whether ``x`` lies in ``RA~_Q`` at time ``t``: :meth:`Table.contains`, the rule of :meth:`Table.set_mask`
+    evaluated at ``x`` itself."""
+    return bool(table.contains(t, np.asarray(x, dtype=np.float64), float(q))[0])
 
 
 def start_value(table: Table, x: Sequence[float], q: float, t: float = 0.0) -> float:

@@ -352,6 +352,24 @@ class Table:
             return (self._slice("Q_min", float(t)) + margin <= q) | (self._slice("V", float(t)) + margin <= 0)
         return self._slice("W_eps", float(t), max(q, self.budget_resolution)) + margin <= 0
 
+    def contains(self, t: Any, x: Any, budget: Any = None) -> np.ndarray:
+        """Membership of states in the set :meth:`set_mask` draws, by the same rule evaluated at the states
+        themselves (interpolated): ``RA`` with ``budget=None``, else ``RA~_Q``. Off the table: not contained.
+
+        :param x: ``(N, n)`` or ``(n,)`` states; ``t`` and ``budget`` scalars or ``(N,)``
+        """
+        n = len(self.model_metadata["state_names"])
+        pts = _as_points(x, n, "x")
+        tt = _as_column(t, len(pts), "t")
+        if budget is None:
+            return self.value(tt, pts) <= 0
+        q = _as_column(budget, len(pts), "budget")
+        if np.any(q < 0):
+            raise ValueError(f"budget must be >= 0, got {q[q < 0][0]!r}")
+        if not self.has_budget and self.has_budget_surface:
+            return self.q_min(tt, pts) <= q
+        return self.value(tt, pts, np.maximum(q, self.budget_resolution)) <= 0
+
     def paper_proxy_margin(self) -> float:
         """The paper's ``1e-3`` proxy level in this table's value units (``kappa * 1 ms`` of budget)."""
         return self.budget_scale * PAPER_PROXY_SECONDS

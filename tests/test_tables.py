@@ -207,3 +207,20 @@ def test_bad_solve_input_fails_before_work(tmp_path):
         validate(MODEL, _cfg(), tmp_path / "missing" / "a.srt")
     with pytest.raises(ValueError, match="PointMassParams.u_max must be finite"):
         get_model("pointmass", u_max=float("inf"))
+
+
+def test_contains_is_the_set_mask_rule_at_the_nodes(pointmass_table):
+    """One membership rule: at the nodes, point queries agree with the drawn sets (and the agents' starts use it)."""
+    from softreach.agents.tables import in_set
+
+    t = pointmass_table
+    vv, yy = np.meshgrid(*t.state_axes(), indexing="ij")
+    pts = np.stack([vv.ravel(), yy.ravel()], 1)
+    for q in (None, 0.0, 0.06, 0.3):
+        inside = t.contains(0.5, pts, q).reshape(vv.shape)
+        np.testing.assert_array_equal(inside, t.set_mask(0.5) if q is None else t.set_mask(0.5, q))
+    edge = pts[t.contains(0.0, pts, 0.3) & ~t.contains(0.0, pts, 0.0)][0]
+    assert in_set(t, edge, 0.3) and not in_set(t, edge, 0.0)
+    assert not t.contains(0.0, [[100.0, 5.0]], 0.3)[0]  # off the table: not contained
+    with pytest.raises(ValueError, match="budget must be >= 0"):
+        t.contains(0.0, pts[:2], -0.1)
