@@ -20,7 +20,9 @@ from __future__ import annotations
 
 from gymnasium.envs.registration import register, registry
 
-from ._common import LandingEnv, OrnsteinUhlenbeckGust, integrate_period, rk4_stages
+from ._common import LandingEnv
+from .integrator import integrate_period, rk4_stages
+from .wind import OrnsteinUhlenbeckGust
 from .glider_landing import GliderLandingEnv
 from .pointmass_landing import PointMassLandingEnv
 

@@ -13,9 +13,10 @@ import math
 import numpy as np
 import pytest
 
-import softreach.envs._common as C
+import softreach.envs._common
+import softreach.envs.integrator as C
 from softreach.envs import GliderLandingEnv, PointMassLandingEnv
-from softreach.envs._common import ScalarModel, integrate_period, scalar_model
+from softreach.envs.integrator import ScalarModel, integrate_period, scalar_model
 from softreach.reach import backend as B
 from softreach.reach import sets
 from softreach.reach.models import get_model
@@ -280,7 +281,7 @@ def test_pointmass_env_identical_with_and_without_fast_path(monkeypatch, kwargs)
     fast_env = PointMassLandingEnv(**kwargs)
     fast_run = _rollout(fast_env, range(12), np.random.default_rng(6))
     assert fast_env._fast is not None
-    monkeypatch.setattr(C, "scalar_model", lambda model: None)
+    monkeypatch.setattr(softreach.envs._common, "scalar_model", lambda model: None)  # where the env looks it up
     slow_env = PointMassLandingEnv(**kwargs)
     slow_run = _rollout(slow_env, range(12), np.random.default_rng(6))
     assert slow_env._fast is None
