@@ -218,10 +218,7 @@ def _starts(spec: EvalSpec, table, model, rng: np.random.Generator, budget_range
     """The ``(x0, Q)`` of every episode."""
     n = spec.episodes
     if spec.starts == "paper":
-        budgets = [spec.budget] if spec.budget is not None else list(getattr(model, "default_budgets", None)
-                                                                     or (0.0, 0.3, 0.6))
-        if model.name == "pointmass" and spec.budget is None:
-            budgets = [0.0, 0.3, 0.6]  # the three points of the paper's Fig. 1 / 5
+        budgets = [spec.budget] if spec.budget is not None else list(model.paper_budgets)
         pts = paper_starts(table, budgets)
         if not pts:
             raise ValueError(f"no paper start: RA~_Q is empty for every Q in {budgets}")

@@ -248,9 +248,7 @@ def plot_trajectories(result, out: str | Path, table=None, max_episodes: int = 4
             _set_region(ax, model, axes, model.soft_constraint, 0.0, colors=[(0.95, 0.9, 0.78)])
             X, Y, g = _set_region(ax, model, axes, model.target, 0.0, colors=[(0.6, 0.6, 0.6)])
             q = result.config.get("budget")
-            budgets = [q] if q is not None else list(getattr(model, "default_budgets", (0.0, 0.3, 0.6)))
-            if model.name == "pointmass" and q is None:
-                budgets = [0.0, 0.3, 0.6]
+            budgets = [q] if q is not None else list(model.paper_budgets)
             for i, b in enumerate(budgets):
                 m = table.set_mask(0.0, float(b)).astype(float)
                 if m.max() > 0:
@@ -272,7 +270,7 @@ def plot_trajectories(result, out: str | Path, table=None, max_episodes: int = 4
         fig, axs = plt.subplots(1, n - 1, figsize=(5 * (n - 1), 5), squeeze=False)
         alt = 0
         others = [i for i in range(n) if i != alt]
-        box = getattr(model, "hard_box", None)
+        box = model.hard_box
         for j, i in enumerate(others):
             ax = axs[0, j]
             for tr in traces:

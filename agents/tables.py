@@ -201,7 +201,7 @@ def uniform_box(model: Any) -> tuple[np.ndarray, np.ndarray]:
     """The box of ``--starts uniform``: the hard-constraint box ``C1`` clipped to the model's domain (a start
     outside ``C1`` has failed before it begins); the whole domain where the model has no box."""
     lo, hi = (np.array(v, dtype=np.float64) for v in model.domain)
-    box = getattr(model, "hard_box", None)
+    box = model.hard_box
     if box is not None:
         lo = np.maximum(lo, np.array(box[0], dtype=np.float64))
         hi = np.minimum(hi, np.array(box[1], dtype=np.float64))

@@ -192,9 +192,7 @@ class LandingEnv(gym.Env):
                for i in range(self._n) if not self.state_low[i] <= x[i] <= self.state_high[i]]
         if bad:
             raise ValueError(f"{name} lies outside the {self.model.name} domain: " + "; ".join(bad))
-        validate = getattr(self.model, "validate_state", None)
-        if validate is not None:
-            validate(list(x))
+        self.model.validate_state(list(x))
 
     def _setup_wind(self, wind, wind_value, wind_table, gust_std, gust_tau, clip_wind) -> None:
         k = self._k

@@ -104,7 +104,7 @@ def _settings(args: argparse.Namespace):
 
 
 def run_solve(args: argparse.Namespace) -> int:
-    from .compute import DEFAULT_BUDGETS, SolveConfig, solve_table
+    from .compute import SolveConfig, solve_table
     from .models import get_model
 
     if args.threads is not None and args.threads < 1:
@@ -132,7 +132,7 @@ def run_solve(args: argparse.Namespace) -> int:
     out = Path(args.out or f"{args.model}{suffix}.srt")
     if args.json_path:
         _check_writable(Path(args.json_path), "--json")
-    budgets = args.budgets if args.budgets is not None else getattr(model, "default_budgets", DEFAULT_BUDGETS)
+    budgets = args.budgets if args.budgets is not None else model.default_budgets
     try:
         summary = solve_table(model, cfg, out, resume=not args.no_resume, progress=not args.quiet, budgets=budgets)
     except KeyboardInterrupt:
@@ -193,7 +193,7 @@ def run_plot(args: argparse.Namespace) -> int:
 
     table = load_table(args.table)
     model = table.model
-    budgets = args.budgets if args.budgets is not None else list(getattr(model, "default_budgets", (0.0, 0.06, 0.3, 0.6)))
+    budgets = args.budgets if args.budgets is not None else list(model.default_budgets)
     starts = [_parse_start(s, model.state_dim) for s in args.starts]
     if args.paper_starts and table.has_budget:
         from .plotting import representative_starts

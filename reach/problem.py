@@ -54,6 +54,11 @@ class Model(Dynamics):
     #: whose ends are where an episode checks landing and ``C1``
     control_period: float | None = None
     substeps: int = 1
+    #: budgets [s] whose sets the summaries and plots show, and those of the paper's representative starts
+    default_budgets: tuple[float, ...] = (0.0, 0.06, 0.3, 0.6)
+    paper_budgets: tuple[float, ...] = (0.0, 0.3, 0.6)
+    #: ``f``, the sets and the target do not depend on ``t`` (the solver then evaluates the sets once)
+    time_invariant: bool = True
 
     @abstractmethod
     def target(self, t: float, x: Components) -> Array:
@@ -66,6 +71,10 @@ class Model(Dynamics):
     @abstractmethod
     def soft_constraint(self, t: float, x: Components) -> Array:
         """``c2``: ``<= 0`` on the soft-constraint set ``C2``."""
+
+    def validate_state(self, x: Sequence[Any]) -> None:
+        """Raise ``ValueError`` naming a state the model cannot take (beyond the domain box the env checks);
+        the default accepts every state."""
 
     def landed(self, t: float, x: Components) -> Array:
         """In the target, inside ``C2`` and ``C1``: where an episode ends landed (no action is needed there)."""

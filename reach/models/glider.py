@@ -240,6 +240,7 @@ class Glider(Model):
         # and kappa = 1 keeps the most of RA~_0 (docs/glider.md)
         self.budget_scale = 1.0
         self.default_budgets = (0.0, 5.0, 10.0)
+        self.paper_budgets = (0.0, 5.0, 10.0)
         self.default_snapshots = 21
         #: the environment's control period [s]: the sampled-data table and the filter hold actions this long
         self.control_period = 0.1
