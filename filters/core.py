@@ -6,10 +6,10 @@ action by the value at the current state (the pointwise ``a*`` of a continuous-t
 overshoot the constraint it is riding); it judges the *held* action by where one period of it can go
 (:class:`~softreach.reach.lookahead.Lookahead`):
 
-* the policy's action passes when holding it for one period provably keeps the state in ``C1``, the budget
-  non-negative and every possible next state inside the certificate (``D <= -margin``, ``D = min(V~, W~_eps)``),
-  and, where the model bounds boxes of starts, when some candidate passes again from every possible next state
-  (so the next state is certified whatever the wind did);
+* the policy's action passes when holding it for one period provably keeps the state in ``C1`` and the budget
+  non-negative (or surely lands), and: where the model bounds boxes of starts, some candidate passes again from
+  every possible next state (so the next state is certified whatever the wind did); elsewhere, every possible
+  next state lies inside the certificate (``D <= -margin``, ``D = min(V~, W~_eps)``);
 * otherwise the filter applies a candidate held action (the table's, :meth:`Dynamics.held_candidates`) that
   passes the same test: with ``rule="switch"`` the one whose worst next certificate is lowest, with
   ``rule="smooth"`` the point closest to the policy's action on the segment from such a candidate.

@@ -113,6 +113,15 @@ class Lookahead:
         vals = np.asarray(fn(t_arg, [pts[:, i] for i in range(self.n)]), dtype=np.float64)
         return np.broadcast_to(vals, (N * C,)).reshape(N, C).max(axis=1)
 
+    def _budget_spent(self, t: np.ndarray, piece_lo: np.ndarray, piece_hi: np.ndarray, length: float) -> np.ndarray:
+        """The budget bound of item 2 over ``length`` seconds cut in ``len(piece_lo)`` equal pieces: each piece
+        charged at the largest ``h_eps`` over its box (at a corner: ``c2`` is convex)."""
+        spent = np.zeros(piece_lo.shape[1])
+        for lo, hi in zip(piece_lo, piece_hi):
+            c2 = self._corner_max(self.model.soft_constraint, t, lo, hi)
+            spent += (length / len(piece_lo)) * np.clip(c2 / self.eps, 0.0, 1.0)
+        return spent
+
     def _enclose(self, t: np.ndarray, x: np.ndarray, a: np.ndarray, dt: float | None = None):
         t0 = _time_arg(t)
         dt = self.dt if dt is None else dt
@@ -170,7 +179,6 @@ class Lookahead:
         # budget: piece j of the period is charged at the largest violation rate over a box holding every state
         # of that piece, so a short excursion out of C2 costs only its pieces, and never less than the
         # environment's exact integral of h_eps
-        spent = np.zeros(len(x))
         if bounded.all() and x_hi is None:
             piece_lo, piece_hi = self.model.held_tube_pieces(_time_arg(t), x, a, self.dt, self.pieces)
         elif bounded.all():
@@ -178,10 +186,7 @@ class Lookahead:
         else:
             piece_lo = np.broadcast_to(tube_lo, (self.pieces,) + tube_lo.shape)
             piece_hi = np.broadcast_to(tube_hi, (self.pieces,) + tube_hi.shape)
-        for j in range(self.pieces):
-            c2 = self._corner_max(self.model.soft_constraint, t, piece_lo[j], piece_hi[j])
-            spent += (self.dt / self.pieces) * np.clip(c2 / self.eps, 0.0, 1.0)
-        z_end = z - spent
+        z_end = z - self._budget_spent(t, piece_lo, piece_hi, self.dt)
         t_next = t + self.dt
         in_time = t_next <= self.horizon + 1e-9 * max(1.0, self.horizon)
         t_next = np.minimum(t_next, self.horizon)
@@ -256,10 +261,7 @@ class Lookahead:
                 else:
                     piece_lo, piece_hi = model.held_tube_pieces_box(_time_arg(tr[idx]), lo[idx], hi[idx],
                                                                     a[todo][idx], s, self.pieces)
-                spent = np.zeros(len(idx))
-                for k in range(self.pieces):
-                    c2 = self._corner_max(model.soft_constraint, tr[idx], piece_lo[k], piece_hi[k])
-                    spent += (s / self.pieces) * np.clip(c2 / self.eps, 0.0, 1.0)
+                spent = self._budget_spent(tr[idx], piece_lo, piece_hi, s)
                 done = idx[z[todo][idx] - spent >= 0]
                 out[todo[done]] = True
                 todo = np.delete(todo, done)
