@@ -7,7 +7,9 @@ import os
 from pathlib import Path
 from typing import Any
 
-from .config import ALGOS, MODELS
+from softreach.reach.registry import model_argument, model_metavar
+
+from .config import ALGOS
 
 WIND_CHOICES = ("none", "random", "adversarial")
 RULE_CHOICES = ("switch", "smooth")
@@ -31,7 +33,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                        description="Train a PPO or SAC landing policy. With --filter the environment executes the "
                                    "filtered action (see docs/agents.md for what the learner is told). Defaults: "
                                    "softreach.agents.config.")
-    p.add_argument("model", choices=MODELS)
+    p.add_argument("model", type=model_argument, metavar=model_metavar(),
+                   help="a registered model or the module:Class path of your own Model subclass")
     p.add_argument("--algo", choices=ALGOS, default="ppo")
     p.add_argument("--filter", metavar="TABLE", default=None, help="W_eps table of the safety filter (default: no filter)")
     p.add_argument("--rule", choices=RULE_CHOICES, default="switch", help="filter rule (default switch)")
@@ -55,7 +58,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("evaluate", help="evaluate a policy (trained, table-optimal or random), filtered or not",
                        description="Run episodes and report landings, hard violations, budget use and interventions "
                                    "with 95% confidence intervals.")
-    p.add_argument("model", choices=MODELS)
+    p.add_argument("model", type=model_argument, metavar=model_metavar(),
+                   help="a registered model or the module:Class path of your own Model subclass")
     p.add_argument("--policy", required=True, metavar="PATH|optimal|random",
                    help="a saved policy (model.zip or its run directory), 'optimal' (the table's a*) or 'random'")
     p.add_argument("--filter", metavar="TABLE", default=None, help="apply the safety filter of this table")

@@ -16,9 +16,13 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+from softreach.reach.registry import env_ids, model_class, model_names
+
 ALGOS = ("ppo", "sac")
-MODELS = ("pointmass", "glider")
-ENV_IDS = {"pointmass": "softreach/PointMassLanding-v0", "glider": "softreach/GliderLanding-v0"}
+#: the registered models and their environment ids when this module was imported (from
+#: :mod:`softreach.reach.registry`, the one place they live; a ``"module:Class"`` model is accepted too)
+MODELS = tuple(model_names())
+ENV_IDS = env_ids()
 
 
 @dataclass(frozen=True)
@@ -129,6 +133,7 @@ class Defaults:
         return {"run": asdict(self.run), "algo": asdict(self.algo)}
 
 
+#: tuned defaults; every other model (dubins, a user's) trains with the generic ones of :func:`defaults`
 _DEFAULTS: dict[tuple[str, str], Defaults] = {
     ("pointmass", "ppo"): Defaults(RunConfig(), PPOConfig()),
     ("pointmass", "sac"): Defaults(RunConfig(timesteps=60_000, n_envs=4, eval_freq=10_000,
@@ -140,15 +145,19 @@ _DEFAULTS: dict[tuple[str, str], Defaults] = {
 
 
 def defaults(model: str, algo: str = "ppo") -> Defaults:
-    """The default run and algorithm settings of ``model`` trained with ``algo``.
+    """The default run and algorithm settings of ``model`` trained with ``algo``: the tuned ones of the landings,
+    the dataclasses' own defaults for every other model (PPO) or the point mass's SAC run settings (SAC).
 
+    :param model: a registered short name or ``"module:Class"``
     :raises ValueError: an unknown model or algorithm (the message names it)
     """
-    if model not in MODELS:
-        raise ValueError(f"unknown model {model!r}; choose from {list(MODELS)}")
     if algo not in ALGOS:
         raise ValueError(f"unknown algorithm {algo!r}; choose from {list(ALGOS)}")
-    return _DEFAULTS[(model, algo)]
+    model_class(model)  # raises, naming an unknown model
+    found = _DEFAULTS.get((model, algo))
+    if found is not None:
+        return found
+    return Defaults(RunConfig(), PPOConfig()) if algo == "ppo" else _DEFAULTS[("pointmass", "sac")]
 
 
 def with_overrides(cfg: Any, **overrides: Any) -> Any:

@@ -22,7 +22,8 @@ import numpy as np
 
 import softreach.envs  # noqa: F401  (registers the environment ids)
 
-from .config import ENV_IDS, MODELS
+from softreach.reach.registry import make_env as make_model_env, model_class
+
 from .tables import TableOracle, as_table, safety_filter
 
 WINDS = ("none", "random", "adversarial")
@@ -91,7 +92,7 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
              intervention_penalty: float = 0.0, env_kwargs: dict[str, Any] | None = None) -> gym.Env:
     """One landing environment with its wind, optional safety filter and training wrappers.
 
-    :param model: ``"pointmass"`` or ``"glider"``
+    :param model: a registered short name (``"pointmass"``, ``"glider"``, ``"dubins"``) or ``"module:Class"``
     :param wind: ``"none"``, ``"random"`` (the environment's gust) or ``"adversarial"`` (the table's ``b*``)
     :param wind_table: table (path, :class:`~softreach.reach.Table` or :class:`TableOracle`) whose ``b*`` blows
         under ``wind="adversarial"``; defaults to ``filter_table``
@@ -105,7 +106,7 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
     :param intervention_penalty: reward subtracted per filter intervention (0 for evaluation)
     :param env_kwargs: more keyword arguments of the environment
     """
-    check_choice("model", model, MODELS)
+    model_class(model)  # raises, naming an unknown model
     check_choice("wind", wind, WINDS)
     check_choice("rule", rule, RULES)
     kwargs = dict(env_kwargs or {})
@@ -117,7 +118,7 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
         kwargs["wind_table"] = source if isinstance(source, TableOracle) else TableOracle(source)
     if budget is not None:
         kwargs["budget"] = budget
-    env = gym.make(ENV_IDS[model], **kwargs)
+    env = make_model_env(model, **kwargs)
     if monitor:
         from stable_baselines3.common.monitor import Monitor
 

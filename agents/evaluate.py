@@ -16,7 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from .config import MODELS
+from softreach.reach.registry import model_class
+
 from .envs import RULES, WINDS, check_budget, check_choice, make_env, normalized_action, unwrap_filter
 from .tables import TableOracle, as_table, in_set, paper_starts, sample_inside, sample_uniform, sink_rate, start_value
 
@@ -109,7 +110,7 @@ class SB3Policy:
 class EvalSpec:
     """What ``softreach evaluate`` was asked to do.
 
-    :param model: ``"pointmass"`` or ``"glider"``
+    :param model: a registered short name (``"pointmass"``, ``"glider"``, ``"dubins"``) or ``"module:Class"``
     :param policy: a saved policy (path), ``"optimal"`` (the table's ``a*``) or ``"random"``
     :param filter: the safety filter's table; ``None``: no filter
     :param rule: the filter's rule
@@ -190,7 +191,7 @@ def resolve_policy(spec: EvalSpec, oracle: TableOracle | None, policy_obj: Any =
 def check_spec(spec: EvalSpec, policy_given: bool = False) -> None:
     """Check ``spec`` (ValueError / FileNotFoundError naming the bad value); ``policy_given``: the policy object
     is passed in, ``spec.policy`` is only its name."""
-    check_choice("model", spec.model, MODELS)
+    model_class(spec.model)  # raises, naming an unknown model
     check_choice("rule", spec.rule, RULES)
     check_choice("wind", spec.wind, WINDS)
     check_choice("start distribution", spec.starts, STARTS)

@@ -13,7 +13,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -21,10 +20,6 @@ from typing import Any
 import numpy as np
 
 from softreach.reach import Table, load_table
-
-#: the state axis that is the altitude, per model (for the "paper" starts: as high as possible)
-ALTITUDE_AXIS = {"pointmass": 1, "glider": 0}
-
 
 def as_table(table: Table | str | Any) -> Table:
     """A loaded :class:`Table` (``table`` itself, or the file it names)."""
@@ -169,14 +164,16 @@ def paper_starts(table: Table, budgets: Sequence[float], t: float = 0.0, depth: 
     For each ``Q`` (in increasing order): among the grid nodes of ``RA~_Q`` that need that budget (outside the
     set of the previous budget, where that leaves any), those at least ``depth`` times as deep as the deepest
     (``W`` is negative inside; this keeps the point off the set's jagged grid boundary), then the highest of
-    them (largest altitude), then the deepest. The paper picks its points on the sets' boundaries and does not
+    them (the largest :meth:`~softreach.reach.problem.Model.start_difficulty`: the altitude for the landings),
+    then the deepest. The paper picks its points on the sets' boundaries and does not
     print them; this picks comparable points reproducibly. The start's budget is ``Q`` itself.
 
     :return: ``[(x, Q), ...]`` for the budgets whose set is not empty
     """
     model = table.model
-    alt = ALTITUDE_AXIS.get(model.name, 0)
     axes = table.state_axes("W_eps")
+    grids = np.meshgrid(*axes, indexing="ij")
+    difficulty = np.broadcast_to(np.asarray(model.start_difficulty(grids), dtype=np.float64), grids[0].shape)
     out = []
     prev = None
     for q in sorted(float(b) for b in budgets):
@@ -189,8 +186,8 @@ def paper_starts(table: Table, budgets: Sequence[float], t: float = 0.0, depth: 
         floor = float(np.where(cand, w, np.inf).min())
         deep = cand & (w <= depth * floor) if floor < 0 else cand
         idx = np.argwhere(deep)
-        top = idx[:, alt].max()
-        idx = idx[idx[:, alt] == top]
+        score = difficulty[tuple(idx.T)]
+        idx = idx[score == score.max()]
         best = idx[np.argmin([w[tuple(i)] for i in idx])]
         out.append((np.array([axes[d][best[d]] for d in range(len(axes))]), q))
         prev = mask
@@ -217,13 +214,10 @@ def sample_uniform(model: Any, rng: np.random.Generator) -> np.ndarray:
 
 
 def sink_rate(model: Any, x: Sequence[float]) -> float:
-    """The vertical speed downwards [m/s] at state ``x`` (point mass ``-v``, glider ``-V sin(gamma)``)."""
-    if model.name == "pointmass":
-        return -float(x[0])
-    if model.name == "glider":
-        return -float(x[1]) * math.sin(float(x[2]))
-    return math.nan
+    """The model's touchdown speed at state ``x`` [m/s] (:meth:`~softreach.reach.problem.Model.sink_rate`: point
+    mass ``-v``, glider ``-V sin(gamma)``; ``nan`` for a model without one)."""
+    return float(model.sink_rate([float(v) for v in x]))
 
 
-__all__ = ["ALTITUDE_AXIS", "TableOracle", "as_table", "clear_filter_cache", "in_set", "paper_starts",
+__all__ = ["TableOracle", "as_table", "clear_filter_cache", "in_set", "paper_starts",
            "safety_filter", "sample_inside", "sample_uniform", "sink_rate", "start_value", "uniform_box"]

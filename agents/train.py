@@ -38,7 +38,9 @@ from typing import Any
 
 import numpy as np
 
-from .config import ALGOS, MODELS, PPOConfig, SACConfig, algo_kwargs, defaults, with_overrides
+from softreach.reach.registry import env_id, model_class
+
+from .config import ALGOS, PPOConfig, SACConfig, algo_kwargs, defaults, with_overrides
 from .envs import RULES, WINDS, check_budget, check_choice, make_env
 from .tables import TableOracle, as_table
 
@@ -49,7 +51,7 @@ TRAIN_SCHEMA = "softreach.train/1"
 class TrainSpec:
     """What ``softreach train`` was asked to do. ``None`` fields take the model's defaults (:mod:`.config`).
 
-    :param model: ``"pointmass"`` or ``"glider"``
+    :param model: a registered short name (``"pointmass"``, ``"glider"``, ``"dubins"``) or ``"module:Class"``
     :param algo: ``"ppo"`` or ``"sac"``
     :param filter: the safety filter's table (path); ``None`` trains without a filter
     :param rule: the filter's rule
@@ -109,7 +111,7 @@ def resolve(spec: TrainSpec) -> tuple[Any, PPOConfig | SACConfig, dict[str, Any]
 
     :raises ValueError: naming the first bad value
     """
-    check_choice("model", spec.model, MODELS)
+    model_class(spec.model)  # raises, naming an unknown model
     check_choice("algorithm", spec.algo, ALGOS)
     check_choice("rule", spec.rule, RULES)
     d = defaults(spec.model, spec.algo)
@@ -268,7 +270,7 @@ def train(spec: TrainSpec) -> TrainResult:
         "schema": TRAIN_SCHEMA,
         "model": spec.model,
         "algo": spec.algo,
-        "env_id": f"softreach/{'PointMass' if spec.model == 'pointmass' else 'Glider'}Landing-v0",
+        "env_id": env_id(spec.model),
         "filter": {"table": str(spec.filter), "rule": spec.rule} if spec.filter else None,
         "wind": run.wind,
         "wind_table": str(wind_src) if run.wind == "adversarial" else None,

@@ -215,7 +215,7 @@ class LandingEnv(gym.Env):
                             ("gust_tau", gust_tau)):
             if value is not None and self.wind_mode != used[name]:
                 raise ValueError(f"{name}= is used only with wind={used[name]!r}, but wind={self.wind_mode!r}")
-        units = f" [{_disturbance_unit(self.model)}]"
+        units = f" [{', '.join(self.model.disturbance_units) or 'model units'}]"
         if self.wind_mode == "constant":
             if wind_value is None:
                 raise ValueError("wind='constant' needs wind_value= (the physical wind"
@@ -540,7 +540,3 @@ def _check_positive(name: str, value: Any) -> None:
     if not (isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
             and math.isfinite(float(value)) and float(value) > 0):
         raise ValueError(f"{name} must be a finite positive number, got {value!r}")
-
-
-def _disturbance_unit(model: Model) -> str:
-    return {"pointmass": "m/s^2", "glider": "N"}.get(model.name, "model units")

@@ -8,11 +8,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from .registry import model_argument, model_metavar
+
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("solve", help="solve V and W_eps for a model and write a table",
                        description="Solve the classical value V and the soft-constrained W_eps on the budget-augmented grid.")
-    p.add_argument("model", choices=["pointmass", "glider"])
+    p.add_argument("model", type=model_argument, metavar=model_metavar(),
+                   help="a registered model or the module:Class path of your own Model subclass")
     p.add_argument("--grid", type=int, nargs="+", metavar="N", help="state grid sizes (default: the model's)")
     p.add_argument("--budget-points", type=int, metavar="NZ", help="nodes along the budget axis z (default: the model's)")
     p.add_argument("--eps", type=float, default=1e-3, help="width of h_eps (default 1e-3)")
@@ -129,7 +132,8 @@ def run_solve(args: argparse.Namespace) -> int:
         budget_surface=args.budget_surface,
     )
     suffix = "-held" if cfg.control_period is not None else "-qmin" if cfg.budget_surface else ""
-    out = Path(args.out or f"{args.model}{suffix}.srt")
+    # a class path names the table after the class ("my_pkg.mod:Car" -> Car.srt)
+    out = Path(args.out or f"{args.model.rpartition(':')[2]}{suffix}.srt")
     if args.json_path:
         _check_writable(Path(args.json_path), "--json")
     budgets = args.budgets if args.budgets is not None else model.default_budgets

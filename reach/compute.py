@@ -84,14 +84,17 @@ def validate(model: Model, cfg: SolveConfig, out: str | os.PathLike | None) -> t
         for name, a, b, ca, cb in zip(model.state_names, lo, hi, *model.hard_box):
             if a > ca or b < cb:
                 raise ValueError(f"the grid domain along {name}, [{a}, {b}], does not contain the hard-constraint set's [{ca}, {cb}]")
-    state_grid = Grid(tuple(lo), tuple(hi), shape, names=tuple(model.state_names))
+    # a periodic axis (an angle) has no boundary: the grid wraps there, its domain is one period
+    periodic = model.periodic_axes()
+    state_grid = Grid(tuple(lo), tuple(hi), shape, periodic=periodic, names=tuple(model.state_names))
     if cfg.budget_surface and (cfg.classical_only or cfg.control_period is not None):
         raise ValueError("the budget surface is solved for the continuous-time game with V beside it: drop "
                          "--classical and --held")
     aug = None
     if not cfg.classical_only and not cfg.budget_surface:
         z_lo, z_hi, nz = budget_axis(model.horizon, cfg.budget_points)
-        aug = Grid(tuple(lo) + (z_lo,), tuple(hi) + (z_hi,), shape + (nz,), names=tuple(model.state_names) + ("z",))
+        aug = Grid(tuple(lo) + (z_lo,), tuple(hi) + (z_hi,), shape + (nz,), periodic=periodic + (False,),
+                   names=tuple(model.state_names) + ("z",))
     if out is not None:
         path = Path(out)
         parent = path.parent if str(path.parent) else Path(".")

@@ -59,6 +59,20 @@ class Model(Dynamics):
     paper_budgets: tuple[float, ...] = (0.0, 0.3, 0.6)
     #: ``f``, the sets and the target do not depend on ``t`` (the solver then evaluates the sets once)
     time_invariant: bool = True
+    #: per state axis, whether it is periodic (an angle): its period is the ``domain`` along it, ``[lo, hi)``.
+    #: The solver's grid wraps there (no boundary), table queries wrap the coordinate, the environment wraps the
+    #: state. Empty: no periodic axis.
+    periodic: tuple[bool, ...] = ()
+    #: the box the environment draws start states from, uniformly (``None``: the env must be given one)
+    start_box: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    #: the budget ``Q`` [s] of an episode, or a ``(low, high)`` range the environment draws it from
+    start_budget: float | tuple[float, float] = 0.0
+    #: units of the control and of the disturbance components (messages, plots)
+    control_units: tuple[str, ...] = ()
+    disturbance_units: tuple[str, ...] = ()
+    #: ``(lo, hi)`` of a box that holds the target set (``-inf``/``inf`` where unbounded), or ``None``. The safety
+    #: filter skips its landing test for periods whose motion cannot meet this box; only speed depends on it
+    target_box: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     @abstractmethod
     def target(self, t: float, x: Components) -> Array:
@@ -76,6 +90,61 @@ class Model(Dynamics):
         """Raise ``ValueError`` naming a state the model cannot take (beyond the domain box the env checks);
         the default accepts every state."""
 
+    def periodic_axes(self) -> tuple[bool, ...]:
+        """:attr:`periodic` with one entry per state axis (``False`` where not given).
+
+        :raises ValueError: a :attr:`periodic` of the wrong length
+        """
+        if not self.periodic:
+            return (False,) * self.state_dim
+        if len(self.periodic) != self.state_dim:
+            raise ValueError(f"{self.name}: periodic needs one flag per state {self.state_names}, got {self.periodic!r}")
+        return tuple(bool(p) for p in self.periodic)
+
+    def wrap_state(self, x: Sequence[float]) -> list[float]:
+        """The state with each periodic coordinate moved into its period ``[lo, hi)`` of :attr:`domain`.
+
+        :param x: one state, a number per component
+        """
+        out = [float(v) for v in x]
+        for i, per in enumerate(self.periodic_axes()):
+            if per:
+                lo, hi = float(self.domain[0][i]), float(self.domain[1][i])
+                out[i] = lo + (out[i] - lo) % (hi - lo)
+        return out
+
+    def sink_rate(self, x: Sequence[float]) -> float:
+        """The speed at touchdown that an evaluation reports [m/s] (the landings: vertical speed downwards);
+        ``nan`` for a model without one (the default).
+
+        :param x: one state, a number per component
+        """
+        return math.nan
+
+    def start_difficulty(self, x: Components) -> Array:
+        """How hard a start is, for picking the paper's representative starts (:func:`softreach.agents.tables.
+        paper_starts` takes the largest among deep nodes of each set). The landings: the altitude. The default:
+        the first state component.
+
+        :param x: state components (arrays over the grid)
+        """
+        return x[0]
+
+    def set_box_max(self, which: str, t: Any, lo: Any, hi: Any) -> Any:
+        """An upper bound of a set function over boxes of states, or ``None`` when the largest value at the
+        boxes' corners is one (the default: true for box distances and every function that is convex, or
+        monotone, along each axis). The safety filter's one-period test bounds ``c1``, ``c2`` and ``g`` over
+        boxes of reachable states this way; a model whose sets are not of that kind (the complement of a disc,
+        as an obstacle) must override this, else that test is unsound.
+
+        :param which: ``"target"``, ``"hard_constraint"`` or ``"soft_constraint"``
+        :param t: time(s) [s]
+        :param lo: ``(N, n)`` lower corners
+        :param hi: ``(N, n)`` upper corners
+        :return: ``(N,)`` upper bounds, or ``None``
+        """
+        return None
+
     def landed(self, t: float, x: Components) -> Array:
         """In the target, inside ``C2`` and ``C1``: where an episode ends landed (no action is needed there)."""
         return (self.target(t, x) <= 0) & (self.soft_constraint(t, x) <= 0) & (self.hard_constraint(t, x) <= 0)
@@ -85,8 +154,16 @@ class Model(Dynamics):
         return B.clip(self.soft_constraint(t, x) / eps, 0.0, 1.0)
 
     def metadata(self) -> dict[str, Any]:
-        """What a table records to refuse being used with another model."""
-        return {"name": self.name, "parameters": self.parameters(), "state_names": list(self.state_names)}
+        """What a table records to refuse being used with another model, and to rebuild it: its name, its
+        :meth:`parameters` (the constructor's keyword arguments) and, for a model without a registered short
+        name, the ``"module:Class"`` path to import it from."""
+        from .registry import is_class_path, spec_of
+
+        out = {"name": self.name, "parameters": self.parameters(), "state_names": list(self.state_names)}
+        spec = spec_of(self)
+        if is_class_path(spec):
+            out["class"] = spec
+        return out
 
 
 class BudgetAugmented(Dynamics):

@@ -215,6 +215,11 @@ class Glider(Model):
     name = "glider"
     state_names = ("h", "V", "gamma")
     state_units = ("m", "m/s", "rad")
+    control_units = ("rad",)
+    disturbance_units = ("N",)
+    #: the start distribution of ``GliderLanding-v0`` (and of the generic env with this model)
+    start_box = ((2.0, 66.0, math.radians(-2.5)), (40.0, 78.0, math.radians(-0.5)))
+    start_budget = (0.0, 10.0)
 
     def __init__(self, params: GliderParams | None = None, **overrides: Any):
         """:param params: a full parameter set; or pass :class:`GliderParams` fields as keyword overrides"""
@@ -247,6 +252,9 @@ class Glider(Model):
         #: RK4 sub-steps per control period in the environment; their ends are where landing and ``C1`` are checked
         #: (0.05 s, RK4 error below 1e-9 (envs/glider_landing.py))
         self.substeps = 2
+        #: the target's altitude band (its sink-rate term is not a box, so the other axes are unbounded)
+        self.target_box = ((p.min_altitude - p.touchdown_altitude, -math.inf, -math.inf),
+                           (p.min_altitude + p.touchdown_altitude, math.inf, math.inf))
         # C_L over the control box; cl_alpha > 0 maps the alpha interval onto it in order
         self._cl_bounds = (p.cl0 + p.cl_alpha * p.alpha_bounds[0], p.cl0 + p.cl_alpha * p.alpha_bounds[1])
 
@@ -603,9 +611,13 @@ class Glider(Model):
     def sink_rate(self, x: Components) -> Array:
         """``-V sin(gamma)`` [m/s], positive when descending.
 
-        :param x: ``(h, V, gamma)`` components [m, m/s, rad]
+        :param x: ``(h, V, gamma)`` components [m, m/s, rad] (arrays, or numbers for one state)
         """
         return -x[1] * _sin(x[2])
+
+    def start_difficulty(self, x: Components) -> Array:
+        """The altitude ``h``: the paper's representative starts are the highest of each set."""
+        return x[0]
 
     def target(self, t: float, x: Components) -> Array:
         """``g = max(box distance to |h| <= hb in altitude units, (sink rate - max_sink_rate) / sink_rate_scale)``.

@@ -67,6 +67,11 @@ class PointMass(Model, ControlAndDisturbanceAffine):
     name = "pointmass"
     state_names = ("v", "y")
     state_units = ("m/s", "m")
+    control_units = ("m/s^2",)
+    disturbance_units = ("m/s^2",)
+    #: the start distribution of ``PointMassLanding-v0`` (and of the generic env with this model)
+    start_box = ((-5.0, 1.0), (5.0, 12.0))
+    start_budget = (0.0, 0.6)
 
     def __init__(self, params: PointMassParams | None = None, **overrides: Any):
         if params is None:
@@ -80,6 +85,7 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         self.horizon = p.horizon
         self.domain = ((-20.0, -5.0), (20.0, 20.0))
         self.hard_box = ((p.hard_speed[0], p.altitude[0]), (p.hard_speed[1], p.altitude[1]))
+        self.target_box = ((p.target_speed[0], p.target_altitude[0]), (p.target_speed[1], p.target_altitude[1]))
         self.default_shape = (101, 101)
         self.default_budget_points = 111
         self.default_snapshots = 41  # every 25 ms: the filter and the W-derived control read W(t, .) over the horizon
@@ -150,6 +156,17 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         v_hi = np.maximum(x_hi[..., 0] + acc_hi * s0, x_hi[..., 0] + acc_hi * s1)
         return (np.stack([v_lo, _parabola(x_lo[..., 1], x_lo[..., 0], acc_lo, s0, s1, np.minimum)], axis=-1),
                 np.stack([v_hi, _parabola(x_hi[..., 1], x_hi[..., 0], acc_hi, s0, s1, np.maximum)], axis=-1))
+
+    def sink_rate(self, x) -> float:
+        """The vertical speed downwards, ``-v`` [m/s].
+
+        :param x: one state ``(v, y)``
+        """
+        return -float(x[0])
+
+    def start_difficulty(self, x):
+        """The altitude ``y``: the paper's representative starts are the highest of each set."""
+        return x[1]
 
     # sets
     def target(self, t, x):
