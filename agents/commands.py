@@ -1,4 +1,4 @@
-"""The ``train``, ``evaluate`` and ``demo`` subcommands of the ``softreach`` command line."""
+"""The ``train``, ``evaluate``, ``demo`` and ``sweep`` (:mod:`.sweep_cli`) subcommands of ``softreach``."""
 
 from __future__ import annotations
 
@@ -94,6 +94,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run_demo)
+
+    from .sweep_cli import add_sweep_command  # the grid of runs: its own module
+
+    add_sweep_command(sub)
 
 
 def _threads() -> None:

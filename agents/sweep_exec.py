@@ -1,0 +1,258 @@
+"""Run a sweep's runs: in local processes (``ProcessPoolExecutor``) or as Ray tasks, resumable.
+
+Each run lives in ``OUT/runs/<run_id>/``: ``train/`` (the ``softreach train`` outputs), ``eval-<eval_id>.json``
+(each evaluation, schema ``softreach.evaluation/1``) and ``result.json`` (schema ``softreach.sweep-run/1``: the
+run's status, error, training summary and every evaluation's aggregates), written atomically (a temporary file
+renamed over it), so a killed run never leaves half a result. A rerun reads ``result.json``: a run whose training
+and requested evaluations are all done is skipped; a run that trained but lacks an evaluation is only evaluated;
+a failed or killed one runs again.
+
+:func:`run_one` never raises for a failure of the run itself: the exception becomes ``status: "failed"`` with its
+message. A worker process that dies (killed, out of memory, ``os._exit``) cannot report; the driver reports the
+run it was running as ``status: "killed"`` (see :func:`execute_local` and :func:`execute_ray`).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import socket
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from .sweep import EvalSetting, SweepRun
+
+RESULT_SCHEMA = "softreach.sweep-run/1"
+RESULT_FILE = "result.json"
+#: written by the worker when it starts a run; its presence after a worker died says the run was in flight
+RUNNING_FILE = "running.json"
+
+Task = tuple[SweepRun, list[EvalSetting], str]
+
+
+def write_atomic(path: Path, data: dict[str, Any]) -> None:
+    """Write JSON to ``path`` through a temporary file and a rename (atomic on POSIX)."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(data, indent=1, allow_nan=False, default=str))
+    os.replace(tmp, path)
+
+
+def read_result(run_dir: str | Path) -> dict[str, Any] | None:
+    """The run's ``result.json``, or ``None`` if absent or unreadable (a rerun then runs it again)."""
+    try:
+        data = json.loads((Path(run_dir) / RESULT_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) and data.get("schema") == RESULT_SCHEMA else None
+
+
+def is_done(result: dict[str, Any] | None, evals: list[EvalSetting]) -> bool:
+    """Whether ``result`` holds a finished training and every evaluation in ``evals``."""
+    if not result or result.get("train", {}).get("status") != "done":
+        return False
+    done = result.get("evaluations", {})
+    return all(done.get(ev.eval_id, {}).get("status") == "done" for ev in evals)
+
+
+def _error_text(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}".strip()
+
+
+def new_result(run: SweepRun, status: str, error: str | None = None) -> dict[str, Any]:
+    """A ``result.json`` document with no training and no evaluation (for a run that failed before them)."""
+    return {"schema": RESULT_SCHEMA, "run_id": run.run_id, "run": asdict(run), "status": status, "error": error,
+            "train": {"status": "not run"}, "evaluations": {}, "host": socket.gethostname(), "pid": os.getpid(),
+            "finished": _dt.datetime.now().isoformat(timespec="seconds")}
+
+
+def _train(run: SweepRun, run_dir: Path, previous: dict[str, Any] | None) -> dict[str, Any]:
+    """Train, unless ``previous`` says the training is done and its model is still there."""
+    old = (previous or {}).get("train", {})
+    if old.get("status") == "done" and Path(old.get("model_path", "")).is_file():
+        return old
+    from .train import train
+
+    res = train(run.train_spec(run_dir / "train"))
+    return {"status": "done", "model_path": str(res.model_path),
+            "best_model_path": str(res.best_model_path) if res.best_model_path else None,
+            "wall_time_s": res.wall_time_s, "timesteps": res.timesteps, "run_dir": str(res.out_dir)}
+
+
+def _evaluate(run: SweepRun, ev: EvalSetting, trained: dict[str, Any], run_dir: Path, cache: dict) -> dict[str, Any]:
+    """One evaluation of the trained policy; its full document goes to ``eval-<eval_id>.json``."""
+    from .evaluate import EvalSpec, evaluate
+    from .report import write_json
+    from .train import load_policy
+
+    best = trained.get("best_model_path")
+    path = best if (ev.checkpoint == "best" and best) else trained["model_path"]
+    if path not in cache:
+        cache[path] = load_policy(path)
+    rule = run.rule if run.rule != "none" else "switch"
+    t0 = time.perf_counter()
+    res = evaluate(EvalSpec(model=run.model, policy=path, filter=ev.table if ev.filter == "on" else None, rule=rule,
+                            budget=ev.budget, wind=ev.wind, table=ev.table, episodes=ev.episodes, starts=ev.starts,
+                            seed=ev.seed, keep_traces=0), policy_obj=cache[path])
+    wall = time.perf_counter() - t0
+    doc_path = write_json(res, run_dir / f"eval-{ev.eval_id}.json")
+    return {"status": "done", "error": None, "setting": asdict(ev), "rule": rule if ev.filter == "on" else None,
+            "checkpoint": Path(path).name, "policy": path, "wall_time_s": wall, "document": str(doc_path),
+            "aggregates": json.loads(doc_path.read_text())["aggregates"]}
+
+
+def run_one(run: SweepRun, evals: list[EvalSetting], run_dir: str) -> dict[str, Any]:
+    """Train ``run`` (unless done) and evaluate it under ``evals`` (those not done), in this process.
+
+    Writes ``result.json`` atomically and returns it. A failure of the training marks the run and all its
+    evaluations failed; a failure of one evaluation marks that evaluation (and the run) failed. Never raises for
+    an exception of the run (``SystemExit`` included); ``KeyboardInterrupt`` propagates.
+    """
+    if "OMP_NUM_THREADS" not in os.environ:  # small MLPs gain nothing from more threads; runs share the cores
+        import torch
+
+        torch.set_num_threads(1)
+    d = Path(run_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    write_atomic(d / RUNNING_FILE, {"pid": os.getpid(), "host": socket.gethostname(),
+                                    "started": _dt.datetime.now().isoformat(timespec="seconds")})
+    previous = read_result(d)
+    result = new_result(run, "running")
+    try:
+        result["train"] = _train(run, d, previous)
+    except (Exception, SystemExit) as exc:  # noqa: BLE001  (reported in the table, not raised)
+        result.update(status="failed", error="train: " + _error_text(exc),
+                      traceback=traceback.format_exc(limit=8))
+        write_atomic(d / RESULT_FILE, result)
+        return result
+    old = (previous or {}).get("evaluations", {})
+    cache: dict[str, Any] = {}
+    for ev in evals:
+        if old.get(ev.eval_id, {}).get("status") == "done" and previous["train"] == result["train"]:
+            result["evaluations"][ev.eval_id] = old[ev.eval_id]
+            continue
+        try:
+            result["evaluations"][ev.eval_id] = _evaluate(run, ev, result["train"], d, cache)
+        except (Exception, SystemExit) as exc:  # noqa: BLE001
+            result["evaluations"][ev.eval_id] = {"status": "failed", "error": "evaluate: " + _error_text(exc),
+                                                 "setting": asdict(ev)}
+    failed = [e["error"] for e in result["evaluations"].values() if e["status"] != "done"]
+    result.update(status="failed" if failed else "done", error=failed[0] if failed else None,
+                  finished=_dt.datetime.now().isoformat(timespec="seconds"))
+    write_atomic(d / RESULT_FILE, result)
+    return result
+
+
+# --------------------------------------------------------------------------------------------- local processes
+
+def execute_local(tasks: dict[str, Task], workers: int, on_result: Callable[[str, dict[str, Any]], None],
+                  runner: Callable[..., dict[str, Any]] = run_one) -> None:
+    """Run ``tasks`` (``run_id -> (run, evals, run_dir)``) in ``workers`` local processes.
+
+    Processes are started with ``spawn`` (a forked child of a process that has used torch's thread pool can
+    hang). When a worker dies the pool breaks and every unfinished future fails with ``BrokenProcessPool``;
+    runs that had started (their ``running.json`` exists) are reported killed, the others go to a fresh pool.
+
+    :param on_result: called in this process with each run's id and result as it finishes
+    :param runner: the function a worker calls with ``(run, evals, run_dir)``
+    """
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    pending = dict(tasks)
+    for _, _, run_dir in pending.values():
+        (Path(run_dir) / RUNNING_FILE).unlink(missing_ok=True)  # stale marker of an earlier invocation
+    while pending:
+        pool = ProcessPoolExecutor(max_workers=max(1, min(workers, len(pending))), mp_context=mp.get_context("spawn"))
+        broken: list[str] = []
+        try:
+            futures = {pool.submit(runner, *task): rid for rid, task in pending.items()}
+            for fut in as_completed(futures):
+                rid = futures[fut]
+                try:
+                    res = fut.result()
+                except BrokenProcessPool:
+                    broken.append(rid)
+                    continue
+                except Exception as exc:  # noqa: BLE001  e.g. a task that could not be pickled
+                    res = new_result(pending[rid][0], "failed", _error_text(exc))
+                del pending[rid]
+                on_result(rid, res)
+        except KeyboardInterrupt:
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
+        started = [rid for rid in broken if (Path(pending[rid][2]) / RUNNING_FILE).is_file()]
+        lost = started or broken  # a pool that broke before any run started would break again
+        for rid in lost:
+            why = ("killed: its worker process died (killed, out of memory or exited) while it ran; other runs in "
+                   "flight in the same pool are stopped with it") if rid in started else \
+                  "killed: the process pool broke before this run started"
+            on_result(rid, new_result(pending.pop(rid)[0], "killed", why))
+
+
+# --------------------------------------------------------------------------------------------- Ray
+
+def connect_ray(address: str, workers: int):
+    """Import Ray and connect: ``"local"`` starts a local instance with ``workers`` CPUs; ``"auto"`` or an
+    address joins a running cluster. Returns ``(ray, started_here)``; an already initialised Ray is reused."""
+    try:
+        import ray
+    except ImportError:
+        raise RuntimeError("--ray needs Ray: pip install 'softreach[sweep]' (or pip install 'ray>=2.9')") from None
+    if ray.is_initialized():
+        return ray, False
+    try:
+        if address == "local":
+            ray.init(num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False)
+        else:
+            ray.init(address=address, log_to_driver=False)
+    except ConnectionError as exc:
+        raise RuntimeError(f"no Ray cluster at --ray {address}: {exc} (start one with `ray start --head`, or use "
+                           "--ray local for a Ray instance on this machine)") from None
+    return ray, True
+
+
+def execute_ray(tasks: dict[str, Task], address: str, workers: int,
+                on_result: Callable[[str, dict[str, Any]], None],
+                runner: Callable[..., dict[str, Any]] = run_one) -> None:
+    """Run ``tasks`` as Ray tasks (one CPU each, no automatic retry: a rerun of the sweep retries).
+
+    A task whose worker dies raises ``WorkerCrashedError`` (or another ``RayError``) here; the run is reported
+    killed with that message. The output folder must be visible to every node at the same path (a shared file
+    system); the driver also writes each returned ``result.json``, so the table is complete on the driver.
+    """
+    ray, started_here = connect_ray(address, workers)
+    from ray.exceptions import RayError, RayTaskError
+
+    remote = ray.remote(num_cpus=1, max_retries=0)(runner)
+    try:
+        refs = {remote.remote(*task): rid for rid, task in tasks.items()}
+        try:
+            while refs:
+                ready, _ = ray.wait(list(refs), num_returns=1)
+                for ref in ready:
+                    rid = refs.pop(ref)
+                    try:
+                        res = ray.get(ref)
+                    except RayTaskError as exc:  # an exception that escaped run_one (should not happen)
+                        res = new_result(tasks[rid][0], "failed", _error_text(exc.as_instanceof_cause()))
+                    except RayError as exc:
+                        res = new_result(tasks[rid][0], "killed", "killed: " + _error_text(exc).splitlines()[0])
+                    on_result(rid, res)
+        except KeyboardInterrupt:
+            for ref in refs:
+                ray.cancel(ref, force=True)
+            raise
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+__all__ = ["RESULT_FILE", "RESULT_SCHEMA", "RUNNING_FILE", "connect_ray", "execute_local", "execute_ray",
+           "is_done", "new_result", "read_result", "run_one", "write_atomic"]

@@ -1,0 +1,272 @@
+"""A sweep's tidy table (``results.csv``: one row per run and evaluation), its report and its plots.
+
+Columns, in order: :data:`CONFIG_COLUMNS` (the run: id, status, error, each grid field), :data:`EVAL_COLUMNS`
+(the evaluation), :data:`RUN_COLUMNS` (timings) and the metrics: every aggregate of
+:data:`softreach.agents.report.AGGREGATE_FIELDS` flattened as ``<name>_<key>``, a rate with its Wilson interval
+(``landing_rate_value, _low, _high, _count, _n``), a mean with its Student-t interval (``return_mean, _low,
+_high, _std, _min, _max, _n``; ``budget_used`` also ``_p50, _p90, _excess_max``), and ``outcomes_<outcome>``.
+Empty cells where there is no value: a failed run, no filter, nothing landed.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from .evaluate import wilson
+from .report import AGGREGATE_FIELDS, MEAN, RATE, _plt, _save
+from .sweep import EvalSetting, SweepRun, budget_text
+
+CONFIG_COLUMNS = ("run_id", "status", "error", "model", "algo", "rule", "budget", "wind", "variant", "seed",
+                  "timesteps", "n_envs", "table")
+EVAL_COLUMNS = ("eval_id", "eval_wind", "eval_budget", "eval_filter", "eval_rule", "episodes", "starts",
+                "eval_seed", "checkpoint")
+RUN_COLUMNS = ("train_timesteps", "train_wall_s", "eval_wall_s")
+RATE_KEYS = ("value", "low", "high", "count", "n")
+MEAN_KEYS = ("mean", "low", "high", "std", "min", "max", "n")
+OUTCOMES = ("landed", "hard_violation", "timeout")
+#: the fields that tell configurations apart in the report (the seed is pooled over)
+GROUP_FIELDS = ("model", "algo", "rule", "budget", "wind", "variant")
+
+
+def metric_columns() -> list[str]:
+    """The metric columns, in :data:`AGGREGATE_FIELDS` order."""
+    cols = []
+    for name, (kind, _) in AGGREGATE_FIELDS.items():
+        kind = kind.rstrip("?")
+        if kind == RATE:
+            cols += [f"{name}_{k}" for k in RATE_KEYS]
+        elif kind == MEAN:
+            cols += [f"{name}_{k}" for k in MEAN_KEYS]
+            if name == "budget_used":
+                cols += [f"{name}_{k}" for k in ("p50", "p90", "excess_max")]
+        elif name == "outcomes":
+            cols += [f"outcomes_{k}" for k in OUTCOMES]
+        elif name not in EVAL_COLUMNS:  # "episodes" is already an evaluation column
+            cols.append(name)
+    return cols
+
+
+COLUMNS = CONFIG_COLUMNS + EVAL_COLUMNS + RUN_COLUMNS + tuple(metric_columns())
+
+
+def _flatten(aggregates: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for name, (kind, _) in AGGREGATE_FIELDS.items():
+        value = aggregates.get(name)
+        kind = kind.rstrip("?")
+        if kind in (RATE, MEAN) or name == "outcomes":
+            keys = RATE_KEYS if kind == RATE else MEAN_KEYS if kind == MEAN else OUTCOMES
+            if name == "budget_used":
+                keys = keys + ("p50", "p90", "excess_max")
+            prefix = "outcomes" if name == "outcomes" else name
+            for k in keys:
+                out[f"{prefix}_{k}"] = None if value is None else value.get(k)
+        else:
+            out[name] = value
+    return out
+
+
+def table_rows(items: Sequence[tuple[SweepRun, list[EvalSetting], dict[str, Any] | None]]) -> list[dict[str, Any]]:
+    """One row per run and evaluation, in grid order; a run without a result (never run) is ``"missing"``.
+
+    :param items: ``(run, its evaluations, its result.json or None)``
+    """
+    rows = []
+    for run, evals, result in items:
+        result = result or {"status": "missing", "error": "no result (the run did not finish)", "train": {},
+                            "evaluations": {}}
+        train = result.get("train", {})
+        base = {"run_id": run.run_id, "model": run.model, "algo": run.algo, "rule": run.rule,
+                "budget": budget_text(run.budget), "wind": run.wind, "variant": run.variant, "seed": run.seed,
+                "timesteps": run.timesteps, "n_envs": run.n_envs, "table": run.table,
+                "train_timesteps": train.get("timesteps"), "train_wall_s": train.get("wall_time_s")}
+        for ev in evals:
+            e = result.get("evaluations", {}).get(ev.eval_id)
+            row = {**base, "eval_id": ev.eval_id, "eval_wind": ev.wind, "eval_budget": ev.budget,
+                   "eval_filter": ev.filter, "episodes": ev.episodes, "starts": ev.starts, "eval_seed": ev.seed}
+            if e is None:  # the run failed (or was killed) before this evaluation
+                row.update(status=result["status"] if result["status"] != "done" else "missing",
+                           error=result.get("error") or "evaluation missing")
+            else:
+                row.update(status=e["status"], error=e.get("error"), eval_rule=e.get("rule"),
+                           checkpoint=e.get("checkpoint"), eval_wall_s=e.get("wall_time_s"),
+                           **_flatten(e.get("aggregates") or {}))
+            rows.append({c: row.get(c) for c in COLUMNS})
+    return rows
+
+
+def write_table(rows: list[dict[str, Any]], path: str | Path) -> Path:
+    """``rows`` as CSV with the :data:`COLUMNS` header (``None`` as an empty cell)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with tmp.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=COLUMNS)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: ("" if v is None else v) for k, v in r.items()})
+    tmp.replace(path)
+    return path
+
+
+def read_table(path: str | Path) -> list[dict[str, str]]:
+    """The rows of a ``results.csv`` (strings, as CSV holds them)."""
+    with Path(path).open(newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+# --------------------------------------------------------------------------------------------- grouping
+
+def _label(row: dict[str, Any]) -> str:
+    parts = [row["model"], row["algo"], "no filter" if row["rule"] == "none" else f"filter {row['rule']}",
+             f"Q {row['budget']}", f"{row['wind']} wind"]
+    if row["variant"] != "default":
+        parts.append(row["variant"])
+    return ", ".join(parts)
+
+
+def _eval_label(row: dict[str, Any]) -> str:
+    q = "drawn" if row["eval_budget"] is None else f"{row['eval_budget']:g}"
+    return f"eval: {row['eval_wind']} wind, Q={q}, filter {row['eval_filter']}"
+
+
+def _groups(rows: list[dict[str, Any]], keys: Sequence[str]) -> dict[tuple, list[dict[str, Any]]]:
+    out: dict[tuple, list[dict[str, Any]]] = {}
+    for r in rows:
+        out.setdefault(tuple(r[k] for k in keys), []).append(r)
+    return out
+
+
+def _pct(count: int, n: int) -> str:
+    w = wilson(count, n)
+    if w["value"] is None:
+        return "—"
+    return f"{100 * w['value']:.0f}% [{100 * w['low']:.0f}, {100 * w['high']:.0f}]"
+
+
+def pooled_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """A markdown table: per configuration and evaluation, the seeds' episodes pooled (Wilson intervals of the
+    pooled counts) and the per-seed landing rates, so the seeds' spread shows."""
+    head = ["| configuration | evaluation | seeds done | landing rate (pooled) | per seed | hard violations | "
+            "over Q | interventions (mean of seeds) | return (mean of seeds) |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = []
+    for _, rs in _groups(rows, GROUP_FIELDS + ("eval_id",)).items():
+        ok = [r for r in rs if r["status"] == "done"]
+        n = sum(r["landing_rate_n"] for r in ok)
+        landed = sum(r["landing_rate_count"] for r in ok)
+        hard = sum(r["hard_violation_rate_count"] for r in ok)
+        over = sum(r["over_budget_rate_count"] for r in ok)
+        per_seed = ", ".join(f"s{r['seed']}: {100 * r['landing_rate_value']:.0f}%" for r in ok) or "—"
+        inter = [r["intervention_rate_mean"] for r in ok if r["intervention_rate_mean"] is not None]
+        ret = [r["return_mean"] for r in ok if r["return_mean"] is not None]
+        lines.append(f"| {_label(rs[0])} | {_eval_label(rs[0])} | {len(ok)}/{len(rs)} | {_pct(landed, n)} | "
+                     f"{per_seed} | {hard}/{n} | {over}/{n} | "
+                     f"{f'{100 * np.mean(inter):.1f}%' if inter else '—'} | "
+                     f"{f'{np.mean(ret):.1f}' if ret else '—'} |")
+    return head + lines
+
+
+# --------------------------------------------------------------------------------------------- plots
+
+def plot_metric(rows: list[dict[str, Any]], metric: str, out: str | Path, ylabel: str) -> Path | None:
+    """One panel per evaluation setting; per configuration one point per seed with its 95 % interval
+    (``<metric>_value|mean``, ``_low``, ``_high``) and a bar at the mean of the seeds. ``None`` if no run
+    finished."""
+    done = [r for r in rows if r["status"] == "done"]
+    if not done:
+        return None
+    centre = f"{metric}_value" if f"{metric}_value" in done[0] else f"{metric}_mean"
+    evals = _groups(done, ("eval_id",))
+    configs = list(_groups(done, GROUP_FIELDS))
+    plt = _plt()
+    fig, axs = plt.subplots(len(evals), 1, figsize=(max(6.0, 1.6 * len(configs) + 3), 2.8 * len(evals)),
+                            squeeze=False)
+    for ax, (_, rs) in zip(axs[:, 0], evals.items()):
+        for i, key in enumerate(configs):
+            pts = [r for r in rs if tuple(r[k] for k in GROUP_FIELDS) == key and r[centre] is not None]
+            for j, r in enumerate(pts):
+                x = i + (j - (len(pts) - 1) / 2) * 0.08
+                ax.errorbar(x, r[centre], yerr=[[r[centre] - r[f"{metric}_low"]], [r[f"{metric}_high"] - r[centre]]],
+                            fmt="o", color=f"C{r['seed'] % 10}", ms=4, capsize=2,
+                            label=f"seed {r['seed']}" if i == 0 else None)
+            if pts:
+                ax.hlines(np.mean([r[centre] for r in pts]), i - 0.3, i + 0.3, color="k", lw=1.5)
+        ax.set_xticks(range(len(configs)))
+        ax.set_xticklabels([_label(dict(zip(GROUP_FIELDS, k))).replace(", ", "\n", 2) for k in configs], fontsize=7)
+        ax.set_ylabel(ylabel, fontsize=8)
+        ax.set_title(_eval_label(rs[0]), fontsize=8)
+        if ax is axs[0, 0]:
+            ax.legend(fontsize=7, loc="best")
+    fig.suptitle(f"{ylabel}: each seed with its 95% interval, black bar = mean of seeds", fontsize=9)
+    return _save(fig, out)
+
+
+def plot_learning(results: Sequence[tuple[SweepRun, dict[str, Any] | None]], out: str | Path) -> Path | None:
+    """One panel per configuration, one line per seed: the periodic evaluations' mean return over training
+    (running mean of the training episodes where a run has no periodic evaluation)."""
+    from .report import learning_data
+
+    groups: dict[tuple, list[tuple[SweepRun, dict[str, Any]]]] = {}
+    for run, res in results:
+        rd = ((res or {}).get("train") or {}).get("run_dir")
+        if rd:
+            key = (run.model, run.algo, run.rule, budget_text(run.budget), run.wind, run.variant)
+            groups.setdefault(key, []).append((run, learning_data(rd)))
+    groups = {k: v for k, v in groups.items() if any(d for _, d in v)}
+    if not groups:
+        return None
+    plt = _plt()
+    fig, axs = plt.subplots(len(groups), 1, figsize=(7, 2.8 * len(groups)), squeeze=False)
+    for ax, (key, runs) in zip(axs[:, 0], groups.items()):
+        for run, data in runs:
+            if "eval" in data:
+                ax.plot(data["eval"]["timesteps"], data["eval"]["returns"].mean(axis=1), "o-", ms=3,
+                        color=f"C{run.seed % 10}", label=f"seed {run.seed} (evaluations)")
+            elif "train" in data:
+                tr = data["train"]
+                k = max(1, len(tr["returns"]) // 10)
+                ax.plot(tr["timesteps"][k - 1:], np.convolve(tr["returns"], np.ones(k) / k, mode="valid"),
+                        color=f"C{run.seed % 10}", label=f"seed {run.seed} (training episodes)")
+        ax.set_title(_label(dict(zip(GROUP_FIELDS, key))), fontsize=8)
+        ax.set_xlabel("environment steps", fontsize=8)
+        ax.set_ylabel("episode return", fontsize=8)
+        ax.legend(fontsize=7)
+    return _save(fig, out)
+
+
+# --------------------------------------------------------------------------------------------- report
+
+def write_report(rows: list[dict[str, Any]], results: Sequence[tuple[SweepRun, dict[str, Any] | None]],
+                 out: str | Path, command: str, counts: dict[str, int], wall_s: float) -> Path:
+    """``report.md`` and ``plots/`` in ``out``: counts, the pooled table, failures with their errors, plots."""
+    out = Path(out)
+    (out / "plots").mkdir(parents=True, exist_ok=True)
+    plots = [p for p in (plot_metric(rows, "landing_rate", out / "plots" / "landing_rate.png", "landing rate"),
+                         plot_metric(rows, "return", out / "plots" / "return.png", "mean return"),
+                         plot_learning(results, out / "plots" / "learning_curves.png"))
+             if p is not None]
+    status = {s: sum(1 for r in rows if r["status"] == s) for s in ("done", "failed", "killed", "missing")}
+    lines = ["# softreach sweep", "", f"Command: `{command}`", "",
+             f"Runs: {counts.get('runs', 0)} ({counts.get('skipped', 0)} already done and skipped, "
+             f"{counts.get('ran', 0)} run now); wall time of this invocation {wall_s:.0f} s.", "",
+             "Table rows (run x evaluation): " + ", ".join(f"{v} {k}" for k, v in status.items() if v) +
+             ". The full table with every interval: [results.csv](results.csv).", "",
+             "Seeds pooled: counts summed over the finished seeds (Wilson 95 % intervals); the per-seed landing "
+             "rates show their spread.", "", *pooled_lines(rows), ""]
+    bad = [r for r in rows if r["status"] != "done"]
+    if bad:
+        lines += ["## Runs that did not finish", "", "| run | evaluation | status | error |", "|---|---|---|---|"]
+        lines += [f"| {r['run_id']} | {r['eval_id']} | {r['status']} | {str(r['error']).replace('|', '/')} |"
+                  for r in bad]
+        lines += ["", "Rerun the same command to retry them (finished runs are skipped).", ""]
+    lines += ["## Plots", ""] + [f"- [{p.name}](plots/{p.name})" for p in plots]
+    path = out / "report.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+__all__ = ["COLUMNS", "CONFIG_COLUMNS", "EVAL_COLUMNS", "RUN_COLUMNS", "metric_columns", "plot_learning",
+           "plot_metric", "pooled_lines", "read_table", "table_rows", "write_report", "write_table"]

@@ -1,0 +1,180 @@
+"""softreach sweep: a tiny grid in local processes and on a local Ray instance; failures, kills and resume."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+pytest.importorskip("stable_baselines3")
+
+from softreach.agents.sweep import SweepSpec, load_sweep_file  # noqa: E402
+from softreach.agents.sweep_cli import run_sweep  # noqa: E402
+from softreach.agents.sweep_report import COLUMNS, read_table  # noqa: E402
+
+#: one PPO update of 2 x 64 steps, one periodic evaluation (so best_model.zip exists)
+TINY = {"run": {"eval_freq": 128, "eval_episodes": 1, "checkpoint_freq": 0}, "ppo": {"n_steps": 64, "batch_size": 64,
+                                                                                   "n_epochs": 1}}
+#: SB3's PPO refuses batch_size 1 when it is built: a run that fails inside the worker, past the sweep's checks
+BROKEN = {"ppo": {"batch_size": 1}}
+
+
+def tiny_spec(table: str, **kw) -> SweepSpec:
+    base = dict(models=("pointmass",), algos=("ppo",), rules=("switch",), budgets=((0.0, 0.6),), winds=("random",),
+                seeds=(0,), variants={"tiny": {}, "broken": BROKEN}, tables={"pointmass": str(table)},
+                timesteps=128, n_envs=2, overrides=TINY, eval_winds=("adversarial",), eval_budgets=(0.3,),
+                eval_filters=("on", "off"), episodes=2)
+    return SweepSpec(**{**base, **kw})
+
+
+def check_table(res, spec: SweepSpec, out: Path) -> dict[tuple[str, str], dict[str, str]]:
+    """The CSV on disk has one row per run and evaluation, with each run's config; returns rows by (variant,
+    eval_filter)."""
+    rows = read_table(out / "results.csv")
+    assert list(rows[0]) == list(COLUMNS)
+    runs = spec.runs()
+    assert len(rows) == len(runs) * 2 == len(res["rows"])
+    assert sorted((r["run_id"], r["eval_filter"]) for r in rows) == sorted((run.run_id, f) for run in runs
+                                                                          for f in ("on", "off"))
+    for r in rows:
+        run = next(x for x in runs if x.run_id == r["run_id"])
+        assert (r["model"], r["algo"], r["rule"], r["budget"], r["wind"], r["variant"], r["seed"]) == \
+            (run.model, run.algo, run.rule, "0:0.6", run.wind, run.variant, str(run.seed))
+        assert (r["eval_wind"], r["eval_budget"], r["episodes"]) == ("adversarial", "0.3", "2")
+    return {(r["variant"], r["eval_filter"]): r for r in rows}
+
+
+def check_done_row(r: dict[str, str], filtered: bool) -> None:
+    assert r["status"] == "done" and r["error"] == ""
+    assert r["checkpoint"] == "best_model.zip"  # the periodic evaluation left one
+    v, lo, hi = (float(r[f"landing_rate_{k}"]) for k in ("value", "low", "high"))
+    assert 0 <= lo <= v <= hi <= 1 and r["landing_rate_n"] == "2"
+    assert int(r["outcomes_landed"]) + int(r["outcomes_hard_violation"]) + int(r["outcomes_timeout"]) == 2
+    assert float(r["return_low"]) <= float(r["return_mean"]) <= float(r["return_high"])
+    if filtered:  # the filter keeps every start inside RA~_Q in C1; without it nothing is promised
+        assert r["hard_violation_rate_count"] == "0" and r["intervention_rate_mean"] != ""
+    else:
+        assert r["intervention_rate_mean"] == ""
+
+
+def test_local_sweep_table_failure_and_resume(tmp_path, pointmass_table_path):
+    spec = tiny_spec(pointmass_table_path)
+    out = tmp_path / "sweep"
+    lines: list[str] = []
+    res = run_sweep(spec, out, workers=1, log=lines.append)
+    assert (res["runs"], res["skipped"], res["ran"]) == (2, 0, 2)
+    rows = check_table(res, spec, out)
+    check_done_row(rows[("tiny", "on")], filtered=True)
+    check_done_row(rows[("tiny", "off")], filtered=False)
+    for f in ("on", "off"):  # the failed run is in the table with its error, not dropped
+        bad = rows[("broken", f)]
+        assert bad["status"] == "failed" and "batch_size" in bad["error"] and bad["error"].startswith("train:")
+        assert bad["landing_rate_value"] == ""
+    assert res["status"] == {"done": 2, "failed": 2, "killed": 0, "missing": 0}
+    report = (out / "report.md").read_text()
+    assert "## Runs that did not finish" in report and "batch_size" in report
+    assert (out / "plots" / "landing_rate.png").stat().st_size > 1000
+    assert json.loads((out / "sweep.json").read_text())["schema"] == "softreach.sweep/1"
+
+    # rerun: the finished run is skipped (no retraining: its model and result are untouched), the failed one retried
+    good = next(r for r in spec.runs() if r.variant == "tiny")
+    model = out / "runs" / good.run_id / "train" / "model.zip"
+    stamp = (model.stat().st_mtime_ns, (out / "runs" / good.run_id / "result.json").read_text())
+    res2 = run_sweep(spec, out, workers=1, log=lines.append)
+    assert (res2["skipped"], res2["ran"]) == (1, 1)
+    assert (model.stat().st_mtime_ns, (out / "runs" / good.run_id / "result.json").read_text()) == stamp
+    assert check_table(res2, spec, out)[("tiny", "on")] == rows[("tiny", "on")]
+    assert any("1 already done, 1 to run" in line for line in lines)
+
+    # a new evaluation budget evaluates the trained policy again without retraining it
+    spec3 = tiny_spec(pointmass_table_path, variants={"tiny": {}}, eval_budgets=(0.3, 0.6))
+    res3 = run_sweep(spec3, out, workers=1, log=lines.append)
+    assert res3["status"]["done"] == 4 and model.stat().st_mtime_ns == stamp[0]
+
+
+def test_killed_worker_is_reported(tmp_path, pointmass_table_path):
+    """A worker killed mid-run: that run is reported killed, the sweep goes on with the others."""
+    spec = tiny_spec(pointmass_table_path)
+    out = tmp_path / "sweep"
+    first = spec.runs()[0]
+    marker = out / "runs" / first.run_id / "running.json"
+    killed = []
+
+    def kill_first_worker():
+        deadline = time.time() + 60
+        while time.time() < deadline and not killed:
+            try:
+                pid = json.loads(marker.read_text())["pid"]
+            except (OSError, ValueError):
+                time.sleep(0.02)
+                continue
+            os.kill(pid, signal.SIGKILL)
+            killed.append(pid)
+
+    t = threading.Thread(target=kill_first_worker, daemon=True)
+    t.start()
+    res = run_sweep(spec, out, workers=1, log=lambda _: None)
+    t.join()
+    assert killed, "the first run never started"
+    by = {(r["variant"], r["eval_filter"]): r for r in res["rows"]}
+    for f in ("on", "off"):
+        assert by[("tiny", f)]["status"] == "killed" and "worker process died" in by[("tiny", f)]["error"]
+        assert by[("broken", f)]["status"] == "failed"  # the next run still ran, in a fresh pool
+    assert json.loads((out / "runs" / first.run_id / "result.json").read_text())["status"] == "killed"
+
+
+def test_sweep_on_local_ray(tmp_path, pointmass_table_path):
+    ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'softreach[sweep]')")
+    spec = tiny_spec(pointmass_table_path)
+    out = tmp_path / "sweep_ray"
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+    try:
+        res = run_sweep(spec, out, ray="auto", log=lambda _: None)
+    finally:
+        ray.shutdown()
+    rows = check_table(res, spec, out)
+    check_done_row(rows[("tiny", "on")], filtered=True)
+    assert rows[("broken", "on")]["status"] == "failed" and "batch_size" in rows[("broken", "on")]["error"]
+    result = json.loads((out / "runs" / spec.runs()[0].run_id / "result.json").read_text())
+    assert result["status"] == "done" and result["pid"] != os.getpid()  # ran in a Ray worker process
+
+
+def test_bad_input_names_the_value(tmp_path, pointmass_table_path):
+    with pytest.raises(ValueError, match="'plane'"):
+        tiny_spec(pointmass_table_path, models=("plane",)).check()
+    with pytest.raises(ValueError, match="needs a table for pointmass"):
+        tiny_spec(pointmass_table_path, tables={}).check()
+    with pytest.raises(ValueError, match="n_stepz"):
+        tiny_spec(pointmass_table_path, variants={"typo": {"ppo": {"n_stepz": 3}}}).check()
+    with pytest.raises(ValueError, match="1.5"):
+        tiny_spec(pointmass_table_path, budgets=(1.5,)).check()
+    with pytest.raises(ValueError, match="workers"):
+        run_sweep(tiny_spec(pointmass_table_path), tmp_path / "w", workers=0)
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"modles": ["pointmass"]}))
+    with pytest.raises(ValueError, match="modles"):
+        load_sweep_file(bad)
+
+
+def test_toml_file_and_cli_dry_run(tmp_path, pointmass_table_path, capsys):
+    from softreach.cli import main
+
+    f = tmp_path / "grid.toml"
+    f.write_text(f'models = ["pointmass"]\nrules = ["none", "switch"]\nbudgets = ["0:0.6", 0.3]\nseeds = [0, 1]\n'
+                 f'timesteps = 128\n[tables]\npointmass = "{pointmass_table_path}"\n[overrides.ppo]\nn_steps = 64\n')
+    spec = load_sweep_file(f)
+    assert spec.budgets == ((0.0, 0.6), 0.3) and len(spec.runs()) == 8
+    assert {r.table for r in spec.runs() if r.rule == "none"} == {None}  # no filter, random wind: no table
+    assert main(["sweep", str(f), "--seeds", "3", "--set", "ppo.batch_size=32", "--out", str(tmp_path / "o"),
+                 "--dry-run"]) == 0
+    text = capsys.readouterr().out
+    assert "4 runs" in text and text.count("todo") == 4 and "-s3-" in text
+    assert not (tmp_path / "o").exists()
+    assert main(["sweep", str(f), "--set", "ppo.n_steps", "--dry-run"]) == 2
+    assert "SECTION.FIELD=VALUE" in capsys.readouterr().err
