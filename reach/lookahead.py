@@ -7,7 +7,8 @@ the model's :meth:`~softreach.reach.dynamics.Dynamics.held_enclosure` gives a bo
 motion of the period and a box ``E`` holding its end point. The action is **admissible** when
 
 1. ``max_T c1 <= 0``: the motion stays in ``C1`` for the whole period. ``c1`` is convex (a box distance), so its
-   maximum over ``T`` is at a corner of ``T``;
+   maximum over ``T`` is at a corner of ``T`` (a model with other sets bounds them itself,
+   :meth:`~softreach.reach.problem.Model.set_box_max`);
 2. ``z' = z - sum_j (dt / P) max_{T_j} h_eps >= 0``, ``T_j`` a box holding the motion over the ``j``-th of ``P``
    equal pieces of the period (:meth:`~softreach.reach.dynamics.Dynamics.held_tube_pieces`): the budget
    spent in the period, crossings of ``C2`` included, is at most that (``h_eps`` grows with ``c2``, also convex,
@@ -69,6 +70,9 @@ class Lookahead:
         self.horizon = float(self.fields["W_eps"][1][-1])
         self.corners = np.array(list(itertools.product((0, 1), repeat=self.n)), dtype=bool)  # (2^n, n)
         self.candidates = np.asarray(candidates, dtype=np.float64)
+        box = getattr(model, "target_box", None)
+        self.target_lo, self.target_hi = (None, None) if box is None else (np.asarray(box[0], float),
+                                                                            np.asarray(box[1], float))
         from .dynamics import Dynamics
 
         #: the model bounds boxes of starts: the filter can ask that the next state be certified again
@@ -106,6 +110,10 @@ class Lookahead:
         return tuple(np.repeat(r, J, axis=0) for r in rows) + (np.tile(self.candidates, (N, 1)),)
 
     def _corner_max(self, fn, t: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        # a model whose set functions are not convex along each axis (an obstacle disc) bounds them itself
+        bound = self.model.set_box_max(fn.__name__, _time_arg(t), lo, hi)
+        if bound is not None:
+            return np.asarray(bound, dtype=np.float64)
         N, C = len(lo), len(self.corners)
         pts = np.where(self.corners[None, :, :], hi[:, None, :], lo[:, None, :]).reshape(N * C, self.n)
         t_arg = _time_arg(t)
@@ -217,7 +225,7 @@ class Lookahead:
         # < 3e6 budget kept < 4e6 overspent < 5e6 + how far C1 may be left < inf (not bounded); within a rank
         # the next value, then the overspend, breaks ties
         passing = ok & (nxt <= -self.margin)
-        lands = self._lands(t, x, z, a, x_hi, ~passing & bounded & in_time)
+        lands = self._lands(t, x, z, a, x_hi, ~passing & bounded & in_time & self._meets_target(tube_lo, tube_hi))
         passing |= lands
         ok |= lands
         nxt = np.where(lands, -np.inf, nxt)
@@ -228,6 +236,13 @@ class Lookahead:
         nxt = np.where(ok, nxt, np.inf)
         out = (passing, nxt, bad)
         return out + (end_lo, end_hi, z_end, ok) if ends else out
+
+    def _meets_target(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Rows whose box ``[lo, hi]`` meets the model's :attr:`~softreach.reach.problem.Model.target_box`: a
+        period whose whole motion misses it cannot land (``True`` everywhere when the model gives no box)."""
+        if self.target_lo is None:
+            return np.ones(len(lo), bool)
+        return ((hi >= self.target_lo) & (lo <= self.target_hi)).all(axis=1)
 
     def _lands(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray, x_hi: np.ndarray | None,
                rows: np.ndarray) -> np.ndarray:

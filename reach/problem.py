@@ -67,6 +67,8 @@ class Model(Dynamics):
     start_box: tuple[tuple[float, ...], tuple[float, ...]] | None = None
     #: the budget ``Q`` [s] of an episode, or a ``(low, high)`` range the environment draws it from
     start_budget: float | tuple[float, float] = 0.0
+    #: the ``(horizontal, vertical)`` state axes of the set panels of a model with more than two states
+    plot_axes: tuple[int, int] = (1, 0)
     #: units of the control and of the disturbance components (messages, plots)
     control_units: tuple[str, ...] = ()
     disturbance_units: tuple[str, ...] = ()

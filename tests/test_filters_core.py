@@ -71,6 +71,7 @@ def test_box_max_is_the_exact_maximum_of_the_interpolant(pointmass_held_table):
     lo = np.c_[rng.uniform(-15, 14, N), rng.uniform(0, 17, N), rng.uniform(0, 0.9, N)]
     width = np.c_[rng.uniform(0, 1.5, N), rng.uniform(0, 0.5, N), rng.uniform(0, 0.02, N)]
     t = np.full(N, times[30])
+    t[N // 2:] = 0.3 * times[30] + 0.7 * times[31]  # between snapshots: a blend of two multilinear fields
     got = box_max(vals, times, g, t, lo, lo + width)
     for i in range(N):
         axes = []
@@ -80,13 +81,35 @@ def test_box_max_is_the_exact_maximum_of_the_interpolant(pointmass_held_table):
             inner = nodes[(nodes > lo[i, a]) & (nodes < lo[i, a] + width[i, a])]
             axes.append(np.concatenate([pts, inner]))
         P = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-        v, _ = interpolate(vals, times, g, np.full(len(P), t[0]), P)
-        # the lattice holds every corner of every sub-box: its maximum is the exact one (wide boxes: an upper bound)
+        v, _ = interpolate(vals, times, g, np.full(len(P), t[i]), P)
+        # the lattice holds every corner of every sub-box: its maximum is the exact one (boxes holding more than
+        # three nodes along an axis: an upper bound)
         assert got[i] >= v.max() - 1e-9
-        if all(len(ax) <= 8 for ax in axes):
+        if all(len(ax) <= 7 + 3 for ax in axes):
             assert got[i] == pytest.approx(v.max(), abs=1e-9)
     off = box_max(vals, times, g, t[:1], np.array([[19.0, 5.0, 0.3]]), np.array([[21.0, 5.0, 0.3]]))
     assert off[0] == np.inf
+
+
+def test_box_max_wraps_a_periodic_axis():
+    from softreach.reach.grid import Grid
+
+    g = Grid((0.0, 0.0), (2 * np.pi, 1.0), (16, 5), (True, False))
+    th = g.lo[0] + g.spacing[0] * np.arange(16)
+    vals = np.stack([np.cos(th)[:, None] * np.linspace(1, 2, 5)[None, :]] * 2)
+    times = np.array([0.0, 1.0])
+    rng = np.random.default_rng(3)
+    N = 60
+    lo = np.c_[rng.uniform(-7, 7, N), rng.uniform(0, 0.7, N)]
+    hi = lo + np.c_[rng.uniform(0, 1.2, N), rng.uniform(0, 0.3, N)]
+    got = box_max(vals, times, g, np.full(N, 0.5), lo, hi)
+    for i in range(N):
+        P = np.stack(np.meshgrid(np.linspace(lo[i, 0], hi[i, 0], 301), np.linspace(lo[i, 1], hi[i, 1], 5),
+                                 indexing="ij"), -1).reshape(-1, 2)
+        v, inside = interpolate(vals, times, g, np.full(len(P), 0.5), P)
+        assert inside.all()
+        # the fine lattice passes through every node inside the box up to 0.004 rad; cos' slope is at most 2
+        assert v.max() - 1e-12 <= got[i] <= v.max() + 2 * (hi[i, 0] - lo[i, 0]) / 300 + 1e-9
 
 
 # ------------------------------------------------------------------------------------------ the held game
