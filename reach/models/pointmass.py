@@ -136,17 +136,13 @@ class PointMass(Model, ControlAndDisturbanceAffine):
 
     def held_tube_pieces_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float,
                              pieces: int):
-        edges = np.linspace(0.0, dt, pieces + 1)
-        los, his = [], []
-        for s0, s1 in zip(edges[:-1], edges[1:]):
-            lo, hi = self._held_box(x_lo, x_hi, a, s0, s1)
-            los.append(lo)
-            his.append(hi)
-        return np.stack(los), np.stack(his)
+        edges = np.linspace(0.0, dt, pieces + 1)[:, None]  # every piece at once: (pieces, 1) against N rows
+        return self._held_box(x_lo, x_hi, a, edges[:-1], edges[1:])
 
-    def _held_box(self, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, s0: float, s1: float
+    def _held_box(self, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, s0: Any, s1: Any
                   ) -> tuple[np.ndarray, np.ndarray]:
-        """The box of every state reachable at some time in ``[s0, s1]`` of the held period from ``[x_lo, x_hi]``."""
+        """The box of every state reachable at some time in ``[s0, s1]`` of the held period from ``[x_lo, x_hi]``
+        (``s0``, ``s1`` floats, or arrays that broadcast against the rows: one box per entry)."""
         p = self.params
         x_lo, x_hi = np.asarray(x_lo, dtype=np.float64), np.asarray(x_hi, dtype=np.float64)
         u = np.asarray(a, dtype=np.float64)[..., 0]
