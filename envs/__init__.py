@@ -3,7 +3,9 @@
 Importing this package registers
 
 * ``"softreach/PointMassLanding-v0"`` (:class:`PointMassLandingEnv`, paper §VI-A; 100 steps of 0.01 s), and
-* ``"softreach/GliderLanding-v0"`` (:class:`GliderLandingEnv`, paper §VI-B; 100 steps of 0.1 s),
+* ``"softreach/GliderLanding-v0"`` (:class:`GliderLandingEnv`, paper §VI-B; 100 steps of 0.1 s), and
+* ``"softreach/SoftReach-v0"`` (:class:`SoftReachEnv`): any model, ``gymnasium.make("softreach/SoftReach-v0",
+  model=MyModel())`` (it ends itself at the model's horizon; no step limit is registered),
 
 so ``import softreach.envs; gymnasium.make("softreach/PointMassLanding-v0")`` works, and so does
 ``gymnasium.make("softreach.envs:softreach/PointMassLanding-v0")`` without the import (Gymnasium imports the
@@ -25,11 +27,13 @@ from .integrator import integrate_period, rk4_stages
 from .wind import OrnsteinUhlenbeckGust
 from .glider_landing import GliderLandingEnv
 from .pointmass_landing import PointMassLandingEnv
+from .softreach_env import SoftReachEnv
 
-#: environment id -> (entry point, max_episode_steps = horizon / default control period)
+#: environment id -> (entry point, max_episode_steps = horizon / default control period, None: the model's)
 ENV_IDS = {
     "softreach/PointMassLanding-v0": ("softreach.envs.pointmass_landing:PointMassLandingEnv", 100),
     "softreach/GliderLanding-v0": ("softreach.envs.glider_landing:GliderLandingEnv", 100),
+    "softreach/SoftReach-v0": ("softreach.envs.softreach_env:SoftReachEnv", None),
 }
 
 
@@ -47,6 +51,7 @@ __all__ = [
     "LandingEnv",
     "OrnsteinUhlenbeckGust",
     "PointMassLandingEnv",
+    "SoftReachEnv",
     "integrate_period",
     "rk4_stages",
 ]

@@ -113,6 +113,9 @@ class LandingEnv(gym.Env):
         # the domain (grid box of the model) bounds the states a user may start from and the observation
         self.state_low = np.array(model.domain[0], dtype=np.float64)
         self.state_high = np.array(model.domain[1], dtype=np.float64)
+        # periodic axes (a heading) are wrapped into their period [lo, hi) instead of being bounded
+        self._periodic = model.periodic_axes()
+        self._wraps = any(self._periodic)
 
         lo = _as_float_list("init_state_low", init_state_low, n)
         hi = _as_float_list("init_state_high", init_state_high, n)
@@ -189,7 +192,8 @@ class LandingEnv(gym.Env):
         bad = [f"{self.model.state_names[i]}={x[i]!r} not in [{self.state_low[i]:.6g}, {self.state_high[i]:.6g}] "
                f"{units[i]}" + (" (radians expected; this looks like degrees)" if units[i] == "rad"
                                 and abs(x[i]) > 0.5 else "")
-               for i in range(self._n) if not self.state_low[i] <= x[i] <= self.state_high[i]]
+               for i in range(self._n) if not (self.state_low[i] <= x[i] <= self.state_high[i]
+                                               or (self._periodic[i] and math.isfinite(x[i])))]
         if bad:
             raise ValueError(f"{name} lies outside the {self.model.name} domain: " + "; ".join(bad))
         self.model.validate_state(list(x))
@@ -338,6 +342,8 @@ class LandingEnv(gym.Env):
             self._check_state(x, "options['state']")
         else:
             x = rng.uniform(self.init_state_low, self.init_state_high).tolist()
+        if self._wraps:
+            x = self.model.wrap_state(x)
         if options.get("budget") is not None:
             q = self._check_budget(options["budget"], "options['budget']")
         else:
@@ -404,6 +410,8 @@ class LandingEnv(gym.Env):
             x, cost, rate_end, h = integrate_period(model, t, x0, a, b, h, self.n_substeps, self.eps,
                                                     self.budget_resolution, fast=None, stop=self._event)
         t_new = t + h
+        if self._wraps:  # the sets are periodic along these axes, so rate_end holds for the wrapped state too
+            x = self.model.wrap_state(x)
         self._rate_now = (t_new, x, rate_end)
         if T - t_new <= 1e-9 * T:
             t_new = T

@@ -131,7 +131,7 @@ def run_solve(args: argparse.Namespace) -> int:
         held_levels=args.held_levels,
         budget_surface=args.budget_surface,
     )
-    suffix = "-held" if cfg.control_period is not None else "-qmin" if cfg.budget_surface else ""
+    suffix = ("-held" if cfg.control_period is not None else "") + ("-qmin" if cfg.budget_surface else "")
     # a class path names the table after the class ("my_pkg.mod:Car" -> Car.srt)
     out = Path(args.out or f"{args.model.rpartition(':')[2]}{suffix}.srt")
     if args.json_path:
@@ -213,7 +213,7 @@ def run_plot(args: argparse.Namespace) -> int:
         from .plotting_nd import plot_sets_nd
 
         out = plot_sets_nd(table, budgets, args.out, t=args.t, starts=[s for s, _ in starts], start_budgets=[q for _, q in starts],
-                           slices=args.slices)
+                           slices=args.slices, panel_axes=tuple(model.plot_axes))
     print(f"wrote {out}")
     return 0
 

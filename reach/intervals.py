@@ -87,6 +87,28 @@ def iv_cos(g: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return round_down(np.minimum(c_lo, c_hi)), round_up(top)
 
 
+def iv_cos_any(g: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """cos over any interval ``g`` (a heading that may turn through several quadrants): the larger end value, or
+    1 where ``g`` holds a multiple of ``2 pi``; the smaller, or -1 where it holds an odd multiple of ``pi``."""
+    lo, hi = np.asarray(g[0], dtype=np.float64), np.asarray(g[1], dtype=np.float64)
+    two_pi = 2.0 * math.pi
+    c_lo, c_hi = np.cos(lo), np.cos(hi)
+    # the first multiple of 2 pi (and of 2 pi shifted by pi) at or above lo, compared with hi; widened by an ulp so
+    # that a peak on the interval's end is counted (the bound is then 1 or -1, never too tight)
+    has_peak = np.ceil(round_down(lo) / two_pi) * two_pi <= round_up(hi)
+    has_trough = np.ceil(round_down(lo - math.pi) / two_pi) * two_pi + math.pi <= round_up(hi)
+    top = np.where(has_peak, 1.0, round_up(np.maximum(c_lo, c_hi)))
+    bottom = np.where(has_trough, -1.0, round_down(np.minimum(c_lo, c_hi)))
+    return np.maximum(bottom, -1.0), np.minimum(top, 1.0)
+
+
+def iv_sin_any(g: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """sin over any interval ``g``: ``sin(a) = cos(a - pi/2)`` (the shift widened by more than the rounding of
+    ``pi/2`` and of the subtraction)."""
+    lo, hi = np.asarray(g[0], dtype=np.float64), np.asarray(g[1], dtype=np.float64)
+    return iv_cos_any((round_down(lo - HALF_PI) - 1e-15, round_up(hi - HALF_PI) + 1e-15))
+
+
 def iv_hull_step(x: np.ndarray, dt: float, d: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """``x + [0, dt] * d``: every ``x + s v`` with ``s`` in ``[0, dt]`` and ``v`` in ``d`` (``dt > 0``)."""
     lo = round_down(dt * np.minimum(d[0], 0.0))

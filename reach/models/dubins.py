@@ -1,0 +1,262 @@
+"""A planar Dubins vehicle in a cross-wind: reach a goal past an obstacle, crossing a soft zone for a limited time.
+
+Not from the paper: a third system built on the public model API only (this file and its registration in
+:mod:`softreach.reach.registry` are all it adds). State ``(x, y, theta)``: position [m] and heading [rad], the
+heading axis **periodic** (``[-pi, pi)``). The vehicle flies at a constant speed ``v`` and turns at a rate
+``u`` (the control, minimises); a wind ``(w_x, w_y)`` in a box (the disturbance, maximises) adds to the position
+rates::
+
+    x' = v cos(theta) + w_x,    y' = v sin(theta) + w_y,    theta' = u
+
+Sets (implicit functions in metres, so ``eps`` is in metres too):
+
+* target: the goal disc, ``g = |p - goal| - goal_radius``;
+* hard ``C1``: outside the obstacle disc and inside the arena box,
+  ``c1 = max(obstacle_radius - |p - obstacle|, box distance to the arena)``;
+* soft ``C2``: outside the soft zone (a restricted airspace, a puddle), ``c2 = zone_radius - |p - zone|``.
+
+The default layout puts the obstacle between the start region (west) and the goal (east) and the soft zone just
+north of the obstacle: the short way passes through the zone, the ways around it take longer than the horizon
+allows against the wind from most western starts, so the sets grow with the budget (measured on a 33 x 33 x 24
+grid: of the default starts, 10 % are in ``RA~_0``, 18 % in ``RA~_1`` and 86 % in ``RA~_2``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from .. import backend as B
+from .. import sets
+from ..dynamics import Components, ControlAndDisturbanceAffine
+from ..intervals import iv_cos_any, iv_sin_any, round_down, round_up
+from ..problem import Model
+
+Array = B.Array
+
+
+def _cos(v: Any) -> Any:
+    # the environments pass Python floats, the solver torch tensors (torch.cos refuses floats)
+    return math.cos(v) if isinstance(v, (int, float)) else B.namespace(v).cos(v)
+
+
+def _sin(v: Any) -> Any:
+    return math.sin(v) if isinstance(v, (int, float)) else B.namespace(v).sin(v)
+
+
+def _sqrt(v: Any) -> Any:
+    return math.sqrt(v) if isinstance(v, (int, float)) else B.namespace(v).sqrt(v)
+
+
+@dataclass(frozen=True)
+class DubinsParams:
+    """Parameters of the Dubins vehicle.
+
+    :param speed: forward speed ``v`` [m/s]
+    :param turn_max: turn-rate bound, ``u in [-turn_max, turn_max]`` [rad/s]
+    :param wind_max: wind bound per axis, ``w_x, w_y in [-wind_max, wind_max]`` [m/s]
+    :param goal: goal centre ``(x, y)`` [m]
+    :param goal_radius: goal radius [m]
+    :param obstacle: obstacle centre [m]
+    :param obstacle_radius: obstacle radius [m]
+    :param zone: soft-zone centre [m]
+    :param zone_radius: soft-zone radius [m]
+    :param arena: half-width of the square arena ``|x|, |y| <= arena`` [m] (part of ``C1``)
+    :param horizon: ``T`` [s]
+    """
+
+    speed: float = 1.0
+    turn_max: float = 1.0
+    wind_max: float = 0.1
+    goal: tuple[float, float] = (3.0, 0.0)
+    goal_radius: float = 0.6
+    obstacle: tuple[float, float] = (0.0, -0.6)
+    obstacle_radius: float = 1.0
+    zone: tuple[float, float] = (0.0, 1.2)
+    zone_radius: float = 0.8
+    arena: float = 4.0
+    horizon: float = 7.0
+
+    def __post_init__(self):
+        for name, value in asdict(self).items():
+            values = value if isinstance(value, tuple) else (value,)
+            if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values):
+                raise ValueError(f"DubinsParams.{name} must be finite, got {value!r}")
+        for name in ("speed", "turn_max", "goal_radius", "obstacle_radius", "zone_radius", "arena", "horizon"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"DubinsParams.{name} must be positive, got {getattr(self, name)!r}")
+        if self.wind_max < 0:
+            raise ValueError(f"DubinsParams.wind_max must be >= 0, got {self.wind_max!r}")
+        for name in ("goal", "obstacle", "zone"):
+            if len(getattr(self, name)) != 2:
+                raise ValueError(f"DubinsParams.{name} must be a point (x, y), got {getattr(self, name)!r}")
+
+
+class Dubins(Model, ControlAndDisturbanceAffine):
+    """The Dubins vehicle of this module's docstring; state ``(x, y, theta)`` in (m, m, rad), heading periodic.
+
+    Control- and disturbance-affine (``G = e_theta``, ``E = [e_x, e_y]``), so the Hamiltonian, the bang-bang
+    optimal turn ``u* = -turn_max sign(p_theta)``, the worst wind ``w* = wind_max sign(p_x, p_y)`` and the
+    Lax-Friedrichs bounds ``|v cos(theta)| + wind_max``, ``|v sin(theta)| + wind_max``, ``turn_max`` are closed
+    forms of :class:`~softreach.reach.dynamics.ControlAndDisturbanceAffine`.
+
+    Default grid: ``x, y in [-4.5, 4.5]`` m (the arena and half a metre beyond), ``theta in [-pi, pi)``,
+    41 x 41 x 32 nodes and 17 budget nodes (about a minute for ``softreach solve dubins`` on one core of the
+    loaded 2-core machine: 69 s measured with 21 budget nodes).
+    Horizon 7 s, speed 1 m/s, turn rate up to 1 rad/s, wind up to 0.1 m/s per axis; the environment steps
+    0.1 s periods and starts west of the obstacle, heading roughly east (:attr:`start_box`).
+    """
+
+    name = "dubins"
+    state_names = ("x", "y", "theta")
+    state_units = ("m", "m", "rad")
+    control_units = ("rad/s",)
+    disturbance_units = ("m/s", "m/s")
+    periodic = (False, False, True)
+    plot_axes = (0, 1)  # x across, y up
+
+    def __init__(self, params: DubinsParams | None = None, **overrides: Any):
+        """:param params: a full parameter set; or pass :class:`DubinsParams` fields as keyword overrides"""
+        if params is None:
+            params = DubinsParams(**overrides)
+        elif overrides:
+            raise TypeError("pass either params or keyword overrides, not both")
+        self.params = p = params
+        self.control_bounds = ((-p.turn_max,), (p.turn_max,))
+        self.disturbance_bounds = ((-p.wind_max, -p.wind_max), (p.wind_max, p.wind_max))
+        self.horizon = p.horizon
+        edge = p.arena + 0.5
+        self.domain = ((-edge, -edge, -math.pi), (edge, edge, math.pi))
+        self.hard_box = ((-p.arena, -p.arena, -math.pi), (p.arena, p.arena, math.pi))
+        self.default_shape = (41, 41, 32)
+        self.default_budget_points = 17
+        self.default_snapshots = 21
+        self.default_budgets = (0.0, 0.5, 1.0, 2.0)
+        self.paper_budgets = (0.0, 1.0, 2.0)
+        # c2 is a distance [m]; the vehicle leaves the zone at up to its speed
+        self.budget_scale = p.speed
+        self.control_period = 0.1
+        self.substeps = 2  # RK4 error on a 0.05 s sub-step of this smooth motion is far below a millimetre
+        # west of the obstacle, roughly facing the goal
+        self.start_box = ((-2.5, -1.0, -0.5), (-1.5, 1.0, 0.5))
+        self.start_budget = (0.0, 2.0)
+        (gx, gy), r = p.goal, p.goal_radius
+        self.target_box = ((gx - r, gy - r, -math.inf), (gx + r, gy + r, math.inf))
+
+    def parameters(self) -> dict[str, Any]:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self.params).items()}
+
+    # ------------------------------------------------------------------------------------------ dynamics
+    def drift(self, t: float, x: Components) -> list[Array | float]:
+        v = self.params.speed
+        return [v * _cos(x[2]), v * _sin(x[2]), 0]
+
+    def control_matrix(self, t: float, x: Components) -> list[list[Array | float]]:
+        return [[0], [0], [1.0]]
+
+    def disturbance_matrix(self, t: float, x: Components) -> list[list[Array | float]]:
+        return [[1.0, 0], [0, 1.0], [0, 0]]
+
+    # ------------------------------------------------------------------------------------------ sets
+    def _distance(self, x: Components, centre: tuple[float, float]) -> Array:
+        return _sqrt((x[0] - centre[0]) ** 2 + (x[1] - centre[1]) ** 2)
+
+    def target(self, t: float, x: Components) -> Array:
+        """``g = |p - goal| - goal_radius`` [m]."""
+        return self._distance(x, self.params.goal) - self.params.goal_radius
+
+    def hard_constraint(self, t: float, x: Components) -> Array:
+        """``c1 = max(obstacle_radius - |p - obstacle|, box distance to the arena)`` [m]."""
+        p = self.params
+        obstacle = p.obstacle_radius - self._distance(x, p.obstacle)
+        arena = sets.box([x[0], x[1]], (-p.arena, -p.arena), (p.arena, p.arena))
+        return B.maximum(obstacle, arena) if hasattr(obstacle, "shape") else B.maximum(arena, obstacle)
+
+    def soft_constraint(self, t: float, x: Components) -> Array:
+        """``c2 = zone_radius - |p - zone|`` [m]: positive inside the soft zone."""
+        return self.params.zone_radius - self._distance(x, self.params.zone)
+
+    def set_box_max(self, which: str, t: Any, lo: Any, hi: Any) -> Any:
+        """The exact maximum of ``c1`` or ``c2`` over boxes: ``radius - (distance from the centre to the box)``,
+        the nearest point of a box being the centre clipped to it (and the arena term, a box distance, at a
+        corner). ``None`` for the target (convex: its corners suffice)."""
+        if which not in ("hard_constraint", "soft_constraint"):
+            return None
+        p = self.params
+        lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+
+        def disc(centre: tuple[float, float], radius: float) -> np.ndarray:
+            c = np.asarray(centre, dtype=np.float64)
+            nearest = np.clip(c, lo[:, :2], hi[:, :2])
+            return radius - round_down(np.sqrt(((nearest - c) ** 2).sum(axis=1)))
+
+        if which == "soft_constraint":
+            return disc(p.zone, p.zone_radius)
+        # the arena term max_i max(-A - x_i, x_i - A) is largest at the box's far ends along each axis
+        arena = np.maximum(-p.arena - lo[:, :2], hi[:, :2] - p.arena).max(axis=1)
+        return np.maximum(disc(p.obstacle, p.obstacle_radius), arena)
+
+    # ------------------------------------------------------------------------------------------ model metadata
+    def start_difficulty(self, x: Components) -> Array:
+        """The distance to the goal: the representative starts are the farthest of each set."""
+        return self._distance(x, self.params.goal)
+
+    # ------------------------------------------------------------------------------------------ held periods
+    def held_enclosure(self, t: float, x: np.ndarray, a: np.ndarray, dt: float):
+        """Boxes of the motion over one period with the turn rate held (:meth:`held_enclosure_box` from points)."""
+        return self.held_enclosure_box(t, x, x, a, dt)
+
+    def held_tube_pieces(self, t: float, x: np.ndarray, a: np.ndarray, dt: float, pieces: int):
+        """Boxes of the motion over each of ``pieces`` sub-intervals (:meth:`held_tube_pieces_box` from points)."""
+        return self.held_tube_pieces_box(t, x, x, a, dt, pieces)
+
+    def held_enclosure_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float):
+        """Validated boxes of one period with ``u`` held, from every start in ``[x_lo, x_hi]`` and any wind signal.
+
+        The heading is exact, ``theta(s) = theta_0 + u s``. The position moves by ``int_0^s v (cos, sin)(theta)``,
+        which lies in ``s v`` times the range of ``(cos, sin)`` over every heading of the period (interval
+        bounds over any arc, :func:`~softreach.reach.intervals.iv_cos_any`), plus the wind's ``[-w s, w s]``.
+        """
+        lo, hi = self.held_tube_pieces_box(t, x_lo, x_hi, a, dt, 1)
+        end_lo, end_hi = self._held_box(x_lo, x_hi, a, dt, dt, dt)
+        return lo[0], hi[0], end_lo, end_hi
+
+    def held_tube_pieces_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float,
+                             pieces: int):
+        edges = np.linspace(0.0, dt, pieces + 1)
+        boxes = [self._held_box(x_lo, x_hi, a, s0, s1, s1) for s0, s1 in zip(edges[:-1], edges[1:])]
+        return np.stack([b[0] for b in boxes]), np.stack([b[1] for b in boxes])
+
+    def _held_box(self, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, s0: float, s1: float,
+                  turned: float) -> tuple[np.ndarray, np.ndarray]:
+        """Every state at some ``s`` in ``[s0, s1]`` of a held period from ``[x_lo, x_hi]``; the position's
+        direction range is taken over the headings of ``[0, turned]`` (all the headings the vehicle had)."""
+        p = self.params
+        x_lo, x_hi = np.asarray(x_lo, dtype=np.float64), np.asarray(x_hi, dtype=np.float64)
+        u = np.asarray(a, dtype=np.float64)[..., 0]
+        heading = (x_lo[..., 2] + np.minimum(0.0, u * turned), x_hi[..., 2] + np.maximum(0.0, u * turned))
+        heading = (round_down(heading[0]), round_up(heading[1]))
+        out_lo, out_hi = [], []
+        for axis, rng in ((0, iv_cos_any(heading)), (1, iv_sin_any(heading))):
+            # s * [c_lo, c_hi] over s in [s0, s1]: the extremes are at the interval's ends
+            move_lo = p.speed * np.minimum(s0 * rng[0], s1 * rng[0]) - p.wind_max * s1
+            move_hi = p.speed * np.maximum(s0 * rng[1], s1 * rng[1]) + p.wind_max * s1
+            out_lo.append(round_down(x_lo[..., axis] + round_down(move_lo)))
+            out_hi.append(round_up(x_hi[..., axis] + round_up(move_hi)))
+        out_lo.append(round_down(x_lo[..., 2] + np.minimum(u * s0, u * s1)))
+        out_hi.append(round_up(x_hi[..., 2] + np.maximum(u * s0, u * s1)))
+        return np.stack(out_lo, axis=-1), np.stack(out_hi, axis=-1)
+
+
+def _register() -> None:
+    from ..registry import register_model
+
+    register_model("dubins", Dubins)
+
+
+_register()
+
+__all__ = ["Dubins", "DubinsParams"]
