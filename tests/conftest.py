@@ -37,3 +37,27 @@ def pointmass_held_table(tmp_path_factory):
                       settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False))
     solve_table(get_model("pointmass"), cfg, path, progress=False)
     return load_table(path)
+
+
+@pytest.fixture(scope="session")
+def dubins_table(tmp_path_factory):
+    """A coarse Dubins table with V and W_eps (25 x 25 x 16 x 15, heading periodic, ENO2/RK2, 8 snapshots)."""
+    from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
+
+    path = tmp_path_factory.mktemp("tables") / "dubins_small.srt"
+    cfg = SolveConfig(shape=(25, 25, 16), budget_points=15, snapshots=8,
+                      settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False))
+    solve_table(get_model("dubins"), cfg, path, progress=False)
+    return load_table(path)
+
+
+@pytest.fixture(scope="session")
+def dubins_held_table(tmp_path_factory):
+    """A coarse Dubins table of the sampled-data game (turn rate held 0.1 s): 21 x 21 x 12 x 12, ENO2/RK2."""
+    from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
+
+    path = tmp_path_factory.mktemp("tables") / "dubins_held.srt"
+    cfg = SolveConfig(shape=(21, 21, 12), budget_points=12, control_period=0.1,
+                      settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False))
+    solve_table(get_model("dubins"), cfg, path, progress=False)
+    return load_table(path)

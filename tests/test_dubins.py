@@ -1,0 +1,217 @@
+"""The Dubins vehicle (``dubins``): its closed forms against brute force, its held-period enclosures against
+simulated motion, and the properties of its solved sets (a small grid, heading periodic)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from softreach.reach import get_model
+from softreach.reach.models.dubins import Dubins, DubinsParams
+
+MODEL = get_model("dubins")
+
+
+def _random_states(rng, n):
+    return [rng.uniform(-4.5, 4.5, n), rng.uniform(-4.5, 4.5, n), rng.uniform(-math.pi, math.pi, n)]
+
+
+def test_hamiltonian_and_optimal_inputs_are_the_min_max_over_the_input_boxes():
+    """H = min_u max_w p . f, computed by enumerating the boxes' vertices (f is affine in u and w)."""
+    rng = np.random.default_rng(0)
+    x = _random_states(rng, 200)
+    p = [rng.normal(size=200) for _ in range(3)]
+    (u_lo,), (u_hi,) = MODEL.control_bounds
+    w_lo, w_hi = MODEL.disturbance_bounds
+    best = np.full(200, np.inf)
+    for u in (u_lo, u_hi):
+        worst = np.full(200, -np.inf)
+        for w in itertools.product(*zip(w_lo, w_hi)):
+            f = MODEL.f(0.0, x, [u], list(w))
+            worst = np.maximum(worst, sum(pi * fi for pi, fi in zip(p, f)))
+        best = np.minimum(best, worst)
+    np.testing.assert_allclose(MODEL.hamiltonian(0.0, x, p), best, atol=1e-12)
+    a = MODEL.optimal_control(0.0, x, p)
+    b = MODEL.worst_disturbance(0.0, x, p)
+    f = MODEL.f(0.0, x, a, b)
+    np.testing.assert_allclose(sum(pi * fi for pi, fi in zip(p, f)), best, atol=1e-12)
+
+
+def test_dissipation_bounds_the_hamiltonians_slopes():
+    """alpha_i >= |dH/dp_i| (finite differences of the exact H at random states and co-states)."""
+    rng = np.random.default_rng(1)
+    x = _random_states(rng, 300)
+    p = [rng.normal(size=300) for _ in range(3)]
+    alpha = MODEL.dissipation(0.0, x, None, None)
+    for i in range(3):
+        d = 1e-6
+        hi = [pj + (d if j == i else 0) for j, pj in enumerate(p)]
+        lo = [pj - (d if j == i else 0) for j, pj in enumerate(p)]
+        slope = (MODEL.hamiltonian(0.0, x, hi) - MODEL.hamiltonian(0.0, x, lo)) / (2 * d)
+        assert np.all(np.abs(slope) <= np.broadcast_to(alpha[i], slope.shape) + 1e-6)
+
+
+def _simulate_held(x0, u, winds, dt, steps=400):
+    """Fine RK4 of one held period, the wind switching between the given values at random instants."""
+    xs = [np.array(x0, dtype=float)]
+    h = dt / steps
+    x = xs[0]
+    for k in range(steps):
+        w = winds[k]
+        f = lambda s: np.array(MODEL.f(0.0, list(s), [u], list(w)), dtype=float)  # noqa: E731
+        k1 = f(x)
+        k2 = f(x + 0.5 * h * k1)
+        k3 = f(x + 0.5 * h * k2)
+        k4 = f(x + h * k3)
+        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        xs.append(x)
+    return np.array(xs)
+
+
+def test_held_enclosures_hold_simulated_motion_from_points_and_boxes():
+    rng = np.random.default_rng(2)
+    dt, steps = MODEL.control_period, 400
+    w_lo, w_hi = (np.array(v) for v in MODEL.disturbance_bounds)
+    for _ in range(40):
+        lo = np.array([rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(-4, 4)])
+        hi = lo + rng.uniform(0, 0.3, 3) * rng.integers(0, 2)  # a point or a box
+        u = rng.uniform(*[b[0] for b in MODEL.control_bounds])
+        tube_lo, tube_hi, end_lo, end_hi = MODEL.held_enclosure_box(0.0, lo[None], hi[None], np.array([[u]]), dt)
+        piece_lo, piece_hi = MODEL.held_tube_pieces_box(0.0, lo[None], hi[None], np.array([[u]]), dt, 4)
+        for _ in range(5):
+            x0 = rng.uniform(lo, hi)
+            switch = np.cumsum(rng.random(steps) < 0.02) % 2
+            corners = rng.choice([w_lo, w_hi], size=2)
+            winds = np.where(switch[:, None] == 0, corners[0], corners[1])
+            path = _simulate_held(x0, u, winds, dt, steps)
+            assert np.all(path >= tube_lo - 1e-9) and np.all(path <= tube_hi + 1e-9)
+            assert np.all(path[-1] >= end_lo[0] - 1e-9) and np.all(path[-1] <= end_hi[0] + 1e-9)
+            for j in range(4):
+                part = path[j * steps // 4:(j + 1) * steps // 4 + 1]
+                assert np.all(part >= piece_lo[j] - 1e-9) and np.all(part <= piece_hi[j] + 1e-9)
+
+
+@pytest.mark.parametrize("which", ["hard_constraint", "soft_constraint"])
+def test_set_box_max_bounds_the_obstacle_and_zone_over_boxes_and_is_tight(which):
+    """c1 and c2 are largest inside a box near the discs' centres, where no corner sees it."""
+    rng = np.random.default_rng(3)
+    fn = getattr(MODEL, which)
+    lo = np.column_stack([rng.uniform(-4, 3.5, 300), rng.uniform(-4, 3.5, 300), np.zeros(300)])
+    hi = lo + np.column_stack([rng.uniform(0, 1.5, 300), rng.uniform(0, 1.5, 300), np.zeros(300)])
+    bound = MODEL.set_box_max(which, 0.0, lo, hi)
+    s = np.linspace(0, 1, 41)
+    gx, gy = np.meshgrid(s, s, indexing="ij")
+    worse_than_corners = 0
+    for r in range(300):
+        xs = lo[r, 0] + gx.ravel() * (hi[r, 0] - lo[r, 0])
+        ys = lo[r, 1] + gy.ravel() * (hi[r, 1] - lo[r, 1])
+        sampled = fn(0.0, [xs, ys, 0 * xs])
+        assert bound[r] >= sampled.max() - 1e-12
+        assert bound[r] <= sampled.max() + 0.05  # within the sampling's resolution
+        corners = fn(0.0, [np.array([lo[r, 0], lo[r, 0], hi[r, 0], hi[r, 0]]),
+                           np.array([lo[r, 1], hi[r, 1], lo[r, 1], hi[r, 1]]), np.zeros(4)])
+        worse_than_corners += sampled.max() > corners.max() + 1e-3
+    assert worse_than_corners > 0  # the corners alone would have been unsound on these boxes
+
+
+def test_bad_parameters_are_refused_by_name():
+    with pytest.raises(ValueError, match="turn_max"):
+        Dubins(turn_max=0.0)
+    with pytest.raises(ValueError, match="goal"):
+        Dubins(goal=(1.0,))
+    with pytest.raises(TypeError):
+        Dubins(DubinsParams(), speed=2.0)
+
+
+# ------------------------------------------------------------------------------------------ solved sets
+
+def _grid_points(table):
+    axes = table.state_axes("V")
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1)
+
+
+def test_table_grid_is_periodic_in_heading(dubins_table):
+    grid = dubins_table.grid("W_eps")
+    assert grid.periodic == (False, False, True, False)
+    assert grid.lo[2] == pytest.approx(-math.pi) and grid.hi[2] == pytest.approx(math.pi)
+    x = np.array([[1.0, -2.0, 3.0], [1.0, -2.0, 3.0 - 2 * math.pi], [1.0, -2.0, 3.0 + 4 * math.pi]])
+    w = dubins_table.value(0.0, x, 0.7)
+    assert np.all(np.isfinite(w)) and np.ptp(w) < 1e-9
+
+
+def test_q0_set_equals_the_classical_set_within_one_grid_cell(dubins_table):
+    """RA~_0 (from W_eps) and RA (from V) are the same set (Prop. 3): they may differ only at nodes next to RA's
+    boundary (one cell, the heading's neighbours taken across the seam)."""
+    ra = dubins_table.set_mask(0.0)
+    ra0 = dubins_table.set_mask(0.0, 0.0)
+    assert ra.sum() > 100
+    diff = ra ^ ra0
+    assert diff.sum() < 0.3 * ra.sum()
+    # a node of the difference has a neighbour (one step along some axes) on the other side of RA's boundary
+    near = np.zeros_like(ra)
+    for shift in itertools.product((-1, 0, 1), repeat=3):
+        moved = np.roll(ra, shift, axis=(0, 1, 2))
+        # rolling x and y wraps around the grid's edges, where the sets are empty anyway (outside C1)
+        near |= moved != ra
+    assert np.all(near[diff])
+
+
+def test_sets_grow_with_the_budget_and_the_zone_is_the_shortcut(dubins_table):
+    budgets = [0.0, 0.5, 1.0, 2.0]
+    masks = [dubins_table.set_mask(0.0, q) for q in budgets]
+    for q_small, q_large, small, large in zip(budgets, budgets[1:], masks, masks[1:]):
+        # W_eps does not increase with z, so the sets are nested; the (non-monotone) scheme keeps that up to a few
+        # nodes on the boundary (measured on this grid: 0, 0 and 3 of about 2,500), where W is within a few
+        # centimetres of 0
+        lost = small & ~large
+        assert lost.sum() <= max(3, 0.01 * small.sum())
+        pts = _grid_points(dubins_table)[lost]
+        assert np.all(np.abs(dubins_table.value(0.0, pts, q_large)) < 0.05)
+    assert masks[-1].sum() > 1.1 * masks[0].sum()
+    # what the budget buys lies west of the obstacle: the paths through the soft zone
+    gained = masks[-1] & ~masks[0]
+    pts = _grid_points(dubins_table)
+    assert np.median(pts[gained][:, 0]) < 0.5
+
+
+def test_obstacle_and_zone_states_are_never_in_a_set(dubins_table):
+    pts = _grid_points(dubins_table)
+    comps = [pts[..., i] for i in range(3)]
+    inside_obstacle = MODEL.hard_constraint(0.0, comps) > 0
+    assert inside_obstacle.sum() > 20
+    for q in (None, 0.0, 1.0, 2.0):
+        assert not np.any(dubins_table.set_mask(0.0, q)[inside_obstacle])
+    # inside the soft zone with no budget: never (it would already be spending)
+    in_zone = MODEL.soft_constraint(0.0, comps) > 0.1
+    assert not np.any(dubins_table.set_mask(0.0, 0.0)[in_zone])
+
+
+def test_table_policy_under_table_wind_reaches_the_goal_from_a_start_that_needs_budget(dubins_table):
+    """From the deepest node of RA~_2 that is not in RA~_0 (so it must cross the soft zone), the table's a* held
+    for the env's periods, against the table's worst wind b*, reaches the goal, never touches the obstacle."""
+    import gymnasium as gym
+
+    import softreach.envs  # noqa: F401
+
+    q = 2.0
+    needs = dubins_table.set_mask(0.0, q) & ~dubins_table.set_mask(0.0, 0.0)
+    assert needs.any()
+    pts = _grid_points(dubins_table)[needs]
+    w = dubins_table.value(0.0, pts, q)
+    x0 = pts[int(np.argmin(w))]
+    env = gym.make("softreach/SoftReach-v0", model=MODEL, wind="adversarial", wind_table=dubins_table)
+    base = env.unwrapped
+    env.reset(seed=0, options={"state": x0.tolist(), "budget": q})
+    path = [base.state]
+    terminated = truncated = False
+    while not (terminated or truncated):
+        a = dubins_table.optimal_control(base.time, base.state, max(base.budget, 0.0), outside="nearest")[0]
+        _, _, terminated, truncated, info = env.step(base.normalized_action(a))
+        path.append(base.state)
+    path = np.array(path)
+    assert info["landed"] and not info["hard_violation"]
+    assert np.all(MODEL.hard_constraint(0.0, [path[:, 0], path[:, 1], path[:, 2]]) <= 0)
+    assert info["budget_used"] > 0  # it did take the shortcut through the zone
