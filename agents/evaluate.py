@@ -188,6 +188,11 @@ def resolve_policy(spec: EvalSpec, oracle: TableOracle | None, policy_obj: Any =
     return SB3Policy(load_policy(spec.policy), str(spec.policy))
 
 
+def _finite_or_none(v: float) -> float | None:
+    """``v``, or ``None`` for a model without that quantity (``nan``: the Dubins vehicle has no sink rate)."""
+    return v if math.isfinite(v) else None
+
+
 def check_spec(spec: EvalSpec, policy_given: bool = False) -> None:
     """Check ``spec`` (ValueError / FileNotFoundError naming the bad value); ``policy_given``: the policy object
     is passed in, ``spec.policy`` is only its name."""
@@ -296,7 +301,7 @@ def run_episode(env, policy, x0: np.ndarray | None, q: float, seed: int, table=N
         "budget_used": used,
         "budget_left": float(base.budget),
         "time_outside_c2": outside_time,
-        "touchdown_sink_rate": sink_rate(model, base.state) if landed else None,
+        "touchdown_sink_rate": _finite_or_none(sink_rate(model, base.state)) if landed else None,
         "control_effort": effort / horizon,
         "interventions": interventions if filt is not None else None,
         "intervention_rate": interventions / steps if (filt is not None and steps) else None,

@@ -63,7 +63,7 @@ EPISODE_FIELDS: dict[str, tuple[str, str]] = {
     "budget_used": ("float", "Q - z at the end [s]"),
     "budget_left": ("float", "z at the end [s] (negative once exceeded)"),
     "time_outside_c2": ("float", "control periods ending outside C2 times their length [s]"),
-    "touchdown_sink_rate": ("float?", "downward speed at touchdown [m/s]; null if not landed"),
+    "touchdown_sink_rate": ("float?", "downward speed at touchdown [m/s]; null if not landed or the model has none"),
     "control_effort": ("float", "mean squared normalised applied action over the horizon"),
     "interventions": ("int?", "steps in which the filter changed the action; null without a filter"),
     "intervention_rate": ("float?", "interventions / steps; null without a filter"),
