@@ -30,10 +30,15 @@ Array = B.Array
 
 
 class Model(Dynamics):
-    """Dynamics plus the sets and horizon of a landing task.
+    """Dynamics plus the sets and horizon of a reach task: the public model API (``docs/models.md``).
 
     Subclasses implement :meth:`target`, :meth:`hard_constraint` and :meth:`soft_constraint` (implicit
-    functions, ``<= 0`` inside) and set ``horizon`` and ``domain`` (the default grid box).
+    functions, ``<= 0`` inside) and set ``horizon`` and ``domain`` (the default grid box). What an environment
+    needs is declared here too (:attr:`control_period`, :attr:`substeps`, :attr:`start_box`,
+    :attr:`start_budget`; "reached" is :meth:`landed`), and so is every fact that code elsewhere would otherwise
+    look up by the model's name (units, periodic axes, :meth:`sink_rate`, :meth:`start_difficulty`,
+    :meth:`set_box_max`). :meth:`parameters` returns the constructor's keyword arguments, from which a table
+    rebuilds the model.
     """
 
     horizon: float = 1.0
