@@ -241,7 +241,15 @@ def plot_learning(results: Sequence[tuple[SweepRun, dict[str, Any] | None]], out
 
 def write_report(rows: list[dict[str, Any]], results: Sequence[tuple[SweepRun, dict[str, Any] | None]],
                  out: str | Path, command: str, counts: dict[str, int], wall_s: float) -> Path:
-    """``report.md`` and ``plots/`` in ``out``: counts, the pooled table, failures with their errors, plots."""
+    """``report.md`` and ``plots/`` in ``out``: counts, the pooled table, failures with their errors, plots.
+
+    :param rows: the table's rows (:func:`table_rows`)
+    :param results: each run with its ``result.json`` (for the learning curves)
+    :param out: the sweep's output folder
+    :param command: the command that reruns or resumes the sweep
+    :param counts: ``runs``, ``skipped`` and ``ran``
+    :param wall_s: wall time of this invocation
+    """
     out = Path(out)
     (out / "plots").mkdir(parents=True, exist_ok=True)
     plots = [p for p in (plot_metric(rows, "landing_rate", out / "plots" / "landing_rate.png", "landing rate"),
@@ -249,7 +257,7 @@ def write_report(rows: list[dict[str, Any]], results: Sequence[tuple[SweepRun, d
                          plot_learning(results, out / "plots" / "learning_curves.png"))
              if p is not None]
     status = {s: sum(1 for r in rows if r["status"] == s) for s in ("done", "failed", "killed", "missing")}
-    lines = ["# softreach sweep", "", f"Command: `{command}`", "",
+    lines = ["# softreach sweep", "", f"Rerun or resume (finished runs are skipped): `{command}`", "",
              f"Runs: {counts.get('runs', 0)} ({counts.get('skipped', 0)} already done and skipped, "
              f"{counts.get('ran', 0)} run now); wall time of this invocation {wall_s:.0f} s.", "",
              "Table rows (run x evaluation): " + ", ".join(f"{v} {k}" for k, v in status.items() if v) +

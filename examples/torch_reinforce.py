@@ -124,7 +124,7 @@ def train(env_id: str = PM_ID, steps: int = 100_000, batch_steps: int = 2_000, s
         stats["mean_returns"].append(float(np.mean(ep_returns)))
         stats["landing_rates"].append(float(np.mean(landed)))
         log(f"steps {stats['steps']:>7d}  episodes {len(ep_returns):>3d}  return {np.mean(ep_returns):8.1f}  "
-            f"landed {np.mean(landed):5.0%}  loss {float(loss):.3f}")
+            f"landed {np.mean(landed):5.0%}  loss {stats['losses'][-1]:.3f}")
     env.close()
     stats["agent"] = agent
     return stats

@@ -59,3 +59,18 @@ def test_example_script_runs(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "losses finite: True" in r.stdout
     assert r.stdout.count("steps ") >= 2  # one line per update
+
+
+def test_docs_excerpts_match_the_example():
+    """Each code block that docs/agents.md marks as an excerpt of the example is a contiguous piece of the file
+    (dedented as a whole), so the docs cannot drift from the code CI runs."""
+    import re
+    import textwrap
+
+    docs = (EXAMPLE.parents[1] / "docs" / "agents.md").read_text()
+    blocks = re.findall(r"<!-- excerpt of examples/torch_reinforce\.py[^>]*-->\n```python\n(.*?)```", docs, re.S)
+    assert len(blocks) == 2
+    code = EXAMPLE.read_text()
+    for block in blocks:
+        assert any(textwrap.indent(block, " " * k) in code for k in (0, 4, 8)), block[:80]
+    assert 'gym.make(env_id' in blocks[0]
