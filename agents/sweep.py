@@ -274,6 +274,9 @@ class SweepSpec:
                 raise ValueError(f"{where} must be a table with sections {list(OVERRIDE_SECTIONS)}, got {block!r}")
         for b in self.budgets:
             parse_budget(b)
+        for q in self.eval_budgets or ():
+            if isinstance(q, bool) or not isinstance(q, (int, float)):
+                raise ValueError(f"eval budgets must be numbers Q in seconds, got {q!r}")
         for run in self.runs():
             if run.table is None and (run.rule != "none" or run.wind == "adversarial"):
                 why = f"rule {run.rule!r}" if run.rule != "none" else "wind 'adversarial'"

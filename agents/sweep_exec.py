@@ -127,8 +127,7 @@ def run_one(run: SweepRun, evals: list[EvalSetting], run_dir: str) -> dict[str, 
     except (Exception, SystemExit) as exc:  # noqa: BLE001  (reported in the table, not raised)
         result.update(status="failed", error="train: " + _error_text(exc),
                       traceback=traceback.format_exc(limit=8))
-        write_atomic(d / RESULT_FILE, result)
-        return result
+        return _finish(d, result)
     old = (previous or {}).get("evaluations", {})
     cache: dict[str, Any] = {}
     for ev in evals:
@@ -143,11 +142,36 @@ def run_one(run: SweepRun, evals: list[EvalSetting], run_dir: str) -> dict[str, 
     failed = [e["error"] for e in result["evaluations"].values() if e["status"] != "done"]
     result.update(status="failed" if failed else "done", error=failed[0] if failed else None,
                   finished=_dt.datetime.now().isoformat(timespec="seconds"))
-    write_atomic(d / RESULT_FILE, result)
+    return _finish(d, result)
+
+
+def _finish(run_dir: Path, result: dict[str, Any]) -> dict[str, Any]:
+    """Write ``result.json``, then drop the running marker (the run is no longer in flight)."""
+    write_atomic(run_dir / RESULT_FILE, result)
+    (run_dir / RUNNING_FILE).unlink(missing_ok=True)
     return result
 
 
 # --------------------------------------------------------------------------------------------- local processes
+
+def _ignore_sigint() -> None:
+    """Worker initializer: Ctrl-C in a terminal reaches the whole process group; the driver alone answers it
+    (by ending the workers), so that workers do not print a traceback each."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _terminate(pool: Any) -> None:
+    """Cancel the queued runs and end the running ones now (their result files are never half written; their
+    runs are retried by the next invocation)."""
+    pool.shutdown(wait=False, cancel_futures=True)
+    if hasattr(pool, "terminate_workers"):  # Python >= 3.14
+        pool.terminate_workers()
+        return
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        proc.terminate()
+
 
 def execute_local(tasks: dict[str, Task], workers: int, on_result: Callable[[str, dict[str, Any]], None],
                   runner: Callable[..., dict[str, Any]] = run_one) -> None:
@@ -168,7 +192,8 @@ def execute_local(tasks: dict[str, Task], workers: int, on_result: Callable[[str
     for _, _, run_dir in pending.values():
         (Path(run_dir) / RUNNING_FILE).unlink(missing_ok=True)  # stale marker of an earlier invocation
     while pending:
-        pool = ProcessPoolExecutor(max_workers=max(1, min(workers, len(pending))), mp_context=mp.get_context("spawn"))
+        pool = ProcessPoolExecutor(max_workers=max(1, min(workers, len(pending))), mp_context=mp.get_context("spawn"),
+                                   initializer=_ignore_sigint)
         broken: list[str] = []
         try:
             futures = {pool.submit(runner, *task): rid for rid, task in pending.items()}
@@ -184,7 +209,7 @@ def execute_local(tasks: dict[str, Task], workers: int, on_result: Callable[[str
                 del pending[rid]
                 on_result(rid, res)
         except KeyboardInterrupt:
-            pool.shutdown(wait=False, cancel_futures=True)
+            _terminate(pool)
             raise
         pool.shutdown(wait=True)
         started = [rid for rid in broken if (Path(pending[rid][2]) / RUNNING_FILE).is_file()]

@@ -63,13 +63,19 @@ def check_done_row(r: dict[str, str], filtered: bool) -> None:
         assert r["intervention_rate_mean"] == ""
 
 
-def test_local_sweep_table_failure_and_resume(tmp_path, pointmass_table_path):
+@pytest.fixture(scope="module")
+def local_sweep(tmp_path_factory, pointmass_table_path):
+    """The tiny sweep in one local process: ``(spec, out, result, rows as first written, log lines)``."""
     spec = tiny_spec(pointmass_table_path)
-    out = tmp_path / "sweep"
+    out = tmp_path_factory.mktemp("sweep") / "sweep"
     lines: list[str] = []
     res = run_sweep(spec, out, workers=1, log=lines.append)
+    return spec, out, res, check_table(res, spec, out), lines
+
+
+def test_local_sweep_table_failure_and_resume(local_sweep, pointmass_table_path):
+    spec, out, res, rows, lines = local_sweep
     assert (res["runs"], res["skipped"], res["ran"]) == (2, 0, 2)
-    rows = check_table(res, spec, out)
     check_done_row(rows[("tiny", "on")], filtered=True)
     check_done_row(rows[("tiny", "off")], filtered=False)
     for f in ("on", "off"):  # the failed run is in the table with its error, not dropped
@@ -129,7 +135,8 @@ def test_killed_worker_is_reported(tmp_path, pointmass_table_path):
     assert json.loads((out / "runs" / first.run_id / "result.json").read_text())["status"] == "killed"
 
 
-def test_sweep_on_local_ray(tmp_path, pointmass_table_path):
+def test_sweep_on_local_ray(tmp_path, pointmass_table_path, local_sweep):
+    """The same sweep as Ray tasks: the same table, the same numbers (training and evaluation are seeded)."""
     ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'softreach[sweep]')")
     spec = tiny_spec(pointmass_table_path)
     out = tmp_path / "sweep_ray"
@@ -141,6 +148,10 @@ def test_sweep_on_local_ray(tmp_path, pointmass_table_path):
     rows = check_table(res, spec, out)
     check_done_row(rows[("tiny", "on")], filtered=True)
     assert rows[("broken", "on")]["status"] == "failed" and "batch_size" in rows[("broken", "on")]["error"]
+    local = local_sweep[3]
+    for key in rows:  # every column but the timings and the run folder agrees with the local run
+        differ = {c for c in COLUMNS if rows[key][c] != local[key][c]}
+        assert differ <= {"train_wall_s", "eval_wall_s"}, differ
     result = json.loads((out / "runs" / spec.runs()[0].run_id / "result.json").read_text())
     assert result["status"] == "done" and result["pid"] != os.getpid()  # ran in a Ray worker process
 
@@ -178,3 +189,31 @@ def test_toml_file_and_cli_dry_run(tmp_path, pointmass_table_path, capsys):
     assert not (tmp_path / "o").exists()
     assert main(["sweep", str(f), "--set", "ppo.n_steps", "--dry-run"]) == 2
     assert "SECTION.FIELD=VALUE" in capsys.readouterr().err
+
+
+def test_ctrl_c_says_how_to_resume(tmp_path, pointmass_table_path):
+    """SIGINT to the whole process group (what a terminal's Ctrl-C does) while a run is in flight: exit 130, the
+    resume command on stderr, the workers gone, the table written with the unfinished runs as missing."""
+    import subprocess
+    import sys
+
+    f = tmp_path / "tiny.json"
+    f.write_text(json.dumps(tiny_spec(pointmass_table_path, variants={"tiny": {}}).to_dict()))
+    out = tmp_path / "sweep"
+    proc = subprocess.Popen([sys.executable, "-m", "softreach.cli", "sweep", str(f), "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            env={**os.environ, "OMP_NUM_THREADS": "1"})
+    deadline = time.time() + 120
+    while not list(out.glob("runs/*/running.json")) and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    worker = json.loads(next(out.glob("runs/*/running.json")).read_text())["pid"]
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "interrupted after 0 of 1 runs" in err
+    assert f"softreach sweep {out / 'sweep.json'} --out {out}" in err
+    assert [r["status"] for r in read_table(out / "results.csv")] == ["missing", "missing"]
+    time.sleep(0.5)
+    status = Path(f"/proc/{worker}/status")
+    if Path("/proc").is_dir():  # the worker was ended, not left training (a zombie counts as ended)
+        assert not status.exists() or "\tZ" in status.read_text().split("State:")[1].splitlines()[0]
