@@ -50,7 +50,8 @@ def add_sweep_command(sub: argparse._SubParsersAction) -> None:
                         "(VALUE read as JSON, else as text)")
     p.add_argument("--eval-winds", nargs="+", choices=WIND_CHOICES,
                    help="evaluation winds (default adversarial with a table, else random)")
-    p.add_argument("--eval-budgets", nargs="+", type=float, help="evaluation budgets Q (default the model's paper ones)")
+    p.add_argument("--eval-budgets", nargs="+", type=float,
+                   help="evaluation budgets Q (default the model's paper ones)")
     p.add_argument("--eval-filters", nargs="+", choices=("on", "off"),
                    help="evaluate with and/or without the filter (default both with a table)")
     p.add_argument("--episodes", type=int, help="episodes per evaluation (default 30)")
@@ -205,6 +206,7 @@ class SweepInterrupted(KeyboardInterrupt):
 
 
 def run_sweep_command(args: argparse.Namespace) -> int:
+    """``softreach sweep``: 0 when every run finished, 1 when one failed or was killed, 130 on Ctrl-C."""
     spec = spec_from_args(args)
     try:
         res = run_sweep(spec, args.out, workers=args.workers, ray=args.ray, dry_run=args.dry_run)

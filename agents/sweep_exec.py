@@ -111,6 +111,10 @@ def run_one(run: SweepRun, evals: list[EvalSetting], run_dir: str) -> dict[str, 
     Writes ``result.json`` atomically and returns it. A failure of the training marks the run and all its
     evaluations failed; a failure of one evaluation marks that evaluation (and the run) failed. Never raises for
     an exception of the run (``SystemExit`` included); ``KeyboardInterrupt`` propagates.
+
+    :param run: the training run
+    :param evals: its evaluations
+    :param run_dir: the run's folder (created; an earlier ``result.json`` there is resumed from)
     """
     if "OMP_NUM_THREADS" not in os.environ:  # small MLPs gain nothing from more threads; runs share the cores
         import torch
@@ -175,12 +179,14 @@ def _terminate(pool: Any) -> None:
 
 def execute_local(tasks: dict[str, Task], workers: int, on_result: Callable[[str, dict[str, Any]], None],
                   runner: Callable[..., dict[str, Any]] = run_one) -> None:
-    """Run ``tasks`` (``run_id -> (run, evals, run_dir)``) in ``workers`` local processes.
+    """Run ``tasks`` in ``workers`` local processes.
 
     Processes are started with ``spawn`` (a forked child of a process that has used torch's thread pool can
     hang). When a worker dies the pool breaks and every unfinished future fails with ``BrokenProcessPool``;
     runs that had started (their ``running.json`` exists) are reported killed, the others go to a fresh pool.
 
+    :param tasks: ``run_id -> (run, evals, run_dir)``
+    :param workers: processes at once
     :param on_result: called in this process with each run's id and result as it finishes
     :param runner: the function a worker calls with ``(run, evals, run_dir)``
     """
@@ -224,8 +230,13 @@ def execute_local(tasks: dict[str, Task], workers: int, on_result: Callable[[str
 # --------------------------------------------------------------------------------------------- Ray
 
 def connect_ray(address: str, workers: int):
-    """Import Ray and connect: ``"local"`` starts a local instance with ``workers`` CPUs; ``"auto"`` or an
-    address joins a running cluster. Returns ``(ray, started_here)``; an already initialised Ray is reused."""
+    """Import Ray and connect; an already initialised Ray is reused.
+
+    :param address: ``"local"`` starts a Ray instance here; ``"auto"`` or an address joins a running cluster
+    :param workers: CPUs of a ``"local"`` instance
+    :returns: ``(ray module, whether this call started Ray)``
+    :raises RuntimeError: Ray is not installed, or no cluster answers at ``address`` (the message says what to do)
+    """
     try:
         import ray
     except ImportError:
@@ -251,6 +262,12 @@ def execute_ray(tasks: dict[str, Task], address: str, workers: int,
     A task whose worker dies raises ``WorkerCrashedError`` (or another ``RayError``) here; the run is reported
     killed with that message. The output folder must be visible to every node at the same path (a shared file
     system); the driver also writes each returned ``result.json``, so the table is complete on the driver.
+
+    :param tasks: ``run_id -> (run, evals, run_dir)``
+    :param address: see :func:`connect_ray`
+    :param workers: CPUs of a ``"local"`` Ray instance
+    :param on_result: called here with each run's id and result as it finishes
+    :param runner: the function a task calls with ``(run, evals, run_dir)``
     """
     ray, started_here = connect_ray(address, workers)
     from ray.exceptions import RayError, RayTaskError

@@ -151,7 +151,7 @@ def pooled_lines(rows: list[dict[str, Any]]) -> list[str]:
     """A markdown table: per configuration and evaluation, the seeds' episodes pooled (Wilson intervals of the
     pooled counts) and the per-seed landing rates, so the seeds' spread shows."""
     head = ["| configuration | evaluation | seeds done | landing rate (pooled) | per seed | hard violations | "
-            "over Q | interventions (mean of seeds) | return (mean of seeds) |", "|---|---|---|---|---|---|---|---|---|"]
+            "over Q | interventions (mean of seeds) | return (mean of seeds) |", "|---" * 9 + "|"]
     lines = []
     for _, rs in _groups(rows, GROUP_FIELDS + ("eval_id",)).items():
         ok = [r for r in rs if r["status"] == "done"]

@@ -217,3 +217,28 @@ def test_ctrl_c_says_how_to_resume(tmp_path, pointmass_table_path):
     status = Path(f"/proc/{worker}/status")
     if Path("/proc").is_dir():  # the worker was ended, not left training (a zombie counts as ended)
         assert not status.exists() or "\tZ" in status.read_text().split("State:")[1].splitlines()[0]
+
+
+def test_docs_sweep_file_loads():
+    """The sweep file shown in docs/agents.md is a valid sweep: 2 rules x 2 budgets x 2 variants x 3 seeds."""
+    import re
+
+    docs = (Path(__file__).resolve().parents[1] / "docs" / "agents.md").read_text()
+    block = re.search(r"```toml\n(# grid\.toml.*?)```", docs, re.S).group(1)
+    import tomllib
+
+    spec = SweepSpec.from_dict(tomllib.loads(block))
+    runs = spec.runs()
+    assert len(runs) == 24 and len({r.run_id for r in runs}) == 24
+    assert {r.run_overrides.get("intervention_penalty") for r in runs} == {None, 0.0}
+    assert all(r.run_overrides["eval_freq"] == 10000 for r in runs)
+
+
+def test_cli_exit_status_when_a_run_fails(tmp_path, pointmass_table_path, capsys):
+    from softreach.cli import main
+
+    f = tmp_path / "broken.json"
+    f.write_text(json.dumps(tiny_spec(pointmass_table_path, variants={"broken": BROKEN}).to_dict()))
+    assert main(["sweep", str(f), "--out", str(tmp_path / "o")]) == 1
+    cap = capsys.readouterr()
+    assert "2 failed" in cap.out and f"softreach sweep {tmp_path / 'o' / 'sweep.json'}" in cap.err
