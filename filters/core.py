@@ -93,8 +93,8 @@ def _first_bad(arr: np.ndarray) -> str:
 class ValueFilter:
     """The safety filter's core: one table, one control period, one rule.
 
-    :param table: a table with ``V`` and ``W_eps``; certification needs one solved for this control period
-        (``softreach solve MODEL --held``)
+    :param table: a table with ``V`` and ``W_eps`` or the budget surface ``Q_min``; certification needs one solved
+        for this control period (``softreach solve MODEL --held``, with ``--budget-surface`` for ``Q_min``)
     :param dt: the control period [s] over which every action is held
     :param margin: extra tightening ``>= 0`` of the next-state condition (``D <= -margin``), value units;
         ``None`` means 0: the test is exact for the interpolant and needs none
@@ -123,18 +123,15 @@ class ValueFilter:
             raise ValueError(f"margin must be None or a finite number >= 0, got {margin!r}")
         if not (isinstance(smooth_iterations, (int, np.integer)) and smooth_iterations >= 0):
             raise ValueError(f"smooth_iterations must be a non-negative integer, got {smooth_iterations!r}")
-        if not table.has_budget and table.has_budget_surface:
-            raise TableError(f"table {table.path} holds the budget surface Q_min; the filter's one-period test reads "
-                             f"W_eps over budget boxes: solve MODEL --held for a table it certifies with")
-        if not table.has_budget:
-            raise TableError(f"table {table.path} holds only the classical V; the filter needs W_eps (solve it "
-                             f"without --classical)")
+        if not (table.has_budget or table.has_budget_surface):
+            raise TableError(f"table {table.path} holds only the classical V; the filter needs W_eps or Q_min (solve "
+                             f"it without --classical)")
         if model is not None:
             table.check_compatible(model)
         self.table = table
         self.model = model if model is not None else table.model
-        if table.grid("W_eps").ndim != self.model.state_dim + 1:
-            raise TableError(f"table {table.path} has {table.grid('W_eps').ndim - 1} states, the model "
+        if table.grid("V").ndim != self.model.state_dim:
+            raise TableError(f"table {table.path} has {table.grid('V').ndim} states, the model "
                              f"{self.model.state_dim}")
         self.dt = float(dt)
         self.rule = rule

@@ -58,8 +58,11 @@ class RunningCost(Dynamics):
     def f(self, t, x, a, b):
         return self.model.f(t, x, a, b)
 
+    def running_cost(self, t, x):
+        return self.model.violation_rate(t, x, self.eps)
+
     def hamiltonian(self, t, x, p):
-        return self.model.hamiltonian(t, x, p) + self.model.violation_rate(t, x, self.eps)
+        return self.model.hamiltonian(t, x, p) + self.running_cost(t, x)
 
     def optimal_control(self, t, x, p):
         return self.model.optimal_control(t, x, p)

@@ -87,9 +87,8 @@ def validate(model: Model, cfg: SolveConfig, out: str | os.PathLike | None) -> t
     # a periodic axis (an angle) has no boundary: the grid wraps there, its domain is one period
     periodic = model.periodic_axes()
     state_grid = Grid(tuple(lo), tuple(hi), shape, periodic=periodic, names=tuple(model.state_names))
-    if cfg.budget_surface and (cfg.classical_only or cfg.control_period is not None):
-        raise ValueError("the budget surface is solved for the continuous-time game with V beside it: drop "
-                         "--classical and --held")
+    if cfg.budget_surface and cfg.classical_only:
+        raise ValueError("the budget surface is solved with V beside it: drop --classical")
     aug = None
     if not cfg.classical_only and not cfg.budget_surface:
         z_lo, z_hi, nz = budget_axis(model.horizon, cfg.budget_points)
@@ -190,13 +189,14 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
             walls[name] = before + time.perf_counter() - t0
             if bar is not None:
                 bar.close()
-        if held and aug is not None and not writer.header.get("consistency"):
+        if held and (aug is not None or cfg.budget_surface) and not writer.header.get("consistency"):
             t0 = time.perf_counter()
             arrays = {name: (np.stack([writer.read_snapshot(name, k) for k in range(len(times))]), times, grid)
                       for name, (_, grid) in problems.items()}
             bar = _progress(len(times) - 1, "consistency with the filter's test", progress)
             stats = make_consistent(model, arrays, cfg.control_period, cfg.eps, np.asarray(controls),
-                                    band=cfg.consistency_band, progress=bar)
+                                    band=cfg.consistency_band, progress=bar,
+                                    cap=problems["Q_min"][0].cap if "Q_min" in problems else None)
             if bar is not None:
                 bar.close()
             for name, (vals, _, _) in arrays.items():

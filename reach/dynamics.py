@@ -77,6 +77,11 @@ class Dynamics(ABC):
         With ``p_lo = p_hi = None`` the bound must hold for every co-state (used for the CFL condition).
         """
 
+    def running_cost(self, t: float, x: Components) -> Array | None:
+        """A cost rate that the value accrues, added to the Hamiltonian and independent of both players (the
+        budget surface's ``h_eps``); ``None``: none. A game that holds the control keeps it."""
+        return None
+
     # ---------------------------------------------------------------- conveniences for batched points
     def f_array(self, t: float, x: Array, a: Array, b: Array) -> Array:
         """:meth:`f` on stacked arrays: ``x`` of shape ``(..., n)``, ``a`` ``(..., m)``, ``b`` ``(..., k)``."""

@@ -84,13 +84,17 @@ class HeldControl(Dynamics):
     def f(self, t, x, a, b):
         return self.inner.f(t, x, self._a, b)
 
+    def running_cost(self, t, x):
+        return self.inner.running_cost(t, x)
+
     def hamiltonian(self, t, x, p):
         fc, cols = self._columns(t, x)
         h: Any = sum(pi * fi for pi, fi in zip(p, fc))
         for col in cols:
             s = sum(pi * ei for pi, ei in zip(p, col))
             h = h + abs(s)
-        return h
+        cost = self.inner.running_cost(t, x)
+        return h if cost is None else h + cost
 
     def optimal_control(self, t, x, p):
         return list(self._a)
@@ -153,7 +157,8 @@ def solve_held(problem: ReachAvoidProblem, grid: Grid, times: Sequence[float], s
 
 
 def make_consistent(model: Any, fields: dict[str, tuple[Any, list[float], Grid]], dt: float, eps: float,
-                    controls: np.ndarray, band: float, progress: Any = None) -> dict[str, Any]:
+                    controls: np.ndarray, band: float, progress: Any = None, cap: float | None = None
+                    ) -> dict[str, Any]:
     """Raise node values of the sampled-data table where the filter's one-period test disagrees with the PDE.
 
     The PDE sub-solves and the filter's test (:class:`~softreach.reach.lookahead.Lookahead`: exact enclosures of
@@ -166,7 +171,9 @@ def make_consistent(model: Any, fields: dict[str, tuple[Any, list[float], Grid]]
     only shrink, and at every node the table now promises nothing the test cannot deliver.
 
     :param fields: ``{"V": (values, times, grid), "W_eps": (...)}``, values writable ``(n_t, *grid)``
-    :param band: depth below 0 that is checked (nodes deeper are counted, not changed: see the return)
+    :param band: depth below 0 that is checked (nodes deeper are counted, not changed: see the return); a
+        ``Q_min`` field is checked at every node that some budget makes feasible
+    :param cap: ``Q_min``'s value where no budget suffices (:class:`~softreach.reach.budget_surface.BudgetSurfaceProblem`)
     :return: statistics per field: nodes checked and raised, dead ends, the largest raise, and of a sample of
         64 deeper nodes per snapshot how many have no action that passes the test (``deep_inconsistent``,
         expected 0: the band is deep enough)
@@ -174,12 +181,16 @@ def make_consistent(model: Any, fields: dict[str, tuple[Any, list[float], Grid]]
     from .lookahead import Lookahead
 
     stats = {name: {"checked": 0, "raised": 0, "dead_ends": 0, "largest_raise": 0.0, "deep_sampled": 0,
-                    "deep_inconsistent": 0} for name in ("V", "W_eps") if name in fields}
+                    "deep_inconsistent": 0} for name in ("V", "W_eps", "Q_min") if name in fields}
     rng = np.random.default_rng(0)
-    times = fields["W_eps"][1]
+    times = fields["W_eps" if "W_eps" in fields else "Q_min"][1]
     for k in range(len(times) - 2, -1, -1):
         nxt = {name: (vals[k + 1:k + 2], np.asarray(tt[k + 1:k + 2]), g) for name, (vals, tt, g) in fields.items()}
         la = Lookahead(nxt, model, dt, eps, controls, target_checks=model.substeps)
+        if "Q_min" in fields:
+            if cap is None:
+                raise ValueError("a Q_min field needs cap, the value that says no budget suffices")
+            _consistent_budget_surface(la, model, fields["Q_min"], k, times, stats["Q_min"], cap)
         for name, (vals, _, grid) in ((n, fields[n]) for n in ("V", "W_eps") if n in fields):
             cur = np.asarray(vals[k], dtype=np.float64)
             # nodes deeper than the band are assumed consistent; a sample of them checks that assumption
@@ -238,9 +249,13 @@ def consistency_gaps(model: Any, fields: dict[str, tuple[Any, list[float], Grid]
     from .lookahead import Lookahead
 
     rng = np.random.default_rng(seed)
-    Wv, Wt, Wg = fields["W_eps"]
     n = model.state_dim
-    lo, hi = np.asarray(Wg.lo), np.asarray(Wg.hi)
+    if "W_eps" in fields:
+        _, Wt, Wg = fields["W_eps"]
+        lo, hi = np.asarray(Wg.lo), np.asarray(Wg.hi)
+    else:  # a budget surface: budgets up to the horizon (no run spends more)
+        _, Wt, Qg = fields["Q_min"]
+        lo, hi = np.append(Qg.lo, 0.0), np.append(Qg.hi, float(Wt[-1]))
     out: dict[str, list] = {"max_gap": [], "p99_gap": [], "dead_ends": [], "sampled": []}
     for k in range(len(Wt) - 1):
         now = {name: (vals[k:k + 2], np.asarray(tt[k:k + 2]), g) for name, (vals, tt, g) in fields.items()}
@@ -260,3 +275,59 @@ def consistency_gaps(model: Any, fields: dict[str, tuple[Any, list[float], Grid]
         out["dead_ends"].append(int((~finite).sum()))
         out["sampled"].append(int(len(x)))
     return out
+
+
+def _consistent_budget_surface(la: Any, model: Any, field: tuple[Any, Any, Grid], k: int, times: Sequence[float],
+                               stats: dict[str, Any], cap: float, iterations: int = 12) -> None:
+    """:func:`make_consistent` for a ``Q_min`` snapshot: every node that some budget up to the time left makes
+    feasible gets at least the smallest budget with which a held action passes the test from it (found by
+    bisection: passing only gets easier with more budget), and the cap where none does. Values only rise.
+
+    :param la: the test against the already consistent next snapshot
+    :param field: ``(values, times, grid)`` of ``Q_min``, values writable
+    :param cap: the value that says no budget suffices
+    :param iterations: bisection steps; the budget found passes, so it errs upwards by at most
+        ``(T - t_k) / 2^iterations``
+    """
+    vals, _, grid = field
+    cur = np.asarray(vals[k], dtype=np.float64)
+    left = float(times[-1] - times[k])
+    idx = np.nonzero(cur <= left + 1e-9)
+    if len(idx[0]) == 0:
+        return
+    x = np.stack([np.asarray(grid.lo[a]) + idx[a] * grid.spacing[a] for a in range(grid.ndim)], axis=1)
+    n = model.state_dim
+    keep = ~np.asarray(model.landed(times[k], [x[:, i] for i in range(n)]))
+    idx = tuple(i[keep] for i in idx)
+    x = x[keep]
+    if len(x) == 0:
+        return
+    t = np.full(len(x), float(times[k]))
+
+    def passes(z: np.ndarray) -> np.ndarray:
+        return la.best_candidate(t, x, z)[1]
+
+    hi = np.full(len(x), left)
+    feasible = passes(hi)
+    lo = np.minimum(np.maximum(cur[idx], 0.0), left)
+    at_lo = passes(lo) & feasible
+    hi = np.where(at_lo, lo, hi)
+    todo = feasible & ~at_lo
+    for _ in range(iterations):
+        if not todo.any():
+            break
+        mid = 0.5 * (lo + hi)
+        ok = passes(mid)
+        hi = np.where(todo & ok, mid, hi)
+        lo = np.where(todo & ~ok, mid, lo)
+    new = np.maximum(cur[idx], np.where(feasible, hi, cap))
+    raised = new > cur[idx]
+    stats["checked"] += int(len(x))
+    stats["raised"] += int(raised.sum())
+    stats["dead_ends"] += int((~feasible).sum())
+    finite = raised & feasible
+    if finite.any():
+        stats["largest_raise"] = max(stats["largest_raise"], float((new - cur[idx])[finite].max()))
+    if raised.any():
+        cur[idx] = new
+        vals[k] = cur.astype(vals.dtype)

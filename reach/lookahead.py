@@ -26,9 +26,17 @@ paper's game ends at the first instant in the target. So an action also passes w
 being convex or monotone along each axis on such boxes), the motion over ``[0, s]`` stays in ``C1``, and the
 budget spent until ``s`` is at most ``z``: every run then ends landed at ``s`` at the latest.
 
+A budget-surface table (``softreach solve MODEL --held --budget-surface``) gives the same test with
+``W~(t, x, z)`` replaced by ``Q~_min(t, x) - min(z, T - t)``: its maximum over ``E x [z', z]`` is
+``max_E Q~_min - min(z', T - t)``, again exact for the interpolant, and ``+inf`` on every cell with a node where no
+budget suffices (there ``Q_min`` is infinite, stored at a cap, and nothing says where between nodes feasibility
+ends).
+
 At the horizon the table holds the terminal value ``max(c1, c2, -kappa z, g)``, whose interpolant is ``<= 0``
 only inside the target (it is convex, and a multilinear interpolant of a convex function lies above it): a chain
-of admissible actions from ``t = 0`` therefore ends landed by ``T``.
+of admissible actions from ``t = 0`` therefore ends landed by ``T``. ``Q_min``'s terminal value is ``0`` on the
+target inside ``C2`` and capped elsewhere, so ``Q~_min - 0 <= 0`` holds only in cells whose every node is in
+the target inside ``C2``: inside it, where the target is convex.
 """
 
 from __future__ import annotations
@@ -64,10 +72,20 @@ class Lookahead:
         self.target_checks = int(target_checks)
         self.n = model.state_dim
         self.fields = dict(fields)
-        if "W_eps" not in self.fields:
-            raise ValueError("the one-period test needs W_eps (the classical V alone does not say how much budget)")
-        self.z_top = self.fields["W_eps"][2].hi[-1]
-        self.horizon = float(self.fields["W_eps"][1][-1])
+        #: the field that says how much budget suffices: ``W_eps`` on ``(x, z)``, or the budget surface ``Q_min``
+        self.budget_field = next((f for f in ("W_eps", "Q_min") if f in self.fields), None)
+        if self.budget_field is None:
+            raise ValueError("the one-period test needs W_eps or Q_min (the classical V alone does not say how much "
+                             "budget)")
+        b_values, b_times, b_grid = self.fields[self.budget_field]
+        self.z_top = b_grid.hi[-1] if self.budget_field == "W_eps" else np.inf
+        self.horizon = float(b_times[-1])
+        if self.budget_field == "Q_min":
+            # where no budget suffices (above the time left) Q_min is infinite, held at a cap: no interpolant
+            # between such a node and a feasible one says where feasibility ends, so every cell with such a corner
+            # is infeasible (its indicator's interpolant is positive there)
+            left = (self.horizon - np.asarray(b_times, dtype=np.float64)).reshape((-1,) + (1,) * b_grid.ndim)
+            self._no_budget = (np.asarray(b_values) > left + 1e-9).astype(np.float64)
         self.corners = np.array(list(itertools.product((0, 1), repeat=self.n)), dtype=bool)  # (2^n, n)
         self.candidates = np.asarray(candidates, dtype=np.float64)
         box = getattr(model, "target_box", None)
@@ -83,25 +101,39 @@ class Lookahead:
                    target_checks: int = 1) -> "Lookahead":
         """The test against a solved table's ``V`` and ``W_eps``, with the candidates it was solved with."""
         fields = {name: (table.values(name), table.times(name), table.grid(name))
-                  for name in ("V", "W_eps", "V_safe") if name in table.header["fields"]}
-        if "W_eps" not in fields:
-            raise ValueError(f"table {table.path} holds only the classical V; the filter needs W_eps")
-        held = table.header["fields"]["W_eps"].get("held_controls")
+                  for name in ("V", "W_eps", "Q_min", "V_safe") if name in table.header["fields"]}
+        budget = next((f for f in ("W_eps", "Q_min") if f in fields), None)
+        if budget is None:
+            raise ValueError(f"table {table.path} holds only the classical V; the filter needs W_eps or Q_min")
+        held = table.header["fields"][budget].get("held_controls")
         return cls(fields, model, dt, eps, held if held else model.held_candidates(5), margin,
                    target_checks=target_checks)
 
     # ---------------------------------------------------------------- the certificate
     def certificate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> np.ndarray:
         """``D(t, x, z)``: ``+inf`` outside the table (unsafe), at a negative budget or after the horizon."""
-        W, Wt, Wg = self.fields["W_eps"]
-        X = np.concatenate([x, np.minimum(z, self.z_top)[:, None]], axis=1)
-        w, inside = interpolate(W, Wt, Wg, t, X)
-        out = np.where(inside & (z >= Wg.lo[-1]) & np.isfinite(w), w, np.inf)
+        if self.budget_field == "Q_min":
+            Q, Qt, Qg = self.fields["Q_min"]
+            q, inside = interpolate(Q, Qt, Qg, t, x)
+            none, _ = interpolate(self._no_budget, Qt, Qg, t, x)
+            out = np.where(inside & (z >= 0) & np.isfinite(q) & (none <= 0), q - self._usable(t, z), np.inf)
+        else:
+            W, Wt, Wg = self.fields["W_eps"]
+            X = np.concatenate([x, np.minimum(z, self.z_top)[:, None]], axis=1)
+            w, inside = interpolate(W, Wt, Wg, t, X)
+            out = np.where(inside & (z >= Wg.lo[-1]) & np.isfinite(w), w, np.inf)
         if "V" in self.fields:
             V, Vt, Vg = self.fields["V"]
             v, vin = interpolate(V, Vt, Vg, t, x)
             out = np.minimum(out, np.where(vin & (z >= 0) & np.isfinite(v), v, np.inf))
         return out
+
+    def _usable(self, t: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """The budget a ``Q_min`` certificate may count on: at most the time left, since no run spends more
+        (``h_eps <= 1``). This changes nothing for the exact ``Q_min``; for its interpolant it makes ``Q~ - z <= 0``
+        at the horizon hold only between nodes with ``Q_min = 0`` (the target inside ``C2``), never between the
+        target and the capped nodes, so that a chain of passing actions still ends landed."""
+        return np.minimum(z, np.maximum(self.horizon - t, 0.0))
 
     def _each_candidate(self, *rows: np.ndarray) -> tuple[np.ndarray, ...]:
         """Every row repeated once per candidate (contiguously), and the candidates tiled beside them."""
@@ -202,7 +234,14 @@ class Lookahead:
         in_c1 = bounded & (c1 <= 0) & in_time
         nxt = np.full(len(x), np.inf)
         rows = np.nonzero(in_c1)[0]
-        if len(rows):
+        if len(rows) and self.budget_field == "Q_min":
+            # Q~ - z over the end box and the budgets [z_end, z]: largest at the lowest budget
+            Q, Qt, Qg = self.fields["Q_min"]
+            best = box_max(Q, Qt, Qg, t_next[rows], end_lo[rows], end_hi[rows]) - self._usable(t_next[rows],
+                                                                                               z_end[rows])
+            none = box_max(self._no_budget, Qt, Qg, t_next[rows], end_lo[rows], end_hi[rows])
+            best = np.where(none > 0, np.inf, best)
+        elif len(rows):
             W, Wt, Wg = self.fields["W_eps"]
             # rows that overspend are valued at the lowest budget (for ranking them only; they never pass)
             z_lo = np.maximum(z_end[rows], Wg.lo[-1])
@@ -210,6 +249,7 @@ class Lookahead:
             hi = np.concatenate([end_hi[rows], np.maximum(np.minimum(z_top[rows], self.z_top), z_lo)[:, None]],
                                 axis=1)
             best = box_max(W, Wt, Wg, t_next[rows], lo, hi)
+        if len(rows):
             if "V" in self.fields:
                 V, Vt, Vg = self.fields["V"]
                 v = box_max(V, Vt, Vg, t_next[rows], end_lo[rows], end_hi[rows])

@@ -1,0 +1,85 @@
+"""The safety filter on a budget-surface table (``Q_min`` on the state grid, sampled-data game): the same
+one-period test, the same adversaries, no hard violation and no overspend from certified starts."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from softreach.filters import ValueFilter
+from softreach.filters.audit import POLICIES, audit
+from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
+from softreach.reach.interpolation import interpolate
+
+DT = 0.01
+
+
+def _solve(tmp_path_factory, name: str, period: float | None):
+    path = tmp_path_factory.mktemp("qmin_tables") / name
+    cfg = SolveConfig(shape=(41, 41), budget_points=45, control_period=period, budget_surface=True,
+                      settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False))
+    solve_table(get_model("pointmass"), cfg, path, progress=False)
+    return load_table(path)
+
+
+@pytest.fixture(scope="module")
+def held_qmin(tmp_path_factory):
+    return _solve(tmp_path_factory, "pointmass-held-qmin.srt", DT)
+
+
+@pytest.fixture(scope="module")
+def vf(held_qmin):
+    return ValueFilter(held_qmin, DT, target_checks=get_model("pointmass").substeps)
+
+
+def test_held_budget_surface_table_is_certified_and_its_sets_grow(held_qmin, vf):
+    assert held_qmin.has_budget_surface and not held_qmin.has_budget and vf.sampled
+    x = np.random.default_rng(0).uniform([-15, 0], [15, 18], (3000, 2))
+    certified = [vf.certify(0.0, x, q)[0] for q in (0.0, 0.3, 0.6)]
+    # more budget never loses a certified state (passing only gets easier with budget)
+    assert all((a <= b).all() for a, b in zip(certified, certified[1:]))
+    assert certified[0].sum() > 100
+    stats = held_qmin.header["consistency"]["Q_min"]
+    assert stats["checked"] > 0
+
+
+def test_no_certificate_in_a_cell_with_a_node_where_no_budget_suffices(held_qmin, vf):
+    """``Q_min`` is infinite where no budget suffices, stored at a cap: between such a node and a feasible one the
+    interpolant would promise a budget that does not exist, so the certificate must be ``+inf`` on such cells."""
+    Q, times, g = np.asarray(held_qmin.values("Q_min")), held_qmin.times("Q_min"), held_qmin.grid("Q_min")
+    rng = np.random.default_rng(1)
+    k = 40
+    t = float(times[k])
+    x = rng.uniform([-15, 0], [15, 18], (20000, 2))
+    d = vf.value(t, x, 0.6)
+    i = np.floor((x - np.asarray(g.lo)) / np.asarray(g.spacing)).astype(int)
+    corners = np.stack([Q[k, i[:, 0] + a, i[:, 1] + b] for a in (0, 1) for b in (0, 1)], axis=1)
+    infeasible_corner = (corners > (times[-1] - t) + 1e-9).any(axis=1)
+    v, _ = interpolate(held_qmin.values("V"), held_qmin.times("V"), held_qmin.grid("V"), np.full(len(x), t), x)
+    by_q = np.isfinite(d) & (d < np.minimum(v, np.inf))  # certified by Q_min, not by the classical V
+    assert by_q.sum() > 50
+    assert not (by_q & infeasible_corner).any()
+
+
+def test_audit_from_certified_starts_never_leaves_c1_nor_overspends(vf):
+    rows = audit(vf, [0.3, 0.6], starts_per_row=2, kinds=("certified",), policies=POLICIES,
+                 winds=("worst_case", "switch_inside", "switch_on_filter"), pieces=4, seed=0, check_unneeded=False)
+    filtered = [r for r in rows if r.filtered]
+    raw = [r for r in rows if not r.filtered]
+    assert sum(r.episodes for r in filtered) == len(POLICIES) * 3 * 2 * 2
+    assert sum(r.hard_violations for r in filtered) == 0, [r.failures for r in filtered if r.hard_violations]
+    assert sum(r.overspends for r in filtered) == 0, [r.failures for r in filtered if r.overspends]
+    assert sum(r.hard_violations + r.overspends for r in raw) > len(raw)
+
+
+def test_continuous_budget_surface_table_is_filtered_but_not_certified(tmp_path_factory):
+    table = _solve(tmp_path_factory, "pointmass-qmin.srt", None)
+    vf = ValueFilter(table, DT)
+    certified, reason, _ = vf.certify(0.0, [0.0, 5.0], 0.3)
+    assert not certified and reason == "table_not_sampled"
+    # the one-period test still runs on it: full thrust down, held, is replaced where it would leave the set
+    x = np.random.default_rng(2).uniform([-15, 0], [15, 18], (2000, 2))
+    x = x[table.contains(0.0, x, 0.3)]
+    applied, info = vf.filter(0.0, x, 0.3, np.full((len(x), 1), -60.0))
+    assert 0 < info["active"].sum() < len(x)
+    assert np.isfinite(applied).all()
