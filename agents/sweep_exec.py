@@ -221,9 +221,9 @@ def execute_local(tasks: dict[str, Task], workers: int, on_result: Callable[[str
         started = [rid for rid in broken if (Path(pending[rid][2]) / RUNNING_FILE).is_file()]
         lost = started or broken  # a pool that broke before any run started would break again
         for rid in lost:
-            why = ("killed: its worker process died (killed, out of memory or exited) while it ran; other runs in "
+            why = ("its worker process died (killed, out of memory or exited) while it ran; other runs in "
                    "flight in the same pool are stopped with it") if rid in started else \
-                  "killed: the process pool broke before this run started"
+                  "the process pool broke before this run started"
             on_result(rid, new_result(pending.pop(rid)[0], "killed", why))
 
 
@@ -285,7 +285,7 @@ def execute_ray(tasks: dict[str, Task], address: str, workers: int,
                     except RayTaskError as exc:  # an exception that escaped run_one (should not happen)
                         res = new_result(tasks[rid][0], "failed", _error_text(exc.as_instanceof_cause()))
                     except RayError as exc:
-                        res = new_result(tasks[rid][0], "killed", "killed: " + _error_text(exc).splitlines()[0])
+                        res = new_result(tasks[rid][0], "killed", _error_text(exc).splitlines()[0])
                     on_result(rid, res)
         except KeyboardInterrupt:
             for ref in refs:

@@ -104,15 +104,12 @@ def test_local_sweep_table_failure_and_resume(local_sweep, pointmass_table_path)
     assert res3["status"]["done"] == 4 and model.stat().st_mtime_ns == stamp[0]
 
 
-def test_killed_worker_is_reported(tmp_path, pointmass_table_path):
-    """A worker killed mid-run: that run is reported killed, the sweep goes on with the others."""
-    spec = tiny_spec(pointmass_table_path)
-    out = tmp_path / "sweep"
-    first = spec.runs()[0]
-    marker = out / "runs" / first.run_id / "running.json"
-    killed = []
+def kill_when_started(marker: Path) -> list[int]:
+    """SIGKILL the process that writes ``marker`` (a run's running.json) as soon as it appears, from a thread;
+    the returned list receives its pid."""
+    killed: list[int] = []
 
-    def kill_first_worker():
+    def watch():
         deadline = time.time() + 60
         while time.time() < deadline and not killed:
             try:
@@ -123,28 +120,51 @@ def test_killed_worker_is_reported(tmp_path, pointmass_table_path):
             os.kill(pid, signal.SIGKILL)
             killed.append(pid)
 
-    t = threading.Thread(target=kill_first_worker, daemon=True)
-    t.start()
-    res = run_sweep(spec, out, workers=1, log=lambda _: None)
-    t.join()
+    threading.Thread(target=watch, daemon=True).start()
+    return killed
+
+
+def check_killed(res, spec: SweepSpec, out: Path, killed: list[int], message: str) -> None:
+    """The killed run (the first) is reported killed with ``message``; the next run still ran (and failed)."""
     assert killed, "the first run never started"
     by = {(r["variant"], r["eval_filter"]): r for r in res["rows"]}
     for f in ("on", "off"):
-        assert by[("tiny", f)]["status"] == "killed" and "worker process died" in by[("tiny", f)]["error"]
-        assert by[("broken", f)]["status"] == "failed"  # the next run still ran, in a fresh pool
-    assert json.loads((out / "runs" / first.run_id / "result.json").read_text())["status"] == "killed"
+        assert by[("tiny", f)]["status"] == "killed" and message in by[("tiny", f)]["error"]
+        assert by[("broken", f)]["status"] == "failed" and "batch_size" in by[("broken", f)]["error"]
+    assert json.loads((out / "runs" / spec.runs()[0].run_id / "result.json").read_text())["status"] == "killed"
 
 
-def test_sweep_on_local_ray(tmp_path, pointmass_table_path, local_sweep):
-    """The same sweep as Ray tasks: the same table, the same numbers (training and evaluation are seeded)."""
+def test_killed_worker_is_reported(tmp_path, pointmass_table_path):
+    """A local worker killed mid-run: that run is reported killed, the others run in a fresh pool."""
+    spec = tiny_spec(pointmass_table_path)
+    out = tmp_path / "sweep"
+    killed = kill_when_started(out / "runs" / spec.runs()[0].run_id / "running.json")
+    res = run_sweep(spec, out, workers=1, log=lambda _: None)
+    check_killed(res, spec, out, killed, "worker process died")
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    """A local Ray instance with one CPU for this module's Ray tests."""
     ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'softreach[sweep]')")
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+def test_killed_ray_worker_is_reported(tmp_path, pointmass_table_path, local_ray):
+    spec = tiny_spec(pointmass_table_path)
+    out = tmp_path / "sweep"
+    killed = kill_when_started(out / "runs" / spec.runs()[0].run_id / "running.json")
+    res = run_sweep(spec, out, ray="auto", log=lambda _: None)
+    check_killed(res, spec, out, killed, "WorkerCrashedError")
+
+
+def test_sweep_on_local_ray(tmp_path, pointmass_table_path, local_sweep, local_ray):
+    """The same sweep as Ray tasks: the same table, the same numbers (training and evaluation are seeded)."""
     spec = tiny_spec(pointmass_table_path)
     out = tmp_path / "sweep_ray"
-    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
-    try:
-        res = run_sweep(spec, out, ray="auto", log=lambda _: None)
-    finally:
-        ray.shutdown()
+    res = run_sweep(spec, out, ray="auto", log=lambda _: None)
     rows = check_table(res, spec, out)
     check_done_row(rows[("tiny", "on")], filtered=True)
     assert rows[("broken", "on")]["status"] == "failed" and "batch_size" in rows[("broken", "on")]["error"]
