@@ -6,7 +6,9 @@ the unfiltered policy and the table-optimal controller, and report (numbers and 
 * :mod:`.evaluate` — :func:`evaluate` (per-episode metrics, aggregates with confidence intervals);
 * :mod:`.report` — the JSON schema and the plots;
 * :mod:`.demo` — the one-command demo;
-* :mod:`.commands` — the ``softreach train | evaluate | demo`` subcommands.
+* :mod:`.sweep` (grid and ids), :mod:`.sweep_exec` (local processes or Ray, resume), :mod:`.sweep_report` (the
+  table, report and plots), :mod:`.sweep_cli` (:func:`run_sweep`) — ``softreach sweep``;
+* :mod:`.commands` — the ``softreach train | evaluate | demo | sweep`` subcommands.
 
 The functions ``train`` and ``evaluate`` share their modules' names: import them as
 ``from softreach.agents.train import train`` and ``from softreach.agents.evaluate import evaluate``. The names
@@ -26,6 +28,7 @@ _EXPORTS = {
     "EvalSpec": "evaluate", "EvaluationResult": "evaluate",
     "EVAL_SCHEMA": "report", "validate_evaluation": "report", "write_json": "report", "write_plots": "report",
     "run_demo": "demo",
+    "SweepSpec": "sweep", "load_sweep_file": "sweep", "run_sweep": "sweep_cli",
 }
 
 __all__ = sorted(_EXPORTS)
