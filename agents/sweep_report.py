@@ -257,11 +257,17 @@ def write_report(rows: list[dict[str, Any]], results: Sequence[tuple[SweepRun, d
                          plot_learning(results, out / "plots" / "learning_curves.png"))
              if p is not None]
     status = {s: sum(1 for r in rows if r["status"] == s) for s in ("done", "failed", "killed", "missing")}
+    checkpoints: dict[str, int] = {}
+    for r in rows:
+        if r["checkpoint"]:
+            checkpoints[r["checkpoint"]] = checkpoints.get(r["checkpoint"], 0) + 1
     lines = ["# softreach sweep", "", f"Rerun or resume (finished runs are skipped): `{command}`", "",
              f"Runs: {counts.get('runs', 0)} ({counts.get('skipped', 0)} already done and skipped, "
              f"{counts.get('ran', 0)} run now); wall time of this invocation {wall_s:.0f} s.", "",
              "Table rows (run x evaluation): " + ", ".join(f"{v} {k}" for k, v in status.items() if v) +
              ". The full table with every interval: [results.csv](results.csv).", "",
+             "Evaluated checkpoint: " + (", ".join(f"`{k}` in {v} rows" for k, v in checkpoints.items()) or "none") +
+             " (`best_model.zip`: the best periodic evaluation of the training run).", "",
              "Seeds pooled: counts summed over the finished seeds (Wilson 95 % intervals); the per-seed landing "
              "rates show their spread.", "", *pooled_lines(rows), ""]
     bad = [r for r in rows if r["status"] != "done"]

@@ -85,6 +85,7 @@ def test_local_sweep_table_failure_and_resume(local_sweep, pointmass_table_path)
     assert res["status"] == {"done": 2, "failed": 2, "killed": 0, "missing": 0}
     report = (out / "report.md").read_text()
     assert "## Runs that did not finish" in report and "batch_size" in report
+    assert "Evaluated checkpoint: `best_model.zip` in 2 rows" in report
     assert (out / "plots" / "landing_rate.png").stat().st_size > 1000
     assert json.loads((out / "sweep.json").read_text())["schema"] == "softreach.sweep/1"
 
