@@ -157,7 +157,7 @@ def _clean(v: Any) -> Any:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--table", required=True, help="a W_eps table, solved with --held for certification")
+    p.add_argument("--table", required=True, help="a W_eps or Q_min table, solved with --held for certification")
     p.add_argument("--continuous", help="a continuous-time table of the same model: its RA~_Q for comparison")
     p.add_argument("--dt", type=float, help="control period [s] (default: the table's control_period)")
     p.add_argument("--budgets", type=float, nargs="+", help="budgets Q [s] (default: the model's default_budgets)")

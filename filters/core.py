@@ -156,6 +156,8 @@ class ValueFilter:
         self.lookahead = Lookahead.from_table(table, self.model, self.dt, self.eps, margin=self.constant_margin or 0.0,
                                               target_checks=target_checks)
         self.target_checks = self.lookahead.target_checks
+        #: up to this many rows, :meth:`filter` judges the policy's action and the candidates in one batch
+        self.joint_rows = 8
 
     # ---------------------------------------------------------------- conversions
     def physical(self, action: Any) -> np.ndarray:
@@ -277,14 +279,27 @@ class ValueFilter:
         pol = self.physical(act) if normalized else np.minimum(np.maximum(act, self.a_lo), self.a_hi)
         la = self.lookahead
         value = la.certificate(tt, xs, zz)
-        _, nxt, _, ok = la.passes(tt, xs, zz, pol)
+        J = len(la.candidates)
+        if N <= self.joint_rows:
+            # few rows: the policy's action and every candidate in one batch. The cost of a call is mostly fixed
+            # overhead, so one call that may judge candidates needlessly beats a second call when it is needed
+            acts = np.concatenate([pol[:, None, :], np.broadcast_to(la.candidates, (N, J, self.m))], axis=1)
+            both = la.passes(np.repeat(tt, J + 1), np.repeat(xs, J + 1, axis=0), np.repeat(zz, J + 1),
+                             acts.reshape(N * (J + 1), self.m))
+            both = [o.reshape(N, J + 1) for o in both]
+            nxt, ok = both[1][:, 0].copy(), both[3][:, 0].copy()
+            rows = np.nonzero(~ok)[0]
+            cand = tuple(o[rows, 1:] for o in both)
+        else:
+            _, nxt, _, ok = la.passes(tt, xs, zz, pol)
+            rows = np.nonzero(~ok)[0]
+            cand = la.candidates_pass(tt[rows], xs[rows], zz[rows]) if len(rows) else None
         applied = pol.copy()
         reason = np.full(N, PASS, dtype=np.int64)
         blend = np.ones(N)
         chosen = np.full((N, self.m), np.nan)
-        rows = np.nonzero(~ok)[0]
         if len(rows):
-            cand_ok, cand_next, cand_bad, cand_keeps = la.candidates_pass(tt[rows], xs[rows], zz[rows])
+            cand_ok, cand_next, cand_bad, cand_keeps = cand
             any_ok = cand_ok.any(axis=1)
             # switch: a candidate after which a passing action exists again (by its next certificate), else one
             # that passes (the next state may then be a dead end), else the least bad, C1 first; smooth: the

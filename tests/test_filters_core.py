@@ -320,3 +320,20 @@ def test_the_safety_value_keeps_c1_where_braking_can(pointmass_held_table):
     # every landing-certified node can also keep C1 (the sets are nested)
     V = np.asarray(table.values("V")[0])
     assert np.all(S[V <= -0.05] <= 0)
+
+
+def test_one_batch_and_two_stage_decisions_agree(pointmass_held_table):
+    """Few rows are judged with the candidates in one batch, many in two stages: the same decisions."""
+    vf = ValueFilter(pointmass_held_table, DT, target_checks=10)
+    rng = np.random.default_rng(11)
+    N = 40
+    x = np.c_[rng.uniform(-15, 15, N), rng.uniform(0, 18, N)]
+    z, t, a = rng.uniform(0, 0.6, N), rng.uniform(0, 0.95, N), rng.uniform(-60, 60, (N, 1))
+    assert N > vf.joint_rows >= 1
+    batch, info = vf.filter(t, x, z, a)  # two stages
+    assert 0 < info["active"].sum() < N
+    for i in range(N):
+        one, one_info = vf.filter(t[i], x[i], z[i], a[i])  # one batch
+        assert np.array_equal(one, batch[i])
+        for key in ("reason", "lookahead", "certified", "optimal_action"):
+            assert np.array_equal(one_info[key], info[key][i], equal_nan=True), key
