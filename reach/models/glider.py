@@ -31,7 +31,7 @@ from ..dynamics import Components
 from ..problem import Model
 from .glider_enclosure import GliderHeldEnclosure
 from .glider_game import GliderGame
-# the parameters and unit helpers live in glider_params; they are importable from here as before
+# re-exported: users take the parameters and the angle helpers from the model module
 from .glider_params import (DEGREES_SUSPECT, GliderParams, _as_numpy, _check_radians, _cos, _sin,
                             degrees_to_radians, radians_to_degrees)
 
