@@ -13,7 +13,7 @@ import numpy as np
 
 from . import backend as B
 from .grid import Grid, budget_axis
-from .problem import Model, avoid_problem, classical_problem, soft_problem
+from .problem import Model, avoid_problem, check_edges, classical_problem, soft_problem
 from .budget_surface import budget_problem
 from .held import consistency_gaps, make_consistent, solve_held
 from .solver import SolverSettings, solve
@@ -178,9 +178,12 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
             before = float(spec.get("wall_s", 0.0))
             t0 = time.perf_counter()
 
-            def sink(kk, tt, u, _n=name, _spec=spec, _before=before, _t0=t0):
+            def sink(kk, tt, u, _n=name, _spec=spec, _before=before, _t0=t0, _grid=grid):
                 _spec["wall_s"] = _before + time.perf_counter() - _t0
                 writer.write_snapshot(_n, kk, u)
+                if _n != "Q_min":  # Q_min >= 0: its ghosts, extrapolated away from zero, only rise
+                    check_edges(_n, B.to_numpy(u), _grid.periodic, _grid.names or model.state_names,
+                                model.state_dim)
             if held:
                 solve_held(problem, grid, times, cfg.settings, np.asarray(controls), start=start, progress=bar,
                            sink=sink)

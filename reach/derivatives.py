@@ -23,24 +23,33 @@ def _take(u: Array, axis: int, start: int, stop: int) -> Array:
 def pad(u: Array, axis: int, width: int, boundary: str) -> Array:
     """Add ``width`` ghost nodes at both ends of ``axis``.
 
-    :param boundary: ``"periodic"``; ``"extrapolate"`` (linear); or ``"extrapolate_away"`` (linear, with the slope's
-        sign chosen so that ghost values move away from zero: no spurious zero crossing, i.e. no safe set, can
-        enter through the boundary)
+    :param boundary: ``"periodic"``; ``"extrapolate"`` (linear); ``"extrapolate_away"`` (linear, with the slope's
+        sign chosen so that ghost values move away from zero: where the edge value is positive, the ghosts are
+        positive and rising, so no safe set can enter through the boundary); ``"constant"`` (the edge value); or a
+        pair ``(rule at the low end, rule at the high end)`` of the non-periodic rules
     """
     n = u.shape[axis]
     if boundary == "periodic":
         return B.concatenate([_take(u, axis, n - width, n), u, _take(u, axis, 0, width)], axis)
+    lo_rule, hi_rule = (boundary, boundary) if isinstance(boundary, str) else boundary
     first, second = _take(u, axis, 0, 1), _take(u, axis, 1, 2)
     last, before = _take(u, axis, n - 1, n), _take(u, axis, n - 2, n - 1)
-    slope_lo, slope_hi = first - second, last - before  # per ghost step, outward
-    if boundary == "extrapolate_away":
-        slope_lo = abs(slope_lo) * B.where(first >= 0, 1.0 + 0 * first, -1.0 + 0 * first)
-        slope_hi = abs(slope_hi) * B.where(last >= 0, 1.0 + 0 * last, -1.0 + 0 * last)
-    elif boundary != "extrapolate":
-        raise ValueError(f"unknown boundary {boundary!r}; use 'extrapolate', 'extrapolate_away' or 'periodic'")
+    slope_lo = _ghost_slope(lo_rule, first, first - second)  # per ghost step, outward
+    slope_hi = _ghost_slope(hi_rule, last, last - before)
     left = [first + k * slope_lo for k in range(width, 0, -1)]
     right = [last + k * slope_hi for k in range(1, width + 1)]
     return B.concatenate(left + [u] + right, axis)
+
+
+def _ghost_slope(rule: str, edge: Array, slope: Array) -> Array:
+    """The outward step of the ghost values at one end under ``rule`` (see :func:`pad`)."""
+    if rule == "extrapolate":
+        return slope
+    if rule == "extrapolate_away":
+        return abs(slope) * B.where(edge >= 0, 1.0 + 0 * edge, -1.0 + 0 * edge)
+    if rule == "constant":
+        return 0 * slope
+    raise ValueError(f"unknown boundary {rule!r}; use 'extrapolate', 'extrapolate_away', 'constant' or 'periodic'")
 
 
 def first_order(d: list[Array]) -> tuple[Array, Array]:

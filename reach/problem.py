@@ -23,6 +23,8 @@ from typing import Any, Sequence
 
 import math
 
+import numpy as np
+
 from . import backend as B
 from .dynamics import Components, Dynamics
 
@@ -257,8 +259,46 @@ class ReachAvoidProblem:
         value is ``max(c, l)`` in the first case, ``c`` in the second."""
         return self.kind != "avoid"
 
+    def boundaries(self, periodic: Sequence[bool], rule: str) -> list[Any]:
+        """The ghost-node rule of each grid axis (:func:`softreach.reach.derivatives.pad`): periodic axes wrap,
+        the others take ``rule`` (the settings' ``"extrapolate_away"``: conservative where the edge value is
+        positive, which :func:`check_edges` asks of every state axis).
+
+        The budget axis ``z`` of the soft problem is settled here. Budget only decreases, so information enters
+        ``z`` from below: there the nodes lie under ``z = 0``, where the floor ``W >= -kappa z > 0`` holds every
+        value positive, so ghosts extrapolated away from zero are conservative. The top of the axis is the
+        horizon ``T``, and no run spends more than the time left, so ``W_eps`` is constant in ``z`` above it: the
+        edge value itself is the exact ghost.
+        """
+        out: list[Any] = ["periodic" if p else rule for p in periodic]
+        if self.kind == "soft":
+            out[-1] = (rule, "constant")
+        return out
+
     def metadata(self) -> dict[str, Any]:
         return {"kind": self.kind, "eps": self.eps, "budget_scale": self.budget_scale, "model": self.model.metadata()}
+
+
+def check_edges(name: str, values: Any, periodic: Sequence[bool], axis_names: Sequence[str], n_states: int) -> None:
+    """Raise where a value ``<= 0`` lies on a non-periodic edge of a state axis: the set reaches the grid's edge,
+    where the ghost nodes (extrapolated away from zero) are no longer provably conservative.
+
+    :param name: the field (``"V"``, ``"W_eps"``, ...; ``Q_min`` is ``>= 0`` everywhere and not checked)
+    :param values: one snapshot on the field's grid
+    :param n_states: the leading axes that are states (the budget axis after them is settled by
+        :meth:`ReachAvoidProblem.boundaries`)
+    """
+    u = np.asarray(values)
+    for a in range(n_states):
+        if periodic[a]:
+            continue
+        for side, index in (("low", 0), ("high", -1)):
+            edge = np.take(u, index, axis=a)
+            bad = int((edge <= 0).sum())
+            if bad:
+                raise ValueError(f"{name}: {bad} node(s) at the {side} edge of axis {axis_names[a]!r} are inside the "
+                                 f"set ({name} <= 0): the set reaches the grid's edge, where the boundary rule is "
+                                 f"not provably conservative. Enlarge the domain along {axis_names[a]!r}")
 
 
 def classical_problem(model: Model) -> ReachAvoidProblem:

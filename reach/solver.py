@@ -102,7 +102,7 @@ class HamiltonianOperator:
         self.dynamics = problem.dynamics
         self.x = grid.coordinates(settings.backend, settings.dtype, settings.device)
         self.dx = grid.spacing
-        self.boundaries = ["periodic" if p else settings.boundary for p in grid.periodic]
+        self.boundaries = problem.boundaries(grid.periodic, settings.boundary)
         self.time_invariant = problem.model.time_invariant
         self._sets_at: float | None = None
         self._sets(0.0)

@@ -56,3 +56,26 @@ def test_unknown_scheme_and_too_short_axis_are_refused():
         upwind_derivatives(np.zeros(10), 0, 1.0, "weno7")
     with pytest.raises(ValueError, match="at least 4 nodes"):
         upwind_derivatives(np.zeros(3), 0, 1.0, "weno5")
+
+
+def test_constant_and_per_end_ghost_rules():
+    from softreach.reach.derivatives import pad
+
+    u = np.array([[3.0, 1.0, -1.0, -2.0]])
+    ghosts = pad(u, 1, 2, ("extrapolate_away", "constant"))[0]
+    # low end (3, slope 2 outward, positive edge): rising away from zero; high end: the edge value repeated
+    assert ghosts.tolist() == [7.0, 5.0, 3.0, 1.0, -1.0, -2.0, -2.0, -2.0]
+    with pytest.raises(ValueError, match="unknown boundary 'flat'"):
+        pad(u, 1, 2, ("constant", "flat"))
+
+
+def test_a_set_that_reaches_the_grid_edge_is_refused(tmp_path):
+    """A domain equal to the hard-constraint box puts states of the set on the grid's edge, where ghosts
+    extrapolated away from a negative value would invent safety beyond the grid: the solve stops and says so."""
+    from softreach.reach import SolveConfig, SolverSettings, get_model, solve_table
+
+    model = get_model("pointmass")
+    cfg = SolveConfig(shape=(31, 31), budget_points=20, classical_only=True, snapshots=3, domain=model.hard_box,
+                      settings=SolverSettings.from_accuracy("low", dtype="float32", compile=False))
+    with pytest.raises(ValueError, match="edge of axis 'y'.*Enlarge the domain along 'y'"):
+        solve_table(model, cfg, tmp_path / "tight.srt", progress=False)
