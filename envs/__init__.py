@@ -9,7 +9,8 @@ Importing this package registers
 
 so ``import softreach.envs; gymnasium.make("softreach/PointMassLanding-v0")`` works, and so does
 ``gymnasium.make("softreach.envs:softreach/PointMassLanding-v0")`` without the import (Gymnasium imports the
-module named before the colon). Rendering (matplotlib) is imported only when a frame is drawn.
+module named before the colon). Every environment takes its options as keywords or as one
+:class:`LandingConfig` (``config=``). Rendering (matplotlib) is imported only when a frame is drawn.
 
 ``render_mode="rgb_array"`` is always available; ``"human"`` is declared in ``metadata["render_modes"]`` only
 where a display exists (``DISPLAY`` or ``WAYLAND_DISPLAY`` on Linux), because
@@ -23,6 +24,7 @@ from __future__ import annotations
 from gymnasium.envs.registration import register, registry
 
 from ._common import LandingEnv
+from .config import LandingConfig
 from .integrator import integrate_period, rk4_stages
 from .wind import OrnsteinUhlenbeckGust
 from .glider_landing import GliderLandingEnv
@@ -48,6 +50,7 @@ _register_all()
 __all__ = [
     "ENV_IDS",
     "GliderLandingEnv",
+    "LandingConfig",
     "LandingEnv",
     "OrnsteinUhlenbeckGust",
     "PointMassLandingEnv",

@@ -1,18 +1,19 @@
-"""The :class:`LandingEnv` base class of the landing environments, with its input checks.
+"""The :class:`LandingEnv` base class of the landing environments: the episode (reset, step, observation,
+``info``) and the checks of starts and budgets.
 
 The environments simulate the models of :mod:`softreach.reach.models` with the model objects themselves:
 the vector field is ``model.f``, the budget drains at ``model.violation_rate``, landing and crashing are read off
 ``model.target``, ``model.hard_constraint`` and ``model.soft_constraint``. Nothing here re-implements a model.
 The integrator (:mod:`softreach.envs.integrator`) advances one control period and ends it at the first sub-step
-that lands or leaves ``C1``; the winds are in :mod:`softreach.envs.wind`.
+that lands or leaves ``C1``. The other parts are base classes from their own modules: the options
+(:class:`~softreach.envs.config.LandingConfig`), the action map (:mod:`softreach.envs.actions`), the winds
+(:mod:`softreach.envs.wind`) and drawing (:mod:`softreach.envs.display`).
 """
 
 from __future__ import annotations
 
 import math
-import os
-import sys
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -22,34 +23,19 @@ from gymnasium import spaces
 
 from softreach.reach.problem import Model
 
-from .integrator import ScalarModel, _integrate_period_scalar, _rates, integrate_period, scalar_model
-from .wind import WIND_MODES, OrnsteinUhlenbeckGust, _as_float_list, _table_type, load_wind_table
+from .actions import ActionMapping
+from .config import LandingConfig, _check_positive
+from .display import Rendering, _require_display, has_display, render_modes
+from softreach.reach.integrator import ScalarModel, _integrate_period_scalar, _rates, integrate_period, scalar_model
+from .wind import WindInputs, _as_float_list, load_wind_table
 
 
-def has_display() -> bool:
-    """Whether a window can be opened: on Linux, ``DISPLAY`` or ``WAYLAND_DISPLAY`` is set; elsewhere assumed."""
-    if sys.platform.startswith("linux"):
-        return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-    return True
-
-
-def render_modes() -> list[str]:
-    """The render modes to declare: ``"rgb_array"`` always, ``"human"`` only where a display exists (so that
-    ``gymnasium.utils.env_checker.check_env``, which opens every declared mode, passes on headless machines)."""
-    return ["human", "rgb_array"] if has_display() else ["rgb_array"]
-
-
-def _require_display() -> None:
-    """Raise unless a window can be opened (render_mode='human')."""
-    if not has_display():
-        raise RuntimeError("render_mode='human' needs a display (no DISPLAY or WAYLAND_DISPLAY is set); use "
-                           "render_mode='rgb_array' and save or show the frames instead")
-
-
-class LandingEnv(gym.Env):
+class LandingEnv(ActionMapping, WindInputs, Rendering, gym.Env):
     """Base class of the landing environments (see :class:`PointMassLandingEnv` for the documentation of the
-    common behaviour). Subclasses pass their model and defaults to :meth:`__init__` and implement
-    :meth:`_render_layout` (the static parts of a frame: ranges, limits, labels).
+    common behaviour). Subclasses set :attr:`default_config`, pass their model and a
+    :class:`~softreach.envs.config.LandingConfig` to :meth:`__init__` (built by
+    :func:`~softreach.envs.config.landing_config`) and implement :meth:`_render_layout` (the static parts of a
+    frame: ranges, limits, labels).
     """
 
     metadata: dict[str, Any] = {"render_modes": render_modes(), "render_fps": 25}
@@ -57,46 +43,29 @@ class LandingEnv(gym.Env):
     #: keys accepted in ``reset(options=...)``
     OPTION_KEYS = ("state", "budget", "time")
 
-    def __init__(
-        self,
-        *,
-        model: Model,
-        dt: float,
-        n_substeps: int,
-        eps: float,
-        init_state_low: Sequence[float],
-        init_state_high: Sequence[float],
-        budget: float | tuple[float, float],
-        wind: str | Callable[..., Any],
-        wind_value: Any,
-        wind_table: Any,
-        gust_std: Any,
-        gust_tau: float | None,
-        clip_wind: bool,
-        landing_reward: float,
-        failure_penalty: float,
-        progress_weight: float,
-        effort_weight: float,
-        budget_resolution: float,
-        render_mode: str | None,
-    ):
+    #: the options of an environment built without any (subclasses set their own)
+    default_config: LandingConfig = LandingConfig()
+
+    def __init__(self, *, model: Model, config: LandingConfig, render_mode: str | None):
+        """:param model: the model to simulate
+        :param config: the environment's options; the fields left at ``None`` are taken from the model
+            (:meth:`LandingConfig.resolve`)
+        :param render_mode: ``None``, ``"rgb_array"`` or ``"human"`` (where the subclass declares them)
+        """
         super().__init__()
         self.model = model
         self.horizon = float(model.horizon)
         n, m, k = model.state_dim, model.control_dim, model.disturbance_dim
         self._n, self._m, self._k = n, m, k
 
-        _check_positive("dt", dt)
+        config = self.config = config.resolve(model)
+        dt = config.dt
         if dt > self.horizon:
             raise ValueError(f"dt must not exceed the horizon {self.horizon} s, got {dt!r}")
-        if not (isinstance(n_substeps, (int, np.integer)) and not isinstance(n_substeps, bool) and n_substeps >= 1):
-            raise ValueError(f"n_substeps must be a positive integer, got {n_substeps!r}")
-        _check_positive("eps", eps)
-        _check_positive("budget_resolution", budget_resolution)
         self.dt = float(dt)
-        self.n_substeps = int(n_substeps)
-        self.eps = float(eps)
-        self.budget_resolution = float(budget_resolution)
+        self.n_substeps = int(config.n_substeps)
+        self.eps = float(config.eps)
+        self.budget_resolution = float(config.budget_resolution)
 
         # physical ranges of the inputs; the agent acts in [-1, 1]
         self.action_low_physical = np.array(model.control_bounds[0], dtype=np.float64)
@@ -117,8 +86,8 @@ class LandingEnv(gym.Env):
         self._periodic = model.periodic_axes()
         self._wraps = any(self._periodic)
 
-        lo = _as_float_list("init_state_low", init_state_low, n)
-        hi = _as_float_list("init_state_high", init_state_high, n)
+        lo = _as_float_list("init_state_low", config.init_state_low, n)
+        hi = _as_float_list("init_state_high", config.init_state_high, n)
         for i in range(n):
             if not lo[i] <= hi[i]:
                 raise ValueError(f"init_state_low must not exceed init_state_high, got {lo} and {hi}")
@@ -126,6 +95,7 @@ class LandingEnv(gym.Env):
         self._check_state(hi, "init_state_high")
         self.init_state_low, self.init_state_high = np.array(lo), np.array(hi)
 
+        budget = config.budget
         if isinstance(budget, (tuple, list)):
             if len(budget) != 2:
                 raise ValueError(f"budget must be a number or a (low, high) pair, got {budget!r}")
@@ -137,16 +107,13 @@ class LandingEnv(gym.Env):
             q = self._check_budget(budget, "budget")
             self.budget_range = (q, q)
 
-        for name, value in (("landing_reward", landing_reward), ("failure_penalty", failure_penalty),
-                            ("progress_weight", progress_weight), ("effort_weight", effort_weight)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite non-negative number, got {value!r}")
-        self.landing_reward = float(landing_reward)
-        self.failure_penalty = float(failure_penalty)
-        self.progress_weight = float(progress_weight)
-        self.effort_weight = float(effort_weight)
+        self.landing_reward = float(config.landing_reward)
+        self.failure_penalty = float(config.failure_penalty)
+        self.progress_weight = float(config.progress_weight)
+        self.effort_weight = float(config.effort_weight)
 
-        self._setup_wind(wind, wind_value, wind_table, gust_std, gust_tau, clip_wind)
+        self._setup_wind(config.wind, config.wind_value, config.wind_table, config.gust_std, config.gust_tau,
+                         config.clip_wind)
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(m,), dtype=np.float32)
         T = self.horizon
@@ -197,126 +164,6 @@ class LandingEnv(gym.Env):
         if bad:
             raise ValueError(f"{name} lies outside the {self.model.name} domain: " + "; ".join(bad))
         self.model.validate_state(list(x))
-
-    def _setup_wind(self, wind, wind_value, wind_table, gust_std, gust_tau, clip_wind) -> None:
-        k = self._k
-        self.clip_wind = bool(clip_wind)
-        self.wind_mode = wind if isinstance(wind, str) else "callable"
-        self._wind_fn = None
-        self._gust = None
-        self.wind_table = None
-        self._wind_table_path: str | None = None
-        if isinstance(wind, str):
-            if wind not in WIND_MODES:
-                raise ValueError(f"wind must be one of {WIND_MODES} or a callable (t, state, budget, action) -> "
-                                 f"wind, got {wind!r}")
-        elif not callable(wind):
-            raise ValueError(f"wind must be one of {WIND_MODES} or a callable, got {wind!r}")
-        else:
-            self._wind_fn = wind
-        used = {"wind_value": "constant", "wind_table": "adversarial", "gust_std": "random", "gust_tau": "random"}
-        for name, value in (("wind_value", wind_value), ("wind_table", wind_table), ("gust_std", gust_std),
-                            ("gust_tau", gust_tau)):
-            if value is not None and self.wind_mode != used[name]:
-                raise ValueError(f"{name}= is used only with wind={used[name]!r}, but wind={self.wind_mode!r}")
-        units = f" [{', '.join(self.model.disturbance_units) or 'model units'}]"
-        if self.wind_mode == "constant":
-            if wind_value is None:
-                raise ValueError("wind='constant' needs wind_value= (the physical wind"
-                                 f"{units}, a number or {k} numbers)")
-            value = _as_float_list("wind_value", wind_value, k, units)
-            if self.clip_wind:
-                out = [v for v, lo, hi in zip(value, self._b_lo, self._b_hi) if not lo <= v <= hi]
-                if out:
-                    raise ValueError(f"wind_value={value} lies outside the disturbance box [{self._b_lo}, "
-                                     f"{self._b_hi}]{units}; pass clip_wind=False to apply it anyway")
-            self.wind_value = value
-        elif self.wind_mode == "random":
-            half = [0.5 * (hi - lo) for lo, hi in zip(self._b_lo, self._b_hi)]
-            mean = [0.5 * (hi + lo) for lo, hi in zip(self._b_lo, self._b_hi)]
-            std = [0.5 * w for w in half] if gust_std is None else _as_float_list("gust_std", gust_std, k, units)
-            if any(s < 0 for s in std):
-                raise ValueError(f"gust_std must be non-negative, got {std}")
-            tau = self.horizon / 10.0 if gust_tau is None else gust_tau
-            _check_positive("gust_tau", tau)
-            lo = self._b_lo if self.clip_wind else [-math.inf] * k
-            hi = self._b_hi if self.clip_wind else [math.inf] * k
-            self._gust = OrnsteinUhlenbeckGust(mean, std, float(tau), lo, hi)
-        elif self.wind_mode == "adversarial":
-            if wind_table is None:
-                raise ValueError("wind='adversarial' needs wind_table= (a path to a W_eps table of this model, or a "
-                                 "loaded Table): the worst-case wind b* is read from the table's gradient")
-            self.wind_table = load_wind_table(wind_table, self.model, self.eps)
-            if isinstance(wind_table, (str, os.PathLike)):
-                self._wind_table_path = os.fspath(wind_table)
-
-    # ------------------------------------------------------------------------------------------ mapping
-    def physical_action(self, action: Any) -> np.ndarray:
-        """Map a normalised action in ``[-1, 1]^m`` to the model's physical control (clipped first).
-
-        :param action: normalised action(s), shape ``(..., m)``
-        :return: physical control(s) of the same shape, in the model's units
-        """
-        a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
-        return np.asarray(self._a_mid) + np.asarray(self._a_half) * a
-
-    def normalized_action(self, physical: Any) -> np.ndarray:
-        """Map a physical control to the normalised action space (inverse of :meth:`physical_action`).
-
-        :param physical: control(s) in the model's units, shape ``(..., m)``
-        :return: normalised action(s) as float32, not clipped (values outside ``[-1, 1]`` are out of range)
-        """
-        u = np.asarray(physical, dtype=np.float64)
-        return ((u - np.asarray(self._a_mid)) / np.asarray(self._a_half)).astype(np.float32)
-
-    def _action_to_physical(self, action: Any) -> list[float]:
-        """Check an action and return the clipped physical control as floats (the hot path)."""
-        if isinstance(action, np.ndarray) and action.shape == (self._m,) and action.dtype.kind in "fiu":
-            vals = action.tolist()
-        else:
-            try:
-                arr = np.asarray(action, dtype=np.float64)
-            except (TypeError, ValueError):
-                raise ValueError(f"action must be an array of shape ({self._m},), got {action!r}") from None
-            if arr.shape != (self._m,):
-                raise ValueError(f"action must have shape ({self._m},) (the action space is {self.action_space}), "
-                                 f"got shape {arr.shape}: {action!r}")
-            vals = arr.tolist()
-        out = []
-        for v, mid, half in zip(vals, self._a_mid, self._a_half):
-            if not math.isfinite(v):
-                raise ValueError(f"action must be finite, got {vals}")
-            out.append(mid + half * (1.0 if v > 1.0 else (-1.0 if v < -1.0 else v)))
-        return out
-
-    # ------------------------------------------------------------------------------------------ wind
-    def _wind(self, a: list[float]) -> list[float]:
-        """The wind held over the coming period (physical units)."""
-        mode = self.wind_mode
-        if mode == "none":
-            return [0.0] * self._k
-        if mode == "random":
-            return list(self._gust.value)
-        if mode == "constant":
-            return list(self.wind_value)
-        if mode == "adversarial":
-            table = self.wind_table
-            args = (self._t, np.array([self._x], dtype=np.float64), np.array([self._z], dtype=np.float64))
-            # a softreach Table refuses gradients off its grid; the wind keeps blowing there (an episode goes on
-            # with z < 0, below the table's budgets), read at the nearest grid point
-            out = (table.worst_disturbance(*args, outside="nearest") if isinstance(table, _table_type())
-                   else table.worst_disturbance(*args))
-            b = np.asarray(out, dtype=np.float64).reshape(-1)
-            if b.shape != (self._k,) or not np.all(np.isfinite(b)):
-                raise ValueError(f"wind_table.worst_disturbance returned {out!r} at t={self._t}, x={self._x}, "
-                                 f"z={self._z}; expected {self._k} finite values")
-            b = b.tolist()
-        else:
-            out = self._wind_fn(self._t, np.array(self._x, dtype=np.float64), self._z, np.array(a, dtype=np.float64))
-            b = _as_float_list("the wind callable's result", out, self._k)
-        if self.clip_wind:
-            b = [min(hi, max(lo, v)) for v, lo, hi in zip(b, self._b_lo, self._b_hi)]
-        return b
 
     # ------------------------------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -377,13 +224,6 @@ class LandingEnv(gym.Env):
         if self.render_mode == "human":
             self.render()
         return self._get_obs(), info
-
-    def _wind_now(self) -> list[float]:
-        if self.wind_mode == "random":
-            return list(self._gust.value)
-        if self.wind_mode == "constant":
-            return list(self.wind_value)
-        return [0.0] * self._k
 
     def step(self, action: Any):
         """Apply ``action`` (normalised, clipped to ``[-1, 1]``) for one control period.
@@ -502,35 +342,6 @@ class LandingEnv(gym.Env):
         """The remaining budget ``z`` [s] (negative once exceeded)."""
         return self._z
 
-    # ------------------------------------------------------------------------------------------ rendering
-    def _render_view(self) -> dict[str, Any]:
-        info = self._last_info
-        return {"history": self._history, "t": self._t, "state": self._x, "budget": self._z,
-                "budget_initial": self._q, "action": self._last_a, "wind": info.get("wind"),
-                "landed": info.get("landed", False), "hard_violation": info.get("hard_violation", False)}
-
-    def render(self):
-        """Draw the current frame: an ``(H, W, 3)`` uint8 array for ``"rgb_array"``, a window for ``"human"``."""
-        if self.render_mode is None:
-            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human' "
-                            "to the constructor (gymnasium.make(..., render_mode=...))")
-            return None
-        if self._x is None:
-            raise gym.error.ResetNeeded("call reset() before render()")
-        if self._renderer is None:
-            from ._render import LandingRenderer  # matplotlib is imported only here
-
-            self._renderer = LandingRenderer(self.render_mode, self._render_layout(), self.metadata["render_fps"])
-        return self._renderer.draw(self._render_view())
-
-    def _render_layout(self) -> dict[str, Any]:  # pragma: no cover - abstract
-        raise NotImplementedError
-
-    def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
-
     def __getstate__(self):
         state = self.__dict__.copy()
         state["_renderer"] = None  # figures do not pickle; a copy draws its own
@@ -544,7 +355,5 @@ class LandingEnv(gym.Env):
             self.wind_table = load_wind_table(self._wind_table_path, self.model)
 
 
-def _check_positive(name: str, value: Any) -> None:
-    if not (isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
-            and math.isfinite(float(value)) and float(value) > 0):
-        raise ValueError(f"{name} must be a finite positive number, got {value!r}")
+# re-exported: the display checks and the positive-number check are imported from this module
+__all__ = ["LandingEnv", "LandingConfig", "_check_positive", "has_display", "render_modes"]

@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from softreach.reach.models import get_model
 
-from ._common import LandingEnv, render_modes
+from ._common import LandingEnv
+from .config import LandingConfig, landing_config
+from .display import render_modes
 
 
 class GliderLandingEnv(LandingEnv):
@@ -98,7 +99,8 @@ class GliderLandingEnv(LandingEnv):
 
     ## Arguments
 
-    As for ``PointMassLanding-v0`` with glider units: ``wind_value`` / ``gust_std`` in N (gust default: std
+    As for ``PointMassLanding-v0`` (keywords or ``config=LandingConfig(...)``; this environment's defaults are
+    ``GliderLandingEnv.default_config``) with glider units: ``wind_value`` / ``gust_std`` in N (gust default: std
     5 kN, ``gust_tau`` 1 s), ``model_params`` overrides :class:`GliderParams`, ``init_state_low/high`` are
     ``(h, V, gamma)`` with ``gamma`` in radians. With another ``dt`` than 0.1 s pass
     ``max_episode_steps=ceil(T / dt)`` to ``gymnasium.make`` too (the env truncates itself at ``T`` in any case).
@@ -106,59 +108,23 @@ class GliderLandingEnv(LandingEnv):
 
     metadata = {"render_modes": render_modes(), "render_fps": 10}  # one frame per control period, real time
 
-    def __init__(
-        self,
-        render_mode: str | None = None,
-        *,
-        wind: str | Callable[..., Any] = "none",
-        wind_value: Any = None,
-        wind_table: Any = None,
-        gust_std: Any = None,
-        gust_tau: float | None = None,
-        clip_wind: bool = True,
-        budget: float | tuple[float, float] = (0.0, 10.0),
-        eps: float = 1e-3,
-        dt: float = 0.1,
-        n_substeps: int | None = None,
-        budget_resolution: float = 1e-5,
-        init_state_low: tuple[float, float, float] = (2.0, 66.0, math.radians(-2.5)),
-        init_state_high: tuple[float, float, float] = (40.0, 78.0, math.radians(-0.5)),
-        landing_reward: float = 100.0,
-        failure_penalty: float = 100.0,
-        progress_weight: float = 2.5,
-        effort_weight: float = 10.0,
-        model_params: dict[str, Any] | None = None,
-    ):
+    default_config = LandingConfig(budget=(0.0, 10.0), dt=0.1, budget_resolution=1e-5,
+                                   init_state_low=(2.0, 66.0, math.radians(-2.5)),
+                                   init_state_high=(40.0, 78.0, math.radians(-0.5)), progress_weight=2.5)
+
+    def __init__(self, render_mode: str | None = None, *, config: LandingConfig | None = None,
+                 model_params: dict[str, Any] | None = None, **options: Any):
         """:param render_mode: ``None``, ``"rgb_array"`` or ``"human"``
-        :param wind: wind mode or callable (see the class docstring)
-        :param wind_value: the wind force of ``wind="constant"`` [N]
-        :param wind_table: ``W_eps`` table (path or object) for ``wind="adversarial"``
-        :param gust_std: stationary standard deviation of ``wind="random"`` [N] (default 5000)
-        :param gust_tau: correlation time of ``wind="random"`` [s] (default 1)
-        :param clip_wind: clip every wind to the model's disturbance box
-        :param budget: ``Q`` [s] or a ``(low, high)`` range for the reset distribution, within ``[0, T]``
-        :param eps: ``eps`` of ``h_eps`` [m/s]
-        :param dt: control period [s]
-        :param n_substeps: RK4 steps per control period; their ends are where landing and ``C1`` are checked
-            (default: the model's ``substeps``, 2)
-        :param budget_resolution: bisection length of the budget integral at ``C2`` crossings [s]
-        :param init_state_low: lower corner of the start box ``(h, V, gamma)`` [m, m/s, rad]
-        :param init_state_high: upper corner of the start box ``(h, V, gamma)`` [m, m/s, rad]
-        :param landing_reward: reward on landing
-        :param failure_penalty: penalty on a hard violation or at the horizon without landing
-        :param progress_weight: weight of the target-distance progress shaping
-        :param effort_weight: weight of the control effort over a whole episode
+        :param config: the options (default :attr:`default_config`: ``budget=(0, 10)``, ``dt=0.1``,
+            ``progress_weight=2.5``, the start box above, ``n_substeps`` the model's 2, and the
+            :class:`~softreach.envs.config.LandingConfig` defaults)
         :param model_params: overrides of :class:`softreach.reach.models.glider.GliderParams`
+        :param options: :class:`~softreach.envs.config.LandingConfig` fields by name (the class docstring's
+            "Arguments": forces in N, angles in rad), applied on top of ``config``
         """
         model = get_model("glider", **(model_params or {}))
-        super().__init__(
-            model=model, dt=dt, n_substeps=model.substeps if n_substeps is None else n_substeps, eps=eps,
-            init_state_low=init_state_low,
-            init_state_high=init_state_high, budget=budget, wind=wind, wind_value=wind_value,
-            wind_table=wind_table, gust_std=gust_std, gust_tau=gust_tau, clip_wind=clip_wind,
-            landing_reward=landing_reward, failure_penalty=failure_penalty, progress_weight=progress_weight,
-            effort_weight=effort_weight, budget_resolution=budget_resolution, render_mode=render_mode,
-        )
+        super().__init__(model=model, config=landing_config(config, self.default_config, options),
+                         render_mode=render_mode)
 
     @property
     def params(self):

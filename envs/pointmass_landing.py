@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 from softreach.reach.models import get_model
 from softreach.reach.models.pointmass import PointMass, PointMassParams
 
-from ._common import LandingEnv, render_modes
+from ._common import LandingEnv
+from .config import LandingConfig, landing_config
+from .display import render_modes
 
 
 class PointMassLandingEnv(LandingEnv):
@@ -95,7 +96,10 @@ class PointMassLandingEnv(LandingEnv):
 
     ## Arguments
 
-    ``gymnasium.make("softreach/PointMassLanding-v0", **kwargs)`` after ``import softreach.envs``:
+    ``gymnasium.make("softreach/PointMassLanding-v0", **kwargs)`` after ``import softreach.envs``; every option
+    but ``model_params`` and ``render_mode`` is a field of :class:`~softreach.envs.config.LandingConfig`, and
+    ``config=LandingConfig(...)`` passes them all at once (``PointMassLandingEnv.default_config.replace(...)``
+    starts from this environment's defaults; keywords given next to it override its fields):
 
     * ``wind``: ``"none"`` (default), ``"random"`` (bounded Ornstein-Uhlenbeck gust from ``self.np_random``:
       ``gust_std`` m/s^2, default 5, correlation ``gust_tau`` s, default 0.1), ``"constant"`` (``wind_value``
@@ -114,59 +118,22 @@ class PointMassLandingEnv(LandingEnv):
 
     metadata = {"render_modes": render_modes(), "render_fps": 100}  # one frame per control period, real time
 
-    def __init__(
-        self,
-        render_mode: str | None = None,
-        *,
-        wind: str | Callable[..., Any] = "none",
-        wind_value: Any = None,
-        wind_table: Any = None,
-        gust_std: Any = None,
-        gust_tau: float | None = None,
-        clip_wind: bool = True,
-        budget: float | tuple[float, float] = (0.0, 0.6),
-        eps: float = 1e-3,
-        dt: float = 0.01,
-        n_substeps: int | None = None,
-        budget_resolution: float = 1e-6,
-        init_state_low: tuple[float, float] = (-5.0, 1.0),
-        init_state_high: tuple[float, float] = (5.0, 12.0),
-        landing_reward: float = 100.0,
-        failure_penalty: float = 100.0,
-        progress_weight: float = 10.0,
-        effort_weight: float = 10.0,
-        model_params: dict[str, Any] | None = None,
-    ):
+    default_config = LandingConfig(budget=(0.0, 0.6), dt=0.01, budget_resolution=1e-6,
+                                   init_state_low=(-5.0, 1.0), init_state_high=(5.0, 12.0))
+
+    def __init__(self, render_mode: str | None = None, *, config: LandingConfig | None = None,
+                 model_params: dict[str, Any] | None = None, **options: Any):
         """:param render_mode: ``None``, ``"rgb_array"`` or ``"human"``
-        :param wind: wind mode or callable (see the class docstring)
-        :param wind_value: the wind of ``wind="constant"`` [m/s^2]
-        :param wind_table: ``W_eps`` table (path or object) for ``wind="adversarial"``
-        :param gust_std: stationary standard deviation of ``wind="random"`` [m/s^2] (default 5)
-        :param gust_tau: correlation time of ``wind="random"`` [s] (default 0.1)
-        :param clip_wind: clip every wind to the model's disturbance box
-        :param budget: ``Q`` [s] or a ``(low, high)`` range for the reset distribution, within ``[0, T]``
-        :param eps: ``eps`` of ``h_eps`` [m/s]
-        :param dt: control period [s]
-        :param n_substeps: RK4 steps per control period; their ends are where landing and ``C1`` are checked
-            (default: the model's ``substeps``, 10)
-        :param budget_resolution: bisection length of the budget integral at ``C2`` crossings [s]
-        :param init_state_low: lower corner of the start box ``(v, y)``
-        :param init_state_high: upper corner of the start box ``(v, y)``
-        :param landing_reward: reward on landing
-        :param failure_penalty: penalty on a hard violation or at the horizon without landing
-        :param progress_weight: weight of the target-distance progress shaping [1/m]
-        :param effort_weight: weight of the control effort over a whole episode
+        :param config: the options (default :attr:`default_config`: ``budget=(0, 0.6)``, ``dt=0.01``,
+            ``budget_resolution=1e-6``, the start box above, ``n_substeps`` the model's 10, and the
+            :class:`~softreach.envs.config.LandingConfig` defaults)
         :param model_params: overrides of :class:`PointMassParams`
+        :param options: :class:`~softreach.envs.config.LandingConfig` fields by name (the class docstring's
+            "Arguments", in m/s^2, m/s and s), applied on top of ``config``
         """
         model = get_model("pointmass", **(model_params or {}))
-        super().__init__(
-            model=model, dt=dt, n_substeps=model.substeps if n_substeps is None else n_substeps, eps=eps,
-            init_state_low=init_state_low,
-            init_state_high=init_state_high, budget=budget, wind=wind, wind_value=wind_value,
-            wind_table=wind_table, gust_std=gust_std, gust_tau=gust_tau, clip_wind=clip_wind,
-            landing_reward=landing_reward, failure_penalty=failure_penalty, progress_weight=progress_weight,
-            effort_weight=effort_weight, budget_resolution=budget_resolution, render_mode=render_mode,
-        )
+        super().__init__(model=model, config=landing_config(config, self.default_config, options),
+                         render_mode=render_mode)
 
     model: PointMass
 

@@ -1,4 +1,5 @@
-"""The environments' winds: none, an Ornstein-Uhlenbeck gust, a constant, or a table's worst case ``b*``."""
+"""The environments' winds: none, an Ornstein-Uhlenbeck gust, a constant, or a table's worst case ``b*``; and
+:class:`WindInputs`, which picks the wind an environment holds over each control period."""
 
 from __future__ import annotations
 
@@ -12,6 +13,8 @@ import numpy as np
 import gymnasium as gym
 
 from softreach.reach.problem import Model
+
+from .config import _check_positive
 
 WIND_MODES = ("none", "random", "constant", "adversarial")
 
@@ -131,3 +134,99 @@ def _same_value(a: Any, b: Any) -> bool:
     if isinstance(a, (int, float)) and isinstance(b, (int, float)):
         return math.isclose(float(a), float(b), rel_tol=1e-12, abs_tol=1e-12)
     return a == b
+
+
+class WindInputs:
+    """The wind of :class:`~softreach.envs._common.LandingEnv` (a base class of it): set up from the wind
+    options, and the value held over each control period.
+
+    It reads the environment's ``model``, ``horizon``, ``eps``, ``_k`` (disturbance dimension), ``_b_lo`` /
+    ``_b_hi`` (the disturbance box) and the episode state ``_t``, ``_x``, ``_z``.
+    """
+
+    def _setup_wind(self, wind, wind_value, wind_table, gust_std, gust_tau, clip_wind) -> None:
+        k = self._k
+        self.clip_wind = bool(clip_wind)
+        self.wind_mode = wind if isinstance(wind, str) else "callable"
+        self._wind_fn = None
+        self._gust = None
+        self.wind_table = None
+        self._wind_table_path: str | None = None
+        if isinstance(wind, str):
+            if wind not in WIND_MODES:
+                raise ValueError(f"wind must be one of {WIND_MODES} or a callable (t, state, budget, action) -> "
+                                 f"wind, got {wind!r}")
+        elif not callable(wind):
+            raise ValueError(f"wind must be one of {WIND_MODES} or a callable, got {wind!r}")
+        else:
+            self._wind_fn = wind
+        used = {"wind_value": "constant", "wind_table": "adversarial", "gust_std": "random", "gust_tau": "random"}
+        for name, value in (("wind_value", wind_value), ("wind_table", wind_table), ("gust_std", gust_std),
+                            ("gust_tau", gust_tau)):
+            if value is not None and self.wind_mode != used[name]:
+                raise ValueError(f"{name}= is used only with wind={used[name]!r}, but wind={self.wind_mode!r}")
+        units = f" [{', '.join(self.model.disturbance_units) or 'model units'}]"
+        if self.wind_mode == "constant":
+            if wind_value is None:
+                raise ValueError("wind='constant' needs wind_value= (the physical wind"
+                                 f"{units}, a number or {k} numbers)")
+            value = _as_float_list("wind_value", wind_value, k, units)
+            if self.clip_wind:
+                out = [v for v, lo, hi in zip(value, self._b_lo, self._b_hi) if not lo <= v <= hi]
+                if out:
+                    raise ValueError(f"wind_value={value} lies outside the disturbance box [{self._b_lo}, "
+                                     f"{self._b_hi}]{units}; pass clip_wind=False to apply it anyway")
+            self.wind_value = value
+        elif self.wind_mode == "random":
+            half = [0.5 * (hi - lo) for lo, hi in zip(self._b_lo, self._b_hi)]
+            mean = [0.5 * (hi + lo) for lo, hi in zip(self._b_lo, self._b_hi)]
+            std = [0.5 * w for w in half] if gust_std is None else _as_float_list("gust_std", gust_std, k, units)
+            if any(s < 0 for s in std):
+                raise ValueError(f"gust_std must be non-negative, got {std}")
+            tau = self.horizon / 10.0 if gust_tau is None else gust_tau
+            _check_positive("gust_tau", tau)
+            lo = self._b_lo if self.clip_wind else [-math.inf] * k
+            hi = self._b_hi if self.clip_wind else [math.inf] * k
+            self._gust = OrnsteinUhlenbeckGust(mean, std, float(tau), lo, hi)
+        elif self.wind_mode == "adversarial":
+            if wind_table is None:
+                raise ValueError("wind='adversarial' needs wind_table= (a path to a W_eps table of this model, or a "
+                                 "loaded Table): the worst-case wind b* is read from the table's gradient")
+            self.wind_table = load_wind_table(wind_table, self.model, self.eps)
+            if isinstance(wind_table, (str, os.PathLike)):
+                self._wind_table_path = os.fspath(wind_table)
+
+    def _wind(self, a: list[float]) -> list[float]:
+        """The wind held over the coming period (physical units)."""
+        mode = self.wind_mode
+        if mode == "none":
+            return [0.0] * self._k
+        if mode == "random":
+            return list(self._gust.value)
+        if mode == "constant":
+            return list(self.wind_value)
+        if mode == "adversarial":
+            table = self.wind_table
+            args = (self._t, np.array([self._x], dtype=np.float64), np.array([self._z], dtype=np.float64))
+            # a softreach Table refuses gradients off its grid; the wind keeps blowing there (an episode goes on
+            # with z < 0, below the table's budgets), read at the nearest grid point
+            out = (table.worst_disturbance(*args, outside="nearest") if isinstance(table, _table_type())
+                   else table.worst_disturbance(*args))
+            b = np.asarray(out, dtype=np.float64).reshape(-1)
+            if b.shape != (self._k,) or not np.all(np.isfinite(b)):
+                raise ValueError(f"wind_table.worst_disturbance returned {out!r} at t={self._t}, x={self._x}, "
+                                 f"z={self._z}; expected {self._k} finite values")
+            b = b.tolist()
+        else:
+            out = self._wind_fn(self._t, np.array(self._x, dtype=np.float64), self._z, np.array(a, dtype=np.float64))
+            b = _as_float_list("the wind callable's result", out, self._k)
+        if self.clip_wind:
+            b = [min(hi, max(lo, v)) for v, lo, hi in zip(b, self._b_lo, self._b_hi)]
+        return b
+
+    def _wind_now(self) -> list[float]:
+        if self.wind_mode == "random":
+            return list(self._gust.value)
+        if self.wind_mode == "constant":
+            return list(self.wind_value)
+        return [0.0] * self._k
