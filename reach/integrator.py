@@ -1,0 +1,300 @@
+"""The integrator of softreach: one control period with the action and the wind held, and the budget with it.
+
+Used by the environments (one state per step, :func:`integrate_period`) and by the rollouts and plots
+(:func:`integrate_batch`, ``N`` states at once, through :func:`softreach.reach.simulate.rollout`), so that a
+rollout moves exactly as an episode does.
+
+Integration: the control and the wind are held constant over a control period (zero-order hold) and the state
+is advanced by ``n_substeps`` classical Runge-Kutta (RK4) steps (:func:`rk4_step`). The budget ``z`` follows
+``z' = -h_eps(t, x)``: its increment over a sub-step comes from ``h_eps`` at the same four RK4 stage states,
+exact at the kinks of ``h_eps`` (:mod:`softreach.reach.budget_quadrature`). The state path does not depend on
+the budget; excursions out of ``C2`` shorter than a sub-step that no RK4 stage sees are missed.
+
+Events: ``stop`` is asked at every sub-step end but the last; the period ends at the first one where it says
+yes. The environments stop where the state is out of ``C1`` or landed (:func:`episode_ends`), as in the
+paper's game, which ends when the target is reached at any instant; the safety filter counts on landing only
+at those instants (:class:`~softreach.reach.lookahead.Lookahead`, ``target_checks``).
+
+One algorithm, three entry points that share every step of it: the RK4 step is one function per state
+dimension, written out by :func:`rk4_step` from one template so that it runs on Python floats (one state) as
+fast as hand-unrolled code and on numpy component arrays (``N`` states) alike; the stage times, the gathered
+stage rates and the budget rule are those of :func:`_period`. :func:`_integrate_period_scalar` is the same loop
+specialised to a model's scalar methods (:mod:`softreach.reach.scalar_model`): it evaluates ``h_eps`` stage by
+stage on floats and decides the two cases that need no arithmetic (all stages inside ``C2``: ``0``; all beyond
+the band: the sub-step's length) inline, leaving every other sub-step to the same :func:`budget_pieces` and
+:func:`kink_costs`. tests/test_integrator.py checks the three against each other.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from .budget_quadrature import budget_pieces, kink_costs
+from .problem import Model
+from .scalar_model import ScalarModel, scalar_model
+
+__all__ = ["BatchPeriod", "ScalarModel", "episode_ends", "integrate_batch", "integrate_period", "rk4_stages",
+           "rk4_step", "scalar_model", "stage_rates"]
+
+_RK4_TEMPLATE = """
+def rk4_step(f, t, h, x, a, b):
+    {xs}, = x
+    hh = 0.5 * h
+    tm = t + hh
+    k1 = f(t, x, a, b)
+    x2 = [{x2}]
+    k2 = f(tm, x2, a, b)
+    x3 = [{x3}]
+    k3 = f(tm, x3, a, b)
+    x4 = [{x4}]
+    k4 = f(t + h, x4, a, b)
+    h6 = h / 6.0
+    return [{xn}], x2, x3, x4
+"""
+
+
+@functools.lru_cache(maxsize=None)
+def rk4_step(n: int) -> Callable:
+    """The classical RK4 step of ``x' = f(t, x, a, b)`` for ``n`` components, with ``a`` and ``b`` held.
+
+    The returned ``rk4_step(f, t, h, x, a, b) -> (x_end, x2, x3, x4)`` takes one float or one array per
+    component (``x``, ``a``, ``b``: sequences of them; ``f`` returns a sequence) and gives the state at ``t + h``
+    and the stage states ``x + h/2 k1``, ``x + h/2 k2``, ``x + h k3`` (where RK4 evaluates ``f`` at ``t + h/2``,
+    ``t + h/2``, ``t + h``; the budget evaluates ``h_eps`` there too). It is written out for ``n`` components
+    from one template: a Python loop over the components would cost the environments about half their step.
+
+    :param n: the number of state components
+    """
+    c = range(n)
+
+    def each(expr: str) -> str:
+        return ", ".join(expr.format(i=i) for i in c)
+
+    source = _RK4_TEMPLATE.format(xs=each("y{i}"), x2=each("y{i} + hh * k1[{i}]"), x3=each("y{i} + hh * k2[{i}]"),
+                                  x4=each("y{i} + h * k3[{i}]"),
+                                  xn=each("y{i} + h6 * (k1[{i}] + 2.0 * k2[{i}] + 2.0 * k3[{i}] + k4[{i}])"))
+    namespace: dict[str, Any] = {}
+    exec(compile(source, f"<rk4_step for {n} components>", "exec"), namespace)
+    return namespace["rk4_step"]
+
+
+def rk4_stages(f: Callable, t: float, x: Sequence[Any], a: Sequence[Any], b: Sequence[Any],
+               h: float) -> tuple[list[Any], list[list[Any]]]:
+    """One RK4 step (:func:`rk4_step`): the state at ``t + h`` and the four stage states
+    ``[x, x + h/2 k1, x + h/2 k2, x + h k3]``.
+
+    :param f: the vector field ``f(t, x, a, b)``, one float or array per component in and out
+    :param t: start time [s]
+    :param x: start state; ``a``: control; ``b``: disturbance (physical units, one float or array per component)
+    :param h: step length [s]
+    """
+    xn, x2, x3, x4 = rk4_step(len(x))(f, t, h, x, a, b)
+    return xn, [list(x), x2, x3, x4]
+
+
+def stage_rates(model: Model, times: Sequence[float], points: Sequence[Sequence[Any]], eps: float) -> np.ndarray:
+    """``h_eps`` at many points in one vectorised call of ``model.violation_rate``.
+
+    :param times: the time of each point [s]
+    :param points: ``P`` states, one float (one state) or ``(N,)`` array (``N`` states) per component
+    :return: ``(P, N)`` (``N = 1`` for floats)
+    """
+    comps = [np.array([p[i] for p in points], dtype=np.float64) for i in range(len(points[0]))]
+    shape = (len(points), comps[0].size // len(points))
+    t = np.repeat(np.asarray(times, dtype=np.float64), shape[1])
+    r = model.violation_rate(t, [c.reshape(-1) for c in comps], eps)
+    return np.broadcast_to(np.asarray(r, dtype=np.float64), (shape[0] * shape[1],)).reshape(shape)
+
+
+def _rates(model: Model, times: Sequence[float], points: Sequence[Sequence[float]], eps: float) -> list[float]:
+    """:func:`stage_rates` of single states, as Python floats."""
+    return stage_rates(model, times, points, eps).reshape(-1).tolist()
+
+
+def episode_ends(model: Model, t: float, x: Sequence[Any], rate: Any) -> Any:
+    """The environments' events at a sub-step end: out of ``C1``, or landed (in the target with ``h_eps = 0``,
+    i.e. inside ``C2``).
+
+    :param x: the state(s), one float or array per component
+    :param rate: ``h_eps`` there
+    :return: a bool, or a mask over the states
+    """
+    return (np.asarray(model.hard_constraint(t, x)) > 0.0) | (
+        (np.asarray(rate) == 0.0) & (np.asarray(model.target(t, x)) <= 0.0))
+
+
+class BatchPeriod(NamedTuple):
+    """One control period of ``N`` states (:func:`integrate_batch`)."""
+
+    #: ``(N, n)`` the states where the period ended
+    x: np.ndarray
+    #: ``(N,)`` the budget spent until then, ``int h_eps dt``
+    cost: np.ndarray
+    #: ``(N,)`` ``h_eps`` at the end state (``> 0`` exactly when it is outside ``C2``)
+    rate: np.ndarray
+    #: ``(N,)`` the time elapsed (the period's length unless ``stop`` ended it early)
+    elapsed: np.ndarray
+
+
+def integrate_batch(model: Model, t: float, x: np.ndarray, a: np.ndarray, b: np.ndarray, h: float,
+                    n_substeps: int, eps: float, budget_resolution: float, *, stop: Callable | None = None
+                    ) -> BatchPeriod:
+    """Advance ``N`` budget-augmented states over one control period with their ``a`` and ``b`` held.
+
+    :param model: the model whose vectorised ``f`` and ``violation_rate`` are integrated
+    :param t: start time [s]
+    :param x: ``(N, n)`` start states (physical)
+    :param a: ``(N, m)`` physical controls
+    :param b: ``(N, k)`` physical disturbances
+    :param h: period length [s]
+    :param n_substeps: RK4 steps per period
+    :param eps: the ``eps`` of ``h_eps``
+    :param budget_resolution: resolve the kinks of ``h_eps`` (entering or leaving ``C2``) to this length [s]
+    :param stop: ``stop(t, x, rate) -> (N,) bool`` (``x``: one ``(N,)`` array per component, ``rate``: ``h_eps``
+        there) asked at every sub-step end but the last; each state's period ends at the first where it says yes
+        (:func:`episode_ends` is the environments' rule)
+    """
+    cols = [[c for c in np.asarray(v, dtype=np.float64).reshape(len(x), -1).T] for v in (x, a, b)]
+    return BatchPeriod(*_period(model, t, *cols, h, n_substeps, eps, budget_resolution, stop))
+
+
+def _period(model: Model, t: float, x: list[Any], a: list[Any], b: list[Any], h: float, n_substeps: int,
+            eps: float, resolution: float, stop: Callable | None
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`integrate_batch` on components that are ``(N,)`` arrays, or floats (one state)."""
+    step = rk4_step(len(x))
+    hs = h / n_substeps
+    hh = 0.5 * hs
+    path, points, times = [x], [x], [t]
+    rows = np.size(x[0])
+    live = np.ones(rows, dtype=bool)
+    ended_at = np.full(rows, n_substeps)  # sub-steps done when each state's period ended
+    end_rate = np.zeros(rows)
+    xc = x
+    for j in range(n_substeps):
+        tc = t + j * hs
+        te = tc + hs
+        xc, x2, x3, x4 = step(model.f, tc, hs, xc, a, b)
+        path.append(xc)
+        points += (x2, x3, x4, xc)
+        times += (tc + hh, tc + hh, te, t + h if j == n_substeps - 1 else te)
+        if stop is not None and j < n_substeps - 1:
+            r = model.violation_rate(te, xc, eps)
+            ended = np.asarray(stop(te, xc, r), dtype=bool).reshape(-1) & live
+            if ended.any():
+                ended_at[ended] = j + 1
+                end_rate[ended] = np.broadcast_to(np.asarray(r, dtype=np.float64), (rows,))[ended]
+                live &= ~ended
+                if not live.any():
+                    break
+    done = len(path) - 1
+    r = stage_rates(model, times, points, eps)  # (1 + 4 done, rows): x, then x2, x3, x4, x_end per sub-step
+    end_rate[live] = r[4 * done, live]
+    costs = np.zeros((done, rows))
+    v = r[:4 * done].reshape(done, 4, rows).transpose(0, 2, 1)
+    if v.any():
+        counted = np.arange(done)[:, None] < ended_at[None, :]
+        pieces, kink = budget_pieces(v, hs)
+        costs = np.where(counted, pieces, 0.0)
+        kink &= counted
+        if hs > resolution and kink.any():
+            P = np.array(path, dtype=np.float64).reshape(done + 1, len(x), rows)
+            A, B = (np.array(u, dtype=np.float64).reshape(len(u), rows) for u in (a, b))
+            js, ks = np.nonzero(kink)
+            t0 = t + js * hs
+            x0, x1 = P[js, :, ks], P[js + 1, :, ks]
+            f0, f1 = (_field(model, tt, xx, A[:, ks], B[:, ks]) for tt, xx in ((t0, x0), (t0 + hs, x1)))
+            costs[js, ks] = kink_costs(model, t0, hs, x0, f0, x1, f1, eps, resolution)
+    # whole sub-steps out of C2 add up to the period's length, exactly, with math.fsum
+    cost = np.array([math.fsum(c) if any(c) else 0.0 for c in costs.T.tolist()])
+    P_end = np.array(path, dtype=np.float64).reshape(done + 1, len(x), rows)[ended_at, :, np.arange(rows)]
+    elapsed = np.where(ended_at == n_substeps, h, ended_at * hs)
+    return P_end, cost, end_rate, elapsed
+
+
+def _field(model: Model, t: np.ndarray, x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``model.f`` at ``K`` states ``x`` ``(K, n)`` with controls ``a`` ``(m, K)`` and winds ``b`` ``(k, K)``, as ``(K, n)``."""
+    out = model.f(t, list(x.T), list(a), list(b))
+    return np.stack([np.broadcast_to(np.asarray(c, dtype=np.float64), (len(x),)) for c in out], axis=1)
+
+
+_AUTO: Any = object()  # integrate_period(fast=...): look the model's scalar fast path up
+
+
+def integrate_period(model: Model, t: float, x: Sequence[float], a: Sequence[float], b: Sequence[float],
+                     h: float, n_substeps: int, eps: float, budget_resolution: float, *, fast: Any = _AUTO,
+                     rate0: float | None = None, stop: Callable | None = None
+                     ) -> tuple[list[float], float, float, float]:
+    """Advance one budget-augmented state over one control period with ``a`` and ``b`` held.
+
+    :param model: the model whose ``f`` and ``violation_rate`` are integrated
+    :param t: start time [s]
+    :param x: start state (physical), one float per component
+    :param a: physical control
+    :param b: physical disturbance
+    :param h: period length [s]
+    :param n_substeps: RK4 steps per period
+    :param eps: the ``eps`` of ``h_eps``
+    :param budget_resolution: resolve the kinks of ``h_eps`` (entering or leaving ``C2``) to this length [s]
+    :param fast: the model's scalar fast path (:func:`scalar_model`), ``None`` for the vectorised methods;
+        by default it is looked up. Both give the same numbers.
+    :param rate0: ``h_eps(t, x)`` if already known (the fast path then does not evaluate it again)
+    :param stop: ``stop(t, x, rate) -> bool`` asked at every sub-step end but the last (``x`` a list of floats,
+        ``rate`` ``h_eps`` there); the period ends at the first where it says yes
+    :return: ``(x_end, cost, rate_end, elapsed)``: the state where the period ended, the budget spent
+        ``int h_eps dt`` until then, ``h_eps`` at that state (``> 0`` exactly when it is outside ``C2``), and the
+        time elapsed (``h`` unless ``stop`` ended it early)
+    """
+    if fast is _AUTO:
+        fast = scalar_model(model)
+    if fast is not None:
+        return _integrate_period_scalar(fast, model, t, x, a, b, h, n_substeps, eps, budget_resolution, rate0,
+                                        stop)
+    one = None if stop is None else (lambda te, xe, r: stop(te, [float(v) for v in xe], float(r)))
+    xe, cost, rate, elapsed = _period(model, t, [float(v) for v in x], [float(v) for v in a],
+                                      [float(v) for v in b], h, n_substeps, eps, budget_resolution, one)
+    return xe[0].tolist(), float(cost[0]), float(rate[0]), float(elapsed[0])
+
+
+def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Sequence[float], a: Sequence[float],
+                             b: Sequence[float], h: float, n_substeps: int, eps: float, budget_resolution: float,
+                             rate0: float | None, stop: Callable | None = None
+                             ) -> tuple[list[float], float, float, float]:
+    """:func:`integrate_period` on the model's scalar fast path: :func:`_period`'s loop with ``h_eps`` taken
+    stage by stage on Python floats (the same stages, stage times and budget rule)."""
+    f, rate = fast.f, fast.violation_rate
+    step = rk4_step(len(x))
+    hs = h / n_substeps
+    hh = 0.5 * hs
+    xc = x if type(x) is list else list(x)
+    r0 = rate(t, xc, eps) if rate0 is None else rate0
+    last = n_substeps - 1
+    costs: list[float] = []  # sub-steps inside C2 cost 0 and are left out of the sum
+    for j in range(n_substeps):
+        tc = t + j * hs
+        tm = tc + hh
+        te = tc + hs
+        xn, x2, x3, x4 = step(f, tc, hs, xc, a, b)
+        r2, r3, r4 = rate(tm, x2, eps), rate(tm, x3, eps), rate(te, x4, eps)
+        if r0 == 0.0 and r2 == 0.0 and r3 == 0.0 and r4 == 0.0:
+            pass
+        elif r0 == 1.0 and r2 == 1.0 and r3 == 1.0 and r4 == 1.0:
+            costs.append(hs)
+        else:
+            piece, kink = budget_pieces(np.array([r0, r2, r3, r4]), hs)
+            if kink and hs > budget_resolution:
+                piece = kink_costs(model, np.array([tc]), hs, np.array([xc]), np.array([f(tc, xc, a, b)]),
+                                   np.array([xn]), np.array([f(te, xn, a, b)]), eps, budget_resolution)[0]
+            costs.append(float(piece))
+        xc = xn
+        if j == last:
+            return xc, math.fsum(costs), rate(t + h, xn, eps), h
+        r0 = rate(te, xn, eps)
+        if stop is not None and stop(te, xn, r0):
+            return xc, math.fsum(costs), r0, (j + 1) * hs
+    raise ValueError(f"n_substeps must be a positive integer, got {n_substeps!r}")
