@@ -1,10 +1,11 @@
 """``softreach evaluate``: run a policy (trained, table-optimal or random) with or without the safety filter and
 measure landings, hard violations, budget use and interventions, per episode and in aggregate.
 
-Statistics (95 %): rates (landing, hard violation, over budget) carry Wilson score intervals; means (budget
-used, intervention rate, return, ...) carry Student-t intervals. All policies evaluated with the same ``seed``,
-start distribution and budget see the same starts and, under ``wind="random"``, the same gusts (each episode
-``i`` resets the environment with seed ``seed + i``): comparisons are paired.
+Statistics (95 %, :mod:`softreach.agents.statistics`): rates (landing, hard violation, over budget) carry
+Wilson score intervals; means (budget used, intervention rate, return, ...) carry Student-t intervals. All
+policies evaluated with the same ``seed``, start distribution and budget see the same starts and, under
+``wind="random"``, the same gusts (each episode ``i`` resets the environment with seed ``seed + i``):
+comparisons are paired.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ import numpy as np
 from softreach.reach.registry import model_class
 
 from .envs import RULES, WINDS, check_budget, check_choice, make_env, normalized_action, unwrap_filter
+# re-exported: the statistics are imported from this module too
+from .statistics import Z95, aggregate, mean_ci, wilson
 from .tables import TableOracle, as_table, in_set, paper_starts, sample_inside, sample_uniform, sink_rate, start_value
 
 STARTS = ("inside", "paper", "uniform", "env")
@@ -26,42 +29,6 @@ POLICIES = ("optimal", "random")
 #: an episode is "over budget" when it used more than ``Q + BUDGET_TOL`` seconds (the paper's proxy for the
 #: sets: one millisecond of budget; the environment integrates the budget to about a microsecond)
 BUDGET_TOL = 1e-3
-Z95 = 1.959963984540054
-
-
-# --------------------------------------------------------------------------------------------- statistics
-
-def wilson(successes: int, n: int, z: float = Z95) -> dict[str, Any]:
-    """A rate with its Wilson score interval: ``{"value", "low", "high", "count", "n"}`` (``value`` is ``None``
-    for ``n = 0``)."""
-    if n == 0:
-        return {"value": None, "low": None, "high": None, "count": 0, "n": 0}
-    p = successes / n
-    den = 1.0 + z * z / n
-    centre = (p + z * z / (2 * n)) / den
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return {"value": p, "low": min(p, max(0.0, centre - half)), "high": max(p, min(1.0, centre + half)), "count": int(successes),
-            "n": int(n)}
-
-
-def mean_ci(values: Any) -> dict[str, Any]:
-    """Mean with a Student-t 95 % interval, plus ``std``, ``min``, ``max``, ``n`` (NaNs dropped; ``None`` where
-    there is no data; the interval collapses to the mean for one value)."""
-    v = np.asarray([x for x in values if x is not None and not (isinstance(x, float) and math.isnan(x))],
-                   dtype=np.float64)
-    n = len(v)
-    if n == 0:
-        return {"mean": None, "low": None, "high": None, "std": None, "min": None, "max": None, "n": 0}
-    m = float(v.mean())
-    if n > 1:
-        from scipy.stats import t as student
-
-        s = float(v.std(ddof=1))
-        half = float(student.ppf(0.975, n - 1)) * s / math.sqrt(n)
-    else:
-        s, half = 0.0, 0.0
-    return {"mean": m, "low": m - half, "high": m + half, "std": s, "min": float(v.min()), "max": float(v.max()),
-            "n": int(n)}
 
 
 # --------------------------------------------------------------------------------------------- policies
@@ -326,40 +293,6 @@ def run_episode(env, policy, x0: np.ndarray | None, q: float, seed: int, table=N
     return row, trace
 
 
-def aggregate(rows: list[dict[str, Any]], filtered: bool) -> dict[str, Any]:
-    """The aggregates of per-episode rows (see ``docs/agents.md`` for the fields)."""
-    n = len(rows)
-    col = lambda k: [r[k] for r in rows]  # noqa: E731
-    used = np.array(col("budget_used"), dtype=np.float64)
-    out: dict[str, Any] = {
-        "episodes": n,
-        "landing_rate": wilson(sum(col("landed")), n),
-        "hard_violation_rate": wilson(sum(col("hard_violation")), n),
-        "over_budget_rate": wilson(sum(col("over_budget")), n),
-        "budget_used": {**mean_ci(used), "p50": float(np.median(used)) if n else None,
-                        "p90": float(np.quantile(used, 0.9)) if n else None,
-                        "excess_max": float(np.max(used - np.array(col("budget")))) if n else None},
-        "time_outside_c2": mean_ci(col("time_outside_c2")),
-        "touchdown_sink_rate": mean_ci([r["touchdown_sink_rate"] for r in rows if r["landed"]]),
-        "control_effort": mean_ci(col("control_effort")),
-        "return": mean_ci(col("return")),
-        "intervention_rate": mean_ci(col("intervention_rate")) if filtered else None,
-        "intervened_episodes": wilson(sum(1 for r in rows if r["interventions"]), n) if filtered else None,
-        "outcomes": {k: sum(1 for r in rows if r["outcome"] == k) for k in ("landed", "hard_violation", "timeout")},
-    }
-    inside = [r for r in rows if r["start_inside"] is not None]
-    if inside:
-        split = {}
-        for key, sel in (("inside", True), ("outside", False)):
-            rs = [r for r in inside if r["start_inside"] is sel]
-            split[key] = {"episodes": len(rs),
-                          "landing_rate": wilson(sum(r["landed"] for r in rs), len(rs)),
-                          "hard_violation_rate": wilson(sum(r["hard_violation"] for r in rs), len(rs)),
-                          "over_budget_rate": wilson(sum(r["over_budget"] for r in rs), len(rs))}
-        out["by_start"] = split
-    return out
-
-
 def evaluate(spec: EvalSpec, policy_obj: Any = None, progress: bool = False) -> EvaluationResult:
     """Run ``spec.episodes`` episodes and measure them (see the module docstring).
 
@@ -402,4 +335,4 @@ def evaluate(spec: EvalSpec, policy_obj: Any = None, progress: bool = False) -> 
 
 
 __all__ = ["BUDGET_TOL", "EvalSpec", "EvaluationResult", "OptimalPolicy", "POLICIES", "RandomPolicy", "SB3Policy",
-           "STARTS", "Trace", "aggregate", "check_spec", "evaluate", "mean_ci", "run_episode", "wilson"]
+           "STARTS", "Trace", "Z95", "aggregate", "check_spec", "evaluate", "mean_ci", "run_episode", "wilson"]
