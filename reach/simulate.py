@@ -99,7 +99,7 @@ def rollout(model: Model, x0: np.ndarray, budget: np.ndarray | float, control: P
     :param dt: control period [s]
     :param eps: ``h_eps`` width for the budget dynamics
     :param substeps: RK4 sub-steps per period, where the events are checked (default: the model's ``substeps``)
-    :param budget_resolution: resolve the kinks of ``h_eps`` to this length [s] (the environments' default)
+    :param budget_resolution: resolve the kinks of ``h_eps`` to this length [s] (the point-mass env's default)
     """
     x = np.array(x0, dtype=np.float64, ndmin=2)
     n_sim = len(x)
