@@ -21,12 +21,12 @@ import numpy as np
 import gymnasium as gym
 from gymnasium import spaces
 
+from softreach.reach.integrator import ScalarModel, _integrate_period_scalar, _rates, integrate_period, scalar_model
 from softreach.reach.problem import Model
 
 from .actions import ActionMapping
 from .config import LandingConfig, _check_positive
 from .display import Rendering, _require_display, has_display, render_modes
-from softreach.reach.integrator import ScalarModel, _integrate_period_scalar, _rates, integrate_period, scalar_model
 from .wind import WindInputs, _as_float_list, load_wind_table
 
 
