@@ -30,6 +30,12 @@ def simpson(v0: Any, v1: Any, v2: Any, v3: Any, h: float) -> Any:
     return h / 6.0 * (v0 + 2.0 * v1 + 2.0 * v2 + v3)
 
 
+def settled(lo: Any, hi: Any) -> Any:
+    """Whether ``h_eps`` has no kink between values whose least is ``lo`` and largest ``hi``: all ``0`` (inside
+    ``C2``), all ``1`` (beyond the band) or all strictly inside the band (floats, or arrays elementwise)."""
+    return (hi == 0.0) | (lo == 1.0) | ((lo > 0.0) & (hi < 1.0))
+
+
 def budget_pieces(v: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
     """The budget spent over sub-steps from their stage rates, and where a kink needs :func:`kink_costs`.
 
@@ -41,10 +47,8 @@ def budget_pieces(v: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
     v0, v1, v2, v3 = v[..., 0], v[..., 1], v[..., 2], v[..., 3]
     lo = np.minimum(np.minimum(v0, v1), np.minimum(v2, v3))
     hi = np.maximum(np.maximum(v0, v1), np.maximum(v2, v3))
-    inside, outside = hi == 0.0, lo == 1.0
-    kink = ~(inside | outside | ((lo > 0.0) & (hi < 1.0)))
-    cost = np.where(outside, h, np.where(inside, 0.0, simpson(v0, v1, v2, v3, h)))
-    return cost, kink
+    cost = np.where(lo == 1.0, h, np.where(hi == 0.0, 0.0, simpson(v0, v1, v2, v3, h)))
+    return cost, ~settled(lo, hi)
 
 
 def hermite_basis(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -107,29 +111,29 @@ def kink_costs(model: Model, t0: np.ndarray, h: float, x0: np.ndarray, f0: np.nd
     :param max_levels: refinement levels at most
     :return: ``(K,)`` the integrals [s]
     """
-    n_rows, n = x0.shape
+    n_rows = len(x0)
     grid, basis = kink_grid(samples)
+    ends = [arr.T[:, :, None] for arr in (x0, f0, x1, f1)]  # (n, K, 1) each: components against the samples
     rows = np.arange(n_rows)  # the step each refined cell belongs to
     starts = np.zeros(n_rows)  # where each refined cell starts, as a fraction of its step
     width = 1.0
     total = np.zeros(n_rows)
     for level in range(max_levels):
         if level == 0:  # the first level samples the grid itself, with its basis cached
-            theta, bas = grid[None, :], basis
+            theta, t, path = grid[None, :], t0[:, None] + h * grid[None, :], hermite(grid, *ends, h, basis)
         else:
-            theta, bas = starts[:, None] + width * grid[None, :], None
-        path = hermite(theta, *(list(arr[rows].T[:, :, None]) for arr in (x0, f0, x1, f1)), h, bas)
-        shape = (len(rows), samples + 1)
-        t = np.broadcast_to(t0[rows][:, None] + h * theta, shape)
-        r = model.violation_rate(t.reshape(-1), [np.broadcast_to(p, shape).reshape(-1) for p in path], eps)
-        r = np.broadcast_to(np.asarray(r, dtype=np.float64), (shape[0] * shape[1],)).reshape(shape)
+            theta = starts[:, None] + width * grid[None, :]
+            t, path = t0[rows][:, None] + h * theta, hermite(theta, *(e[:, rows] for e in ends), h)
+        r = model.violation_rate(t.reshape(-1), [p.reshape(-1) for p in path], eps)
+        if not (type(r) is np.ndarray and r.dtype == np.float64 and r.size == t.size):
+            r = np.broadcast_to(np.asarray(r, dtype=np.float64), (t.size,))
+        r = r.reshape(t.shape)
         left, right = r[:, :-1], r[:, 1:]
-        lo, hi = np.minimum(left, right), np.maximum(left, right)
+        kink = ~settled(np.minimum(left, right), np.maximum(left, right))
         cell = width / samples * h
-        kink = ~((hi == 0.0) | (lo == 1.0) | ((lo > 0.0) & (hi < 1.0)))
         last = cell <= resolution or level == max_levels - 1
-        settled = ~kink | last
-        total += cell * 0.5 * np.bincount(rows, np.sum(np.where(settled, left + right, 0.0), axis=1), n_rows)
+        sums = np.sum(left + right if last else np.where(kink, 0.0, left + right), axis=1)
+        total += cell * 0.5 * (sums if level == 0 else np.bincount(rows, sums, n_rows))
         if last or not kink.any():
             break
         cells, cols = np.nonzero(kink)

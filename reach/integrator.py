@@ -11,9 +11,9 @@ exact at the kinks of ``h_eps`` (:mod:`softreach.reach.budget_quadrature`). The 
 the budget; excursions out of ``C2`` shorter than a sub-step that no RK4 stage sees are missed.
 
 Events: ``stop`` is asked at every sub-step end but the last; the period ends at the first one where it says
-yes. The environments stop where the state is out of ``C1`` or landed (:func:`episode_ends`), as in the
-paper's game, which ends when the target is reached at any instant; the safety filter counts on landing only
-at those instants (:class:`~softreach.reach.lookahead.Lookahead`, ``target_checks``).
+yes. The environments stop where the state is out of ``C1`` or landed, as in the paper's game, which ends when
+the target is reached at any instant (:func:`episode_ends` is that rule for ``N`` states, the rollouts' stop);
+the safety filter counts on landing only at those instants (:class:`~softreach.reach.lookahead.Lookahead`, ``target_checks``).
 
 One algorithm, three entry points that share every step of it: the RK4 step is one function per state
 dimension, written out by :func:`rk4_step` from one template so that it runs on Python floats (one state) as
@@ -34,7 +34,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .budget_quadrature import budget_pieces, kink_costs
+from .budget_quadrature import budget_pieces, kink_costs, settled, simpson
 from .problem import Model
 from .scalar_model import ScalarModel, scalar_model
 
@@ -106,9 +106,14 @@ def stage_rates(model: Model, times: Sequence[float], points: Sequence[Sequence[
     """
     comps = [np.array([p[i] for p in points], dtype=np.float64) for i in range(len(points[0]))]
     shape = (len(points), comps[0].size // len(points))
-    t = np.repeat(np.asarray(times, dtype=np.float64), shape[1])
-    r = model.violation_rate(t, [c.reshape(-1) for c in comps], eps)
-    return np.broadcast_to(np.asarray(r, dtype=np.float64), (shape[0] * shape[1],)).reshape(shape)
+    t = np.asarray(times, dtype=np.float64)
+    if shape[1] > 1:
+        t = np.repeat(t, shape[1])
+        comps = [c.reshape(-1) for c in comps]
+    r = model.violation_rate(t, comps, eps)
+    if not (type(r) is np.ndarray and r.dtype == np.float64 and r.size == shape[0] * shape[1]):
+        r = np.broadcast_to(np.asarray(r, dtype=np.float64), (shape[0] * shape[1],))
+    return r.reshape(shape)
 
 
 def _rates(model: Model, times: Sequence[float], points: Sequence[Sequence[float]], eps: float) -> list[float]:
@@ -160,21 +165,24 @@ def integrate_batch(model: Model, t: float, x: np.ndarray, a: np.ndarray, b: np.
         (:func:`episode_ends` is the environments' rule)
     """
     cols = [[c for c in np.asarray(v, dtype=np.float64).reshape(len(x), -1).T] for v in (x, a, b)]
-    return BatchPeriod(*_period(model, t, *cols, h, n_substeps, eps, budget_resolution, stop))
+    xe, cost, rate, elapsed = _period(model, t, *cols, h, n_substeps, eps, budget_resolution, stop)
+    return BatchPeriod(np.stack(xe, axis=1), cost, rate, elapsed)
 
 
 def _period(model: Model, t: float, x: list[Any], a: list[Any], b: list[Any], h: float, n_substeps: int,
             eps: float, resolution: float, stop: Callable | None
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`integrate_batch` on components that are ``(N,)`` arrays, or floats (one state)."""
+            ) -> tuple[list[Any], np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`integrate_batch` on components that are ``(N,)`` arrays, or floats (one state).
+
+    :return: the end state (one float or ``(N,)`` array per component), and ``(N,)`` costs, end rates and times
+        elapsed
+    """
     step = rk4_step(len(x))
     hs = h / n_substeps
     hh = 0.5 * hs
     path, points, times = [x], [x], [t]
     rows = np.size(x[0])
-    live = np.ones(rows, dtype=bool)
-    ended_at = np.full(rows, n_substeps)  # sub-steps done when each state's period ended
-    end_rate = np.zeros(rows)
+    ended_at = None  # (N,) sub-steps done when each state's period ended, once one has ended early
     xc = x
     for j in range(n_substeps):
         tc = t + j * hs
@@ -185,23 +193,31 @@ def _period(model: Model, t: float, x: list[Any], a: list[Any], b: list[Any], h:
         times += (tc + hh, tc + hh, te, t + h if j == n_substeps - 1 else te)
         if stop is not None and j < n_substeps - 1:
             r = model.violation_rate(te, xc, eps)
-            ended = np.asarray(stop(te, xc, r), dtype=bool).reshape(-1) & live
-            if ended.any():
-                ended_at[ended] = j + 1
-                end_rate[ended] = np.broadcast_to(np.asarray(r, dtype=np.float64), (rows,))[ended]
-                live &= ~ended
-                if not live.any():
-                    break
+            ended = stop(te, xc, r)
+            if ended is False or not np.any(ended):  # the common case, decided without numpy for one state
+                continue
+            if ended_at is None:
+                ended_at, end_rate = np.full(rows, n_substeps), np.zeros(rows)
+            ended = np.asarray(ended, dtype=bool).reshape(-1) & (ended_at == n_substeps)
+            ended_at[ended] = j + 1
+            end_rate[ended] = np.broadcast_to(np.asarray(r, dtype=np.float64), (rows,))[ended]
+            if (ended_at <= j + 1).all():
+                break
     done = len(path) - 1
     r = stage_rates(model, times, points, eps)  # (1 + 4 done, rows): x, then x2, x3, x4, x_end per sub-step
-    end_rate[live] = r[4 * done, live]
-    costs = np.zeros((done, rows))
-    v = r[:4 * done].reshape(done, 4, rows).transpose(0, 2, 1)
-    if v.any():
-        counted = np.arange(done)[:, None] < ended_at[None, :]
-        pieces, kink = budget_pieces(v, hs)
-        costs = np.where(counted, pieces, 0.0)
-        kink &= counted
+    if ended_at is None:
+        end_rate = r[4 * done]
+    else:
+        live = ended_at == n_substeps
+        end_rate[live] = r[4 * done, live]
+    cost = np.zeros(rows)
+    if r[:4 * done].any():
+        v = r[:4 * done].reshape(done, 4, rows).transpose(0, 2, 1)
+        costs, kink = budget_pieces(v, hs)
+        if ended_at is not None:
+            counted = np.arange(done)[:, None] < ended_at[None, :]
+            costs = np.where(counted, costs, 0.0)
+            kink &= counted
         if hs > resolution and kink.any():
             P = np.array(path, dtype=np.float64).reshape(done + 1, len(x), rows)
             A, B = (np.array(u, dtype=np.float64).reshape(len(u), rows) for u in (a, b))
@@ -210,15 +226,25 @@ def _period(model: Model, t: float, x: list[Any], a: list[Any], b: list[Any], h:
             x0, x1 = P[js, :, ks], P[js + 1, :, ks]
             f0, f1 = (_field(model, tt, xx, A[:, ks], B[:, ks]) for tt, xx in ((t0, x0), (t0 + hs, x1)))
             costs[js, ks] = kink_costs(model, t0, hs, x0, f0, x1, f1, eps, resolution)
-    # whole sub-steps out of C2 add up to the period's length, exactly, with math.fsum
-    cost = np.array([math.fsum(c) if any(c) else 0.0 for c in costs.T.tolist()])
-    P_end = np.array(path, dtype=np.float64).reshape(done + 1, len(x), rows)[ended_at, :, np.arange(rows)]
+        # whole sub-steps out of C2 add up to the period's length, exactly, with math.fsum
+        cost = np.array([math.fsum(c) if any(c) else 0.0 for c in costs.T.tolist()])
+    if ended_at is None:
+        return xc, cost, end_rate, np.full(rows, h)
     elapsed = np.where(ended_at == n_substeps, h, ended_at * hs)
-    return P_end, cost, end_rate, elapsed
+    if (ended_at == done).all():
+        return xc, cost, end_rate, elapsed
+    P = np.array(path, dtype=np.float64).reshape(done + 1, len(x), rows)
+    return list(P[ended_at, :, np.arange(rows)].T), cost, end_rate, elapsed
 
 
 def _field(model: Model, t: np.ndarray, x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``model.f`` at ``K`` states ``x`` ``(K, n)`` with controls ``a`` ``(m, K)`` and winds ``b`` ``(k, K)``, as ``(K, n)``."""
+    """``model.f`` as ``(K, n)`` at ``K`` states.
+
+    :param t: ``(K,)`` times [s]
+    :param x: ``(K, n)`` states
+    :param a: ``(m, K)`` controls
+    :param b: ``(k, K)`` disturbances
+    """
     out = model.f(t, list(x.T), list(a), list(b))
     return np.stack([np.broadcast_to(np.asarray(c, dtype=np.float64), (len(x),)) for c in out], axis=1)
 
@@ -258,7 +284,7 @@ def integrate_period(model: Model, t: float, x: Sequence[float], a: Sequence[flo
     one = None if stop is None else (lambda te, xe, r: stop(te, [float(v) for v in xe], float(r)))
     xe, cost, rate, elapsed = _period(model, t, [float(v) for v in x], [float(v) for v in a],
                                       [float(v) for v in b], h, n_substeps, eps, budget_resolution, one)
-    return xe[0].tolist(), float(cost[0]), float(rate[0]), float(elapsed[0])
+    return [float(v) for v in xe], float(cost[0]), float(rate[0]), float(elapsed[0])
 
 
 def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Sequence[float], a: Sequence[float],
@@ -285,12 +311,11 @@ def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Seque
             pass
         elif r0 == 1.0 and r2 == 1.0 and r3 == 1.0 and r4 == 1.0:
             costs.append(hs)
+        elif hs <= budget_resolution or settled(min(r0, r2, r3, r4), max(r0, r2, r3, r4)):
+            costs.append(simpson(r0, r2, r3, r4, hs))
         else:
-            piece, kink = budget_pieces(np.array([r0, r2, r3, r4]), hs)
-            if kink and hs > budget_resolution:
-                piece = kink_costs(model, np.array([tc]), hs, np.array([xc]), np.array([f(tc, xc, a, b)]),
-                                   np.array([xn]), np.array([f(te, xn, a, b)]), eps, budget_resolution)[0]
-            costs.append(float(piece))
+            costs.append(float(kink_costs(model, np.array([tc]), hs, np.array([xc]), np.array([f(tc, xc, a, b)]),
+                                          np.array([xn]), np.array([f(te, xn, a, b)]), eps, budget_resolution)[0]))
         xc = xn
         if j == last:
             return xc, math.fsum(costs), rate(t + h, xn, eps), h
