@@ -3,7 +3,7 @@
 ``h_eps = min(1, max(0, c2 / eps))`` is only Lipschitz: it has kinks where the path enters or leaves ``C2``
 (``c2 = 0``) and where it crosses the top of the ``eps`` band (``c2 = eps``). A Simpson-type sum of the four RK4
 stage rates (the plain RK4 increment of ``z' = -h_eps``) is then off by a fraction of a sub-step at every
-crossing. The rule here (:func:`budget_pieces`), per sub-step from its four stage rates:
+crossing. The rule here (:func:`budget_piece`), per sub-step from its four stage rates:
 
 * all ``0`` (inside ``C2``): cost ``0``; all ``1`` (beyond the band): cost exactly the sub-step's length;
 * all strictly inside the band: Simpson's sum (``h_eps`` is as smooth as ``c2`` there);
@@ -17,6 +17,7 @@ calls the same functions with one row. The state path does not depend on any of 
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Sequence
 from typing import Any
 
@@ -36,19 +37,37 @@ def settled(lo: Any, hi: Any) -> Any:
     return (hi == 0.0) | (lo == 1.0) | ((lo > 0.0) & (hi < 1.0))
 
 
-def budget_pieces(v: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """The budget spent over sub-steps from their stage rates, and where a kink needs :func:`kink_costs`.
+class _FloatOps:
+    """The numpy functions :func:`budget_piece` uses, for Python floats: one state's sub-steps are decided
+    without numpy's per-call cost (about a microsecond each, as much as the rest of a sub-step)."""
 
-    :param v: ``(..., 4)`` rates ``h_eps`` at the four RK4 stages of each sub-step, in ``[0, 1]``
+    minimum = staticmethod(min)
+    maximum = staticmethod(max)
+    logical_not = staticmethod(operator.not_)
+
+    @staticmethod
+    def where(condition: bool, x: float, y: float) -> float:
+        return x if condition else y
+
+
+#: :func:`budget_piece`'s ``ops`` for stage rates given as Python floats
+FLOATS = _FloatOps()
+
+
+def budget_piece(v0: Any, v1: Any, v2: Any, v3: Any, h: float, ops: Any = np) -> tuple[Any, Any]:
+    """The budget spent over a sub-step from its four stage rates, and whether a kink needs :func:`kink_costs`.
+
+    :param v0: ``h_eps`` at the first RK4 stage (``v1``, ``v2``, ``v3``: at the others), in ``[0, 1]``: floats,
+        or arrays over many sub-steps
     :param h: the sub-step length [s]
-    :return: ``(cost, kink)``: the cost of each sub-step (``0``, ``h`` or Simpson's sum; a placeholder where
-        ``kink``) and the mask of the sub-steps whose stages straddle a kink of ``h_eps``
+    :param ops: ``numpy`` for arrays, :data:`FLOATS` for floats
+    :return: ``(cost, kink)``: the cost (``0`` inside ``C2``, ``h`` beyond the band, else Simpson's sum, a
+        placeholder where ``kink``) and whether the stages straddle a kink of ``h_eps``
     """
-    v0, v1, v2, v3 = v[..., 0], v[..., 1], v[..., 2], v[..., 3]
-    lo = np.minimum(np.minimum(v0, v1), np.minimum(v2, v3))
-    hi = np.maximum(np.maximum(v0, v1), np.maximum(v2, v3))
-    cost = np.where(lo == 1.0, h, np.where(hi == 0.0, 0.0, simpson(v0, v1, v2, v3, h)))
-    return cost, ~settled(lo, hi)
+    lo = ops.minimum(ops.minimum(v0, v1), ops.minimum(v2, v3))
+    hi = ops.maximum(ops.maximum(v0, v1), ops.maximum(v2, v3))
+    cost = ops.where(lo == 1.0, h, ops.where(hi == 0.0, 0.0, simpson(v0, v1, v2, v3, h)))
+    return cost, ops.logical_not(settled(lo, hi))
 
 
 def hermite_basis(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -113,7 +132,10 @@ def kink_costs(model: Model, t0: np.ndarray, h: float, x0: np.ndarray, f0: np.nd
     """
     n_rows = len(x0)
     grid, basis = kink_grid(samples)
-    ends = [arr.T[:, :, None] for arr in (x0, f0, x1, f1)]  # (n, K, 1) each: components against the samples
+    # the ends' components against the samples: (K, 1) arrays, or floats for one sub-step (numpy multiplies a
+    # float into an array faster than it broadcasts a (1, 1) array, and one sub-step is what an env step refines)
+    single = n_rows == 1
+    ends = [arr[0].tolist() if single else arr.T[:, :, None] for arr in (x0, f0, x1, f1)]
     rows = np.arange(n_rows)  # the step each refined cell belongs to
     starts = np.zeros(n_rows)  # where each refined cell starts, as a fraction of its step
     width = 1.0
@@ -123,7 +145,8 @@ def kink_costs(model: Model, t0: np.ndarray, h: float, x0: np.ndarray, f0: np.nd
             theta, t, path = grid[None, :], t0[:, None] + h * grid[None, :], hermite(grid, *ends, h, basis)
         else:
             theta = starts[:, None] + width * grid[None, :]
-            t, path = t0[rows][:, None] + h * theta, hermite(theta, *(e[:, rows] for e in ends), h)
+            t = t0[rows][:, None] + h * theta
+            path = hermite(theta, *(ends if single else [e[:, rows] for e in ends]), h)
         r = model.violation_rate(t.reshape(-1), [p.reshape(-1) for p in path], eps)
         if not (type(r) is np.ndarray and r.dtype == np.float64 and r.size == t.size):
             r = np.broadcast_to(np.asarray(r, dtype=np.float64), (t.size,))

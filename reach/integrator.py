@@ -21,20 +21,19 @@ fast as hand-unrolled code and on numpy component arrays (``N`` states) alike; t
 stage rates and the budget rule are those of :func:`_period`. :func:`_integrate_period_scalar` is the same loop
 specialised to a model's scalar methods (:mod:`softreach.reach.scalar_model`): it evaluates ``h_eps`` stage by
 stage on floats and decides the two cases that need no arithmetic (all stages inside ``C2``: ``0``; all beyond
-the band: the sub-step's length) inline, leaving every other sub-step to the same :func:`budget_pieces` and
+the band: the sub-step's length) inline, leaving every other sub-step to the same :func:`budget_piece` and
 :func:`kink_costs`. tests/test_integrator.py checks the three against each other.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from .budget_quadrature import budget_pieces, kink_costs, settled, simpson
+from .budget_quadrature import FLOATS, budget_piece, kink_costs
 from .problem import Model
 from .scalar_model import ScalarModel, scalar_model
 
@@ -42,34 +41,41 @@ __all__ = ["BatchPeriod", "ScalarModel", "episode_ends", "integrate_batch", "int
            "rk4_step", "scalar_model", "stage_rates"]
 
 _RK4_TEMPLATE = """
-def rk4_step(f, t, h, x, a, b):
+def rk4_step(f, t, tm, te, hh, h, h6, x, a, b):
     {xs}, = x
-    hh = 0.5 * h
-    tm = t + hh
     k1 = f(t, x, a, b)
     x2 = [{x2}]
     k2 = f(tm, x2, a, b)
     x3 = [{x3}]
     k3 = f(tm, x3, a, b)
     x4 = [{x4}]
-    k4 = f(t + h, x4, a, b)
-    h6 = h / 6.0
+    k4 = f(te, x4, a, b)
     return [{xn}], x2, x3, x4
 """
+_RK4_STEPS: dict[int, Callable] = {}
 
 
-@functools.lru_cache(maxsize=None)
 def rk4_step(n: int) -> Callable:
     """The classical RK4 step of ``x' = f(t, x, a, b)`` for ``n`` components, with ``a`` and ``b`` held.
 
-    The returned ``rk4_step(f, t, h, x, a, b) -> (x_end, x2, x3, x4)`` takes one float or one array per
-    component (``x``, ``a``, ``b``: sequences of them; ``f`` returns a sequence) and gives the state at ``t + h``
-    and the stage states ``x + h/2 k1``, ``x + h/2 k2``, ``x + h k3`` (where RK4 evaluates ``f`` at ``t + h/2``,
-    ``t + h/2``, ``t + h``; the budget evaluates ``h_eps`` there too). It is written out for ``n`` components
-    from one template: a Python loop over the components would cost the environments about half their step.
+    The returned ``rk4_step(f, t, tm, te, hh, h, h6, x, a, b) -> (x_end, x2, x3, x4)`` takes the step's start
+    ``t``, its middle ``tm = t + hh`` and end ``te = t + h``, ``hh = h / 2`` and ``h6 = h / 6`` (a period's
+    loop knows them already), and one float or one array per component (``x``, ``a``, ``b``: sequences of them;
+    ``f`` returns a sequence). It gives the state at ``te`` and the stage states ``x + hh k1``, ``x + hh k2``,
+    ``x + h k3`` (where RK4 evaluates ``f`` at ``tm``, ``tm``, ``te``; the budget evaluates ``h_eps`` there too).
+    It is written out for ``n`` components from one template: a Python loop over the components would cost the
+    environments about half their step.
 
     :param n: the number of state components
     """
+    step = _RK4_STEPS.get(n)
+    if step is None:
+        step = _RK4_STEPS[n] = _written_out(n)
+    return step
+
+
+def _written_out(n: int) -> Callable:
+    """:func:`rk4_step`'s function for ``n`` components, compiled from :data:`_RK4_TEMPLATE`."""
     c = range(n)
 
     def each(expr: str) -> str:
@@ -93,7 +99,7 @@ def rk4_stages(f: Callable, t: float, x: Sequence[Any], a: Sequence[Any], b: Seq
     :param x: start state; ``a``: control; ``b``: disturbance (physical units, one float or array per component)
     :param h: step length [s]
     """
-    xn, x2, x3, x4 = rk4_step(len(x))(f, t, h, x, a, b)
+    xn, x2, x3, x4 = rk4_step(len(x))(f, t, t + 0.5 * h, t + h, 0.5 * h, h, h / 6.0, x, a, b)
     return xn, [list(x), x2, x3, x4]
 
 
@@ -170,68 +176,91 @@ def integrate_batch(model: Model, t: float, x: np.ndarray, a: np.ndarray, b: np.
 
 
 def _period(model: Model, t: float, x: list[Any], a: list[Any], b: list[Any], h: float, n_substeps: int,
-            eps: float, resolution: float, stop: Callable | None
-            ) -> tuple[list[Any], np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`integrate_batch` on components that are ``(N,)`` arrays, or floats (one state).
+            eps: float, resolution: float, stop: Callable | None) -> tuple[list[Any], Any, Any, Any]:
+    """:func:`integrate_batch` on components that are ``(N,)`` arrays, or Python floats (one state).
 
-    :return: the end state (one float or ``(N,)`` array per component), and ``(N,)`` costs, end rates and times
-        elapsed
+    One state keeps its bookkeeping in Python scalars: numpy's cost per call (about a microsecond) would be a
+    tenth of an environment step.
+
+    :return: the end state (one float or ``(N,)`` array per component), the costs, the end rates and the times
+        elapsed (floats for one state, else ``(N,)`` arrays)
     """
     step = rk4_step(len(x))
+    one = type(x[0]) is not np.ndarray
+    rows = 1 if one else len(x[0])
     hs = h / n_substeps
     hh = 0.5 * hs
+    h6 = hs / 6.0
     path, points, times = [x], [x], [t]
-    rows = np.size(x[0])
-    ended_at = None  # (N,) sub-steps done when each state's period ended, once one has ended early
+    ended_at: Any = None  # sub-steps done where each state's period ended (int, or (N,) array), once one has
+    end_rate: Any = None
     xc = x
     for j in range(n_substeps):
         tc = t + j * hs
+        tm = tc + hh
         te = tc + hs
-        xc, x2, x3, x4 = step(model.f, tc, hs, xc, a, b)
+        xc, x2, x3, x4 = step(model.f, tc, tm, te, hh, hs, h6, xc, a, b)
         path.append(xc)
         points += (x2, x3, x4, xc)
-        times += (tc + hh, tc + hh, te, t + h if j == n_substeps - 1 else te)
-        if stop is not None and j < n_substeps - 1:
-            r = model.violation_rate(te, xc, eps)
-            ended = stop(te, xc, r)
-            if ended is False or not np.any(ended):  # the common case, decided without numpy for one state
-                continue
+        times += (tm, tm, te, t + h if j == n_substeps - 1 else te)
+        if stop is None or j == n_substeps - 1:
+            continue
+        r = model.violation_rate(te, xc, eps)
+        ended = stop(te, xc, r)
+        if one:
+            if ended:
+                ended_at, end_rate = j + 1, float(r)
+                break
+        elif np.any(ended):
             if ended_at is None:
                 ended_at, end_rate = np.full(rows, n_substeps), np.zeros(rows)
-            ended = np.asarray(ended, dtype=bool).reshape(-1) & (ended_at == n_substeps)
-            ended_at[ended] = j + 1
-            end_rate[ended] = np.broadcast_to(np.asarray(r, dtype=np.float64), (rows,))[ended]
+            new = np.asarray(ended, dtype=bool) & (ended_at == n_substeps)
+            ended_at[new] = j + 1
+            end_rate[new] = np.broadcast_to(np.asarray(r, dtype=np.float64), (rows,))[new]
             if (ended_at <= j + 1).all():
                 break
     done = len(path) - 1
     r = stage_rates(model, times, points, eps)  # (1 + 4 done, rows): x, then x2, x3, x4, x_end per sub-step
-    if ended_at is None:
-        end_rate = r[4 * done]
+    if one:
+        partial = False
+        if ended_at is None:
+            end_rate = float(r[4 * done, 0])
+    elif ended_at is None:
+        partial, end_rate = False, r[4 * done]
     else:
         live = ended_at == n_substeps
+        partial = not (ended_at == done).all()  # some states ended before the others
         end_rate[live] = r[4 * done, live]
-    cost = np.zeros(rows)
+    cost: Any = 0.0 if one else np.zeros(rows)
     if r[:4 * done].any():
-        v = r[:4 * done].reshape(done, 4, rows).transpose(0, 2, 1)
-        costs, kink = budget_pieces(v, hs)
-        if ended_at is not None:
-            counted = np.arange(done)[:, None] < ended_at[None, :]
-            costs = np.where(counted, costs, 0.0)
-            kink &= counted
-        if hs > resolution and kink.any():
-            P = np.array(path, dtype=np.float64).reshape(done + 1, len(x), rows)
-            A, B = (np.array(u, dtype=np.float64).reshape(len(u), rows) for u in (a, b))
-            js, ks = np.nonzero(kink)
-            t0 = t + js * hs
-            x0, x1 = P[js, :, ks], P[js + 1, :, ks]
-            f0, f1 = (_field(model, tt, xx, A[:, ks], B[:, ks]) for tt, xx in ((t0, x0), (t0 + hs, x1)))
-            costs[js, ks] = kink_costs(model, t0, hs, x0, f0, x1, f1, eps, resolution)
+        v, ops = (r[:, 0].tolist(), FLOATS) if one else (r, np)
+        costs = []
+        for j in range(done):
+            piece, kink = budget_piece(v[4 * j], v[4 * j + 1], v[4 * j + 2], v[4 * j + 3], hs, ops)
+            if partial:
+                piece, kink = np.where(j < ended_at, piece, 0.0), kink & (j < ended_at)
+            if hs > resolution and (kink if one else kink.any()):
+                ks = np.flatnonzero(kink)
+                x0, x1 = (np.array(path[i], dtype=np.float64).reshape(len(x), rows)[:, ks].T for i in (j, j + 1))
+                A, B = (np.array(u, dtype=np.float64).reshape(len(u), rows)[:, ks] for u in (a, b))
+                t0 = np.full(len(ks), t + j * hs)
+                f0, f1 = _field(model, t0, x0, A, B), _field(model, t0 + hs, x1, A, B)
+                refined = kink_costs(model, t0, hs, x0, f0, x1, f1, eps, resolution)
+                if one:
+                    piece = float(refined[0])
+                else:
+                    piece = np.array(piece, dtype=np.float64)
+                    piece[ks] = refined
+            costs.append(piece)
         # whole sub-steps out of C2 add up to the period's length, exactly, with math.fsum
-        cost = np.array([math.fsum(c) if any(c) else 0.0 for c in costs.T.tolist()])
+        cost = math.fsum(costs) if one else np.array([math.fsum(c) if any(c) else 0.0
+                                                      for c in np.array(costs).T.tolist()])
     if ended_at is None:
-        return xc, cost, end_rate, np.full(rows, h)
+        return xc, cost, end_rate, (h if one else np.full(rows, h))
+    if one:
+        return xc, cost, end_rate, ended_at * hs
     elapsed = np.where(ended_at == n_substeps, h, ended_at * hs)
-    if (ended_at == done).all():
+    if not partial:
         return xc, cost, end_rate, elapsed
     P = np.array(path, dtype=np.float64).reshape(done + 1, len(x), rows)
     return list(P[ended_at, :, np.arange(rows)].T), cost, end_rate, elapsed
@@ -281,10 +310,10 @@ def integrate_period(model: Model, t: float, x: Sequence[float], a: Sequence[flo
     if fast is not None:
         return _integrate_period_scalar(fast, model, t, x, a, b, h, n_substeps, eps, budget_resolution, rate0,
                                         stop)
-    one = None if stop is None else (lambda te, xe, r: stop(te, [float(v) for v in xe], float(r)))
+    floats = None if stop is None else (lambda te, xe, r: stop(te, [float(v) for v in xe], float(r)))
     xe, cost, rate, elapsed = _period(model, t, [float(v) for v in x], [float(v) for v in a],
-                                      [float(v) for v in b], h, n_substeps, eps, budget_resolution, one)
-    return [float(v) for v in xe], float(cost[0]), float(rate[0]), float(elapsed[0])
+                                      [float(v) for v in b], h, n_substeps, eps, budget_resolution, floats)
+    return [float(v) for v in xe], cost, rate, elapsed
 
 
 def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Sequence[float], a: Sequence[float],
@@ -297,6 +326,7 @@ def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Seque
     step = rk4_step(len(x))
     hs = h / n_substeps
     hh = 0.5 * hs
+    h6 = hs / 6.0
     xc = x if type(x) is list else list(x)
     r0 = rate(t, xc, eps) if rate0 is None else rate0
     last = n_substeps - 1
@@ -305,17 +335,18 @@ def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Seque
         tc = t + j * hs
         tm = tc + hh
         te = tc + hs
-        xn, x2, x3, x4 = step(f, tc, hs, xc, a, b)
+        xn, x2, x3, x4 = step(f, tc, tm, te, hh, hs, h6, xc, a, b)
         r2, r3, r4 = rate(tm, x2, eps), rate(tm, x3, eps), rate(te, x4, eps)
         if r0 == 0.0 and r2 == 0.0 and r3 == 0.0 and r4 == 0.0:
             pass
         elif r0 == 1.0 and r2 == 1.0 and r3 == 1.0 and r4 == 1.0:
             costs.append(hs)
-        elif hs <= budget_resolution or settled(min(r0, r2, r3, r4), max(r0, r2, r3, r4)):
-            costs.append(simpson(r0, r2, r3, r4, hs))
         else:
-            costs.append(float(kink_costs(model, np.array([tc]), hs, np.array([xc]), np.array([f(tc, xc, a, b)]),
-                                          np.array([xn]), np.array([f(te, xn, a, b)]), eps, budget_resolution)[0]))
+            piece, kink = budget_piece(r0, r2, r3, r4, hs, FLOATS)
+            if kink and hs > budget_resolution:
+                piece = float(kink_costs(model, np.array([tc]), hs, np.array([xc]), np.array([f(tc, xc, a, b)]),
+                                         np.array([xn]), np.array([f(te, xn, a, b)]), eps, budget_resolution)[0])
+            costs.append(piece)
         xc = xn
         if j == last:
             return xc, math.fsum(costs), rate(t + h, xn, eps), h
