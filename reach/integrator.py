@@ -13,7 +13,8 @@ the budget; excursions out of ``C2`` shorter than a sub-step that no RK4 stage s
 Events: ``stop`` is asked at every sub-step end but the last; the period ends at the first one where it says
 yes. The environments stop where the state is out of ``C1`` or landed, as in the paper's game, which ends when
 the target is reached at any instant (:func:`episode_ends` is that rule for ``N`` states, the rollouts' stop);
-the safety filter counts on landing only at those instants (:class:`~softreach.reach.lookahead.Lookahead`, ``target_checks``).
+the safety filter counts on landing only at those instants (:class:`~softreach.reach.lookahead.Lookahead`,
+``target_checks``).
 
 One algorithm, three entry points that share every step of it: the RK4 step is one function per state
 dimension, written out by :func:`rk4_step` from one template so that it runs on Python floats (one state) as
@@ -192,7 +193,9 @@ def _period(model: Model, t: float, x: list[Any], a: list[Any], b: list[Any], h:
     hh = 0.5 * hs
     h6 = hs / 6.0
     path, points, times = [x], [x], [t]
-    ended_at: Any = None  # sub-steps done where each state's period ended (int, or (N,) array), once one has
+    # set once a period ends early: the sub-steps done where each one ended (an int for one state, else (N,))
+    # and h_eps there
+    ended_at: Any = None
     end_rate: Any = None
     xc = x
     for j in range(n_substeps):
