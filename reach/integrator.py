@@ -236,28 +236,26 @@ def _period(model: Model, t: float, x: list[Any], a: list[Any], b: list[Any], h:
         end_rate[live] = r[4 * done, live]
     cost: Any = 0.0 if one else np.zeros(rows)
     if r[:4 * done].any():
-        v, ops = (r[:, 0].tolist(), FLOATS) if one else (r, np)
-        costs = []
-        for j in range(done):
-            piece, kink = budget_piece(v[4 * j], v[4 * j + 1], v[4 * j + 2], v[4 * j + 3], hs, ops)
+        refine = hs > resolution
+        if one:  # sub-step by sub-step on floats, refining a kink where one is met
+            v = r[:, 0].tolist()
+            costs = []
+            for k in range(done):
+                piece, kink = budget_piece(v[4 * k], v[4 * k + 1], v[4 * k + 2], v[4 * k + 3], hs, FLOATS)
+                if kink and refine:
+                    piece = float(_kink_pieces(model, t, hs, path, a, b, [k], [0], eps, resolution)[0])
+                costs.append(piece)
+            cost = math.fsum(costs)
+        else:  # every sub-step of every state at once
+            v = r[:4 * done].reshape(done, 4, rows)
+            pieces, kink = budget_piece(v[:, 0], v[:, 1], v[:, 2], v[:, 3], hs)
             if partial:
-                piece, kink = np.where(j < ended_at, piece, 0.0), kink & (j < ended_at)
-            if hs > resolution and (kink if one else kink.any()):
-                ks = np.flatnonzero(kink)
-                x0, x1 = (np.array(path[i], dtype=np.float64).reshape(len(x), rows)[:, ks].T for i in (j, j + 1))
-                A, B = (np.array(u, dtype=np.float64).reshape(len(u), rows)[:, ks] for u in (a, b))
-                t0 = np.full(len(ks), t + j * hs)
-                f0, f1 = _field(model, t0, x0, A, B), _field(model, t0 + hs, x1, A, B)
-                refined = kink_costs(model, t0, hs, x0, f0, x1, f1, eps, resolution)
-                if one:
-                    piece = float(refined[0])
-                else:
-                    piece = np.array(piece, dtype=np.float64)
-                    piece[ks] = refined
-            costs.append(piece)
-        # whole sub-steps out of C2 add up to the period's length, exactly, with math.fsum
-        cost = math.fsum(costs) if one else np.array([math.fsum(c) if any(c) else 0.0
-                                                      for c in np.array(costs).T.tolist()])
+                counted = np.arange(done)[:, None] < ended_at[None, :]
+                pieces, kink = np.where(counted, pieces, 0.0), kink & counted
+            if refine and kink.any():
+                js, ks = np.nonzero(kink)
+                pieces[js, ks] = _kink_pieces(model, t, hs, path, a, b, js, ks, eps, resolution)
+            cost = _exact_sums(pieces, hs)
     if ended_at is None:
         return xc, cost, end_rate, (h if one else np.full(rows, h))
     if one:
@@ -267,6 +265,35 @@ def _period(model: Model, t: float, x: list[Any], a: list[Any], b: list[Any], h:
         return xc, cost, end_rate, elapsed
     P = np.array(path, dtype=np.float64).reshape(done + 1, len(x), rows)
     return list(P[ended_at, :, np.arange(rows)].T), cost, end_rate, elapsed
+
+
+def _kink_pieces(model: Model, t: float, hs: float, path: list[list[Any]], a: list[Any], b: list[Any],
+                 js: Sequence[int], ks: Sequence[int], eps: float, resolution: float) -> np.ndarray:
+    """:func:`kink_costs` of sub-steps ``js`` of states ``ks`` of a period.
+
+    :param path: the state at every sub-step end, from the start (one float or ``(N,)`` array per component)
+    :param a: the controls; ``b``: the disturbances (one float or ``(N,)`` array per component)
+    """
+    n, rows = len(path[0]), np.size(path[0][0])
+    P = np.array(path, dtype=np.float64).reshape(len(path), n, rows)
+    A, B = (np.array(u, dtype=np.float64).reshape(len(u), rows)[:, ks] for u in (a, b))
+    js, ks = np.asarray(js), np.asarray(ks)
+    t0 = t + js * hs
+    x0, x1 = P[js, :, ks], P[js + 1, :, ks]
+    return kink_costs(model, t0, hs, x0, _field(model, t0, x0, A, B), x1, _field(model, t0 + hs, x1, A, B), eps,
+                      resolution)
+
+
+def _exact_sums(pieces: np.ndarray, hs: float) -> np.ndarray:
+    """Per state, the sum of its sub-steps' costs ``pieces`` ``(S, N)``, correctly rounded (``math.fsum``): whole
+    sub-steps out of ``C2`` then add up to the period's length exactly. A state whose pieces are all ``0`` or
+    ``hs`` sums to ``count * hs``, which one rounding makes the correctly rounded sum too."""
+    whole = np.count_nonzero(pieces == hs, axis=0)
+    out = whole * hs
+    mixed = np.flatnonzero(np.count_nonzero(pieces, axis=0) != whole)
+    if len(mixed):
+        out[mixed] = [math.fsum(c) for c in pieces[:, mixed].T.tolist()]
+    return out
 
 
 def _field(model: Model, t: np.ndarray, x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
