@@ -189,7 +189,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     vf = ValueFilter(table, dt, target_checks=model.substeps)
     res: dict[str, Any] = {"table": args.table, "dt": dt, "build_s": time.perf_counter() - t0, "budgets": budgets,
                            "sampled": vf.sampled, "consistency": table.header.get("consistency")}
-    print(f"table {args.table}: grid {table.grid('W_eps').shape}, dt {dt} s, sampled-data table: {vf.sampled}")
+    print(f"table {args.table}: grid {table.grid(vf.lookahead.budget_field).shape}, dt {dt} s, sampled-data table: {vf.sampled}")
     print(f"filter build: {res['build_s'] * 1e3:.1f} ms")
 
     cont = load_table(args.continuous) if args.continuous else None
