@@ -23,11 +23,11 @@ Policy = Callable[[float, np.ndarray, np.ndarray], np.ndarray]
 
 @dataclass
 class Rollout:
-    """Trajectories of ``N`` simulations: ``t (T+1,)``, ``x (T+1, N, n)``, ``z (T+1, N)``, ``a (T, N, m)``, ``b (T, N, k)``
-    (row ``k + 1`` of ``x`` and ``z``: where period ``k`` ended, at its event if one ended it early; ``nan`` after a
-    simulation ended); per simulation: ``landed``, ``hard_violation``, ``budget_used``, ``landing_time`` (``nan`` if
-    not landed), ``steps`` (periods simulated) and ``end_time`` (when it landed, left ``C1`` or reached the
-    horizon)."""
+    """Trajectories of ``N`` simulations: ``t (T+1,)``, ``x (T+1, N, n)``, ``z (T+1, N)``, ``a (T, N, m)``,
+    ``b (T, N, k)`` (row ``k + 1`` of ``x`` and ``z``: where period ``k`` ended, at its event if one ended it
+    early; ``nan`` after a simulation ended); per simulation: ``landed``, ``hard_violation``, ``budget_used``,
+    ``landing_time`` (``nan`` if not landed), ``steps`` (periods simulated) and ``end_time`` (when it landed,
+    left ``C1`` or reached the horizon)."""
 
     t: np.ndarray
     x: np.ndarray
