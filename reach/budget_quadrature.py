@@ -47,6 +47,12 @@ class _FloatOps:
 
     @staticmethod
     def where(condition: bool, x: float, y: float) -> float:
+        """``numpy.where`` for one value.
+
+        :param condition: which to take
+        :param x: the value where ``condition``
+        :param y: the value elsewhere
+        """
         return x if condition else y
 
 
