@@ -17,9 +17,9 @@ the safety filter counts on landing only at those instants (:class:`~softreach.r
 ``target_checks``).
 
 One algorithm, three entry points that share every step of it: the RK4 step is one function per state
-dimension, written out by :func:`rk4_step` from one template so that it runs on Python floats (one state) as
-fast as hand-unrolled code and on numpy component arrays (``N`` states) alike; the stage times, the gathered
-stage rates and the budget rule are those of :func:`_period`. :func:`_integrate_period_scalar` is the same loop
+dimension, written out by :func:`rk4_step` from one template so that it runs on Python floats (one state)
+without a loop over the components and on numpy component arrays (``N`` states) alike; the stage times, the
+gathered stage rates and the budget rule are those of :func:`_period`. :func:`_integrate_period_scalar` is the same loop
 specialised to a model's scalar methods (:mod:`softreach.reach.scalar_model`): it evaluates ``h_eps`` stage by
 stage on floats and decides the two cases that need no arithmetic (all stages inside ``C2``: ``0``; all beyond
 the band: the sub-step's length) inline, leaving every other sub-step to the same :func:`budget_piece` and
