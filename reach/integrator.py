@@ -5,7 +5,7 @@ Used by the environments (one state per step, :func:`integrate_period`) and by t
 rollout moves exactly as an episode does.
 
 Integration: the control and the wind are held constant over a control period (zero-order hold) and the state
-is advanced by ``n_substeps`` classical Runge-Kutta (RK4) steps (:func:`rk4_step`). The budget ``z`` follows
+is advanced by ``n_substeps`` classical Runge-Kutta (RK4) steps (:mod:`softreach.reach.rk4`). The budget ``z`` follows
 ``z' = -h_eps(t, x)``: its increment over a sub-step comes from ``h_eps`` at the same four RK4 stage states,
 exact at the kinks of ``h_eps`` (:mod:`softreach.reach.budget_quadrature`). The state path does not depend on
 the budget; excursions out of ``C2`` shorter than a sub-step that no RK4 stage sees are missed.
@@ -16,14 +16,15 @@ the target is reached at any instant (:func:`episode_ends` is that rule for ``N`
 the safety filter counts on landing only at those instants (:class:`~softreach.reach.lookahead.Lookahead`,
 ``target_checks``).
 
-One algorithm, three entry points that share every step of it: the RK4 step is one function per state
-dimension, written out by :func:`rk4_step` from one template so that it runs on Python floats (one state)
-without a loop over the components and on numpy component arrays (``N`` states) alike; the stage times, the
-gathered stage rates and the budget rule are those of :func:`_period`. :func:`_integrate_period_scalar` is the same loop
-specialised to a model's scalar methods (:mod:`softreach.reach.scalar_model`): it evaluates ``h_eps`` stage by
-stage on floats and decides the two cases that need no arithmetic (all stages inside ``C2``: ``0``; all beyond
-the band: the sub-step's length) inline, leaving every other sub-step to the same :func:`budget_piece` and
-:func:`kink_costs`. tests/test_integrator.py checks the three against each other.
+One algorithm, three entry points that share every step of it: the RK4 step's lines are written once
+(:mod:`softreach.reach.rk4`) and compiled per state dimension into the step that :func:`_period` takes, on numpy
+component arrays (``N`` states) or Python floats (one state), and into :func:`_integrate_period_scalar`'s loop;
+the stage times, the gathered stage rates and the budget rule are those of :func:`_period`.
+:func:`_integrate_period_scalar` is the same loop specialised to a model's scalar methods
+(:mod:`softreach.reach.scalar_model`): it evaluates ``h_eps`` stage by stage on floats and decides the two cases
+that need no arithmetic (all stages inside ``C2``: ``0``; all beyond the band: the sub-step's length) inline,
+leaving every other sub-step to the same :func:`budget_piece` and :func:`kink_costs`. tests/test_integrator.py
+checks the three against each other.
 """
 
 from __future__ import annotations
@@ -36,73 +37,11 @@ import numpy as np
 
 from .budget_quadrature import FLOATS, budget_piece, kink_costs
 from .problem import Model
+from .rk4 import rk4_stages, rk4_step, written_out
 from .scalar_model import ScalarModel, scalar_model
 
 __all__ = ["BatchPeriod", "ScalarModel", "episode_ends", "integrate_batch", "integrate_period", "rk4_stages",
            "rk4_step", "scalar_model", "stage_rates"]
-
-_RK4_TEMPLATE = """
-def rk4_step(f, t, tm, te, hh, h, h6, x, a, b):
-    {xs}, = x
-    k1 = f(t, x, a, b)
-    x2 = [{x2}]
-    k2 = f(tm, x2, a, b)
-    x3 = [{x3}]
-    k3 = f(tm, x3, a, b)
-    x4 = [{x4}]
-    k4 = f(te, x4, a, b)
-    return [{xn}], x2, x3, x4
-"""
-_RK4_STEPS: dict[int, Callable] = {}
-
-
-def rk4_step(n: int) -> Callable:
-    """The classical RK4 step of ``x' = f(t, x, a, b)`` for ``n`` components, with ``a`` and ``b`` held.
-
-    The returned ``rk4_step(f, t, tm, te, hh, h, h6, x, a, b) -> (x_end, x2, x3, x4)`` takes the step's start
-    ``t``, its middle ``tm = t + hh`` and end ``te = t + h``, ``hh = h / 2`` and ``h6 = h / 6`` (a period's
-    loop knows them already), and one float or one array per component (``x``, ``a``, ``b``: sequences of them;
-    ``f`` returns a sequence). It gives the state at ``te`` and the stage states ``x + hh k1``, ``x + hh k2``,
-    ``x + h k3`` (where RK4 evaluates ``f`` at ``tm``, ``tm``, ``te``; the budget evaluates ``h_eps`` there too).
-    It is written out for ``n`` components from one template: a Python loop over the components would cost the
-    environments about half their step.
-
-    :param n: the number of state components
-    """
-    step = _RK4_STEPS.get(n)
-    if step is None:
-        step = _RK4_STEPS[n] = _written_out(n)
-    return step
-
-
-def _written_out(n: int) -> Callable:
-    """:func:`rk4_step`'s function for ``n`` components, compiled from :data:`_RK4_TEMPLATE`."""
-    c = range(n)
-
-    def each(expr: str) -> str:
-        return ", ".join(expr.format(i=i) for i in c)
-
-    source = _RK4_TEMPLATE.format(xs=each("y{i}"), x2=each("y{i} + hh * k1[{i}]"), x3=each("y{i} + hh * k2[{i}]"),
-                                  x4=each("y{i} + h * k3[{i}]"),
-                                  xn=each("y{i} + h6 * (k1[{i}] + 2.0 * k2[{i}] + 2.0 * k3[{i}] + k4[{i}])"))
-    namespace: dict[str, Any] = {}
-    exec(compile(source, f"<rk4_step for {n} components>", "exec"), namespace)
-    return namespace["rk4_step"]
-
-
-def rk4_stages(f: Callable, t: float, x: Sequence[Any], a: Sequence[Any], b: Sequence[Any],
-               h: float) -> tuple[list[Any], list[list[Any]]]:
-    """One RK4 step (:func:`rk4_step`): the state at ``t + h`` and the four stage states
-    ``[x, x + h/2 k1, x + h/2 k2, x + h k3]``.
-
-    :param f: the vector field ``f(t, x, a, b)``, one float or array per component in and out
-    :param t: start time [s]
-    :param x: start state; ``a``: control; ``b``: disturbance (physical units, one float or array per component)
-    :param h: step length [s]
-    """
-    xn, x2, x3, x4 = rk4_step(len(x))(f, t, t + 0.5 * h, t + h, 0.5 * h, h, h / 6.0, x, a, b)
-    return xn, [list(x), x2, x3, x4]
-
 
 def stage_rates(model: Model, times: Sequence[float], points: Sequence[Sequence[Any]], eps: float) -> np.ndarray:
     """``h_eps`` at many points in one vectorised call of ``model.violation_rate``.
@@ -346,26 +285,20 @@ def integrate_period(model: Model, t: float, x: Sequence[float], a: Sequence[flo
     return [float(v) for v in xe], cost, rate, elapsed
 
 
-def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Sequence[float], a: Sequence[float],
-                             b: Sequence[float], h: float, n_substeps: int, eps: float, budget_resolution: float,
-                             rate0: float | None, stop: Callable | None = None
-                             ) -> tuple[list[float], float, float, float]:
-    """:func:`integrate_period` on the model's scalar fast path: :func:`_period`'s loop with ``h_eps`` taken
-    stage by stage on Python floats (the same stages, stage times and budget rule)."""
-    f, rate = fast.f, fast.violation_rate
-    step = rk4_step(len(x))
+#: :func:`_integrate_period_scalar`'s loop: :func:`_period`'s steps on Python floats with ``h_eps`` taken stage by
+#: stage, the RK4 lines written into it (a call per sub-step would cost a twentieth of an environment step)
+_SCALAR_LOOP = """\
+def scalar_period(f, rate, model, t, xc, a, b, h, n_substeps, eps, resolution, r0, stop):
     hs = h / n_substeps
     hh = 0.5 * hs
     h6 = hs / 6.0
-    xc = x if type(x) is list else list(x)
-    r0 = rate(t, xc, eps) if rate0 is None else rate0
     last = n_substeps - 1
-    costs: list[float] = []  # sub-steps inside C2 cost 0 and are left out of the sum
+    costs = []  # sub-steps inside C2 cost 0 and are left out of the sum
     for j in range(n_substeps):
         tc = t + j * hs
         tm = tc + hh
         te = tc + hs
-        xn, x2, x3, x4 = step(f, tc, tm, te, hh, hs, h6, xc, a, b)
+        {rk4}
         r2, r3, r4 = rate(tm, x2, eps), rate(tm, x3, eps), rate(te, x4, eps)
         if r0 == 0.0 and r2 == 0.0 and r3 == 0.0 and r4 == 0.0:
             pass
@@ -373,14 +306,31 @@ def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Seque
             costs.append(hs)
         else:
             piece, kink = budget_piece(r0, r2, r3, r4, hs, FLOATS)
-            if kink and hs > budget_resolution:
+            if kink and hs > resolution:
                 piece = float(kink_costs(model, np.array([tc]), hs, np.array([xc]), np.array([f(tc, xc, a, b)]),
-                                         np.array([xn]), np.array([f(te, xn, a, b)]), eps, budget_resolution)[0])
+                                         np.array([xn]), np.array([f(te, xn, a, b)]), eps, resolution)[0])
             costs.append(piece)
         xc = xn
         if j == last:
-            return xc, math.fsum(costs), rate(t + h, xn, eps), h
+            return xc, fsum(costs), rate(t + h, xn, eps), h
         r0 = rate(te, xn, eps)
         if stop is not None and stop(te, xn, r0):
-            return xc, math.fsum(costs), r0, (j + 1) * hs
-    raise ValueError(f"n_substeps must be a positive integer, got {n_substeps!r}")
+            return xc, fsum(costs), r0, (j + 1) * hs
+    raise ValueError(f"n_substeps must be a positive integer, got {{n_substeps!r}}")
+"""
+
+
+_SCALAR_SCOPE = {"budget_piece": budget_piece, "FLOATS": FLOATS, "kink_costs": kink_costs, "np": np,
+                 "fsum": math.fsum}
+
+
+def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Sequence[float], a: Sequence[float],
+                             b: Sequence[float], h: float, n_substeps: int, eps: float, budget_resolution: float,
+                             rate0: float | None, stop: Callable | None = None
+                             ) -> tuple[list[float], float, float, float]:
+    """:func:`integrate_period` on the model's scalar fast path: :func:`_period`'s loop with ``h_eps`` taken
+    stage by stage on Python floats (the same stages, stage times and budget rule; :data:`_SCALAR_LOOP`)."""
+    xc = x if type(x) is list else list(x)
+    r0 = fast.violation_rate(t, xc, eps) if rate0 is None else rate0
+    loop = written_out(_SCALAR_LOOP, len(xc), _SCALAR_SCOPE)
+    return loop(fast.f, fast.violation_rate, model, t, xc, a, b, h, n_substeps, eps, budget_resolution, r0, stop)

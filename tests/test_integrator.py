@@ -122,6 +122,28 @@ def test_rk4_step_is_exact_for_a_quadratic_path():
     assert [list(c) for c in arrays] == [[xn[0]] * 2, [xn[1]] * 2]
 
 
+@pytest.mark.parametrize("n", [1, 3, 5])
+def test_rk4_step_is_the_rk4_polynomial_on_a_linear_system(n):
+    """On ``x' = M x`` one RK4 step multiplies by ``I + hM + (hM)^2/2 + (hM)^3/6 + (hM)^4/24``, for any number of
+    components, on floats and on component arrays alike."""
+    rng = np.random.default_rng(n)
+    M = rng.normal(size=(n, n))
+    h = 0.1
+
+    def f(t, x, a, b):
+        return [sum(M[i, k] * x[k] for k in range(n)) for i in range(n)]
+
+    hm = h * M
+    amp = np.eye(n) + hm + hm @ hm / 2 + hm @ hm @ hm / 6 + hm @ hm @ hm @ hm / 24
+    x0 = rng.normal(size=n)
+    xn, stages = rk4_stages(f, 0.0, list(x0), [], [], h)
+    np.testing.assert_allclose(xn, amp @ x0, rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(stages[1], x0 + h / 2 * (M @ x0), rtol=1e-13, atol=1e-14)
+    batch = rng.normal(size=(n, 4))
+    xb = rk4_stages(f, 0.0, list(batch), [], [], h)[0]
+    np.testing.assert_allclose(np.array(xb), amp @ batch, rtol=1e-12, atol=1e-13)
+
+
 def _exact_budget(v0: float, acc: float, h: float, eps: float) -> float:
     """``int_0^h h_eps ds`` for ``c2 = max(-10 - v, v - 10)`` along ``v(s) = v0 + acc s`` (altitude inside its band):
     ``h_eps`` is linear between the instants where ``c2`` crosses ``0`` and ``eps``, so the trapezoid rule on the
