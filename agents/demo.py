@@ -1,6 +1,7 @@
 """``softreach demo``: the whole mission in one command.
 
-1. solve a small point-mass ``W_eps`` table (cached: an existing table file is reused);
+1. solve a small point-mass ``W_eps`` table of the sampled-data game (``--held``: the one the filter certifies
+   with; cached: an existing table file is reused);
 2. train a PPO landing policy briefly **with** the safety filter (skipped with ``--policy``);
 3. evaluate the trained policy with the filter, the same policy without it, and the table-optimal controller,
    from starts inside ``RA~_Q``, under adversarial (and by default random) wind, for several budgets ``Q``;
@@ -19,7 +20,7 @@ from typing import Any, Sequence
 from .evaluate import EvalSpec, EvaluationResult, evaluate
 from .report import comparison_table, evaluation_document, summary_lines, write_plots
 
-#: the demo's table: coarser than the model's default (101 x 101 x 111), solved in well under a minute
+#: the demo's table: coarser than the model's default (101 x 101 x 111)
 DEMO_GRID = (81, 81)
 DEMO_BUDGET_POINTS = 89
 DEMO_TIMESTEPS = 150_000
@@ -83,9 +84,11 @@ def solve_demo_table(path: Path, progress: bool = True) -> Path:
     from softreach.reach import SolveConfig, SolverSettings, get_model, solve_table
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    cfg = SolveConfig(shape=DEMO_GRID, budget_points=DEMO_BUDGET_POINTS,
-                      settings=SolverSettings.from_accuracy("very_high", dtype="float32"), snapshots=21)
-    solve_table(get_model("pointmass"), cfg, path, progress=progress)
+    model = get_model("pointmass")
+    # the sampled-data game at the env's period: the table the filter certifies with (its guarantee)
+    cfg = SolveConfig(shape=DEMO_GRID, budget_points=DEMO_BUDGET_POINTS, control_period=model.control_period,
+                      settings=SolverSettings.from_accuracy("very_high", dtype="float32"))
+    solve_table(model, cfg, path, progress=progress)
     return path
 
 
@@ -145,8 +148,8 @@ def run_demo(out: str | Path = "runs/demo", table: str | None = None, policy: st
     t0 = time.perf_counter()
     if table is None:
         table_path = solve_demo_table(out / "pointmass_demo.srt", progress=progress)
-        commands.append(f"softreach solve pointmass --grid {DEMO_GRID[0]} {DEMO_GRID[1]} --budget-points "
-                        f"{DEMO_BUDGET_POINTS} --dtype float32 --snapshots 21 --out {table_path}")
+        commands.append(f"softreach solve pointmass --held --grid {DEMO_GRID[0]} {DEMO_GRID[1]} --budget-points "
+                        f"{DEMO_BUDGET_POINTS} --dtype float32 --out {table_path}")
     else:
         table_path = Path(table)
         if not table_path.is_file():
