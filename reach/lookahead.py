@@ -49,6 +49,10 @@ import numpy as np
 from .interpolation import box_max, interpolate
 
 
+#: the fields that say how much budget suffices, in the order a table's is picked
+BUDGET_FIELDS = ("W_eps", "Q_min")
+
+
 class Lookahead:
     """One-period admissibility of held actions against a table's certificate (see the module docstring).
 
@@ -73,7 +77,7 @@ class Lookahead:
         self.n = model.state_dim
         self.fields = dict(fields)
         #: the field that says how much budget suffices: ``W_eps`` on ``(x, z)``, or the budget surface ``Q_min``
-        self.budget_field = next((f for f in ("W_eps", "Q_min") if f in self.fields), None)
+        self.budget_field = next((f for f in BUDGET_FIELDS if f in self.fields), None)
         if self.budget_field is None:
             raise ValueError("the one-period test needs W_eps or Q_min (the classical V alone does not say how much "
                              "budget)")
@@ -88,7 +92,7 @@ class Lookahead:
             self._no_budget = (np.asarray(b_values) > left + 1e-9).astype(np.float64)
         self.corners = np.array(list(itertools.product((0, 1), repeat=self.n)), dtype=bool)  # (2^n, n)
         self.candidates = np.asarray(candidates, dtype=np.float64)
-        box = getattr(model, "target_box", None)
+        box = model.target_box
         self.target_lo, self.target_hi = (None, None) if box is None else (np.asarray(box[0], float),
                                                                             np.asarray(box[1], float))
         from .dynamics import Dynamics
@@ -102,7 +106,7 @@ class Lookahead:
         """The test against a solved table's ``V`` and ``W_eps``, with the candidates it was solved with."""
         fields = {name: (table.values(name), table.times(name), table.grid(name))
                   for name in ("V", "W_eps", "Q_min", "V_safe") if name in table.header["fields"]}
-        budget = next((f for f in ("W_eps", "Q_min") if f in fields), None)
+        budget = next((f for f in BUDGET_FIELDS if f in fields), None)
         if budget is None:
             raise ValueError(f"table {table.path} holds only the classical V; the filter needs W_eps or Q_min")
         held = table.header["fields"][budget].get("held_controls")
