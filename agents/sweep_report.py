@@ -17,7 +17,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from .evaluate import wilson
-from .report import AGGREGATE_FIELDS, MEAN, RATE, _plt, _save
+from .report import AGGREGATE_FIELDS, MEAN, RATE
+from .report_plots import _plt, _save
 from .sweep import EvalSetting, SweepRun, budget_text
 
 CONFIG_COLUMNS = ("run_id", "status", "error", "model", "algo", "rule", "budget", "wind", "variant", "seed",
