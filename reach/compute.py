@@ -181,7 +181,10 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
             def sink(kk, tt, u, _n=name, _spec=spec, _before=before, _t0=t0, _grid=grid):
                 _spec["wall_s"] = _before + time.perf_counter() - _t0
                 writer.write_snapshot(_n, kk, u)
-                if _n != "Q_min":  # Q_min >= 0: its ghosts, extrapolated away from zero, only rise
+                # the certificates only: Q_min >= 0 (its ghosts, extrapolated away from zero, only rise), and
+                # V_safe ranks the fallback where nothing is certified, promising nothing (C1 may be unbounded,
+                # as the glider's is above)
+                if _n in ("V", "W_eps"):
                     check_edges(_n, B.to_numpy(u), _grid.periodic, _grid.names or model.state_names,
                                 model.state_dim)
             if held:
