@@ -3,7 +3,8 @@
 * :class:`ValueFilter` — the pure, batched core (numpy in/out, torch in/out): the one-period look-ahead of
   held actions (:class:`Lookahead`), certification, the ``"switch"`` and ``"smooth"`` rules;
 * :class:`SafetyFilter` — a ``gymnasium.Wrapper`` that filters any policy's actions in the landing
-  environments.
+  environments;
+* :class:`VecSafetyFilter` — one batched decision per step for SB3's ``DummyVecEnv`` of filtered environments.
 """
 
 from .core import (AFTER_HORIZON, BLEND, CERTIFY_REASONS, FALLBACK, NONFINITE, OPTIMAL, OUTSIDE, PASS, REASONS, RULES,
@@ -11,6 +12,8 @@ from .core import (AFTER_HORIZON, BLEND, CERTIFY_REASONS, FALLBACK, NONFINITE, O
 from .field import TableField
 from softreach.reach.lookahead import Lookahead
 from .wrapper import SafetyFilter
+from .vector import VecSafetyFilter
 
 __all__ = ["AFTER_HORIZON", "BLEND", "CERTIFY_REASONS", "FALLBACK", "Lookahead", "NONFINITE", "OPTIMAL", "OUTSIDE",
-           "PASS", "REASONS", "RULES", "SafetyFilter", "TableField", "UNCERTIFIED", "ValueFilter"]
+           "PASS", "REASONS", "RULES", "SafetyFilter", "TableField", "UNCERTIFIED", "ValueFilter",
+           "VecSafetyFilter"]

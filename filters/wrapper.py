@@ -124,6 +124,15 @@ class SafetyFilter(gym.Wrapper):
         self._max_value = -math.inf
         self._initial_budget = math.nan
         self._certified_start = False
+        self._pending: tuple | None = None
+
+    def expect(self, action: Any, applied: np.ndarray, decision: dict[str, Any]) -> None:
+        """Hand over the decision for ``action`` at the current state, made in a batch with other environments
+        (:class:`~softreach.filters.VecSafetyFilter`); the next :meth:`step` uses it if it gets the same action
+        in the same state, and decides itself otherwise."""
+        base = self.env.unwrapped
+        self._pending = (np.array(action, copy=True), base.time, np.array(base.state, copy=True), base.budget,
+                         applied, decision)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Reset the environment and the episode statistics; ``info`` adds ``value``, ``margin``, ``certified`` and
@@ -151,7 +160,12 @@ class SafetyFilter(gym.Wrapper):
         x = base.state
         if x is None:
             raise gym.error.ResetNeeded("call reset() before step()")
-        applied, f = self.value_filter.filter(base.time, x, base.budget, np.asarray(action), normalized=True)
+        pending, self._pending = self._pending, None
+        if pending is not None and pending[1] == base.time and pending[3] == base.budget \
+                and np.array_equal(pending[2], x) and np.array_equal(pending[0], np.asarray(action)):
+            applied, f = pending[4], pending[5]
+        else:
+            applied, f = self.value_filter.filter(base.time, x, base.budget, np.asarray(action), normalized=True)
         active = bool(f["active"])
         dtype = self.action_space.dtype if self.action_space.dtype is not None else np.float32
         # the policy's own object passes untouched where the filter does not act (no float round trip)

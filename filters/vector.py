@@ -1,0 +1,81 @@
+"""``VecSafetyFilter``: one batched filter decision per step for a vector of ``SafetyFilter``-wrapped environments.
+
+A decision costs mostly fixed overhead (the one-period test builds boxes and gathers table blocks for a whole
+batch at once), so deciding for eight environments together costs about as much as deciding for two. Training
+steps many environments in lock step (SB3's ``DummyVecEnv``); this wrapper gathers their states before the step,
+asks the shared :class:`~softreach.filters.ValueFilter` once, and hands each environment's ``SafetyFilter`` its
+row. Each ``SafetyFilter`` then steps exactly as it would alone: same applied action, same ``info`` keys, same
+episode statistics (``ValueFilter.filter`` decides every row independently; ``tests/test_filters_vector.py``
+checks the two paths agree action for action).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnvWrapper
+
+from .wrapper import SafetyFilter
+
+
+def find_filter(env: Any) -> SafetyFilter | None:
+    """The :class:`SafetyFilter` in ``env``'s wrapper stack, or ``None``."""
+    e = env
+    while e is not None:
+        if isinstance(e, SafetyFilter):
+            return e
+        e = getattr(e, "env", None)
+    return None
+
+
+class VecSafetyFilter(VecEnvWrapper):
+    """Batch the safety filter's decisions over the environments of a ``DummyVecEnv``.
+
+    Every environment of ``venv`` must hold a :class:`SafetyFilter` in its wrapper stack (wrappers outside it,
+    such as a reward scale, are fine as long as they pass the action through unchanged). Environments whose
+    filters share one ``ValueFilter`` are decided in one call; others in one call per core.
+
+    :param venv: a ``DummyVecEnv`` (environments in this process: the filter reads their states)
+    :raises TypeError: ``venv`` is not a ``DummyVecEnv`` or an environment has no ``SafetyFilter``
+    """
+
+    def __init__(self, venv: DummyVecEnv):
+        if not isinstance(venv, DummyVecEnv):
+            raise TypeError(f"VecSafetyFilter reads the environments' states in this process: it needs a "
+                            f"DummyVecEnv, got {type(venv).__name__}")
+        super().__init__(venv)
+        self.filters = [find_filter(e) for e in venv.envs]
+        missing = [i for i, f in enumerate(self.filters) if f is None]
+        if missing:
+            raise TypeError(f"environments {missing} have no SafetyFilter in their wrapper stack")
+        groups: dict[int, list[int]] = {}
+        for i, f in enumerate(self.filters):
+            groups.setdefault(id(f.value_filter), []).append(i)
+        self.groups = [np.array(rows) for rows in groups.values()]
+
+    def step_async(self, actions: np.ndarray) -> None:
+        actions = np.asarray(actions)
+        for rows in self.groups:
+            filters = [self.filters[i] for i in rows]
+            bases = [f.env.unwrapped for f in filters]
+            if any(b.state is None for b in bases):
+                continue  # the environments raise ResetNeeded themselves
+            t = np.array([b.time for b in bases], dtype=np.float64)
+            x = np.stack([np.asarray(b.state, dtype=np.float64) for b in bases])
+            z = np.array([b.budget for b in bases], dtype=np.float64)
+            act = actions[rows].reshape(len(rows), -1)
+            applied, info = filters[0].value_filter.filter(t, x, z, act, normalized=True)
+            for k, f in enumerate(filters):
+                f.expect(act[k], applied[k], {key: v[k] for key, v in info.items()})
+        self.venv.step_async(actions)
+
+    def step_wait(self):
+        return self.venv.step_wait()
+
+    def reset(self):
+        return self.venv.reset()
+
+
+__all__ = ["VecSafetyFilter", "find_filter"]
