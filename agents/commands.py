@@ -13,7 +13,7 @@ from .config import ALGOS
 
 WIND_CHOICES = ("none", "random", "adversarial")
 RULE_CHOICES = ("switch", "smooth")
-START_CHOICES = ("inside", "paper", "uniform", "env")
+START_CHOICES = ("certified", "inside", "paper", "uniform", "env")
 
 
 def _budget(text: str) -> float | tuple[float, float]:
@@ -46,7 +46,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--n-envs", type=int, default=None, help="environments stepped together (default 8 for PPO)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--intervention-penalty", type=float, default=None,
-                   help="reward subtracted per step in which the filter acted (default 0)")
+                   help="reward subtracted per step in which the filter acted (default: the model's, see "
+                        "softreach.agents.config; 1.0 for the point mass)")
     p.add_argument("--action-label", choices=("policy", "applied"), default=None,
                    help="SAC: store the policy's or the applied action in the replay buffer (default policy)")
     p.add_argument("--eval-freq", type=int, default=None, help="steps between periodic evaluations (0: none)")
@@ -71,7 +72,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="table for 'optimal', the adversarial wind and inside/paper starts (default: --filter's)")
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--starts", choices=START_CHOICES, default="inside",
-                   help="inside RA~_Q (sampled from the table), the paper's representative points, uniform over C1 "
+                   help="certified by the filter (inside RA~_Q and a held action passes: the starts of the guarantee; needs a "
+                        "--held table), inside RA~_Q (sampled from the table), the paper's representative points, uniform over C1 "
                         "(outside the guarantee too), or the environment's own reset distribution")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", dest="json_path", metavar="PATH", default=None, help="write aggregates and episodes here")

@@ -24,7 +24,9 @@ from .envs import RULES, WINDS, check_budget, check_choice, make_env, normalized
 from .statistics import Z95, aggregate, mean_ci, wilson
 from .tables import TableOracle, as_table, in_set, paper_starts, sample_inside, sample_uniform, sink_rate, start_value
 
-STARTS = ("inside", "paper", "uniform", "env")
+STARTS = ("certified", "inside", "paper", "uniform", "env")
+#: draws of ``RA~_Q`` tried per certified start before the evaluation gives up (the set has no certified part)
+CERTIFIED_TRIES = 200
 POLICIES = ("optimal", "random")
 #: an episode is "over budget" when it used more than ``Q + BUDGET_TOL`` seconds (the paper's proxy for the
 #: sets: one millisecond of budget; the environment integrates the budget to about a microsecond)
@@ -87,7 +89,8 @@ class EvalSpec:
     :param table: the table for ``optimal``, the adversarial wind and the ``inside``/``paper`` starts
         (default: the filter's)
     :param episodes: number of episodes
-    :param starts: ``"inside"`` (sampled from ``RA~_Q``), ``"paper"`` (the representative points, cycled) or
+    :param starts: ``"certified"`` (sampled from ``RA~_Q`` and kept where the filter certifies the start: the
+        starts of the filter's guarantee; needs a ``--held`` table), ``"inside"`` (sampled from ``RA~_Q``), ``"paper"`` (the representative points, cycled) or
         ``"uniform"`` (uniform over the hard-constraint box, to show what happens outside the guarantee) or
         ``"env"`` (the environment's own reset distribution, the one training uses)
     :param seed: seed of the starts, the budgets, the gusts and the random policy
@@ -177,7 +180,7 @@ def check_spec(spec: EvalSpec, policy_given: bool = False) -> None:
     table = spec.table or spec.filter
     needs = [what for what, cond in (("--policy optimal", spec.policy == "optimal"),
                                      ("--wind adversarial", spec.wind == "adversarial"),
-                                     (f"--starts {spec.starts}", spec.starts in ("inside", "paper"))) if cond]
+                                     (f"--starts {spec.starts}", spec.starts in ("certified", "inside", "paper"))) if cond]
     if needs and table is None:
         raise ValueError(f"{', '.join(needs)} need(s) a W_eps table: give --filter TABLE or --table TABLE")
     for path in (spec.filter, spec.table):
@@ -187,9 +190,42 @@ def check_spec(spec: EvalSpec, policy_given: bool = False) -> None:
         raise FileNotFoundError(f"policy {spec.policy!r} is neither 'optimal', 'random' nor an existing file")
 
 
-def _starts(spec: EvalSpec, table, model, rng: np.random.Generator, budget_range: tuple[float, float]):
+def certifier(table, env) -> Any:
+    """The ``ValueFilter`` whose :meth:`~softreach.filters.ValueFilter.certify` says which starts carry the
+    filter's guarantee in ``env`` (its control period, its model); the environment's own filter where it has one.
+
+    :raises ValueError: the table was not solved for the sampled-data game (nothing is certified with it)
+    """
+    filt = unwrap_filter(env)
+    if filt is not None and filt.table is table:
+        vf = filt.value_filter
+    else:
+        from softreach.filters import ValueFilter
+
+        vf = ValueFilter(table, float(env.unwrapped.dt), model=env.unwrapped.model)
+    if not vf.sampled:
+        raise ValueError(f"--starts certified needs a table of the sampled-data game (softreach solve MODEL --held); "
+                         f"{table.path} was solved in continuous time, so no start is certified with it")
+    return vf
+
+
+def sample_certified(table, vf, q: float, rng: np.random.Generator) -> np.ndarray:
+    """A random start of ``RA~_Q`` (:func:`sample_inside`) that the filter certifies at ``t = 0``.
+
+    :raises ValueError: none of :data:`CERTIFIED_TRIES` draws was certified
+    """
+    for _ in range(CERTIFIED_TRIES):
+        x = np.asarray(sample_inside(table, q, rng), dtype=np.float64)
+        if bool(vf.certify(0.0, x, q)[0]):
+            return x
+    raise ValueError(f"no certified start in {CERTIFIED_TRIES} draws of RA~_Q (Q={q:g}) from table {table.path}")
+
+
+def _starts(spec: EvalSpec, table, env, rng: np.random.Generator, budget_range: tuple[float, float]):
     """The ``(x0, Q)`` of every episode."""
     n = spec.episodes
+    model = env.unwrapped.model
+    vf = certifier(table, env) if spec.starts == "certified" else None
     if spec.starts == "paper":
         budgets = [spec.budget] if spec.budget is not None else list(model.paper_budgets)
         pts = paper_starts(table, budgets)
@@ -207,6 +243,8 @@ def _starts(spec: EvalSpec, table, model, rng: np.random.Generator, budget_range
             out.append((None, q))  # the environment draws the state at reset
         elif spec.starts == "inside":
             out.append((np.asarray(sample_inside(table, q, rng), dtype=np.float64), q))
+        elif spec.starts == "certified":
+            out.append((sample_certified(table, vf, q, rng), q))
         else:
             out.append((np.asarray(sample_uniform(model, rng), dtype=np.float64), q))
     return out
@@ -313,7 +351,7 @@ def evaluate(spec: EvalSpec, policy_obj: Any = None, progress: bool = False) -> 
                    spec.filter == table_path else spec.filter, rule=spec.rule, margin=spec.margin)
     base = env.unwrapped
     rng = np.random.default_rng(spec.seed)
-    starts = _starts(spec, table, base.model, rng, base.budget_range)
+    starts = _starts(spec, table, env, rng, base.budget_range)
     rows, traces = [], []
     it = range(len(starts))
     if progress:

@@ -28,6 +28,15 @@ def _num(m: dict[str, Any] | None, key: str = "mean", fmt: str = "{:.3f}") -> st
     return fmt.format(m[key])
 
 
+def _ci(m: dict[str, Any] | None) -> str:
+    """``mean [low, high]`` of a Student-t interval, ``—`` where there is no sample."""
+    if m is None or m.get("mean") is None:
+        return "—"
+    if m.get("low") is None or m.get("high") is None:
+        return f"{m['mean']:.3f}"
+    return f"{m['mean']:.3f} [{m['low']:.3f}, {m['high']:.3f}]"
+
+
 def summary_lines(result) -> list[str]:
     """A few human-readable lines of an evaluation's aggregates."""
     a = result.aggregates
@@ -36,7 +45,8 @@ def summary_lines(result) -> list[str]:
              f"  budget used: mean {_num(a['budget_used'])}  max {_num(a['budget_used'], 'max')}  "
              f"over Q (+{result.config['budget_tol']:g} s): {_pct(a['over_budget_rate'])}",
              f"  return: {_num(a['return'], fmt='{:.1f}')}  control effort: {_num(a['control_effort'])}  "
-             f"touchdown sink rate: {_num(a['touchdown_sink_rate'])} m/s"]
+             f"touchdown sink rate: {_num(a['touchdown_sink_rate'])} m/s  time to land: "
+             f"{_num(a.get('time_to_land'))} s"]
     if a["intervention_rate"] is not None:
         lines.append(f"  interventions: {_num(a['intervention_rate'])} of steps (mean per episode), in "
                      f"{_pct(a['intervened_episodes'])} of episodes")
@@ -49,7 +59,8 @@ def summary_lines(result) -> list[str]:
 
 
 COMPARISON_HEADER = ("| policy | wind | Q | landing rate | hard violations | budget used: mean | max | over Q | "
-                     "interventions |\n|---|---|---|---|---|---|---|---|---|")
+                     "interventions | control effort | touchdown sink rate [m/s] | time to land [s] |\n"
+                     "|---|---|---|---|---|---|---|---|---|---|---|---|")
 
 
 def comparison_row(label: str, result) -> str:
@@ -60,7 +71,8 @@ def comparison_row(label: str, result) -> str:
     hard = a["hard_violation_rate"]
     return (f"| {label} | {c['wind']} | {q} | {_pct(a['landing_rate'])} | {hard['count']}/{hard['n']} | "
             f"{_num(a['budget_used'])} | {_num(a['budget_used'], 'max')} | {a['over_budget_rate']['count']}/{a['episodes']} | "
-            f"{inter} |")
+            f"{inter} | {_ci(a['control_effort'])} | {_ci(a.get('touchdown_sink_rate'))} | "
+            f"{_ci(a.get('time_to_land'))} |")
 
 
 def comparison_table(rows: Sequence[tuple[str, Any]]) -> str:

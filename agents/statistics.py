@@ -60,6 +60,7 @@ def aggregate(rows: list[dict[str, Any]], filtered: bool) -> dict[str, Any]:
         "time_outside_c2": mean_ci(col("time_outside_c2")),
         "touchdown_sink_rate": mean_ci([r["touchdown_sink_rate"] for r in rows if r["landed"]]),
         "control_effort": mean_ci(col("control_effort")),
+        "time_to_land": mean_ci([r["duration"] for r in rows if r["landed"]]),
         "return": mean_ci(col("return")),
         "intervention_rate": mean_ci(col("intervention_rate")) if filtered else None,
         "intervened_episodes": wilson(sum(1 for r in rows if r["interventions"]), n) if filtered else None,
