@@ -182,7 +182,7 @@ def paper_starts(table: Table, budgets: Sequence[float], t: float = 0.0, depth: 
             prev = mask
             continue
         cand = mask & ~prev if prev is not None and (mask & ~prev).any() else mask
-        w = table._slice("W_eps", t, max(q, table.budget_resolution))
+        w = table.slice("W_eps", t, max(q, table.budget_resolution))
         floor = float(np.where(cand, w, np.inf).min())
         deep = cand & (w <= depth * floor) if floor < 0 else cand
         idx = np.argwhere(deep)

@@ -249,5 +249,5 @@ def summarize(table, budgets: Sequence[float] = DEFAULT_BUDGETS, t: float = 0.0)
         }
         if table.has_budget:
             # the raw slice {W_eps(t, x, 0) <= 0} for reference (ill-posed: see Table.set_mask)
-            out["q0_vs_classical"]["raw_slice_measure"] = float((table._slice("W_eps", t, 0.0) <= 0).sum()) * vol
+            out["q0_vs_classical"]["raw_slice_measure"] = float((table.slice("W_eps", t, 0.0) <= 0).sum()) * vol
     return out

@@ -92,7 +92,7 @@ def pick_starts(table, budgets: Sequence[float], t: float = 0.0, depth: float = 
         if prev_mask is not None:
             outside_proj = mask & ~np.expand_dims(project(prev_mask, axis=iz), iz)
             cand = outside_proj if outside_proj.any() else (mask & ~prev_mask if (mask & ~prev_mask).any() else mask)
-        w = table._slice("W_eps", t, max(q, table.budget_resolution))
+        w = table.slice("W_eps", t, max(q, table.budget_resolution))
         wc = np.where(cand, w, np.inf)
         floor = float(wc.min())
         deep = cand & (w <= depth * floor) if floor < 0 else cand

@@ -11,7 +11,7 @@ import numpy as np
 
 from .grid import Grid
 from .budget_surface import no_budget_suffices
-from .interpolation import interpolate
+from .interpolation import Interpolant
 from .table import TableError, field_grid, open_field, read_header, verify
 
 #: the paper's conservative proxy for ``Q > 0`` (§VI-A): ``W_eps + 1e-3 <= 0``, in seconds of budget
@@ -70,6 +70,7 @@ class Table:
         self.header = header
         self.fields = sorted(header["fields"])
         self._arrays: dict[str, np.ndarray] = {}
+        self._interpolants: dict[str, Interpolant] = {}
 
     # ------------------------------------------------------------------ metadata
     @property
@@ -136,6 +137,15 @@ class Table:
             self._arrays[field] = open_field(self.path, self.header, field)
         return self._arrays[field]
 
+    def interpolant(self, field: str) -> Interpolant:
+        """The interpolation engine of ``field`` (values, gradients along every axis, slices); ``W_eps``'s last
+        axis is the budget: below its grid is outside, above it is read at its top."""
+        if field not in self._interpolants:
+            self._interpolants[field] = Interpolant(self.values(field), self.times(field), self.grid(field),
+                                                    budget_last=field == "W_eps",
+                                                    gradient_axes=range(self.grid(field).ndim))
+        return self._interpolants[field]
+
     def summary(self) -> dict[str, Any]:
         return self.header.get("summary", {})
 
@@ -171,12 +181,8 @@ class Table:
         pts = _as_points(x, n, "x")
         tt = _as_column(t, len(pts), "t")
         unsafe = np.zeros(len(pts), bool)
-        if field == "W_eps":
-            zz = _as_column(z, len(pts), "z")
-            grid = self.grid(field)
-            unsafe = zz < grid.lo[-1]
-            zz = np.minimum(zz, grid.hi[-1])
-            pts = np.concatenate([pts, zz[:, None]], axis=1)
+        if field == "W_eps":  # below the budget grid and above it: the interpolant's budget_last rule
+            pts = np.concatenate([pts, _as_column(z, len(pts), "z")[:, None]], axis=1)
         elif field == "Q_min":
             unsafe = _as_column(z, len(pts), "z") < 0
         return field, tt, pts, unsafe
@@ -188,23 +194,22 @@ class Table:
         episode can spend more than its time), conservative otherwise (``W_eps`` falls with the budget).
         """
         field, tt, pts, unsafe = self._queries(t, x, z)
-        val, inside = interpolate(self.values(field), self.times(field), self.grid(field), tt, pts)
+        val = self.interpolant(field).value(tt, pts)
         if field == "Q_min":
             # the certificate of a budget-surface table: Q_min - z, <= 0 exactly where the budget z suffices
             # (RA~_0 from V, as set_mask reads it)
             val = val - _as_column(z, len(pts), "z")
-            v, vin = interpolate(self.values("V"), self.times("V"), self.grid("V"), tt, pts)
-            val = np.where(vin & (v <= 0), np.minimum(val, v), val)
-        return np.where(inside & ~unsafe, val, np.inf)
+            v = self.interpolant("V").value(tt, pts)
+            val = np.where(np.isfinite(val) & (v <= 0), np.minimum(val, v), val)
+        return np.where(unsafe, np.inf, val)
 
     def inside(self, t: Any, x: Any, z: Any = None) -> np.ndarray:
         """Whether each query lies inside the table's grid and time span."""
         return np.isfinite(self.value(t, x, z))
 
     def gradient(self, t: Any, x: Any, z: Any = None, outside: str = "raise") -> np.ndarray:
-        """Spatial gradient (including ``dW/dz`` for ``W_eps``) by central differences of the interpolant.
-
-        Each difference spans one grid spacing on either side (shifted inwards at the grid's edges).
+        """Spatial gradient (including ``dW/dz`` for ``W_eps``): the central difference of the interpolant over one
+        grid spacing on either side (shifted inwards at the grid's edges), :class:`~.interpolation.Interpolant`.
 
         :param outside: for queries off the table's grid or time span: ``"raise"`` (a ``ValueError`` naming the
             first such query) or ``"nearest"`` (use the nearest point of the grid box and time span: a
@@ -213,34 +218,14 @@ class Table:
         if outside not in ("raise", "nearest"):
             raise ValueError(f"outside must be 'raise' or 'nearest', got {outside!r}")
         field, tt, pts, _ = self._queries(t, x, z)
-        grid = self.grid(field)
-        times = self.times(field)
-        if outside == "raise":
-            _, inside = interpolate(self.values(field), times, grid, tt, pts)
-            if not inside.all():
-                i = int(np.argmin(inside))
-                raise ValueError(f"query t={tt[i]!r}, point {pts[i].tolist()} lies outside table {self.path} (grid "
-                                 f"box {list(grid.lo)}..{list(grid.hi)}, times {times[0]}..{times[-1]}): no gradient "
-                                 f"there; pass outside='nearest' to use the nearest grid point")
-        tt = np.clip(tt, times[0], times[-1])
-        lo, hi, h = np.array(grid.lo), np.array(grid.hi), np.array(grid.spacing)
-        per = np.array(grid.periodic)
-        pts = np.where(per, pts, np.clip(pts, lo, hi))
-        out = np.empty_like(pts)
-        vals = self.values(field)
-        for a in range(grid.ndim):
-            plus, minus = pts.copy(), pts.copy()
-            plus[:, a] += h[a]
-            minus[:, a] -= h[a]
-            if not per[a]:
-                shift_up = np.maximum(0.0, lo[a] - minus[:, a])
-                shift_dn = np.maximum(0.0, plus[:, a] - hi[a])
-                plus[:, a] += shift_up - shift_dn
-                minus[:, a] += shift_up - shift_dn
-            vp, _ = interpolate(vals, times, grid, tt, plus)
-            vm, _ = interpolate(vals, times, grid, tt, minus)
-            out[:, a] = (vp - vm) / (plus[:, a] - minus[:, a])
-        return out
+        _, grad, loc = self.interpolant(field).value_and_gradient(tt, pts)
+        if outside == "raise" and not loc.inside.all():
+            i = int(np.argmin(loc.inside))
+            grid, times = self.grid(field), self.times(field)
+            raise ValueError(f"query t={tt[i]!r}, point {pts[i].tolist()} lies outside table {self.path} (grid "
+                             f"box {list(grid.lo)}..{list(grid.hi)}, times {times[0]}..{times[-1]}): no gradient "
+                             f"there; pass outside='nearest' to use the nearest grid point")
+        return grad
 
     def _inputs(self, t: Any, x: Any, z: Any, which: str, outside: str) -> np.ndarray:
         if z is not None and self.has_budget:
@@ -282,8 +267,8 @@ class Table:
         pts = _as_points(x, n, "x")
         tt = _as_column(t, len(pts), "t")
         if self.has_budget_surface and not self.has_budget:
-            q, inside = interpolate(self.values("Q_min"), self.times("Q_min"), self.grid("Q_min"), tt, pts)
-            q = np.where(inside & ~no_budget_suffices(q, self.horizon - tt), np.maximum(q, 0.0), np.inf)
+            q = self.interpolant("Q_min").value(tt, pts)
+            q = np.where(np.isfinite(q) & ~no_budget_suffices(q, self.horizon - tt), np.maximum(q, 0.0), np.inf)
             return np.where(self.value(tt, pts) <= 0, 0.0, q)  # RA~_0 from V, as set_mask reads it
         grid = self.grid("W_eps")
         z_nodes = grid.axis(grid.ndim - 1)
@@ -303,26 +288,13 @@ class Table:
                 out[i] = z_nodes[j - 1] + frac * (z_nodes[j] - z_nodes[j - 1])
         return out
 
-    def _slice(self, field: str, t: float, z: float | None = None) -> np.ndarray:
-        """The field interpolated at time ``t`` (and budget ``z``) on its state grid."""
-        times = self.times(field)
-        if not (math.isfinite(t) and times[0] - 1e-9 <= t <= times[-1] + 1e-9):
-            raise ValueError(f"t={t!r} is outside the table's time span [{times[0]}, {times[-1]}]")
-        vals = self.values(field)
-        k = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, max(len(times) - 2, 0)))
-        wt = 0.0 if len(times) == 1 else float(np.clip((t - times[k]) / (times[k + 1] - times[k]), 0, 1))
-        snaps = [(k, 1 - wt)] + ([(k + 1, wt)] if wt > 0 else [])
-        if z is None:
-            return sum(w * np.asarray(vals[j], dtype=np.float64) for j, w in snaps)
-        grid = self.grid(field)
-        dz = grid.spacing[-1]
-        s = (min(z, grid.hi[-1]) - grid.lo[-1]) / dz
-        i = int(np.clip(math.floor(s), 0, grid.shape[-1] - 2))
-        wz = float(np.clip(s - i, 0, 1))
-        out = 0.0
-        for j, w in snaps:
-            out = out + w * ((1 - wz) * np.asarray(vals[j, ..., i], dtype=np.float64) + wz * np.asarray(vals[j, ..., i + 1], dtype=np.float64))
-        return out
+    def slice(self, field: str, t: float, z: float | None = None) -> np.ndarray:
+        """``field`` at time ``t`` on its state grid's nodes, at budget ``z`` for ``W_eps`` (clamped to the budget
+        grid): the raw slice; :meth:`set_mask` applies the budget rule to it.
+
+        :raises ValueError: ``t`` outside the table's time span
+        """
+        return self.interpolant(field).slice(float(t), None if z is None else float(z))
 
     def set_mask(self, t: float = 0.0, budget: float | None = None, margin: float | None = None) -> np.ndarray:
         """The reach-avoid set at time ``t`` as a boolean mask over the state grid.
@@ -340,7 +312,7 @@ class Table:
         * A budget-surface table (``Q_min`` on the state grid): ``RA~_Q = {Q_min(t, x) + margin <= Q}``.
         """
         if budget is None:
-            return self._slice("V", float(t)) <= 0
+            return self.slice("V", float(t)) <= 0
         q = float(budget)
         if not (math.isfinite(q) and q >= 0):
             raise ValueError(f"budget must be a finite number >= 0, got {budget!r}")
@@ -349,8 +321,8 @@ class Table:
         if not self.has_budget and self.has_budget_surface:
             # {Q_min <= 0} is a flat face of Q_min, as {W_eps(., 0) <= 0} is of W_eps: the classical V beside it
             # gives RA~_0 (Prop. 3), and every RA~_Q contains it
-            return (self._slice("Q_min", float(t)) + margin <= q) | (self._slice("V", float(t)) + margin <= 0)
-        return self._slice("W_eps", float(t), max(q, self.budget_resolution)) + margin <= 0
+            return (self.slice("Q_min", float(t)) + margin <= q) | (self.slice("V", float(t)) + margin <= 0)
+        return self.slice("W_eps", float(t), max(q, self.budget_resolution)) + margin <= 0
 
     def contains(self, t: Any, x: Any, budget: Any = None) -> np.ndarray:
         """Membership of states in the set :meth:`set_mask` draws, by the same rule evaluated at the states

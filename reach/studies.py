@@ -75,7 +75,7 @@ def grid_convergence(sizes: Sequence[int], budget_points: int = 200, samples: in
         table = _solve(model, (n, n), budget_points, 1e-3, accuracy, workdir / f"grid_{n}_{budget_points}_{accuracy}.srt")
         axes = table.state_axes("V")
         ra_lines = _zero_contour(axes, np.asarray(table.values("V")[0], dtype=np.float64))
-        soft = table._slice("W_eps", 0.0, table.budget_resolution)
+        soft = table.slice("W_eps", 0.0, table.budget_resolution)
         soft_lines = _zero_contour(axes, soft)
         pts = _sample_on(ra_lines, samples, rng)
         dist = _distance_to(pts, soft_lines)

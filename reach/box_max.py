@@ -1,0 +1,124 @@
+"""The exact maximum of a table's interpolant over boxes of states: the safety filter's one-period test
+(:mod:`softreach.reach.lookahead`) bounds the certificate over where holding an action can go."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .grid import Grid
+from .interpolation import snapshot_pair
+
+
+def box_max(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray, lo: np.ndarray,
+            hi: np.ndarray, max_nodes: int = 3) -> np.ndarray:
+    """The exact maximum of the interpolant at time ``t[j]`` over the box ``[lo[j], hi[j]]``, per row.
+
+    At a fixed time the interpolant is multilinear inside each grid cell, so over a box its maximum is reached at a
+    corner of one of the sub-boxes that the grid lines cut the box into: the candidates along an axis are the
+    box's two ends and the grid nodes strictly between them. Rows whose box holds more than ``max_nodes`` nodes
+    along some axis take the largest node value of every cell the box touches instead (an upper bound: inside a
+    cell the interpolant is a convex combination of the cell's node values). A box that leaves the grid gets
+    ``+inf``.
+
+    :param values: ``(len(times), *grid.shape)``
+    :param t: ``(N,)`` query times, inside the table's span
+    :param lo: ``(N, d)`` lower corners
+    :param hi: ``(N, d)`` upper corners (``>= lo``)
+    :param max_nodes: the most grid nodes inside a box, per axis, for the exact (candidate) evaluation
+    :return: ``(N,)`` float64
+    """
+    N, d = lo.shape
+    out = np.full(N, -np.inf)
+    ok = np.ones(N, bool)
+    inside_all = np.ones(N, bool)
+    axes = []
+    for a in range(d):
+        h = grid.spacing[a]
+        s_lo = (lo[:, a] - grid.lo[a]) / h
+        s_hi = (hi[:, a] - grid.lo[a]) / h
+        if not grid.periodic[a]:
+            tol = 1e-9 * max(1.0, grid.shape[a])
+            inside_all &= (s_lo >= -tol) & (s_hi <= grid.shape[a] - 1 + tol)
+        first = np.floor(s_lo).astype(np.int64) + 1  # the first node strictly above lo (or lo itself, once)
+        count = np.maximum(np.ceil(s_hi).astype(np.int64) - first, 0)  # nodes strictly inside (lo, hi)
+        ok &= count <= max_nodes
+        axes.append((first, count))
+    ok &= inside_all
+    counts = np.stack([c for _, c in axes], axis=1)  # (N, d)
+    rows = np.nonzero(ok)[0]
+    if len(rows):
+        # rows with the same number of inner nodes per axis share one block shape: evaluate them together
+        key = counts[rows] @ (max_nodes + 1) ** np.arange(d)
+        for g in np.unique(key):
+            sel = rows[key == g]
+            cnt = counts[sel[0]]
+            out[sel] = _block_max(values, times, grid, t[sel], lo[sel], hi[sel], [f[sel] for f, _ in axes],
+                                  cnt + 2)
+    out[~inside_all] = np.inf
+    for r in np.nonzero(~ok & inside_all)[0]:
+        # a wide box: every node of every cell it touches, at both snapshots around t
+        sl = []
+        for a in range(d):
+            h = grid.spacing[a]
+            i0 = int(np.floor((lo[r, a] - grid.lo[a]) / h))
+            i1 = int(np.ceil((hi[r, a] - grid.lo[a]) / h))
+            if grid.periodic[a]:
+                sl.append(np.arange(i0, i1 + 1) % grid.shape[a])
+            else:
+                sl.append(np.arange(max(i0, 0), min(i1, grid.shape[a] - 1) + 1))
+        k = int(snapshot_pair(np.asarray(times, dtype=np.float64), t[r:r + 1])[0][0])
+        ks = [k] if len(times) == 1 else [k, k + 1]
+        out[r] = max(float(np.max(np.asarray(values[kk])[np.ix_(*sl)])) for kk in ks)
+    return out
+
+
+def _block_max(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+               first: list[np.ndarray], L: np.ndarray) -> np.ndarray:
+    """:func:`box_max` for boxes that hold ``L[a] - 2`` grid nodes along each axis ``a``: gather the ``L[a]`` nodes
+    around each box once (a block per row), interpolate in time, then along each axis onto the candidates (the
+    box's ends and its inner nodes; two weights each), and take the largest."""
+    R, d = lo.shape
+    n_t = len(times)
+    flat = values.reshape(n_t, -1) if isinstance(values, np.ndarray) else values
+    if isinstance(flat, np.memmap):
+        flat = flat.view(np.ndarray)
+    strides = [int(np.prod(grid.shape[a + 1:])) for a in range(d)]
+    lin = np.zeros((R,) + (1,) * d, np.int64)
+    mats = []
+    for a in range(d):
+        n, h, La = grid.shape[a], grid.spacing[a], int(L[a])
+        s_lo = (lo[:, a] - grid.lo[a]) / h
+        s_hi = (hi[:, a] - grid.lo[a]) / h
+        if grid.periodic[a]:
+            b0 = np.floor(s_lo).astype(np.int64)
+        else:
+            s_lo, s_hi = np.clip(s_lo, 0.0, n - 1), np.clip(s_hi, 0.0, n - 1)
+            b0 = np.clip(np.floor(s_lo).astype(np.int64), 0, n - La)
+        nodes = b0[:, None] + np.arange(La)[None, :]
+        if grid.periodic[a]:
+            nodes = nodes % n
+        shape = [R] + [1] * d
+        shape[1 + a] = La
+        lin = lin + (nodes * strides[a]).reshape(shape)
+        # the candidates in block units: lo, the inner nodes, hi
+        rel = np.concatenate([(s_lo - b0)[:, None], (first[a][:, None] + np.arange(La - 2)[None, :]) - b0[:, None],
+                              (s_hi - b0)[:, None]], axis=1)
+        rel = np.clip(rel, 0.0, La - 1)
+        r = np.minimum(np.floor(rel).astype(np.int64), La - 2)
+        f = rel - r
+        M = np.zeros((R, La, La))
+        rows = np.arange(R)[:, None]
+        cols = np.arange(La)[None, :]
+        M[rows, cols, r] = 1.0 - f
+        M[rows, cols, r + 1] += f
+        mats.append(M)
+    k, wt, _, _ = snapshot_pair(np.asarray(times, dtype=np.float64), t)
+    idx = lin.reshape(R, -1)
+    block = flat[k[:, None], idx] * (1.0 - wt)[:, None]
+    if np.any(wt):
+        block += flat[np.minimum(k + 1, n_t - 1)[:, None], idx] * wt[:, None]
+    V = block.reshape((R,) + tuple(int(x) for x in L))
+    for a in range(d):
+        # contract axis 1 + a of the block with the candidates' weights; the candidate axis takes its place
+        V = np.moveaxis(np.einsum("rjl,rl...->rj...", mats[a], np.moveaxis(V, 1 + a, 1)), 1, 1 + a)
+    return V.reshape(R, -1).max(axis=1)
