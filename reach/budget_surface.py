@@ -26,18 +26,29 @@ most ``0``. The schemes see a jump of ``cap`` at the edge of the feasible set; W
 oscillation and the monotone Lax-Friedrichs flux smears it over about a cell, which blurs the sets' edges by a
 cell, as the ``W_eps`` solve does (``benchmarks/grade_pointmass.py`` measures both against the exact sets).
 
+**The feasible set, solved first.** Where no budget suffices is itself a reach-avoid set with no running cost:
+reach the target inside ``C2`` while staying in ``C1`` (:class:`FeasibilityProblem`), whose value ``V_feas`` is
+continuous, so its scheme has no jump to smear. :func:`solve_budget_surface` solves it first and stores
+``cap + V_feas`` in every snapshot of ``Q_min`` wherever ``V_feas > 0``: the smeared jump can no longer pull ``Q_min``
+below the time left outside the feasible set, which is where the unmasked solve claimed infeasible states. Above the
+cap the stored value still reads as "no budget suffices", and its slope, ``V_feas``'s, gives the feedback there the
+direction back towards the feasible set. The march itself runs
+unmasked (masking every stage as well was measured slightly looser, ``docs/budget_surface.md``).
+
 Costs: one state-grid solve instead of ``n_z`` (111 to 200) times that, so the same memory buys a far finer state
-grid.
+grid; the feasible set adds one more.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Sequence
 
 from . import backend as B
 from .dynamics import Components, Dynamics
+from .grid import Grid
 from .problem import Array, Model, ReachAvoidProblem
+from .solver import SnapshotSink, SolverSettings, solve
 
 
 class RunningCost(Dynamics):
@@ -107,3 +118,49 @@ def budget_problem(model: Model, eps: float = 1e-3) -> BudgetSurfaceProblem:
 def no_budget_suffices(q: Any, time_left: Any) -> Any:
     """Where a solved ``Q_min`` says that no budget suffices: above the time left (the capped values)."""
     return q > time_left + 1e-9
+
+
+@dataclass(frozen=True)
+class FeasibilityProblem(ReachAvoidProblem):
+    """Whether any budget suffices: reach the target inside ``C2`` at some ``tau <= T``, staying in ``C1``.
+
+    ``{V_feas <= 0}`` is ``{Q_min < inf}``: a run that does this spends at most the time left, and every finite
+    ``Q_min`` comes from such a run.
+    """
+
+    def target_function(self, t: float, x: Components) -> Array:
+        return B.maximum(self.model.target(t, x), self.model.soft_constraint(t, x))
+
+    def constraint_function(self, t: float, x: Components) -> Array:
+        return self.model.hard_constraint(t, x)
+
+    def floor_function(self, t: float, x: Components) -> Array | None:
+        return None
+
+
+def feasibility_problem(model: Model) -> FeasibilityProblem:
+    return FeasibilityProblem(dynamics=model, model=model, kind="feasibility")
+
+
+def solve_budget_surface(problem: BudgetSurfaceProblem, grid: Grid, times: Sequence[float],
+                         settings: SolverSettings | None = None, *, sink: SnapshotSink | None = None,
+                         start: tuple[int, Array] | None = None, progress: Any = None) -> Array:
+    """:func:`softreach.reach.solver.solve` for ``Q_min``, with ``cap`` wherever the feasible set, solved first at the
+    same output times, says that no budget suffices (module docstring). Arguments as there."""
+    settings = settings or SolverSettings()
+    feasibility: dict[int, Array] = {}
+
+    def keep(k: int, t: float, u: Array) -> None:
+        feasibility[k] = u
+
+    solve(feasibility_problem(problem.model), grid, times, settings, sink=keep)
+
+    def masked(k: int, t: float, u: Array) -> Array:
+        v = feasibility[k]
+        return B.where(v > 0, problem.cap + v, u)
+
+    def forward(k: int, t: float, u: Array) -> None:
+        if sink is not None:
+            sink(k, t, masked(k, t, u))
+
+    return masked(0, times[0], solve(problem, grid, times, settings, sink=forward, start=start, progress=progress))

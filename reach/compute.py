@@ -14,7 +14,7 @@ import numpy as np
 from . import backend as B
 from .grid import Grid, budget_axis
 from .problem import Model, avoid_problem, check_edges, classical_problem, soft_problem
-from .budget_surface import budget_problem
+from .budget_surface import budget_problem, solve_budget_surface
 from .held import consistency_gaps, make_consistent, solve_held
 from .solver import SolverSettings, solve
 from .table import TableWriter
@@ -191,7 +191,9 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
                 solve_held(problem, grid, times, cfg.settings, np.asarray(controls), start=start, progress=bar,
                            sink=sink)
             else:
-                solve(problem, grid, times, cfg.settings, start=start, progress=bar, sink=sink)
+                # Q_min takes cap wherever its feasible set, solved first, says that no budget suffices
+                run = solve_budget_surface if name == "Q_min" else solve
+                run(problem, grid, times, cfg.settings, start=start, progress=bar, sink=sink)
             walls[name] = before + time.perf_counter() - t0
             if bar is not None:
                 bar.close()
