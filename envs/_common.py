@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -21,7 +22,8 @@ import numpy as np
 import gymnasium as gym
 from gymnasium import spaces
 
-from softreach.reach.integrator import ScalarModel, _integrate_period_scalar, _rates, integrate_period, scalar_model
+from softreach.reach.integrator import (ScalarModel, _integrate_period_scalar, _rates, episode_ends, integrate_period,
+                                        scalar_model)
 from softreach.reach.problem import Model
 
 from .actions import ActionMapping
@@ -141,6 +143,7 @@ class LandingEnv(ActionMapping, WindInputs, Rendering, gym.Env):
         # the model's scalar fast path (looked up at each reset) and h_eps at the current (t, x), reused as the
         # first RK4 stage of the next step: (t, x, rate), x compared by identity
         self._fast: ScalarModel | None = None
+        self._fast_event = None
         self._rate_now: tuple[float, Any, float] | None = None
 
     # ------------------------------------------------------------------------------------------ checks
@@ -204,6 +207,8 @@ class LandingEnv(ActionMapping, WindInputs, Rendering, gym.Env):
             raise ValueError(f"options['time'] must be a start time in [0, T) = [0, {self.horizon}) s, got {t0!r}")
         self._x, self._q, self._z, self._t = x, q, q, float(t0)
         fast = self._fast = scalar_model(self.model)
+        # the sub-steps' end test, bound once: a partial costs no Python frame of its own per sub-step
+        self._fast_event = None if fast is None else partial(episode_ends, fast)
         if fast is not None:
             self._g = fast.target(self._t, x)
             rate = fast.violation_rate(self._t, x, self.eps)
@@ -245,7 +250,7 @@ class LandingEnv(ActionMapping, WindInputs, Rendering, gym.Env):
         rate0 = known[2] if known is not None and known[0] == t and known[1] is x0 else None
         if fast is not None:
             x, cost, rate_end, h = _integrate_period_scalar(fast, model, t, x0, a, b, h, self.n_substeps, self.eps,
-                                                            self.budget_resolution, rate0, self._event)
+                                                            self.budget_resolution, rate0, self._fast_event)
         else:
             x, cost, rate_end, h = integrate_period(model, t, x0, a, b, h, self.n_substeps, self.eps,
                                                     self.budget_resolution, fast=None, stop=self._event)
@@ -292,16 +297,9 @@ class LandingEnv(ActionMapping, WindInputs, Rendering, gym.Env):
                 info)
 
     def _event(self, t: float, x: list[float], rate: float) -> bool:
-        """Does the episode end at this substep end: out of ``C1``, or landed (target, inside ``C2``)?"""
-        fast = self._fast
-        if fast is not None:
-            if fast.hard_constraint(t, x) > 0.0:
-                return True
-            return rate == 0.0 and fast.target(t, x) <= 0.0
-        xs = [np.float64(v) for v in x]
-        if float(self.model.hard_constraint(t, xs)) > 0.0:
-            return True
-        return rate == 0.0 and float(self.model.target(t, xs)) <= 0.0
+        """Does the episode end at this sub-step end: :func:`~softreach.reach.integrator.episode_ends`, the
+        rollouts' rule (a model with a scalar fast path gets it bound to that at reset, ``_fast_event``)."""
+        return bool(episode_ends(self.model, t, [np.float64(v) for v in x], rate))
 
     def _get_obs(self) -> np.ndarray:
         # step() builds the same observation inline

@@ -71,12 +71,18 @@ def episode_ends(model: Model, t: float, x: Sequence[Any], rate: Any) -> Any:
     """The environments' events at a sub-step end: out of ``C1``, or landed (in the target with ``h_eps = 0``,
     i.e. inside ``C2``).
 
+    :param model: a :class:`Model`, or its :class:`ScalarModel` for one state in Python floats
     :param x: the state(s), one float or array per component
     :param rate: ``h_eps`` there
     :return: a bool, or a mask over the states
     """
-    return (np.asarray(model.hard_constraint(t, x)) > 0.0) | (
-        (np.asarray(rate) == 0.0) & (np.asarray(model.target(t, x)) <= 0.0))
+    hard = model.hard_constraint(t, x) > 0.0
+    # one state (the envs' sub-steps, in Python floats first): short-circuit, the target only where it decides
+    if hard is False:
+        return rate == 0.0 and model.target(t, x) <= 0.0
+    if hard is True or type(hard) is np.bool_:
+        return hard or (rate == 0.0 and model.target(t, x) <= 0.0)
+    return np.asarray(hard) | ((np.asarray(rate) == 0.0) & (np.asarray(model.target(t, x)) <= 0.0))
 
 
 class BatchPeriod(NamedTuple):
