@@ -7,8 +7,8 @@
 * :func:`safety_filter` wraps an environment in :class:`~softreach.filters.SafetyFilter`, computing the
   filter's margin field once per table and sharing it between environments (one margin field is several
   seconds of work and up to a few hundred MB; a vectorised training run holds many environments).
-* :func:`sample_inside`, :func:`paper_starts`, :func:`sample_uniform`: the start distributions of
-  ``softreach evaluate --starts inside|paper|uniform``.
+* :func:`sample_inside`, :func:`paper_starts` (:mod:`softreach.reach.starts`, the pickers the plots use too),
+  :func:`sample_uniform`: the start distributions of ``softreach evaluate --starts inside|paper|uniform``.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from softreach.reach import Table, load_table
+from softreach.reach.starts import paper_starts, sample_inside  # noqa: F401  (the start distributions, re-exported)
 
 def as_table(table: Table | str | Any) -> Table:
     """A loaded :class:`Table` (``table`` itself, or the file it names)."""
@@ -131,67 +132,6 @@ def start_value(table: Table, x: Sequence[float], q: float, t: float = 0.0) -> f
     """``W_eps(t, x, max(Q, r))`` at a start (``+inf`` outside the table)."""
     z = max(float(q), table.budget_resolution)
     return float(table.value(t, np.asarray(x, dtype=np.float64)[None, :], np.array([z]))[0])
-
-
-def sample_inside(table: Table, q: float, rng: np.random.Generator, t: float = 0.0, tries: int = 100) -> np.ndarray:
-    """A random state of ``RA~_Q`` at time ``t``.
-
-    A node of :meth:`Table.set_mask` is drawn uniformly and moved uniformly within half a grid cell; the move is
-    kept if the state is still in the set (:func:`in_set`), else another draw is made (after ``tries``
-    rejections the node itself, which is in the set by definition).
-
-    :raises ValueError: when ``RA~_Q`` is empty on the table's grid
-    """
-    mask = table.set_mask(t, float(q))
-    nodes = np.argwhere(mask)
-    if len(nodes) == 0:
-        raise ValueError(f"RA~_Q is empty for Q={q:g} at t={t:g} in table {table.path}; no 'inside' start exists")
-    axes = table.state_axes("W_eps")
-    h = np.array([a[1] - a[0] for a in axes])
-    node = None
-    for _ in range(tries):
-        idx = nodes[rng.integers(len(nodes))]
-        node = np.array([axes[d][idx[d]] for d in range(len(axes))])
-        x = node + rng.uniform(-0.5, 0.5, size=len(h)) * h
-        if in_set(table, x, q, t):
-            return x
-    return node
-
-
-def paper_starts(table: Table, budgets: Sequence[float], t: float = 0.0, depth: float = 0.5) -> list[tuple[np.ndarray, float]]:
-    """The paper's representative starts (Fig. 1, 5, 6-9): one per budget ``Q``, high up in ``RA~_Q``.
-
-    For each ``Q`` (in increasing order): among the grid nodes of ``RA~_Q`` that need that budget (outside the
-    set of the previous budget, where that leaves any), those at least ``depth`` times as deep as the deepest
-    (``W`` is negative inside; this keeps the point off the set's jagged grid boundary), then the highest of
-    them (the largest :meth:`~softreach.reach.problem.Model.start_difficulty`: the altitude for the landings),
-    then the deepest. The paper picks its points on the sets' boundaries and does not
-    print them; this picks comparable points reproducibly. The start's budget is ``Q`` itself.
-
-    :return: ``[(x, Q), ...]`` for the budgets whose set is not empty
-    """
-    model = table.model
-    axes = table.state_axes("W_eps")
-    grids = np.meshgrid(*axes, indexing="ij")
-    difficulty = np.broadcast_to(np.asarray(model.start_difficulty(grids), dtype=np.float64), grids[0].shape)
-    out = []
-    prev = None
-    for q in sorted(float(b) for b in budgets):
-        mask = table.set_mask(t, q)
-        if not mask.any():
-            prev = mask
-            continue
-        cand = mask & ~prev if prev is not None and (mask & ~prev).any() else mask
-        w = table.slice("W_eps", t, max(q, table.budget_resolution))
-        floor = float(np.where(cand, w, np.inf).min())
-        deep = cand & (w <= depth * floor) if floor < 0 else cand
-        idx = np.argwhere(deep)
-        score = difficulty[tuple(idx.T)]
-        idx = idx[score == score.max()]
-        best = idx[np.argmin([w[tuple(i)] for i in idx])]
-        out.append((np.array([axes[d][best[d]] for d in range(len(axes))]), q))
-        prev = mask
-    return out
 
 
 def uniform_box(model: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -26,20 +26,12 @@ def _set_region(ax, model, axes, fn, t, **kw):
     return X, Y, vals
 
 
-def representative_starts(table, budgets: Sequence[float], t: float = 0.0, margin: float = 0.05) -> list[tuple[tuple[float, ...], float]]:
-    """The paper's representative initial conditions (Fig. 1): for each budget, the highest state of ``RA~_Q``
-    whose value is at most ``-margin`` (just inside the boundary, so that the grid's error does not decide)."""
-    axes = table.state_axes("W_eps" if table.has_budget else "V")
-    mesh = np.meshgrid(*axes, indexing="ij")
-    pts = np.stack([m.ravel() for m in mesh], axis=1)
-    out = []
-    for q in budgets:
-        mask = table.set_mask(t, q).ravel()
-        w = table.value(t, pts, np.full(len(pts), max(q, table.budget_resolution)))
-        cand = pts[mask & (w <= -margin)]
-        if len(cand):
-            out.append((tuple(float(v) for v in cand[np.argmax(cand[:, -1] if table.model.state_dim == 2 else cand[:, 0])]), float(q)))
-    return out
+def representative_starts(table, budgets: Sequence[float], t: float = 0.0) -> list[tuple[tuple[float, ...], float]]:
+    """The paper's representative initial conditions (Fig. 1): :func:`softreach.reach.starts.paper_starts`, the
+    starts ``softreach evaluate --starts paper`` runs from, as tuples."""
+    from .starts import paper_starts
+
+    return [(tuple(float(v) for v in x), q) for x, q in paper_starts(table, budgets, t)]
 
 
 def plot_sets_2d(table, budgets: Sequence[float], out: str | Path, t: float = 0.0,

@@ -57,52 +57,18 @@ def highest_node(table, mask: np.ndarray, axis: int = 0) -> float | None:
     return float(table.state_axes("V" if "V" in table.fields else "W_eps")[axis][idx])
 
 
-def pick_starts(table, budgets: Sequence[float], t: float = 0.0, depth: float = 0.9,
-                panel_axes: tuple[int, int] = (1, 0)) -> list[tuple[tuple[float, ...], float]]:
-    """One representative start per budget, as in the paper's Fig. 6-8: for each ``Q`` a grid node of ``RA~_Q``
-    that needs the budget, as high as possible while well inside the set.
-
-    "Needs the budget": outside the set of the next smaller budget in ``budgets``, preferably outside its
-    projection onto the panel (so that the start is visibly new in the figure); when no node qualifies, the
-    whole set. "Well inside": among the candidate nodes, those whose ``W_eps(t, x, Q)`` is at most ``depth``
-    times the smallest value among them (``W`` is negative inside); of those the highest (largest coordinate
-    along the panel's vertical axis), then the one with the smallest ``W``. The start's budget is ``Q``.
-
-    ``depth = 0.9`` keeps the nodes within 10% of the deepest value. The top of the glider's sets is where the 10 s
-    horizon binds, and there the value's margin (speed and flight-path distances) says nothing about time to
-    spare: at ``depth = 0.7`` the default table's ``Q = 10`` start (33 m) does not land by the horizon under
-    the gradient control, at 0.8-1.0 every start lands (measured on 91 x 29 x 31 x 31, very_high).
+def pick_starts(table, budgets: Sequence[float], t: float = 0.0, depth: float | None = None,
+                panel_axes: tuple[int, int] | None = None) -> list[tuple[tuple[float, ...], float]]:
+    """One representative start per budget, as in the paper's Fig. 6-8: :func:`softreach.reach.starts.paper_starts`
+    (a node of ``RA~_Q`` outside the projection of the next smaller set onto the panel, among the deepest of
+    ``W_eps``, the highest such), the starts ``softreach evaluate --starts paper`` runs from, as tuples.
 
     :return: ``[(x, Q), ...]``, one entry per budget whose set is not empty
     """
-    grid = table.grid("W_eps")
-    n = grid.ndim - 1
-    axes = [grid.axis(i) for i in range(n)]
-    ix, iy = panel_axes
-    iz = [i for i in range(n) if i not in (ix, iy)][0]
-    out = []
-    ordered = sorted(float(q) for q in budgets)
-    prev_mask = None
-    for q in ordered:
-        mask = table.set_mask(t, q)
-        if not mask.any():
-            prev_mask = mask
-            continue
-        cand = mask
-        if prev_mask is not None:
-            outside_proj = mask & ~np.expand_dims(project(prev_mask, axis=iz), iz)
-            cand = outside_proj if outside_proj.any() else (mask & ~prev_mask if (mask & ~prev_mask).any() else mask)
-        w = table.slice("W_eps", t, max(q, table.budget_resolution))
-        wc = np.where(cand, w, np.inf)
-        floor = float(wc.min())
-        deep = cand & (w <= depth * floor) if floor < 0 else cand
-        idx = np.argwhere(deep)
-        top = idx[:, iy].max()
-        idx = idx[idx[:, iy] == top]
-        best = idx[np.argmin([w[tuple(i)] for i in idx])]
-        out.append((tuple(float(axes[d][best[d]]) for d in range(n)), q))
-        prev_mask = mask
-    return out
+    from .starts import START_DEPTH, paper_starts
+
+    picks = paper_starts(table, budgets, t, START_DEPTH if depth is None else depth, panel_axes)
+    return [(tuple(float(v) for v in x), q) for x, q in picks]
 
 
 def _fill(ax, X, Y, mask, colour, alpha=1.0, zorder=1):

@@ -297,53 +297,70 @@ class Table:
         return self.interpolant(field).slice(float(t), None if z is None else float(z))
 
     def set_mask(self, t: float = 0.0, budget: float | None = None, margin: float | None = None) -> np.ndarray:
-        """The reach-avoid set at time ``t`` as a boolean mask over the state grid.
+        """The reach-avoid set at time ``t`` as a boolean mask over the state grid (:meth:`_in_set`'s rule at the
+        nodes).
 
-        * ``budget=None``: the classical ``RA = {V <= 0}``.
+        * ``budget=None``: the classical ``RA = {V + margin <= 0}``.
         * ``budget=Q``: ``RA~_Q = {W_eps(t, x, max(Q, r)) + margin <= 0}`` with ``r`` the
           :attr:`budget_resolution`. The exact ``W_eps(t, x, 0)`` is ``>= 0`` everywhere (``l >= -kappa z``), so
           ``RA~_0`` is the flat face ``{W_eps = 0}`` of the set in ``(x, z)``: a slice along it is ill-posed on a
           grid. It is taken as the limit from above (``RA~_0 = ∩_{Q>0} RA~_Q``, Prop. 4) at the smallest budget
           the grid resolves, half a budget cell.
         * ``margin`` (value units) defaults to 0 for every budget, which keeps the sets nested in ``Q`` (Prop. 4).
-          The paper's proxy for ``Q > 0`` (§VI-A: ``W_eps + 1e-3 <= 0`` with ``kappa = 1``, i.e. one millisecond of
-          budget) is ``margin = paper_proxy_margin()``; applied to ``Q > 0`` only it would break the nesting with
-          ``Q = 0`` at a few boundary nodes.
-        * A budget-surface table (``Q_min`` on the state grid): ``RA~_Q = {Q_min(t, x) + margin <= Q}``.
+          The paper's conservative proxy for ``Q > 0`` (§VI-A) is ``W_eps + 1e-3 <= 0`` with ``kappa = 1``: one
+          millisecond of budget. Here ``W_eps`` is scaled by the table's ``kappa`` (:attr:`budget_scale`), so the
+          proxy is ``W_eps + kappa * 1e-3 <= 0``, ``margin = paper_proxy_margin()`` (0.05 for the point mass,
+          ``kappa = 50``). Applied to ``Q > 0`` only it would break the nesting with ``Q = 0`` at a few boundary
+          nodes.
+        * A budget-surface table (``Q_min`` on the state grid): ``RA~_Q = {Q_min(t, x) + margin <= Q}`` (where
+          ``Q_min`` says some budget suffices), together with ``RA``.
         """
+        if margin is None:
+            margin = 0.0
         if budget is None:
-            return self.slice("V", float(t)) <= 0
+            return self._in_set(lambda field, z: self.slice(field, t), None, margin, t)
         q = float(budget)
         if not (math.isfinite(q) and q >= 0):
             raise ValueError(f"budget must be a finite number >= 0, got {budget!r}")
-        if margin is None:
-            margin = 0.0
-        if not self.has_budget and self.has_budget_surface:
-            # {Q_min <= 0} is a flat face of Q_min, as {W_eps(., 0) <= 0} is of W_eps: the classical V beside it
-            # gives RA~_0 (Prop. 3), and every RA~_Q contains it
-            return (self.slice("Q_min", float(t)) + margin <= q) | (self.slice("V", float(t)) + margin <= 0)
-        return self.slice("W_eps", float(t), max(q, self.budget_resolution)) + margin <= 0
+        return self._in_set(lambda field, z: self.slice(field, t, z), q, margin, float(t))
 
-    def contains(self, t: Any, x: Any, budget: Any = None) -> np.ndarray:
-        """Membership of states in the set :meth:`set_mask` draws, by the same rule evaluated at the states
-        themselves (interpolated): ``RA`` with ``budget=None``, else ``RA~_Q``. Off the table: not contained.
+    def contains(self, t: Any, x: Any, budget: Any = None, margin: float = 0.0) -> np.ndarray:
+        """Membership of states in the set :meth:`set_mask` draws, by the same rule (:meth:`_in_set`) evaluated at
+        the states themselves (interpolated): ``RA`` with ``budget=None``, else ``RA~_Q``. Off the table: not
+        contained.
 
         :param x: ``(N, n)`` or ``(n,)`` states; ``t`` and ``budget`` scalars or ``(N,)``
         """
         n = len(self.model_metadata["state_names"])
         pts = _as_points(x, n, "x")
         tt = _as_column(t, len(pts), "t")
+
+        def read(field: str, z: Any) -> np.ndarray:
+            X = pts if z is None else np.concatenate([pts, np.broadcast_to(z, (len(pts),))[:, None]], axis=1)
+            return self.interpolant(field).value(tt, X)
+
         if budget is None:
-            return self.value(tt, pts) <= 0
+            return self._in_set(read, None, margin, tt)
         q = _as_column(budget, len(pts), "budget")
         if np.any(q < 0):
             raise ValueError(f"budget must be >= 0, got {q[q < 0][0]!r}")
+        return self._in_set(read, q, margin, tt)
+
+    def _in_set(self, read: Any, q: Any, margin: float, t: Any) -> np.ndarray:
+        """The one membership rule of :meth:`set_mask` (nodes) and :meth:`contains` (states), on values that
+        ``read(field, z)`` gives at the nodes or at the states, at budget ``z`` along ``W_eps``'s last axis."""
+        if q is None:
+            return read("V", None) + margin <= 0
         if not self.has_budget and self.has_budget_surface:
-            return self.q_min(tt, pts) <= q
-        return self.value(tt, pts, np.maximum(q, self.budget_resolution)) <= 0
+            # {Q_min <= 0} is a flat face of Q_min, as {W_eps(., 0) <= 0} is of W_eps: the classical V beside it
+            # gives RA~_0 (Prop. 3), and every RA~_Q contains it
+            qm = read("Q_min", None)
+            return ((qm + margin <= q) & ~no_budget_suffices(qm, self.horizon - t)) | (read("V", None) + margin <= 0)
+        return read("W_eps", np.maximum(q, self.budget_resolution)) + margin <= 0
 
     def paper_proxy_margin(self) -> float:
-        """The paper's ``1e-3`` proxy level in this table's value units (``kappa * 1 ms`` of budget)."""
+        """The margin of the paper's proxy ``W_eps + 1e-3 <= 0`` (``kappa = 1`` there) in this table's value units:
+        ``kappa * 1e-3``, one millisecond of budget (see :meth:`set_mask`)."""
         return self.budget_scale * PAPER_PROXY_SECONDS
 
     def cell_volume(self, field: str | None = None) -> float:
