@@ -51,6 +51,15 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--action-label", choices=("policy", "applied"), default=None,
                    help="SAC: store the policy's or the applied action in the replay buffer (default policy)")
     p.add_argument("--eval-freq", type=int, default=None, help="steps between periodic evaluations (0: none)")
+    p.add_argument("--pretrain-steps", type=int, default=None,
+                   help="with --filter: steps learned without the filter first (a curriculum; default: the "
+                        "model's, see softreach.agents.config)")
+    p.add_argument("--eval-filter", metavar="TABLE", default=None,
+                   help="filter table of the periodic evaluations, which pick best_model.zip (default: --filter's); "
+                        "without --filter: train unfiltered, evaluate as deployed")
+    p.add_argument("--init", metavar="POLICY", default=None,
+                   help="start from this saved policy's weights (same model and algorithm), e.g. one trained "
+                        "without the filter")
     p.add_argument("--out", metavar="DIR", default=None,
                    help="output directory (default runs/train/<model>-<algo>-<filtered|unfiltered>-s<seed>)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -119,6 +128,8 @@ def run_train(args: argparse.Namespace) -> int:
         run_over["intervention_penalty"] = args.intervention_penalty
     if args.eval_freq is not None:
         run_over["eval_freq"] = args.eval_freq
+    if args.pretrain_steps is not None:
+        run_over["pretrain_steps"] = args.pretrain_steps
     algo_over: dict[str, Any] = {}
     if args.action_label is not None:
         if args.algo != "sac":
@@ -126,7 +137,8 @@ def run_train(args: argparse.Namespace) -> int:
         algo_over["action_label"] = args.action_label
     spec = TrainSpec(model=args.model, algo=args.algo, filter=args.filter, rule=args.rule, budget=args.budget,
                      wind=args.wind, table=args.table, timesteps=args.timesteps, n_envs=args.n_envs, seed=args.seed,
-                     out=args.out, progress=not args.quiet, run_overrides=run_over, algo_overrides=algo_over)
+                     out=args.out, progress=not args.quiet, init=args.init, eval_filter=args.eval_filter,
+                     run_overrides=run_over, algo_overrides=algo_over)
     res = train(spec)
     print(f"trained {res.timesteps} steps in {res.wall_time_s:.0f} s ({res.timesteps / max(res.wall_time_s, 1e-9):.0f} steps/s)")
     print(f"policy: {res.model_path}" + (f"  best: {res.best_model_path}" if res.best_model_path else ""))

@@ -109,6 +109,9 @@ class RunConfig:
     :param wind: the training wind (``"none"``, ``"random"``, ``"adversarial"``)
     :param budget: the budget ``Q`` of each training episode: ``None`` for the environment's default
         distribution (point mass ``U[0, 0.6]`` s), a number, or a ``(low, high)`` range
+    :param pretrain_steps: with a filter, steps learned **without** it first (a curriculum: the policy learns
+        to fly by itself, with crashes costing reward, then ``timesteps`` more steps under the filter); the
+        periodic evaluations run the deployed closed loop (with the filter) throughout. 0: all under the filter
     """
 
     timesteps: int = 500_000
@@ -120,6 +123,7 @@ class RunConfig:
     intervention_penalty: float = 1.0
     wind: str = "random"
     budget: float | tuple[float, float] | None = None
+    pretrain_steps: int = 0
 
 
 @dataclass(frozen=True)

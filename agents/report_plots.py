@@ -174,6 +174,10 @@ def learning_data(run_dir: str | Path) -> dict[str, Any]:
         d = np.load(ev)
         data["eval"] = {"timesteps": d["timesteps"], "returns": d["results"],
                         "successes": d["successes"] if "successes" in d.files else None}
+    iv = run_dir / "eval" / "interventions.npz"
+    if iv.is_file():
+        d = np.load(iv)
+        data["interventions"] = {"timesteps": d["timesteps"], "rate": d["intervention_rate"]}
     rows = []
     for f in sorted((run_dir / "monitor").glob("train-*.monitor.csv")):
         import csv
@@ -192,12 +196,20 @@ def learning_data(run_dir: str | Path) -> dict[str, Any]:
 
 def plot_learning_curves(run_dir: str | Path, out: str | Path) -> Path | None:
     """Return and landing rate over training: periodic evaluations (mean and spread) and a running mean of the
-    training episodes. ``None`` if the run left no curves."""
+    training episodes; where the evaluations ran under the safety filter, the share of steps it acted. ``None``
+    if the run left no curves."""
     data = learning_data(run_dir)
     if not data:
         return None
     plt = _plt()
-    fig, axs = plt.subplots(1, 2, figsize=(11, 4))
+    panels = 3 if "interventions" in data else 2
+    fig, axs = plt.subplots(1, panels, figsize=(5.5 * panels, 4))
+    if "interventions" in data:
+        iv = data["interventions"]
+        axs[2].plot(iv["timesteps"], iv["rate"], "o-", color="tab:purple", label="evaluation (deployed, filtered)")
+        axs[2].set_xlabel("environment steps")
+        axs[2].set_ylabel("share of steps the filter acted")
+        axs[2].set_ylim(-0.02, 1.02)
     if "train" in data:
         tr = data["train"]
         k = max(1, min(200, len(tr["returns"]) // 20))

@@ -28,10 +28,12 @@ Outputs under ``--out DIR``: ``model.zip`` (final policy), ``best_model.zip`` (b
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import platform
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -63,6 +65,12 @@ class TrainSpec:
     :param seed: seed of the algorithm and the environments
     :param out: output directory (default ``runs/train/<model>-<algo>-<filtered|unfiltered>-s<seed>``)
     :param progress: show a progress bar
+    :param init: a saved policy (``model.zip`` of the same model and algorithm) whose weights the run starts
+        from: a curriculum, e.g. learn to fly without the filter (fast: no filter decisions), then learn under
+        it; the run's own hyperparameters apply
+    :param eval_filter: the filter table of the periodic evaluations (the closed loop the policy will be
+        deployed in; they choose ``best_model.zip``); default: ``filter``. With no ``filter`` this trains
+        without the filter and evaluates with it: the recipe measured best on the point mass (``docs/agents.md``)
     :param run_overrides: fields of :class:`~softreach.agents.config.RunConfig` to replace
     :param algo_overrides: fields of the algorithm's config to replace
     """
@@ -79,6 +87,8 @@ class TrainSpec:
     seed: int = 0
     out: str | None = None
     progress: bool = True
+    init: str | None = None
+    eval_filter: str | None = None
     run_overrides: dict[str, Any] = field(default_factory=dict)
     algo_overrides: dict[str, Any] = field(default_factory=dict)
 
@@ -123,7 +133,7 @@ def resolve(spec: TrainSpec) -> tuple[Any, PPOConfig | SACConfig, dict[str, Any]
     check_choice("wind", run.wind, WINDS)
     _check_positive_int("timesteps", run.timesteps)
     _check_positive_int("n_envs", run.n_envs)
-    for name in ("eval_freq", "checkpoint_freq", "eval_episodes"):
+    for name in ("eval_freq", "checkpoint_freq", "eval_episodes", "pretrain_steps"):
         v = getattr(run, name)
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
             raise ValueError(f"{name} must be an integer >= 0, got {v!r}")
@@ -135,6 +145,8 @@ def resolve(spec: TrainSpec) -> tuple[Any, PPOConfig | SACConfig, dict[str, Any]
     budget = check_budget(run.budget, horizon)
     if run.wind == "adversarial" and not (spec.table or spec.filter):
         raise ValueError("--wind adversarial needs a table for the worst-case wind: give --filter TABLE or --table TABLE")
+    if spec.run_overrides.get("pretrain_steps") and not spec.filter:
+        raise ValueError("pretrain steps are learned before the filter is switched on: they need --filter TABLE")
     if spec.run_overrides.get("intervention_penalty") and not spec.filter:
         raise ValueError("an intervention penalty needs --filter TABLE (without a filter nothing intervenes)")
     if not (isinstance(run.intervention_penalty, (int, float)) and math.isfinite(run.intervention_penalty)
@@ -216,10 +228,21 @@ def _versions() -> dict[str, str]:
             "gymnasium": gymnasium.__version__, "torch": torch.__version__, "numpy": np.__version__}
 
 
+@contextlib.contextmanager
+def _mixed_envs_quiet():
+    """Silence SB3's warning that the evaluation and training environments differ in type: by design the
+    evaluation runs the deployed closed loop (filtered) where the learner may fly unfiltered."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
+        yield
+
+
 def train(spec: TrainSpec) -> TrainResult:
     """Train a policy as ``spec`` says and save it (see the module docstring for the outputs)."""
     from stable_baselines3 import PPO
-    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
+
+    from .callbacks import FilterEvalCallback
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import DummyVecEnv
 
@@ -232,28 +255,47 @@ def train(spec: TrainSpec) -> TrainResult:
     wind_src = spec.table or spec.filter
     oracle = TableOracle(wind_src) if (run.wind == "adversarial") else None
 
-    def env_fn(rank: int, learner: bool):
+    # the periodic evaluations run the deployed closed loop: the filter the policy will fly under
+    eval_filt = as_table(spec.eval_filter) if spec.eval_filter else filt
+
+    def env_fn(rank: int, learner: bool, filtered: bool = True):
+        use = (filt if learner else eval_filt) if filtered else None
+        name = ("train" if filtered else "pretrain") if learner else "eval"
         def thunk():
             return make_env(spec.model, wind=run.wind, wind_table=oracle, budget=env_settings["budget"],
-                            filter_table=filt, rule=spec.rule, monitor=True,
-                            monitor_file=str(out / "monitor" / f"{'train' if learner else 'eval'}-{rank}"),
+                            filter_table=use, rule=spec.rule, monitor=True,
+                            monitor_file=str(out / "monitor" / f"{name}-{rank}"),
                             reward_scale=run.reward_scale if learner else 1.0,
-                            intervention_penalty=run.intervention_penalty if (learner and filt is not None) else 0.0)
+                            intervention_penalty=run.intervention_penalty if (learner and use is not None) else 0.0)
         return thunk
 
-    venv = DummyVecEnv([env_fn(i, True) for i in range(run.n_envs)])
-    venv.seed(spec.seed)
-    if filt is not None:
-        from softreach.filters import VecSafetyFilter
+    def training_envs(filtered: bool):
+        v = DummyVecEnv([env_fn(i, True, filtered) for i in range(run.n_envs)])
+        v.seed(spec.seed)
+        if filtered and filt is not None:
+            from softreach.filters import VecSafetyFilter
 
-        # one filter decision for all environments per step: the same decisions, several times faster
-        venv = VecSafetyFilter(venv)
+            # one filter decision for all environments per step: the same decisions, several times faster
+            v = VecSafetyFilter(v)
+        return v
+
+    # curriculum: learn to fly without the filter first (no filter decisions: several times faster per step)
+    pretrain = run.pretrain_steps if filt is not None else 0
+    venv = training_envs(filtered=not pretrain)
     kwargs = algo_kwargs(algo_cfg)
     if spec.algo == "ppo":
         model = PPO("MlpPolicy", venv, seed=spec.seed, verbose=0, device="cpu", **kwargs)
     else:
         model = _sac_class(algo_cfg.action_label)("MlpPolicy", venv, seed=spec.seed, verbose=0, device="cpu",
                                                   **kwargs)
+    if spec.init is not None:
+        if not Path(spec.init).is_file():
+            raise FileNotFoundError(f"init policy {spec.init} does not exist")
+        try:
+            model.set_parameters(str(spec.init), exact_match=True, device="cpu")
+        except (ValueError, KeyError, RuntimeError) as err:
+            raise ValueError(f"init policy {spec.init} does not fit this run's {spec.algo.upper()} network "
+                             f"({err})") from None
     logger = configure(str(out), ["csv"])
     model.set_logger(logger)
 
@@ -262,11 +304,11 @@ def train(spec: TrainSpec) -> TrainResult:
     if run.eval_freq > 0:
         eval_env = DummyVecEnv([env_fn(0, False)])
         eval_env.seed(spec.seed + 10_000)
-        if filt is not None:
+        if eval_filt is not None:
             from softreach.filters import VecSafetyFilter
 
             eval_env = VecSafetyFilter(eval_env)  # the type EvalCallback expects: the training env's
-        callbacks.append(EvalCallback(eval_env, n_eval_episodes=max(1, run.eval_episodes),
+        callbacks.append(FilterEvalCallback(eval_env, n_eval_episodes=max(1, run.eval_episodes),
                                       eval_freq=max(1, run.eval_freq // run.n_envs), log_path=str(out / "eval"),
                                       best_model_save_path=str(out), deterministic=True, verbose=0))
     if run.checkpoint_freq > 0:
@@ -285,6 +327,8 @@ def train(spec: TrainSpec) -> TrainResult:
         "wind_table": str(wind_src) if run.wind == "adversarial" else None,
         "budget": env_settings["budget"],
         "seed": spec.seed,
+        "init": str(spec.init) if spec.init else None,
+        "eval_filter": str(spec.eval_filter) if spec.eval_filter else None,
         "run": asdict(run),
         "algo_config": asdict(algo_cfg),
         "versions": _versions(),
@@ -293,7 +337,15 @@ def train(spec: TrainSpec) -> TrainResult:
     (out / "config.json").write_text(json.dumps(config, indent=2))
     t0 = time.perf_counter()
     try:
-        model.learn(total_timesteps=run.timesteps, callback=CallbackList(callbacks), progress_bar=False)
+        if pretrain:
+            with _mixed_envs_quiet():
+                model.learn(total_timesteps=pretrain, callback=CallbackList(callbacks), progress_bar=False)
+            venv.close()
+            venv = training_envs(filtered=True)
+            model.set_env(venv)
+        with _mixed_envs_quiet():
+            model.learn(total_timesteps=run.timesteps, callback=CallbackList(callbacks), progress_bar=False,
+                        reset_num_timesteps=not pretrain)
     finally:
         venv.close()
         if eval_env is not None:

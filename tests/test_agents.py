@@ -368,8 +368,8 @@ def test_demo_end_to_end(tmp_path, pointmass_table_path):
     out = run_demo(out=tmp_path / "demo", table=str(pointmass_table_path), timesteps=128, episodes=2,
                    budgets=[0.3], winds=["adversarial"], progress=False, n_envs=2)
     text = out["report"].read_text()
-    assert "| PPO trained with filter, + filter | adversarial | 0.3 |" in text
-    assert "| PPO trained with filter, no filter | adversarial | 0.3 |" in text
+    assert "| PPO trained without filter, + filter | adversarial | 0.3 |" in text
+    assert "| PPO trained without filter, no filter | adversarial | 0.3 |" in text
     assert "| table-optimal a* | adversarial | 0.3 |" in text
     doc = json.loads((tmp_path / "demo" / "report.json").read_text())
     assert len(doc["evaluations"]) == 3
@@ -377,3 +377,48 @@ def test_demo_end_to_end(tmp_path, pointmass_table_path):
     assert filt["aggregates"]["hard_violation_rate"]["count"] == 0
     assert (tmp_path / "demo" / "plots" / "filtered_trajectories.png").is_file()
     assert math.isfinite(out["results"][0][2].aggregates["return"]["mean"])
+
+
+# --------------------------------------------------------------------------------------------- curricula
+
+def test_train_unfiltered_evaluated_as_deployed(tmp_path, pointmass_held_table):
+    """No filter in training, the filter in the periodic evaluations: their intervention rates are recorded
+    (and plotted) and the learner never met the filter (no penalty, no filter in its monitor)."""
+    from softreach.agents.report_plots import learning_data, plot_learning_curves
+
+    out = tmp_path / "dep"
+    res = train(TrainSpec(model="pointmass", eval_filter=str(pointmass_held_table.path), timesteps=256, n_envs=2,
+                          seed=0, out=str(out), progress=False,
+                          run_overrides={**TINY_RUN, "eval_freq": 128, "eval_episodes": 2},
+                          algo_overrides=TINY_PPO))
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["filter"] is None and cfg["eval_filter"] == str(pointmass_held_table.path)
+    iv = np.load(out / "eval" / "interventions.npz")
+    assert len(iv["timesteps"]) == len(np.load(out / "eval" / "evaluations.npz")["timesteps"]) >= 2
+    # an untrained policy from the environment's starts: the filter acts in some steps, not in all
+    assert np.all((iv["intervention_rate"] > 0) & (iv["intervention_rate"] < 1))
+    assert "interventions" in learning_data(out)
+    assert plot_learning_curves(out, tmp_path / "curves.png").is_file()
+    assert res.best_model_path is not None
+
+
+def test_pretrain_then_filter_and_init(tmp_path, pointmass_held_table):
+    table = str(pointmass_held_table.path)
+    out = tmp_path / "pre"
+    res = train(TrainSpec(model="pointmass", filter=table, timesteps=128, n_envs=2, seed=0, out=str(out),
+                          progress=False, run_overrides={**TINY_RUN, "pretrain_steps": 128},
+                          algo_overrides=TINY_PPO))
+    assert res.timesteps == 256  # both stages counted
+    assert list((out / "monitor").glob("pretrain-*.monitor.csv")) and list((out / "monitor").glob("train-*.monitor.csv"))
+    # init: with a zero learning rate the weights that come out are the ones that went in
+    res2 = train(TrainSpec(model="pointmass", init=str(res.model_path), timesteps=128, n_envs=2, seed=5,
+                           out=str(tmp_path / "init"), progress=False, run_overrides=TINY_RUN,
+                           algo_overrides={**TINY_PPO, "learning_rate": 0.0}))
+    a, b = load_policy(res.model_path).policy.state_dict(), load_policy(res2.model_path).policy.state_dict()
+    assert all(np.array_equal(a[k].numpy(), b[k].numpy()) for k in a)
+    with pytest.raises(ValueError, match="pretrain"):
+        train(TrainSpec(model="pointmass", timesteps=128, out=str(tmp_path / "x"), progress=False,
+                        run_overrides={"pretrain_steps": 64}))
+    with pytest.raises(FileNotFoundError, match="init policy"):
+        train(TrainSpec(model="pointmass", timesteps=128, init=str(tmp_path / "missing.zip"),
+                        out=str(tmp_path / "y"), progress=False))
