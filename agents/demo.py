@@ -2,11 +2,10 @@
 
 1. solve a small point-mass ``W_eps`` table of the sampled-data game (``--held``: the one the filter certifies
    with; cached: an existing table file is reused);
-2. train a PPO landing policy without the filter, its periodic evaluations flying the deployed closed loop
-   (policy + filter) to pick ``best_model.zip`` (skipped with ``--policy``);
-3. evaluate the best checkpoint (``best_model.zip``, chosen by the periodic evaluation's mean return, in which
-   a hard violation costs 100) with the filter, the same policy without it, and the table-optimal controller
-   ``a*``, from the starts the filter certifies (``--starts certified``; ``inside RA~_Q`` for a continuous-time
+2. train a PPO landing policy without the filter, keeping the checkpoint whose periodic evaluation (by itself,
+   where a crash costs 100) scored best (skipped with ``--policy``);
+3. evaluate that checkpoint (``best_model.zip``) with the filter, the same policy without it, and the
+   table-optimal controller ``a*``, from the starts the filter certifies (``--starts certified``; ``inside RA~_Q`` for a continuous-time
    table, which certifies nothing), under adversarial (and by default random) wind, for several budgets ``Q``;
 4. write ``report.md`` (led by the comparison on safety and on performance: landing, hard violations, budget,
    interventions, control effort, touchdown sink rate, time to land), ``report.json`` (every evaluation's
@@ -183,15 +182,16 @@ def run_demo(out: str | Path = "runs/demo", table: str | None = None, policy: st
         from .train import TrainSpec, train
 
         t0 = time.perf_counter()
-        # learn to fly without the filter (crashes cost reward), pick the checkpoint by evaluations under it:
-        # the recipe measured best (docs/agents.md: training under the filter taught the policy to lean on it)
-        tr = train(TrainSpec(model=model, algo="ppo", filter=None, eval_filter=str(table_path), timesteps=timesteps,
-                             seed=seed, n_envs=n_envs, out=str(out / "train"), progress=progress))
+        # learn to fly without the filter (a crash costs 100), keep the checkpoint that flies best by itself, and
+        # deploy it under the filter: the recipe measured best (docs/agents.md: training under the filter taught
+        # the policy to lean on it; choosing checkpoints by the filtered return chose one the filter flew)
+        tr = train(TrainSpec(model=model, algo="ppo", filter=None, timesteps=timesteps, seed=seed, n_envs=n_envs,
+                             out=str(out / "train"), progress=progress))
         wall["train"] = time.perf_counter() - t0
         # the checkpoint with the best periodic evaluation (a hard violation costs 100 of its return)
         policy = str(tr.best_model_path or tr.model_path)
         run_dir = str(tr.out_dir)
-        commands.append(f"softreach train {model} --eval-filter {table_path} --timesteps {timesteps} --seed {seed} "
+        commands.append(f"softreach train {model} --timesteps {timesteps} --seed {seed} "
                         f"--out {tr.out_dir}")
     else:
         from .train import run_config_of
