@@ -240,8 +240,7 @@ class Interpolant:
         both = self._both(loc)
         # np.take, not fancy indexing: several times faster for gathers of this size
         v = np.take(self.flat, self.corner_index(loc, both))
-        w = self.weights(loc.F, loc.wt if both else None)
-        return np.einsum("cn,cn->n", w, v, dtype=np.float64) if len(v) else np.zeros(0)
+        return _corner_sum(self.weights(loc.F, loc.wt if both else None) * v)
 
     def value_at(self, loc: Location) -> np.ndarray:
         """The value at located queries; ``+inf`` where not ``inside`` (NaN stays NaN where inside)."""
@@ -264,11 +263,11 @@ class Interpolant:
         if self.stacked is not None:
             idx = self.corner_index(loc, both)
             v = np.take(self.stacked, idx.reshape(-1), axis=0).reshape(idx.shape + (1 + m,))
-            s = np.einsum("cn,cnj->nj", w, v)
+            s = _corner_sum(w[:, :, None] * v)
             grad = s[:, 1:]
         else:
             v = np.take(self.flat, self.stencil_index(loc, both))
-            s = np.einsum("cn,cnj->nj", w, v, dtype=np.float64)
+            s = _corner_sum(w[:, :, None] * v)
             grad = (s[:, 2::2] - s[:, 1::2]) / self.g.span[list(self.axes)]
         return np.where(loc.inside, s[:, 0], np.inf), grad, loc
 
@@ -375,6 +374,15 @@ class Interpolant:
             upper = np.asarray(self.values[j, ..., i + 1], dtype=np.float64)
             out = out + w * ((1.0 - f) * lower + f * upper)
         return out
+
+
+def _corner_sum(p: np.ndarray) -> np.ndarray:
+    """The sum over the corners (axis 0, a power of two long) as a tree of row additions: every query's sum is
+    taken in the same order whatever the batch, so a decision is the same number alone or in a batch (a BLAS or
+    pairwise reduction would reorder it with the batch's size)."""
+    while len(p) > 1:
+        p = p[0::2] + p[1::2]
+    return p[0]
 
 
 def interpolate(values: Any, times: np.ndarray, grid: Grid, t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

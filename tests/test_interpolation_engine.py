@@ -160,3 +160,16 @@ def test_slice_is_the_point_query_at_the_nodes(pointmass_table):
     with pytest.raises(ValueError, match="time span"):
         pointmass_table.slice("W_eps", pointmass_table.horizon + 1.0, 0.3)
     assert not hasattr(Table, "_slice")
+
+
+def test_a_query_gives_the_same_bits_alone_and_in_a_batch(table):
+    """The filter decides the same alone and batched: no reduction may reorder a query's sum with the batch size."""
+    field = TableField(table)
+    t, X = _queries(table, np.random.default_rng(7), N=64)
+    val, grad, _ = field.value_and_gradient(t, X)
+    raw = table.value(t, X[:, :-1], X[:, -1])
+    for i in range(0, 64, 7):
+        v1, g1, _ = field.value_and_gradient(t[i:i + 1], X[i:i + 1])
+        assert v1[0] == val[i] or (np.isnan(v1[0]) and np.isnan(val[i]))
+        np.testing.assert_array_equal(g1[0], grad[i])
+        assert table.value(t[i], X[i, :-1], X[i, -1])[0] == raw[i]
