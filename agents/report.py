@@ -52,6 +52,7 @@ AGGREGATE_FIELDS: dict[str, tuple[str, str]] = {
     "time_outside_c2": (MEAN, "control periods that ended outside C2, times their length [s]"),
     "touchdown_sink_rate": (MEAN, "downward speed at touchdown [m/s], landed episodes only"),
     "control_effort": (MEAN, "mean squared normalised applied action over the horizon (1 = full deflection throughout)"),
+    "time_to_land": (MEAN, "episode duration [s], landed episodes only"),
     "return": (MEAN, "sum of the environment's rewards (unscaled)"),
     "intervention_rate": (MEAN + "?", "per episode: steps in which the filter changed the action / steps; null without a filter"),
     "intervened_episodes": (RATE + "?", "episodes in which the filter acted at least once; null without a filter"),

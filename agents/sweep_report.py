@@ -148,11 +148,21 @@ def _pct(count: int, n: int) -> str:
     return f"{100 * w['value']:.0f}% [{100 * w['low']:.0f}, {100 * w['high']:.0f}]"
 
 
+def _seed_mean(rows: list[dict[str, Any]], key: str) -> str:
+    """The mean over seeds of a per-seed mean, with the seeds' range: ``mean (min-max)``."""
+    vals = [float(r[key]) for r in rows if r.get(key) not in (None, "")]
+    if not vals:
+        return "—"
+    return f"{np.mean(vals):.3f} ({min(vals):.3f}-{max(vals):.3f})"
+
+
 def pooled_lines(rows: list[dict[str, Any]]) -> list[str]:
     """A markdown table: per configuration and evaluation, the seeds' episodes pooled (Wilson intervals of the
-    pooled counts) and the per-seed landing rates, so the seeds' spread shows."""
+    pooled counts) and the per-seed landing rates, so the seeds' spread shows; the performance terms as the mean
+    of the seeds' means with their range."""
     head = ["| configuration | evaluation | seeds done | landing rate (pooled) | per seed | hard violations | "
-            "over Q | interventions (mean of seeds) | return (mean of seeds) |", "|---" * 9 + "|"]
+            "over Q | interventions (mean of seeds) | return (mean of seeds) | control effort | touchdown sink rate "
+            "[m/s] | time to land [s] |", "|---" * 12 + "|"]
     lines = []
     for _, rs in _groups(rows, GROUP_FIELDS + ("eval_id",)).items():
         ok = [r for r in rs if r["status"] == "done"]
@@ -163,10 +173,11 @@ def pooled_lines(rows: list[dict[str, Any]]) -> list[str]:
         per_seed = ", ".join(f"s{r['seed']}: {100 * r['landing_rate_value']:.0f}%" for r in ok) or "—"
         inter = [r["intervention_rate_mean"] for r in ok if r["intervention_rate_mean"] is not None]
         ret = [r["return_mean"] for r in ok if r["return_mean"] is not None]
+        perf = [_seed_mean(ok, k) for k in ("control_effort_mean", "touchdown_sink_rate_mean", "time_to_land_mean")]
         lines.append(f"| {_label(rs[0])} | {_eval_label(rs[0])} | {len(ok)}/{len(rs)} | {_pct(landed, n)} | "
                      f"{per_seed} | {hard}/{n} | {over}/{n} | "
                      f"{f'{100 * np.mean(inter):.1f}%' if inter else '—'} | "
-                     f"{f'{np.mean(ret):.1f}' if ret else '—'} |")
+                     f"{f'{np.mean(ret):.1f}' if ret else '—'} | " + " | ".join(perf) + " |")
     return head + lines
 
 
