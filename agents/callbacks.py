@@ -1,6 +1,5 @@
 """Training callbacks: periodic evaluation of the deployed policy (with the safety filter) that also records how
-often the filter had to act, so the learning curves show the filter's share of the work falling as the policy
-learns."""
+often the filter had to act, so the learning curves show the filter's share of the work; and the progress bar."""
 
 from __future__ import annotations
 
@@ -49,4 +48,42 @@ class FilterEvalCallback(EvalCallback):
         return keep_going
 
 
-__all__ = ["FilterEvalCallback"]
+def progress_callback(desc: str):
+    """An SB3 callback drawing a tqdm progress bar (SB3's ``ProgressBarCallback`` where ``rich`` is installed)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    try:
+        import rich  # noqa: F401
+    except ImportError:
+        pass
+    else:
+        from stable_baselines3.common.callbacks import ProgressBarCallback
+
+        return ProgressBarCallback()
+
+    from tqdm.auto import tqdm
+
+    class _Tqdm(BaseCallback):
+        def _on_training_start(self) -> None:
+            total = self.locals["total_timesteps"] - self.model.num_timesteps
+            self.bar = tqdm(total=total, desc=desc, unit="step", unit_scale=True, dynamic_ncols=True)
+            self._last = 0
+
+        def _on_step(self) -> bool:
+            self.bar.update(self.training_env.num_envs)
+            if self.n_calls - self._last >= 200:
+                self._last = self.n_calls
+                buf = self.model.ep_info_buffer
+                if buf:
+                    ret = float(np.mean([e["r"] for e in buf]))
+                    landed = float(np.mean([bool(e.get("landed", False)) for e in buf]))
+                    self.bar.set_postfix(ret=f"{ret:.1f}", landed=f"{landed:.0%}", refresh=False)
+            return True
+
+        def _on_training_end(self) -> None:
+            self.bar.close()
+
+    return _Tqdm()
+
+
+__all__ = ["FilterEvalCallback", "progress_callback"]

@@ -44,6 +44,7 @@ from softreach.reach.registry import env_id, model_class
 
 from .config import ALGOS, PPOConfig, SACConfig, algo_kwargs, defaults, with_overrides
 from .envs import RULES, WINDS, check_budget, check_choice, make_env
+from .callbacks import progress_callback  # noqa: F401  (public here too)
 from .tables import TableOracle, as_table
 
 TRAIN_SCHEMA = "softreach.train/1"
@@ -145,6 +146,9 @@ def resolve(spec: TrainSpec) -> tuple[Any, PPOConfig | SACConfig, dict[str, Any]
     budget = check_budget(run.budget, horizon)
     if run.wind == "adversarial" and not (spec.table or spec.filter):
         raise ValueError("--wind adversarial needs a table for the worst-case wind: give --filter TABLE or --table TABLE")
+    for name, path in (("init policy", spec.init), ("eval filter table", spec.eval_filter)):
+        if path is not None and not Path(path).is_file():
+            raise FileNotFoundError(f"{name} {path} does not exist")
     if spec.run_overrides.get("pretrain_steps") and not spec.filter:
         raise ValueError("pretrain steps are learned before the filter is switched on: they need --filter TABLE")
     if spec.run_overrides.get("intervention_penalty") and not spec.filter:
@@ -161,44 +165,6 @@ def resolve(spec: TrainSpec) -> tuple[Any, PPOConfig | SACConfig, dict[str, Any]
     env_settings = {"model": spec.model, "wind": run.wind, "budget": budget, "filter": spec.filter,
                     "rule": spec.rule, "table": spec.table}
     return run, algo, env_settings
-
-
-def progress_callback(desc: str):
-    """An SB3 callback drawing a tqdm progress bar (SB3's ``ProgressBarCallback`` where ``rich`` is installed)."""
-    from stable_baselines3.common.callbacks import BaseCallback
-
-    try:
-        import rich  # noqa: F401
-    except ImportError:
-        pass
-    else:
-        from stable_baselines3.common.callbacks import ProgressBarCallback
-
-        return ProgressBarCallback()
-
-    from tqdm.auto import tqdm
-
-    class _Tqdm(BaseCallback):
-        def _on_training_start(self) -> None:
-            total = self.locals["total_timesteps"] - self.model.num_timesteps
-            self.bar = tqdm(total=total, desc=desc, unit="step", unit_scale=True, dynamic_ncols=True)
-            self._last = 0
-
-        def _on_step(self) -> bool:
-            self.bar.update(self.training_env.num_envs)
-            if self.n_calls - self._last >= 200:
-                self._last = self.n_calls
-                buf = self.model.ep_info_buffer
-                if buf:
-                    ret = float(np.mean([e["r"] for e in buf]))
-                    landed = float(np.mean([bool(e.get("landed", False)) for e in buf]))
-                    self.bar.set_postfix(ret=f"{ret:.1f}", landed=f"{landed:.0%}", refresh=False)
-            return True
-
-        def _on_training_end(self) -> None:
-            self.bar.close()
-
-    return _Tqdm()
 
 
 def _sac_class(action_label: str):
@@ -241,10 +207,10 @@ def train(spec: TrainSpec) -> TrainResult:
     """Train a policy as ``spec`` says and save it (see the module docstring for the outputs)."""
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
-
-    from .callbacks import FilterEvalCallback
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from .callbacks import FilterEvalCallback, progress_callback
 
     run, algo_cfg, env_settings = resolve(spec)
     out = Path(spec.out) if spec.out else default_out(spec)
@@ -289,8 +255,6 @@ def train(spec: TrainSpec) -> TrainResult:
         model = _sac_class(algo_cfg.action_label)("MlpPolicy", venv, seed=spec.seed, verbose=0, device="cpu",
                                                   **kwargs)
     if spec.init is not None:
-        if not Path(spec.init).is_file():
-            raise FileNotFoundError(f"init policy {spec.init} does not exist")
         try:
             model.set_parameters(str(spec.init), exact_match=True, device="cpu")
         except (ValueError, KeyError, RuntimeError) as err:
@@ -309,8 +273,9 @@ def train(spec: TrainSpec) -> TrainResult:
 
             eval_env = VecSafetyFilter(eval_env)  # the type EvalCallback expects: the training env's
         callbacks.append(FilterEvalCallback(eval_env, n_eval_episodes=max(1, run.eval_episodes),
-                                      eval_freq=max(1, run.eval_freq // run.n_envs), log_path=str(out / "eval"),
-                                      best_model_save_path=str(out), deterministic=True, verbose=0))
+                                            eval_freq=max(1, run.eval_freq // run.n_envs),
+                                            log_path=str(out / "eval"), best_model_save_path=str(out),
+                                            deterministic=True, verbose=0))
     if run.checkpoint_freq > 0:
         callbacks.append(CheckpointCallback(save_freq=max(1, run.checkpoint_freq // run.n_envs),
                                             save_path=str(out / "checkpoints"), name_prefix="model"))
