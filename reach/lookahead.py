@@ -259,6 +259,8 @@ class Lookahead:
                 v = box_max(V, Vt, Vg, t_next[rows], end_lo[rows], end_hi[rows])
                 best = np.minimum(best, np.where(z_end[rows] >= 0, v, np.inf))
             nxt[rows] = np.where(np.isnan(best), np.inf, best)
+            nxt[rows] = self._exact_before_horizon(t_next[rows], end_lo[rows], end_hi[rows], z_end[rows],
+                                                   z_top[rows], nxt[rows])
         # where no action passes, the hard constraint comes first: an action whose end box lies where C1 can
         # still be kept until T (V_safe <= 0, the held game of staying in C1) beats one that keeps only the budget
         safe = in_c1.copy()
@@ -280,6 +282,30 @@ class Lookahead:
         nxt = np.where(ok, nxt, np.inf)
         out = (passing, nxt, bad)
         return out + (end_lo, end_hi, z_end, ok) if ends else out
+
+    def _exact_before_horizon(self, t_next: np.ndarray, end_lo: np.ndarray, end_hi: np.ndarray,
+                              z_lo: np.ndarray, z_hi: np.ndarray, nxt: np.ndarray) -> np.ndarray:
+        """End boxes at the last sample time before the horizon are judged exactly, not by the table.
+
+        There the certificate is a one-period game against the terminal value, and its interpolant between nodes
+        can promise a landing that no held action delivers: the target's edge (``y = 0.7`` for the point mass)
+        runs between two nodes, one that lands within the period and one that cannot. The exact question is
+        whether one candidate passes from every state of the end box to the horizon, where the table holds the
+        terminal value (convex: its interpolant is sound) or the run lands inside the period. Only the model's
+        box enclosure answers it; without one the table's value stands.
+
+        :return: ``nxt`` with those rows replaced: ``min(nxt, -margin)`` where a candidate passes from the whole
+            box, otherwise ``max(nxt, tiny)`` (not certified)
+        """
+        final = (t_next < self.horizon - 1e-9) & (t_next + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon))
+        final &= np.isfinite(nxt)
+        if not (self.box_support and final.any()):
+            return nxt
+        idx = np.nonzero(final)[0]
+        ok = self.keeps_certified(t_next[idx], end_lo[idx], end_hi[idx], z_lo[idx], z_hi[idx])
+        out = nxt.copy()
+        out[idx] = np.where(ok, np.minimum(nxt[idx], -self.margin), np.maximum(nxt[idx], 1e-12))
+        return out
 
     def _meets_target(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """Rows whose box ``[lo, hi]`` meets the model's :attr:`~softreach.reach.problem.Model.target_box`: a
