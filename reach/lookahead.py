@@ -68,8 +68,14 @@ class Lookahead:
     """
 
     def __init__(self, fields: dict[str, tuple[Any, np.ndarray, Any]], model: Any, dt: float, eps: float,
-                 candidates: Any, margin: float = 0.0, pieces: int = 4, target_checks: int = 1):
+                 candidates: Any, margin: float = 0.0, pieces: int = 4, target_checks: int = 1,
+                 exact_periods: int = 1):
         self.model, self.dt, self.eps, self.margin = model, float(dt), float(eps), float(margin)
+        if not (isinstance(exact_periods, (int, np.integer)) and exact_periods >= 0):
+            raise ValueError(f"exact_periods must be an integer >= 0, got {exact_periods!r}")
+        #: end boxes at the last ``exact_periods`` sample times before the horizon are judged by recursion, not
+        #: by the table (:meth:`_exact_before_horizon`); each one more multiplies that work by the candidates
+        self.exact_periods = int(exact_periods)
         self.pieces = int(pieces)
         if not (isinstance(target_checks, (int, np.integer)) and target_checks >= 1):
             raise ValueError(f"target_checks must be a positive integer, got {target_checks!r}")
@@ -297,7 +303,8 @@ class Lookahead:
         :return: ``nxt`` with those rows replaced: ``min(nxt, -margin)`` where a candidate passes from the whole
             box, otherwise ``max(nxt, tiny)`` (not certified)
         """
-        final = (t_next < self.horizon - 1e-9) & (t_next + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon))
+        final = (t_next < self.horizon - 1e-9) & (t_next + self.exact_periods * self.dt
+                                                  >= self.horizon - 1e-9 * max(1.0, self.horizon))
         final &= np.isfinite(nxt)
         if not (self.box_support and final.any()):
             return nxt
