@@ -11,40 +11,58 @@ from stable_baselines3.common.callbacks import EvalCallback
 
 
 class FilterEvalCallback(EvalCallback):
-    """SB3's ``EvalCallback`` (mean return, ``best_model.zip``), plus the share of evaluation steps in which the
-    safety filter replaced the policy's action (``info["filter_active"]``), written beside the evaluations to
-    ``eval/interventions.npz`` (``timesteps``, ``intervention_rate``) and logged as ``eval/intervention_rate``.
+    """SB3's ``EvalCallback`` (mean return, ``best_model.zip``) that also records how much the safety filter had
+    to do for the policy: the share of evaluation steps in which it replaced the policy's action
+    (``info["filter_active"]``), in ``eval/interventions.npz`` (``timesteps``, ``intervention_rate``,
+    ``landing_rate``) and logged as ``eval/intervention_rate``.
 
-    The best checkpoint is the one with the highest mean evaluation return of the deployed closed loop; a hard
-    violation costs 100 of it, a landing earns 100, so the criterion counts safety and the task together.
+    The evaluation environment decides ``best_model.zip`` by its mean return, in which a hard violation costs 100
+    and a landing earns 100. With ``deployed_env`` (the same environment under a filter, for a policy that learns
+    without one) each evaluation is repeated there and only recorded: choosing checkpoints by the filtered return
+    would prefer one the filter flies (``docs/agents.md``). Without it, the evaluation environment's own
+    interventions are recorded when it is filtered.
+
+    :param deployed_env: a filtered evaluation environment, or ``None``
     """
 
-    def __init__(self, *args, **kwargs):
+    def __init__(self, *args, deployed_env=None, **kwargs):
         super().__init__(*args, **kwargs)
-        self._steps = 0
-        self._active = 0
-        self.intervention_timesteps: list[int] = []
-        self.intervention_rates: list[float] = []
+        self.deployed_env = deployed_env
+        self._steps = self._active = self._episodes = self._landed = 0
+        self.records: dict[str, list[float]] = {"timesteps": [], "intervention_rate": [], "landing_rate": []}
+
+    def _count(self, locals_, globals_) -> None:
+        info = locals_["info"]
+        self._steps += 1
+        self._active += int(bool(info.get("filter_active", False)))
+        if locals_.get("done"):
+            self._episodes += 1
+            self._landed += int(bool(info.get("landed", info.get("is_success", False))))
 
     def _log_success_callback(self, locals_, globals_) -> None:
         super()._log_success_callback(locals_, globals_)
-        self._steps += 1
-        self._active += int(bool(locals_["info"].get("filter_active", False)))
+        if self.deployed_env is None:
+            self._count(locals_, globals_)
 
     def _on_step(self) -> bool:
         due = self.eval_freq > 0 and self.n_calls % self.eval_freq == 0
         if due:
-            self._steps = self._active = 0
+            self._steps = self._active = self._episodes = self._landed = 0
         keep_going = super()._on_step()
+        if due and self.deployed_env is not None:
+            from stable_baselines3.common.evaluation import evaluate_policy
+
+            evaluate_policy(self.model, self.deployed_env, n_eval_episodes=self.n_eval_episodes,
+                            deterministic=self.deterministic, callback=self._count, warn=False)
         if due and self._steps:
             rate = self._active / self._steps
-            self.intervention_timesteps.append(self.num_timesteps)
-            self.intervention_rates.append(rate)
+            for key, value in (("timesteps", self.num_timesteps), ("intervention_rate", rate),
+                               ("landing_rate", self._landed / max(self._episodes, 1))):
+                self.records[key].append(value)
             self.logger.record("eval/intervention_rate", rate)
             if self.log_path is not None:
                 np.savez(Path(self.log_path).parent / "interventions.npz",
-                         timesteps=np.array(self.intervention_timesteps),
-                         intervention_rate=np.array(self.intervention_rates))
+                         **{k: np.array(v) for k, v in self.records.items()})
         return keep_going
 
 

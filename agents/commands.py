@@ -55,8 +55,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="with --filter: steps learned without the filter first (a curriculum; default: the "
                         "model's, see softreach.agents.config)")
     p.add_argument("--eval-filter", metavar="TABLE", default=None,
-                   help="filter table of the periodic evaluations, which pick best_model.zip (default: --filter's); "
-                        "without --filter: train unfiltered, evaluate as deployed")
+                   help="repeat every periodic evaluation under this filter and record the share of steps it acted "
+                        "(eval/interventions.npz); best_model.zip is still chosen by the policy's own evaluations")
     p.add_argument("--init", metavar="POLICY", default=None,
                    help="start from this saved policy's weights (same model and algorithm), e.g. one trained "
                         "without the filter")

@@ -3,7 +3,8 @@
 1. solve a small point-mass ``W_eps`` table of the sampled-data game (``--held``: the one the filter certifies
    with; cached: an existing table file is reused);
 2. train a PPO landing policy without the filter, keeping the checkpoint whose periodic evaluation (by itself,
-   where a crash costs 100) scored best (skipped with ``--policy``);
+   where a crash costs 100) scored best, and repeating each evaluation under the filter to record how much the
+   filter had to do (skipped with ``--policy``);
 3. evaluate that checkpoint (``best_model.zip``) with the filter, the same policy without it, and the
    table-optimal controller ``a*``, from the starts the filter certifies (``--starts certified``; ``inside RA~_Q`` for a continuous-time
    table, which certifies nothing), under adversarial (and by default random) wind, for several budgets ``Q``;
@@ -185,13 +186,13 @@ def run_demo(out: str | Path = "runs/demo", table: str | None = None, policy: st
         # learn to fly without the filter (a crash costs 100), keep the checkpoint that flies best by itself, and
         # deploy it under the filter: the recipe measured best (docs/agents.md: training under the filter taught
         # the policy to lean on it; choosing checkpoints by the filtered return chose one the filter flew)
-        tr = train(TrainSpec(model=model, algo="ppo", filter=None, timesteps=timesteps, seed=seed, n_envs=n_envs,
-                             out=str(out / "train"), progress=progress))
+        tr = train(TrainSpec(model=model, algo="ppo", filter=None, eval_filter=str(table_path), timesteps=timesteps,
+                             seed=seed, n_envs=n_envs, out=str(out / "train"), progress=progress))
         wall["train"] = time.perf_counter() - t0
         # the checkpoint with the best periodic evaluation (a hard violation costs 100 of its return)
         policy = str(tr.best_model_path or tr.model_path)
         run_dir = str(tr.out_dir)
-        commands.append(f"softreach train {model} --timesteps {timesteps} --seed {seed} "
+        commands.append(f"softreach train {model} --eval-filter {table_path} --timesteps {timesteps} --seed {seed} "
                         f"--out {tr.out_dir}")
     else:
         from .train import run_config_of

@@ -69,9 +69,10 @@ class TrainSpec:
     :param init: a saved policy (``model.zip`` of the same model and algorithm) whose weights the run starts
         from: a curriculum, e.g. learn to fly without the filter (fast: no filter decisions), then learn under
         it; the run's own hyperparameters apply
-    :param eval_filter: the filter table of the periodic evaluations (the closed loop the policy will be
-        deployed in; they choose ``best_model.zip``); default: ``filter``. With no ``filter`` this trains
-        without the filter and evaluates with it: the recipe measured best on the point mass (``docs/agents.md``)
+    :param eval_filter: a filter table under which every periodic evaluation is repeated and recorded (the closed
+        loop the policy will be deployed in: ``eval/interventions.npz``, the filter's share of the steps); the
+        policy's own evaluations still choose ``best_model.zip``. For a policy that learns without the filter,
+        the recipe measured best on the point mass (``docs/agents.md``)
     :param run_overrides: fields of :class:`~softreach.agents.config.RunConfig` to replace
     :param algo_overrides: fields of the algorithm's config to replace
     """
@@ -224,9 +225,9 @@ def train(spec: TrainSpec) -> TrainResult:
     # the periodic evaluations run the deployed closed loop: the filter the policy will fly under
     eval_filt = as_table(spec.eval_filter) if spec.eval_filter else filt
 
-    def env_fn(rank: int, learner: bool, filtered: bool = True):
-        use = (filt if learner else eval_filt) if filtered else None
-        name = ("train" if filtered else "pretrain") if learner else "eval"
+    def env_fn(rank: int, learner: bool, filtered: bool = True, table=None):
+        use = (table if table is not None else filt) if filtered else None
+        name = ("train" if filtered else "pretrain") if learner else ("deployed" if table is not None else "eval")
         def thunk():
             return make_env(spec.model, wind=run.wind, wind_table=oracle, budget=env_settings["budget"],
                             filter_table=use, rule=spec.rule, monitor=True,
@@ -264,15 +265,19 @@ def train(spec: TrainSpec) -> TrainResult:
     model.set_logger(logger)
 
     callbacks = []
-    eval_env = None
+    eval_env = deployed_env = None
     if run.eval_freq > 0:
+        from softreach.filters import VecSafetyFilter
+
         eval_env = DummyVecEnv([env_fn(0, False)])
         eval_env.seed(spec.seed + 10_000)
-        if eval_filt is not None:
-            from softreach.filters import VecSafetyFilter
-
+        if filt is not None:
             eval_env = VecSafetyFilter(eval_env)  # the type EvalCallback expects: the training env's
-        callbacks.append(FilterEvalCallback(eval_env, n_eval_episodes=max(1, run.eval_episodes),
+        if eval_filt is not None and eval_filt is not filt:
+            deployed_env = VecSafetyFilter(DummyVecEnv([env_fn(0, False, table=eval_filt)]))
+            deployed_env.seed(spec.seed + 10_000)
+        callbacks.append(FilterEvalCallback(eval_env, deployed_env=deployed_env,
+                                            n_eval_episodes=max(1, run.eval_episodes),
                                             eval_freq=max(1, run.eval_freq // run.n_envs),
                                             log_path=str(out / "eval"), best_model_save_path=str(out),
                                             deterministic=True, verbose=0))
@@ -313,8 +318,9 @@ def train(spec: TrainSpec) -> TrainResult:
                         reset_num_timesteps=not pretrain)
     finally:
         venv.close()
-        if eval_env is not None:
-            eval_env.close()
+        for env in (eval_env, deployed_env):
+            if env is not None:
+                env.close()
         logger.close()  # progress.csv: left open, the garbage collector closes it later with a ResourceWarning
     wall = time.perf_counter() - t0
     model_path = out / "model.zip"

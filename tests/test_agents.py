@@ -382,8 +382,8 @@ def test_demo_end_to_end(tmp_path, pointmass_table_path):
 # --------------------------------------------------------------------------------------------- curricula
 
 def test_train_unfiltered_evaluated_as_deployed(tmp_path, pointmass_held_table):
-    """No filter in training, the filter in the periodic evaluations: their intervention rates are recorded
-    (and plotted) and the learner never met the filter (no penalty, no filter in its monitor)."""
+    """No filter in training, each periodic evaluation repeated under the filter: its intervention rates are
+    recorded (and plotted) and the learner never met the filter."""
     from softreach.agents.report_plots import learning_data, plot_learning_curves
 
     out = tmp_path / "dep"
@@ -397,6 +397,9 @@ def test_train_unfiltered_evaluated_as_deployed(tmp_path, pointmass_held_table):
     assert len(iv["timesteps"]) == len(np.load(out / "eval" / "evaluations.npz")["timesteps"]) >= 2
     # an untrained policy from the environment's starts: the filter acts in some steps, not in all
     assert np.all((iv["intervention_rate"] > 0) & (iv["intervention_rate"] < 1))
+    assert np.all((iv["landing_rate"] >= 0) & (iv["landing_rate"] <= 1))
+    # the policy's own evaluations (unfiltered) choose the checkpoint; the deployed loop runs beside them
+    assert list((out / "monitor").glob("eval-*.monitor.csv")) and list((out / "monitor").glob("deployed-*.monitor.csv"))
     assert "interventions" in learning_data(out)
     assert plot_learning_curves(out, tmp_path / "curves.png").is_file()
     assert res.best_model_path is not None
