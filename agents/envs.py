@@ -47,6 +47,35 @@ class InterventionPenalty(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
 
+class CertifiedStarts(gym.Wrapper):
+    """Start every episode from a state the filter certifies: ``reset`` draws ``Q`` from the environment's budget
+    range and a state of ``RA~_Q`` that the wrapped :class:`~softreach.filters.SafetyFilter` certifies
+    (:func:`~softreach.agents.evaluate.sample_certified`), so an evaluation measures the filter where its guarantee
+    holds. Explicit ``options`` win."""
+
+    def __init__(self, env: gym.Env):
+        super().__init__(env)
+        filt = unwrap_filter(env)
+        if filt is None:
+            raise TypeError("CertifiedStarts needs a SafetyFilter in the wrapper stack (it certifies the starts)")
+        self.filter = filt
+        self.rng = np.random.default_rng()
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        from .evaluate import certifier, sample_certified
+
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+        options = dict(options or {})
+        if "state" not in options:
+            lo, hi = self.env.unwrapped.budget_range
+            q = float(options.get("budget", lo if lo == hi else self.rng.uniform(lo, hi)))
+            vf = certifier(self.filter.table, self.env)
+            options.update(state=[float(v) for v in sample_certified(self.filter.table, vf, q, self.rng)],
+                           budget=q)
+        return self.env.reset(seed=seed, options=options)
+
+
 class ScaleReward(gym.RewardWrapper):
     """``reward * scale`` (what the learner sees; the Monitor inside logs the unscaled return)."""
 
@@ -89,7 +118,8 @@ def check_budget(budget: Any, horizon: float) -> float | tuple[float, float] | N
 def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: Any = None,
              filter_table: Any = None, rule: str = "switch", margin: float | None = None,
              monitor: bool = False, monitor_file: str | None = None, reward_scale: float = 1.0,
-             intervention_penalty: float = 0.0, env_kwargs: dict[str, Any] | None = None) -> gym.Env:
+             intervention_penalty: float = 0.0, env_kwargs: dict[str, Any] | None = None,
+             certified_starts: bool = False) -> gym.Env:
     """One landing environment with its wind, optional safety filter and training wrappers.
 
     :param model: a registered short name (``"pointmass"``, ``"glider"``, ``"dubins"``) or ``"module:Class"``
@@ -105,6 +135,7 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
     :param reward_scale: the learner's reward scale (1 for evaluation)
     :param intervention_penalty: reward subtracted per filter intervention (0 for evaluation)
     :param env_kwargs: more keyword arguments of the environment
+    :param certified_starts: start every episode from a state the filter certifies (needs ``filter_table``)
     """
     model_class(model)  # raises, naming an unknown model
     check_choice("wind", wind, WINDS)
@@ -126,8 +157,12 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
     if filter_table is not None:
         table = filter_table.table if isinstance(filter_table, TableOracle) else as_table(filter_table)
         env = safety_filter(env, table, rule=rule, margin=margin)
+        if certified_starts:
+            env = CertifiedStarts(env)
         if intervention_penalty:
             env = InterventionPenalty(env, intervention_penalty)
+    elif certified_starts:
+        raise ValueError("certified starts need a safety filter (--filter TABLE)")
     elif intervention_penalty:
         raise ValueError("an intervention penalty needs a safety filter (--filter TABLE)")
     if reward_scale != 1.0:
@@ -152,5 +187,5 @@ def normalized_action(env: gym.Env, physical: np.ndarray) -> np.ndarray:
     return np.clip(env.unwrapped.normalized_action(np.asarray(physical, dtype=np.float64)), -1.0, 1.0).astype(np.float32)
 
 
-__all__ = ["InterventionPenalty", "RULES", "ScaleReward", "WINDS", "check_budget", "check_choice", "make_env",
+__all__ = ["CertifiedStarts", "InterventionPenalty", "RULES", "ScaleReward", "WINDS", "check_budget", "check_choice", "make_env",
            "normalized_action", "unwrap_filter"]

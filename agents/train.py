@@ -213,6 +213,8 @@ def train(spec: TrainSpec) -> TrainResult:
 
     from .callbacks import FilterEvalCallback, progress_callback
 
+    from softreach.reach.models import get_model
+
     run, algo_cfg, env_settings = resolve(spec)
     out = Path(spec.out) if spec.out else default_out(spec)
     out.mkdir(parents=True, exist_ok=True)
@@ -224,16 +226,22 @@ def train(spec: TrainSpec) -> TrainResult:
 
     # the periodic evaluations run the deployed closed loop: the filter the policy will fly under
     eval_filt = as_table(spec.eval_filter) if spec.eval_filter else filt
+    # a table of the sampled-data game at the env's period certifies starts; a continuous-time one does not
+    period = None if eval_filt is None else eval_filt.control_period
+    sampled = period is not None and math.isclose(period, get_model(spec.model).control_period)
 
     def env_fn(rank: int, learner: bool, filtered: bool = True, table=None):
         use = (table if table is not None else filt) if filtered else None
-        name = ("train" if filtered else "pretrain") if learner else ("deployed" if table is not None else "eval")
+        deployed = table is not None and sampled
+        name = ("train" if filtered else "pretrain") if learner else ("deployed" if deployed else "eval")
         def thunk():
+            # the deployed loop is measured where the filter's guarantee holds: from the starts it certifies
             return make_env(spec.model, wind=run.wind, wind_table=oracle, budget=env_settings["budget"],
                             filter_table=use, rule=spec.rule, monitor=True,
                             monitor_file=str(out / "monitor" / f"{name}-{rank}"),
                             reward_scale=run.reward_scale if learner else 1.0,
-                            intervention_penalty=run.intervention_penalty if (learner and use is not None) else 0.0)
+                            intervention_penalty=run.intervention_penalty if (learner and use is not None) else 0.0,
+                            certified_starts=deployed)
         return thunk
 
     def training_envs(filtered: bool):

@@ -41,3 +41,19 @@ def test_certified_starts_need_a_sampled_data_table(pointmass_table_path):
     with pytest.raises(ValueError, match="--held"):
         evaluate(EvalSpec(policy="random", table=str(pointmass_table_path), budget=0.3, episodes=1,
                           starts="certified"))
+
+
+def test_certified_starts_wrapper(pointmass_held_table):
+    from softreach.agents.envs import make_env
+
+    env = make_env("pointmass", filter_table=pointmass_held_table, certified_starts=True)
+    starts = []
+    for seed in range(5):
+        _, info = env.reset(seed=seed)
+        assert info["certified"], info["certified_reason"]
+        starts.append(env.unwrapped.state.copy())
+    assert len({tuple(s) for s in starts}) == 5  # drawn, not one fixed state
+    _, info = env.reset(seed=0, options={"state": [0.0, 30.0 / 2], "budget": 0.0})  # explicit options win
+    assert env.unwrapped.state[1] == 15.0
+    with pytest.raises(ValueError, match="filter"):
+        make_env("pointmass", certified_starts=True)
