@@ -169,11 +169,14 @@ def _ignore_sigint() -> None:
 def _terminate(pool: Any) -> None:
     """Cancel the queued runs and end the running ones now (their result files are never half written; their
     runs are retried by the next invocation)."""
-    pool.shutdown(wait=False, cancel_futures=True)
     if hasattr(pool, "terminate_workers"):  # Python >= 3.14
         pool.terminate_workers()
         return
-    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+    # taken before shutdown, which forgets them (Python 3.11 sets ``_processes`` to None) and would otherwise
+    # leave the running worker training until its run ends, and the exit waiting for it
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in procs:
         proc.terminate()
 
 
@@ -191,7 +194,7 @@ def execute_local(tasks: dict[str, Task], workers: int, on_result: Callable[[str
     :param runner: the function a worker calls with ``(run, evals, run_dir)``
     """
     import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from concurrent.futures.process import BrokenProcessPool
 
     pending = dict(tasks)
@@ -203,17 +206,22 @@ def execute_local(tasks: dict[str, Task], workers: int, on_result: Callable[[str
         broken: list[str] = []
         try:
             futures = {pool.submit(runner, *task): rid for rid, task in pending.items()}
-            for fut in as_completed(futures):
-                rid = futures[fut]
-                try:
-                    res = fut.result()
-                except BrokenProcessPool:
-                    broken.append(rid)
-                    continue
-                except Exception as exc:  # noqa: BLE001  e.g. a task that could not be pickled
-                    res = new_result(pending[rid][0], "failed", _error_text(exc))
-                del pending[rid]
-                on_result(rid, res)
+            waiting = set(futures)
+            while waiting:
+                # wake up now and then: a Ctrl-C delivered to one of the pool's threads is only acted on when the
+                # main thread runs, which an unbounded wait would put off until a run finished
+                done, waiting = wait(waiting, timeout=0.5, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    rid = futures[fut]
+                    try:
+                        res = fut.result()
+                    except BrokenProcessPool:
+                        broken.append(rid)
+                        continue
+                    except Exception as exc:  # noqa: BLE001  e.g. a task that could not be pickled
+                        res = new_result(pending[rid][0], "failed", _error_text(exc))
+                    del pending[rid]
+                    on_result(rid, res)
         except KeyboardInterrupt:
             _terminate(pool)
             raise

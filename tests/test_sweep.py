@@ -219,11 +219,14 @@ def test_ctrl_c_says_how_to_resume(tmp_path, pointmass_table_path):
     import sys
 
     f = tmp_path / "tiny.json"
-    f.write_text(json.dumps(tiny_spec(pointmass_table_path, variants={"tiny": {}}).to_dict()))
+    # long enough that the signal finds it training (a 128-step run can finish before the signal arrives)
+    f.write_text(json.dumps(tiny_spec(pointmass_table_path, variants={"tiny": {}}, timesteps=20_000).to_dict()))
     out = tmp_path / "sweep"
+    # a terminal's Ctrl-C: the test may itself run as a background job, whose SIGINT is ignored and inherited
     proc = subprocess.Popen([sys.executable, "-m", "softreach.cli", "sweep", str(f), "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
-                            env={**os.environ, "OMP_NUM_THREADS": "1"})
+                            env={**os.environ, "OMP_NUM_THREADS": "1"},
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 120
     while not list(out.glob("runs/*/running.json")) and time.time() < deadline and proc.poll() is None:
         time.sleep(0.05)
