@@ -24,7 +24,7 @@ import softreach.envs  # noqa: F401  (registers the environment ids)
 
 from softreach.reach.registry import make_env as make_model_env, model_class
 
-from .tables import TableOracle, as_table, safety_filter
+from .tables import TableOracle, as_table, safety_filter, sample_certified
 
 WINDS = ("none", "random", "adversarial")
 RULES = ("switch", "smooth")
@@ -50,29 +50,33 @@ class InterventionPenalty(gym.Wrapper):
 class CertifiedStarts(gym.Wrapper):
     """Start every episode from a state the filter certifies: ``reset`` draws ``Q`` from the environment's budget
     range and a state of ``RA~_Q`` that the wrapped :class:`~softreach.filters.SafetyFilter` certifies
-    (:func:`~softreach.agents.evaluate.sample_certified`), so an evaluation measures the filter where its guarantee
-    holds. Explicit ``options`` win."""
+    (:func:`~softreach.agents.tables.sample_certified`), so an evaluation measures the filter where its guarantee
+    holds. Explicit ``options`` win.
+
+    :raises TypeError: no ``SafetyFilter`` in the wrapper stack
+    :raises ValueError: its table is not of the sampled-data game at the environment's period (it certifies nothing)
+    """
 
     def __init__(self, env: gym.Env):
         super().__init__(env)
         filt = unwrap_filter(env)
         if filt is None:
             raise TypeError("CertifiedStarts needs a SafetyFilter in the wrapper stack (it certifies the starts)")
+        if not filt.value_filter.sampled:
+            raise ValueError(f"table {filt.table.path} was not solved for the sampled-data game at this control "
+                             f"period (softreach solve MODEL --held): it certifies no start")
         self.filter = filt
         self.rng = np.random.default_rng()
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        from .evaluate import certifier, sample_certified
-
         if seed is not None:
             self.rng = np.random.default_rng(seed)
         options = dict(options or {})
         if "state" not in options:
             lo, hi = self.env.unwrapped.budget_range
             q = float(options.get("budget", lo if lo == hi else self.rng.uniform(lo, hi)))
-            vf = certifier(self.filter.table, self.env)
-            options.update(state=[float(v) for v in sample_certified(self.filter.table, vf, q, self.rng)],
-                           budget=q)
+            x = sample_certified(self.filter.table, self.filter.value_filter, q, self.rng)
+            options.update(state=[float(v) for v in x], budget=q)
         return self.env.reset(seed=seed, options=options)
 
 
@@ -187,5 +191,5 @@ def normalized_action(env: gym.Env, physical: np.ndarray) -> np.ndarray:
     return np.clip(env.unwrapped.normalized_action(np.asarray(physical, dtype=np.float64)), -1.0, 1.0).astype(np.float32)
 
 
-__all__ = ["CertifiedStarts", "InterventionPenalty", "RULES", "ScaleReward", "WINDS", "check_budget", "check_choice", "make_env",
-           "normalized_action", "unwrap_filter"]
+__all__ = ["CertifiedStarts", "InterventionPenalty", "RULES", "ScaleReward", "WINDS", "check_budget", "check_choice",
+           "make_env", "normalized_action", "unwrap_filter"]

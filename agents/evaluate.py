@@ -22,11 +22,10 @@ from softreach.reach.registry import model_class
 from .envs import RULES, WINDS, check_budget, check_choice, make_env, normalized_action, unwrap_filter
 # re-exported: the statistics are imported from this module too
 from .statistics import Z95, aggregate, mean_ci, wilson
-from .tables import TableOracle, as_table, in_set, paper_starts, sample_inside, sample_uniform, sink_rate, start_value
+from .tables import (TableOracle, as_table, in_set, paper_starts, sample_certified, sample_inside, sample_uniform,
+                     sink_rate, start_value)
 
 STARTS = ("certified", "inside", "paper", "uniform", "env")
-#: draws of ``RA~_Q`` tried per certified start before the evaluation gives up (the set has no certified part)
-CERTIFIED_TRIES = 200
 POLICIES = ("optimal", "random")
 #: an episode is "over budget" when it used more than ``Q + BUDGET_TOL`` seconds (the paper's proxy for the
 #: sets: one millisecond of budget; the environment integrates the budget to about a microsecond)
@@ -90,7 +89,8 @@ class EvalSpec:
         (default: the filter's)
     :param episodes: number of episodes
     :param starts: ``"certified"`` (sampled from ``RA~_Q`` and kept where the filter certifies the start: the
-        starts of the filter's guarantee; needs a ``--held`` table), ``"inside"`` (sampled from ``RA~_Q``), ``"paper"`` (the representative points, cycled) or
+        starts of the filter's guarantee; needs a ``--held`` table), ``"inside"`` (sampled from ``RA~_Q``),
+        ``"paper"`` (the representative points, cycled) or
         ``"uniform"`` (uniform over the hard-constraint box, to show what happens outside the guarantee) or
         ``"env"`` (the environment's own reset distribution, the one training uses)
     :param seed: seed of the starts, the budgets, the gusts and the random policy
@@ -180,7 +180,8 @@ def check_spec(spec: EvalSpec, policy_given: bool = False) -> None:
     table = spec.table or spec.filter
     needs = [what for what, cond in (("--policy optimal", spec.policy == "optimal"),
                                      ("--wind adversarial", spec.wind == "adversarial"),
-                                     (f"--starts {spec.starts}", spec.starts in ("certified", "inside", "paper"))) if cond]
+                                     (f"--starts {spec.starts}",
+                                      spec.starts in ("certified", "inside", "paper"))) if cond]
     if needs and table is None:
         raise ValueError(f"{', '.join(needs)} need(s) a W_eps table: give --filter TABLE or --table TABLE")
     for path in (spec.filter, spec.table):
@@ -207,18 +208,6 @@ def certifier(table, env) -> Any:
         raise ValueError(f"--starts certified needs a table of the sampled-data game (softreach solve MODEL --held); "
                          f"{table.path} was solved in continuous time, so no start is certified with it")
     return vf
-
-
-def sample_certified(table, vf, q: float, rng: np.random.Generator) -> np.ndarray:
-    """A random start of ``RA~_Q`` (:func:`sample_inside`) that the filter certifies at ``t = 0``.
-
-    :raises ValueError: none of :data:`CERTIFIED_TRIES` draws was certified
-    """
-    for _ in range(CERTIFIED_TRIES):
-        x = np.asarray(sample_inside(table, q, rng), dtype=np.float64)
-        if bool(vf.certify(0.0, x, q)[0]):
-            return x
-    raise ValueError(f"no certified start in {CERTIFIED_TRIES} draws of RA~_Q (Q={q:g}) from table {table.path}")
 
 
 def _starts(spec: EvalSpec, table, env, rng: np.random.Generator, budget_range: tuple[float, float]):

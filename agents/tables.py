@@ -159,5 +159,23 @@ def sink_rate(model: Any, x: Sequence[float]) -> float:
     return float(model.sink_rate([float(v) for v in x]))
 
 
-__all__ = ["TableOracle", "as_table", "clear_filter_cache", "in_set", "paper_starts",
-           "safety_filter", "sample_inside", "sample_uniform", "sink_rate", "start_value", "uniform_box"]
+#: draws of ``RA~_Q`` tried per certified start before giving up (the set has no certified part)
+CERTIFIED_TRIES = 200
+
+
+def sample_certified(table, vf, q: float, rng: np.random.Generator) -> np.ndarray:
+    """A random start of ``RA~_Q`` (:func:`sample_inside`) that the filter certifies at ``t = 0``.
+
+    :param vf: the :class:`~softreach.filters.ValueFilter` that certifies (a table of the sampled-data game)
+    :raises ValueError: none of :data:`CERTIFIED_TRIES` draws was certified
+    """
+    for _ in range(CERTIFIED_TRIES):
+        x = np.asarray(sample_inside(table, q, rng), dtype=np.float64)
+        if bool(vf.certify(0.0, x, q)[0]):
+            return x
+    raise ValueError(f"no certified start in {CERTIFIED_TRIES} draws of RA~_Q (Q={q:g}) from table {table.path}")
+
+
+__all__ = ["CERTIFIED_TRIES", "TableOracle", "as_table", "clear_filter_cache", "in_set", "paper_starts",
+           "safety_filter", "sample_certified", "sample_inside", "sample_uniform", "sink_rate", "start_value",
+           "uniform_box"]
