@@ -58,6 +58,8 @@ AGGREGATE_FIELDS: dict[str, tuple[str, str]] = {
     "intervened_episodes": (RATE + "?", "episodes in which the filter acted at least once; null without a filter"),
     "outcomes": ("dict", "counts of 'landed', 'hard_violation', 'timeout'"),
 }
+#: aggregates added to ``softreach.evaluation/1`` after its first documents: written always, required never
+ADDED_AGGREGATES = frozenset({"time_to_land"})
 #: per-episode field -> (type, meaning)
 EPISODE_FIELDS: dict[str, tuple[str, str]] = {
     "episode": ("int", "index"),
@@ -177,6 +179,8 @@ def validate_evaluation(doc: dict[str, Any]) -> None:
             raise ValueError(f"config lacks {key!r}")
     agg = doc["aggregates"]
     for key, (kind, _) in AGGREGATE_FIELDS.items():
+        if key not in agg and key in ADDED_AGGREGATES:
+            continue  # a document written before the field was added to the schema
         if key not in agg:
             raise ValueError(f"aggregates lack {key!r}")
         _check_type(f"aggregates.{key}", agg[key], kind)

@@ -57,3 +57,19 @@ def test_certified_starts_wrapper(pointmass_held_table):
     assert env.unwrapped.state[1] == 15.0
     with pytest.raises(ValueError, match="filter"):
         make_env("pointmass", certified_starts=True)
+
+
+def test_documents_without_later_aggregates_still_validate(tmp_path, pointmass_held_table):
+    """``time_to_land`` joined the evaluation schema later: documents written before it stay valid, and a
+    document missing a field that was always there still fails, naming it."""
+    from softreach.agents.report import evaluation_document, validate_evaluation
+
+    res = evaluate(EvalSpec(policy="random", table=str(pointmass_held_table.path), budget=0.3, episodes=2,
+                            starts="inside", seed=0))
+    doc = evaluation_document(res)
+    assert "time_to_land" in doc["aggregates"]
+    del doc["aggregates"]["time_to_land"]
+    validate_evaluation(doc)
+    del doc["aggregates"]["control_effort"]
+    with pytest.raises(ValueError, match="control_effort"):
+        validate_evaluation(doc)
