@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from .horizon import exact_before_horizon
 from .interpolation import box_max, interpolate
 
 
@@ -65,16 +66,17 @@ class Lookahead:
     :param pieces: sub-intervals of the period for the budget bound (item 2)
     :param target_checks: the instants per period at which the environment checks for landing (its sub-steps);
         it must check at least there (the point-mass env has 10 sub-steps, the glider's 2)
+    :param exact_periods: how many of the last sample times before the horizon judge end boxes by a witness
     """
 
     def __init__(self, fields: dict[str, tuple[Any, np.ndarray, Any]], model: Any, dt: float, eps: float,
                  candidates: Any, margin: float = 0.0, pieces: int = 4, target_checks: int = 1,
-                 exact_periods: int = 1):
+                 exact_periods: int = 10):
         self.model, self.dt, self.eps, self.margin = model, float(dt), float(eps), float(margin)
         if not (isinstance(exact_periods, (int, np.integer)) and exact_periods >= 0):
             raise ValueError(f"exact_periods must be an integer >= 0, got {exact_periods!r}")
-        #: end boxes at the last ``exact_periods`` sample times before the horizon are judged by recursion, not
-        #: by the table (:meth:`_exact_before_horizon`); each one more multiplies that work by the candidates
+        #: end boxes at the last ``exact_periods`` sample times before the horizon are judged by a witness, not
+        #: by the table (:mod:`softreach.reach.horizon`)
         self.exact_periods = int(exact_periods)
         self.pieces = int(pieces)
         if not (isinstance(target_checks, (int, np.integer)) and target_checks >= 1):
@@ -203,13 +205,15 @@ class Lookahead:
         return ok, nxt
 
     def assess(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray, x_hi: np.ndarray | None = None,
-               z_hi: np.ndarray | None = None, ends: bool = False):
+               z_hi: np.ndarray | None = None, ends: bool = False, exact: bool = True):
         """:meth:`check` plus a ``badness`` per row that ranks actions where none passes: first those that keep the
         period in ``C1`` (then the least overspend, then the lowest next certificate), then the rest by how far
         they may leave ``C1``. Safety comes before the budget, the budget before landing on time.
 
         With ``x_hi`` (and ``z_hi``) the rows are boxes of states ``[x, x_hi] x [z, z_hi]``, and an action passes
-        when it passes from every state of the box (:meth:`Dynamics.held_enclosure_box`).
+        when it passes from every state of the box (:meth:`Dynamics.held_enclosure_box`). End boxes in the last
+        :attr:`exact_periods` sample times before the horizon are judged by a witness, not by the table
+        (:mod:`softreach.reach.horizon`; ``exact=False`` reads the table there too, as the witness search does).
 
         :return: ``(admissible, next_value, badness)``; ``badness == next_value`` where the action passes
             (``-inf`` where every run surely lands inside the period); with
@@ -265,8 +269,9 @@ class Lookahead:
                 v = box_max(V, Vt, Vg, t_next[rows], end_lo[rows], end_hi[rows])
                 best = np.minimum(best, np.where(z_end[rows] >= 0, v, np.inf))
             nxt[rows] = np.where(np.isnan(best), np.inf, best)
-            nxt[rows] = self._exact_before_horizon(t_next[rows], end_lo[rows], end_hi[rows], z_end[rows],
-                                                   z_top[rows], nxt[rows])
+            if exact:
+                nxt[rows] = exact_before_horizon(self, t_next[rows], end_lo[rows], end_hi[rows], z_end[rows],
+                                                 z_top[rows], nxt[rows])
         # where no action passes, the hard constraint comes first: an action whose end box lies where C1 can
         # still be kept until T (V_safe <= 0, the held game of staying in C1) beats one that keeps only the budget
         safe = in_c1.copy()
@@ -288,31 +293,6 @@ class Lookahead:
         nxt = np.where(ok, nxt, np.inf)
         out = (passing, nxt, bad)
         return out + (end_lo, end_hi, z_end, ok) if ends else out
-
-    def _exact_before_horizon(self, t_next: np.ndarray, end_lo: np.ndarray, end_hi: np.ndarray,
-                              z_lo: np.ndarray, z_hi: np.ndarray, nxt: np.ndarray) -> np.ndarray:
-        """End boxes at the last sample time before the horizon are judged exactly, not by the table.
-
-        There the certificate is a one-period game against the terminal value, and its interpolant between nodes
-        can promise a landing that no held action delivers: the target's edge (``y = 0.7`` for the point mass)
-        runs between two nodes, one that lands within the period and one that cannot. The exact question is
-        whether one candidate passes from every state of the end box to the horizon, where the table holds the
-        terminal value (convex: its interpolant is sound) or the run lands inside the period. Only the model's
-        box enclosure answers it; without one the table's value stands.
-
-        :return: ``nxt`` with those rows replaced: ``min(nxt, -margin)`` where a candidate passes from the whole
-            box, otherwise ``max(nxt, tiny)`` (not certified)
-        """
-        final = (t_next < self.horizon - 1e-9) & (t_next + self.exact_periods * self.dt
-                                                  >= self.horizon - 1e-9 * max(1.0, self.horizon))
-        final &= np.isfinite(nxt)
-        if not (self.box_support and final.any()):
-            return nxt
-        idx = np.nonzero(final)[0]
-        ok = self.keeps_certified(t_next[idx], end_lo[idx], end_hi[idx], z_lo[idx], z_hi[idx])
-        out = nxt.copy()
-        out[idx] = np.where(ok, np.minimum(nxt[idx], -self.margin), np.maximum(nxt[idx], 1e-12))
-        return out
 
     def _meets_target(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """Rows whose box ``[lo, hi]`` meets the model's :attr:`~softreach.reach.problem.Model.target_box`: a
