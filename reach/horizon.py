@@ -10,8 +10,9 @@ period or, at the horizon, inside the terminal value's certificate (convex, so i
 candidates are chosen greedily, lowest table value of their end box first: the table guides, the enclosures
 decide. A witness proves the box certified; its absence says "not certified", which is conservative.
 
-Along a witness the chain cannot break: its first action passes from the actual state, and its end box carries
-the rest of the witness. Before the window the table decides as before.
+A witness's first action passes from the state reached, and its end box carries the rest; the next decision
+searches again from that state's own end box and may choose differently (nothing remembers the witness), so this
+makes the chain hold in practice, not by proof. Before the window the table decides as before.
 """
 
 from __future__ import annotations
