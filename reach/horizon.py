@@ -60,14 +60,17 @@ def witness_lands(la: Any, t: np.ndarray, lo: np.ndarray, hi: np.ndarray, z_lo: 
     return won
 
 
+def in_window(la: Any, t: np.ndarray) -> np.ndarray:
+    """Sample times ``t`` among the last ``la.exact_periods`` before the horizon (the horizon itself excluded)."""
+    return (t < la.horizon - 1e-9) & (t + la.exact_periods * la.dt >= la.horizon - 1e-9 * max(1.0, la.horizon))
+
+
 def exact_before_horizon(la: Any, t_next: np.ndarray, end_lo: np.ndarray, end_hi: np.ndarray,
                          z_lo: np.ndarray, z_hi: np.ndarray, nxt: np.ndarray) -> np.ndarray:
     """``nxt`` (the table's worst value over each end box) with the end boxes in the last ``la.exact_periods``
     sample times before the horizon judged by a witness instead: ``min(nxt, -margin)`` where one lands from the
     whole box, ``max(nxt, tiny)`` (not certified) where none is found. Unchanged without a box enclosure."""
-    window = (t_next < la.horizon - 1e-9) & (t_next + la.exact_periods * la.dt
-                                             >= la.horizon - 1e-9 * max(1.0, la.horizon))
-    window &= np.isfinite(nxt)
+    window = in_window(la, t_next) & np.isfinite(nxt)
     if not (la.box_support and window.any()):
         return nxt
     idx = np.nonzero(window)[0]
@@ -77,4 +80,4 @@ def exact_before_horizon(la: Any, t_next: np.ndarray, end_lo: np.ndarray, end_hi
     return out
 
 
-__all__ = ["exact_before_horizon", "witness_lands"]
+__all__ = ["exact_before_horizon", "in_window", "witness_lands"]

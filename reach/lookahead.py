@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from .horizon import exact_before_horizon
+from .horizon import exact_before_horizon, in_window
 from .interpolation import box_max, interpolate
 
 
@@ -356,7 +356,12 @@ class Lookahead:
             # a run that surely lands needs no next step; on the last period the end states must be certified.
             # Otherwise the end box need not lie in {D <= 0}: that a candidate passes from every end state is
             # what keeps the chain going, and it holds also where the interpolant is conservative (D > 0)
-            rows = np.nonzero(kept & ~last & (nxt > -np.inf))[0]
+            todo = kept & ~last & (nxt > -np.inf)
+            # an end box in the witness window with a witness keeps already: the witness's first candidate passes
+            # from the whole box, and the greedy search from its end box is the rest of the same witness
+            witnessed = todo & in_window(self, t + self.dt) & (nxt <= -self.margin)
+            keeps[witnessed] = True
+            rows = np.nonzero(todo & ~witnessed)[0]
             keeps[rows] = self.keeps_certified(t[rows] + self.dt, end_lo[rows], end_hi[rows], z_end[rows], z[rows])
         return ok, nxt, bad, keeps
 
