@@ -10,7 +10,7 @@ use). Each latency is the mean time per call over many calls, on fixed random in
 ``--repeats`` runs:
 
 * **single query** — ``ValueFilter.filter(t, x, z, action)`` for one state (numpy, switch rule): the call a
-  ``SafetyFilter.step`` makes. Target: under 50 us.
+  ``SafetyFilter.step`` makes. Target: under 100 us.
 * **batch of 1,024** — the same call on ``(1024, n)`` states (numpy). Target: under 1 ms.
 * the same for the smooth rule, for torch tensors (CPU) in and out, and, for scale, the ``Table`` API calls the
   filter replaces (``Table.value`` + ``Table.optimal_control``).
@@ -177,19 +177,17 @@ def main(argv: list[str] | None = None) -> dict:
                         "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS")},
             "table": {"grid": table.grid("W_eps").to_dict(), "snapshots": len(table.times())},
             "filter_construction_s": build,
-            "margin": vf.margin_field.summary(),
+            "sampled_data_table": vf.sampled,
         }
-        print(f"filter construction (margin field): {build * 1e3:.0f} ms")
-        print("margin terms (largest over the table):",
-              ", ".join(f"{k} {v:.3f}" for k, v in results["margin"]["terms_max"].items()))
+        print(f"filter construction: {build * 1e3:.0f} ms (table solved for dt = {DT} s: {vf.sampled})")
         lat = latency(table, args.repeats)
         results["latency_us"] = lat
         print(f"{'latency [us]':32s} {'wall best':>10s} {'wall median':>12s} {'cpu median':>11s}")
         for k, v in lat.items():
             print(f"{k:32s} {v['wall_best']:10.1f} {v['wall_median']:12.1f} {v['cpu_median']:11.1f}")
         single, batch = lat["switch_single_us"], lat["switch_batch1024_us"]
-        print(f"targets (wall median / best): single query < 50 us: {single['wall_median'] < 50} / "
-              f"{single['wall_best'] < 50}; batch of 1,024 < 1 ms: {batch['wall_median'] < 1000} / "
+        print(f"targets (wall median / best): single query < 100 us: {single['wall_median'] < 100} / "
+              f"{single['wall_best'] < 100}; batch of 1,024 < 1 ms: {batch['wall_median'] < 1000} / "
               f"{batch['wall_best'] < 1000}")
         if not args.skip_eval:
             ev = evaluate(table)

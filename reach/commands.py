@@ -26,6 +26,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--backend", choices=["torch", "numpy"], default="torch")
     p.add_argument("--dtype", choices=["float32", "float64"], default="float32")
     p.add_argument("--compile", choices=["auto", "yes", "no"], default="auto", help="fuse steps with torch.compile")
+    p.add_argument("--dissipation", choices=["auto", "godunov", "local", "global"], default="local",
+                   help="numerical Hamiltonian: local/global Lax-Friedrichs, Godunov's (separable Hamiltonians), "
+                        "or auto: Godunov where separable (default local)")
     p.add_argument("--snapshots", type=int, default=None, help="output times over [0, T] (also the checkpoint interval)")
     p.add_argument("--out", default=None, help="table path (default: <model>.srt)")
     p.add_argument("--json", dest="json_path", default=None, help="write a machine-readable summary here")
@@ -103,7 +106,8 @@ def _settings(args: argparse.Namespace):
     from .solver import SolverSettings
 
     compile_ = {"auto": None, "yes": True, "no": False}[args.compile]
-    return SolverSettings.from_accuracy(args.accuracy, backend=args.backend, device=args.device, dtype=args.dtype, compile=compile_)
+    return SolverSettings.from_accuracy(args.accuracy, backend=args.backend, device=args.device, dtype=args.dtype,
+                                        compile=compile_, dissipation=getattr(args, "dissipation", "local"))
 
 
 def run_solve(args: argparse.Namespace) -> int:
