@@ -55,20 +55,58 @@ def box_max(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray, lo
             out[sel] = _block_max(values, times, grid, t[sel], lo[sel], hi[sel], [f[sel] for f, _ in axes],
                                   cnt + 2)
     out[~inside_all] = np.inf
-    for r in np.nonzero(~ok & inside_all)[0]:
-        # a wide box: every node of every cell it touches, at both snapshots around t
-        sl = []
+    wide = np.nonzero(~ok & inside_all)[0]
+    if len(wide):
+        out[wide] = _cells_max(values, times, grid, t[wide], lo[wide], hi[wide])
+    return out
+
+
+def _cells_max(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray, lo: np.ndarray,
+               hi: np.ndarray, chunk: int = 1 << 21) -> np.ndarray:
+    """The largest node value of every cell each box touches, at both snapshots around ``t``: :func:`box_max`'s
+    bound for wide boxes. Rows are padded to the widest box of their chunk (the padding masked out), and chunked so
+    that a chunk gathers at most ``chunk`` values."""
+    R, d = lo.shape
+    n_t = len(times)
+    flat = values.reshape(n_t, -1) if isinstance(values, np.ndarray) else values
+    if isinstance(flat, np.memmap):
+        flat = flat.view(np.ndarray)
+    strides = [int(np.prod(grid.shape[a + 1:])) for a in range(d)]
+    first, count = np.zeros((R, d), np.int64), np.zeros((R, d), np.int64)
+    for a in range(d):
+        h, n = grid.spacing[a], grid.shape[a]
+        i0 = np.floor((lo[:, a] - grid.lo[a]) / h).astype(np.int64)
+        i1 = np.ceil((hi[:, a] - grid.lo[a]) / h).astype(np.int64)
+        if not grid.periodic[a]:
+            i0, i1 = np.maximum(i0, 0), np.minimum(i1, n - 1)
+        first[:, a], count[:, a] = i0, np.minimum(i1 - i0 + 1, n)
+    k, wt, _, _ = snapshot_pair(np.asarray(times, dtype=np.float64), t)
+    k_next = np.where(wt > 0, np.minimum(k + 1, n_t - 1), k)
+    out = np.empty(R)
+    order = np.argsort(count.prod(axis=1), kind="stable")
+    start = 0
+    while start < R:
+        # as many rows as fit, padded to the widest of them (rows sorted by size, so padding stays small)
+        widest = np.maximum.accumulate(count[order[start:]], axis=0).prod(axis=1)
+        gathered = widest * np.arange(1, R - start + 1)
+        stop = start + max(1, int(np.searchsorted(gathered, chunk, side="right")))
+        sel = order[start:stop]
+        L = count[sel].max(axis=0)
+        lin = np.zeros((len(sel),) + (1,) * d, np.int64)
+        valid = np.ones((len(sel),) + (1,) * d, bool)
         for a in range(d):
-            h = grid.spacing[a]
-            i0 = int(np.floor((lo[r, a] - grid.lo[a]) / h))
-            i1 = int(np.ceil((hi[r, a] - grid.lo[a]) / h))
-            if grid.periodic[a]:
-                sl.append(np.arange(i0, i1 + 1) % grid.shape[a])
-            else:
-                sl.append(np.arange(max(i0, 0), min(i1, grid.shape[a] - 1) + 1))
-        k = int(snapshot_pair(np.asarray(times, dtype=np.float64), t[r:r + 1])[0][0])
-        ks = [k] if len(times) == 1 else [k, k + 1]
-        out[r] = max(float(np.max(np.asarray(values[kk])[np.ix_(*sl)])) for kk in ks)
+            offs = np.arange(L[a])
+            nodes = first[sel, a][:, None] + offs[None, :]
+            nodes = nodes % grid.shape[a] if grid.periodic[a] else np.minimum(nodes, grid.shape[a] - 1)
+            shape = [len(sel)] + [1] * d
+            shape[1 + a] = int(L[a])
+            lin = lin + (nodes * strides[a]).reshape(shape)
+            valid = valid & (offs[None, :] < count[sel, a][:, None]).reshape(shape)
+        idx = lin.reshape(len(sel), -1)
+        mask = np.broadcast_to(valid, lin.shape).reshape(len(sel), -1)
+        both = np.maximum(flat[k[sel][:, None], idx], flat[k_next[sel][:, None], idx])
+        out[sel] = np.where(mask, both, -np.inf).max(axis=1)
+        start = stop
     return out
 
 

@@ -91,6 +91,30 @@ def test_box_max_is_the_exact_maximum_of_the_interpolant(pointmass_held_table):
     assert off[0] == np.inf
 
 
+def test_box_max_of_wide_boxes_is_the_largest_node_of_the_cells_touched(pointmass_held_table):
+    """Boxes holding more than three nodes along an axis (a period's budget range ``[z_end, z]``) get the largest
+    node value of every cell they touch at the two snapshots around ``t``: an upper bound of the interpolant."""
+    table = pointmass_held_table
+    vals, times, g = table.values("W_eps"), table.times("W_eps"), table.grid("W_eps")
+    rng = np.random.default_rng(4)
+    N = 150
+    lo = np.c_[rng.uniform(-15, 14, N), rng.uniform(0, 17, N), rng.uniform(0, 0.5, N)]
+    hi = lo + np.c_[rng.uniform(0, 0.3, N), rng.uniform(0, 0.3, N), rng.uniform(0.1, 0.4, N)]
+    t = rng.uniform(times[0], times[-2], N)
+    got = box_max(vals, times, g, t, lo, hi)
+    nodes = [g.lo[a] + g.spacing[a] * np.arange(g.shape[a]) for a in range(3)]
+    for i in range(N):
+        k = int(np.searchsorted(times, t[i], side="right") - 1)
+        cells = [np.nonzero((ax >= ax[ax <= lo[i, a]].max()) & (ax <= ax[ax >= hi[i, a]].min()))[0]
+                 for a, ax in enumerate(nodes)]
+        expect = max(np.asarray(vals[kk])[np.ix_(*cells)].max() for kk in (k, k + 1))
+        assert got[i] == pytest.approx(expect, abs=1e-6)
+        P = np.stack(np.meshgrid(*[np.linspace(lo[i, a], hi[i, a], 5) for a in range(3)], indexing="ij"),
+                     -1).reshape(-1, 3)
+        v, _ = interpolate(vals, times, g, np.full(len(P), t[i]), P)
+        assert got[i] >= v.max() - 1e-9
+
+
 def test_box_max_wraps_a_periodic_axis():
     from softreach.reach.grid import Grid
 
