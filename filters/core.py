@@ -156,8 +156,10 @@ class ValueFilter:
         self.lookahead = Lookahead.from_table(table, self.model, self.dt, self.eps, margin=self.constant_margin or 0.0,
                                               target_checks=target_checks)
         self.target_checks = self.lookahead.target_checks
-        #: up to this many rows, :meth:`filter` judges the policy's action and the candidates in one batch
-        self.joint_rows = 8
+        #: up to this many rows, :meth:`filter` judges the policy's action and the candidates in one batch. 0: the
+        #: policy's action first, the candidates only where it fails. From certified states with a random policy
+        #: (6 % interventions) that is the faster one: median 2.1 ms a decision against 2.7 ms with 8
+        self.joint_rows = 0
 
     # ---------------------------------------------------------------- conversions
     def physical(self, action: Any) -> np.ndarray:
