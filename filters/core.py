@@ -295,7 +295,7 @@ class ValueFilter:
         else:
             _, nxt, _, ok = la.passes(tt, xs, zz, pol)
             rows = np.nonzero(~ok)[0]
-            cand = la.candidates_pass(tt[rows], xs[rows], zz[rows]) if len(rows) else None
+            cand = self._candidates(tt[rows], xs[rows], zz[rows], pol[rows]) if len(rows) else None
         applied = pol.copy()
         reason = np.full(N, PASS, dtype=np.int64)
         blend = np.ones(N)
@@ -347,6 +347,35 @@ class ValueFilter:
         return applied, info
 
     __call__ = filter
+
+    def _candidates(self, t, x, z, pol):
+        """:meth:`Lookahead.candidates_pass` as the rule reads it: every candidate's one-period test, and whether it
+        keeps the next state certified asked only in the rule's order of preference (lowest next certificate, or
+        nearest the policy's action), up to the first that keeps. The choice is the same; the costly ``keeps`` is
+        asked of one or two candidates a row instead of all."""
+        la = self.lookahead
+        N, J = len(x), len(la.candidates)
+        flat = la._each_candidate(t, x, z)
+        ok, nxt, bad, end_lo, end_hi, z_end, kept = la.assess(*flat, ends=True)
+        cand_ok, cand_next, cand_bad = (v.reshape(N, J) for v in (ok, nxt, bad))
+        if self.rule == "smooth":
+            pref = np.linalg.norm((la.candidates[None, :, :] - pol[:, None, :]) / self.a_half, axis=2)
+        else:
+            pref = cand_next
+        order = np.argsort(np.where(cand_ok, pref, np.inf), axis=1, kind="stable")
+        cand_keeps = np.zeros((N, J), bool)
+        open_rows = np.nonzero(cand_ok.any(axis=1))[0]
+        for rank in range(J):
+            j = order[open_rows, rank]
+            live = cand_ok[open_rows, j]  # passing candidates come first: past them a row is done
+            open_rows, j = open_rows[live], j[live]
+            if not len(open_rows):
+                break
+            f = open_rows * J + j
+            k = la.keeps(flat[0][f], flat[2][f], ok[f], nxt[f], end_lo[f], end_hi[f], z_end[f], kept[f])
+            cand_keeps[open_rows, j] = k
+            open_rows = open_rows[~k]
+        return cand_ok, cand_next, cand_bad, cand_keeps
 
     def _bisect(self, t, x, z, best, pol, any_ok, best_next):
         """The largest ``lam`` in ``[0, 1]`` (by bisection) with ``best + lam (pol - best)`` admissible."""

@@ -107,6 +107,9 @@ class Lookahead:
 
         #: the model bounds boxes of starts: the filter can ask that the next state be certified again
         self.box_support = type(model).held_enclosure_box is not Dynamics.held_enclosure_box
+        #: up to this many boxes, :meth:`keeps_certified` judges every candidate in one call; above, one candidate
+        #: at a time for the boxes still open (less work once most boxes are kept by the first candidates)
+        self.joint_rows = 8
 
     @classmethod
     def from_table(cls, table: Any, model: Any, dt: float, eps: float, margin: float = 0.0,
@@ -350,6 +353,12 @@ class Lookahead:
             the budget, not that every end state has ``D <= 0`` (``next_value`` may be positive)
         """
         ok, nxt, bad, end_lo, end_hi, z_end, kept = self.assess(t, x, z, a, ends=True)
+        keeps = self.keeps(t, z, ok, nxt, end_lo, end_hi, z_end, kept)
+        return ok, nxt, bad, keeps
+
+    def keeps(self, t: np.ndarray, z: np.ndarray, ok: np.ndarray, nxt: np.ndarray, end_lo: np.ndarray,
+              end_hi: np.ndarray, z_end: np.ndarray, kept: np.ndarray) -> np.ndarray:
+        """The ``keeps`` of :meth:`passes`, from :meth:`assess` with ``ends=True`` (its outputs for the same rows)."""
         keeps = ok.copy()
         if self.box_support:
             last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
@@ -363,7 +372,7 @@ class Lookahead:
             keeps[witnessed] = True
             rows = np.nonzero(todo & ~witnessed)[0]
             keeps[rows] = self.keeps_certified(t[rows] + self.dt, end_lo[rows], end_hi[rows], z_end[rows], z[rows])
-        return ok, nxt, bad, keeps
+        return keeps
 
     def keeps_certified(self, t: np.ndarray, end_lo: np.ndarray, end_hi: np.ndarray, z_lo: np.ndarray,
                         z_hi: np.ndarray) -> np.ndarray:
@@ -376,12 +385,26 @@ class Lookahead:
         N, J = len(end_lo), len(self.candidates)
         if N == 0:
             return np.zeros(0, bool)
-        tt, lo, zl, hi, zh, a = self._each_candidate(t, end_lo, np.maximum(z_lo, 0.0), end_hi, z_hi)
+        z_lo = np.maximum(z_lo, 0.0)
         try:
-            ok, _, _ = self.assess(tt, lo, zl, a, x_hi=hi, z_hi=zh)
+            if N <= self.joint_rows:
+                # few boxes: every candidate in one call (a call's cost is mostly fixed overhead)
+                tt, lo, zl, hi, zh, a = self._each_candidate(t, end_lo, z_lo, end_hi, z_hi)
+                ok, _, _ = self.assess(tt, lo, zl, a, x_hi=hi, z_hi=zh)
+                return ok.reshape(N, J).any(axis=1)
+            # many: one candidate at a time, each only for the boxes no earlier candidate kept
+            out = np.zeros(N, bool)
+            rows = np.arange(N)
+            for a in self.candidates:
+                ok, _, _ = self.assess(t[rows], end_lo[rows], z_lo[rows], np.tile(a, (len(rows), 1)),
+                                       x_hi=end_hi[rows], z_hi=z_hi[rows])
+                out[rows[ok]] = True
+                rows = rows[~ok]
+                if not len(rows):
+                    break
+            return out
         except NotImplementedError:
             return np.zeros(N, bool)
-        return ok.reshape(N, J).any(axis=1)
 
     def best_candidate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The candidate held action with the lowest worst-case next certificate, per row.
