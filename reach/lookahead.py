@@ -107,9 +107,6 @@ class Lookahead:
 
         #: the model bounds boxes of starts: the filter can ask that the next state be certified again
         self.box_support = type(model).held_enclosure_box is not Dynamics.held_enclosure_box
-        #: up to this many boxes, :meth:`keeps_certified` judges every candidate in one call; above, one candidate
-        #: at a time for the boxes still open (less work once most boxes are kept by the first candidates)
-        self.joint_rows = 8
 
     @classmethod
     def from_table(cls, table: Any, model: Any, dt: float, eps: float, margin: float = 0.0,
@@ -386,25 +383,12 @@ class Lookahead:
         if N == 0:
             return np.zeros(0, bool)
         z_lo = np.maximum(z_lo, 0.0)
+        tt, lo, zl, hi, zh, a = self._each_candidate(t, end_lo, z_lo, end_hi, z_hi)
         try:
-            if N <= self.joint_rows:
-                # few boxes: every candidate in one call (a call's cost is mostly fixed overhead)
-                tt, lo, zl, hi, zh, a = self._each_candidate(t, end_lo, z_lo, end_hi, z_hi)
-                ok, _, _ = self.assess(tt, lo, zl, a, x_hi=hi, z_hi=zh)
-                return ok.reshape(N, J).any(axis=1)
-            # many: one candidate at a time, each only for the boxes no earlier candidate kept
-            out = np.zeros(N, bool)
-            rows = np.arange(N)
-            for a in self.candidates:
-                ok, _, _ = self.assess(t[rows], end_lo[rows], z_lo[rows], np.tile(a, (len(rows), 1)),
-                                       x_hi=end_hi[rows], z_hi=z_hi[rows])
-                out[rows[ok]] = True
-                rows = rows[~ok]
-                if not len(rows):
-                    break
-            return out
+            ok, _, _ = self.assess(tt, lo, zl, a, x_hi=hi, z_hi=zh)
         except NotImplementedError:
             return np.zeros(N, bool)
+        return ok.reshape(N, J).any(axis=1)
 
     def best_candidate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The candidate held action with the lowest worst-case next certificate, per row.
