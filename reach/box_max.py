@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .grid import Grid
-from .interpolation import snapshot_pair
+from .interpolation import interpolate, snapshot_pair
 
 
 def box_max(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray, lo: np.ndarray,
@@ -52,13 +52,29 @@ def box_max(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray, lo
         for g in np.unique(key):
             sel = rows[key == g]
             cnt = counts[sel[0]]
-            out[sel] = _block_max(values, times, grid, t[sel], lo[sel], hi[sel], [f[sel] for f, _ in axes],
-                                  cnt + 2)
+            out[sel] = _points_max(values, times, grid, t[sel], lo[sel], hi[sel], [f[sel] for f, _ in axes], cnt + 2)
     out[~inside_all] = np.inf
     wide = np.nonzero(~ok & inside_all)[0]
     if len(wide):
         out[wide] = _cells_max(values, times, grid, t[wide], lo[wide], hi[wide])
     return out
+
+
+def _points_max(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                first: list[np.ndarray], L: np.ndarray) -> np.ndarray:
+    """:func:`box_max` for boxes that hold ``L[a] - 2`` grid nodes along each axis ``a``: the interpolant at every
+    corner of every sub-box (along each axis the box's ends and its inner nodes), in one call of the one
+    interpolation engine, and the largest per box."""
+    R, d = lo.shape
+    coords = []
+    for a in range(d):
+        inner = grid.lo[a] + grid.spacing[a] * (first[a][:, None] + np.arange(int(L[a]) - 2)[None, :])
+        coords.append(np.concatenate([lo[:, a:a + 1], inner, hi[:, a:a + 1]], axis=1))
+    mesh = np.meshgrid(*[np.arange(int(n)) for n in L], indexing="ij")
+    P = mesh[0].size
+    pts = np.stack([coords[a][:, mesh[a].ravel()] for a in range(d)], axis=-1)
+    v, _ = interpolate(values, times, grid, np.repeat(t, P), pts.reshape(R * P, d))
+    return v.reshape(R, P).max(axis=1)
 
 
 def _cells_max(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray, lo: np.ndarray,
@@ -108,55 +124,3 @@ def _cells_max(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray,
         out[sel] = np.where(mask, both, -np.inf).max(axis=1)
         start = stop
     return out
-
-
-def _block_max(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-               first: list[np.ndarray], L: np.ndarray) -> np.ndarray:
-    """:func:`box_max` for boxes that hold ``L[a] - 2`` grid nodes along each axis ``a``: gather the ``L[a]`` nodes
-    around each box once (a block per row), interpolate in time, then along each axis onto the candidates (the
-    box's ends and its inner nodes; two weights each), and take the largest."""
-    R, d = lo.shape
-    n_t = len(times)
-    flat = values.reshape(n_t, -1) if isinstance(values, np.ndarray) else values
-    if isinstance(flat, np.memmap):
-        flat = flat.view(np.ndarray)
-    strides = [int(np.prod(grid.shape[a + 1:])) for a in range(d)]
-    lin = np.zeros((R,) + (1,) * d, np.int64)
-    mats = []
-    for a in range(d):
-        n, h, La = grid.shape[a], grid.spacing[a], int(L[a])
-        s_lo = (lo[:, a] - grid.lo[a]) / h
-        s_hi = (hi[:, a] - grid.lo[a]) / h
-        if grid.periodic[a]:
-            b0 = np.floor(s_lo).astype(np.int64)
-        else:
-            s_lo, s_hi = np.clip(s_lo, 0.0, n - 1), np.clip(s_hi, 0.0, n - 1)
-            b0 = np.clip(np.floor(s_lo).astype(np.int64), 0, n - La)
-        nodes = b0[:, None] + np.arange(La)[None, :]
-        if grid.periodic[a]:
-            nodes = nodes % n
-        shape = [R] + [1] * d
-        shape[1 + a] = La
-        lin = lin + (nodes * strides[a]).reshape(shape)
-        # the candidates in block units: lo, the inner nodes, hi
-        rel = np.concatenate([(s_lo - b0)[:, None], (first[a][:, None] + np.arange(La - 2)[None, :]) - b0[:, None],
-                              (s_hi - b0)[:, None]], axis=1)
-        rel = np.clip(rel, 0.0, La - 1)
-        r = np.minimum(np.floor(rel).astype(np.int64), La - 2)
-        f = rel - r
-        M = np.zeros((R, La, La))
-        rows = np.arange(R)[:, None]
-        cols = np.arange(La)[None, :]
-        M[rows, cols, r] = 1.0 - f
-        M[rows, cols, r + 1] += f
-        mats.append(M)
-    k, wt, _, _ = snapshot_pair(np.asarray(times, dtype=np.float64), t)
-    idx = lin.reshape(R, -1)
-    block = flat[k[:, None], idx] * (1.0 - wt)[:, None]
-    if np.any(wt):
-        block += flat[np.minimum(k + 1, n_t - 1)[:, None], idx] * wt[:, None]
-    V = block.reshape((R,) + tuple(int(x) for x in L))
-    for a in range(d):
-        # contract axis 1 + a of the block with the candidates' weights; the candidate axis takes its place
-        V = np.moveaxis(np.einsum("rjl,rl...->rj...", mats[a], np.moveaxis(V, 1 + a, 1)), 1, 1 + a)
-    return V.reshape(R, -1).max(axis=1)

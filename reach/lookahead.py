@@ -168,11 +168,12 @@ class Lookahead:
     def _budget_spent(self, t: np.ndarray, piece_lo: np.ndarray, piece_hi: np.ndarray, length: float) -> np.ndarray:
         """The budget bound of item 2 over ``length`` seconds cut in ``len(piece_lo)`` equal pieces: each piece
         charged at the largest ``h_eps`` over its box (at a corner: ``c2`` is convex)."""
-        spent = np.zeros(piece_lo.shape[1])
-        for lo, hi in zip(piece_lo, piece_hi):
-            c2 = self._corner_max(self.model.soft_constraint, t, lo, hi)
-            spent += (length / len(piece_lo)) * np.clip(c2 / self.eps, 0.0, 1.0)
-        return spent
+        P, N = piece_lo.shape[0], piece_lo.shape[1]
+        # every piece of every row in one evaluation
+        t_all = t if np.isscalar(_time_arg(t)) else np.tile(t, P)
+        c2 = self._corner_max(self.model.soft_constraint, t_all, np.reshape(piece_lo, (P * N, -1)),
+                              np.reshape(piece_hi, (P * N, -1)))
+        return (length / P) * np.clip(c2 / self.eps, 0.0, 1.0).reshape(P, N).sum(axis=0)
 
     def _enclose(self, t: np.ndarray, x: np.ndarray, a: np.ndarray, dt: float | None = None):
         t0 = _time_arg(t)
@@ -274,14 +275,16 @@ class Lookahead:
                                                  z_top[rows], nxt[rows])
         # where no action passes, the hard constraint comes first: an action whose end box lies where C1 can
         # still be kept until T (V_safe <= 0, the held game of staying in C1) beats one that keeps only the budget
+        # (only ranks actions that do not pass, so it is asked of those alone)
+        passing = ok & (nxt <= -self.margin)
         safe = in_c1.copy()
-        if "V_safe" in self.fields and len(rows):
+        ranked = np.nonzero(in_c1 & ~passing)[0]
+        if "V_safe" in self.fields and len(ranked):
             S, St, Sg = self.fields["V_safe"]
-            safe[rows] = box_max(S, St, Sg, t_next[rows], end_lo[rows], end_hi[rows]) <= 0
+            safe[ranked] = box_max(S, St, Sg, t_next[ranked], end_lo[ranked], end_hi[ranked]) <= 0
         # ranks, lower is better: passing, by next value (<= 0) < 1e6 safe, budget kept < 2e6 safe, overspent
         # < 3e6 budget kept < 4e6 overspent < 5e6 + how far C1 may be left < inf (not bounded); within a rank
         # the next value, then the overspend, breaks ties
-        passing = ok & (nxt <= -self.margin)
         lands = self._lands(t, x, z, a, x_hi, ~passing & bounded & in_time & self._meets_target(tube_lo, tube_hi))
         passing |= lands
         ok |= lands
