@@ -129,3 +129,27 @@ def test_budget_surface_with_godunov_is_sound_and_tighter(tmp_path):
         assert np.all(claimed["godunov"][q] >= claimed["local"][q]), q
         gained += int(claimed["godunov"][q].sum() - claimed["local"][q].sum())
     assert gained > 0
+
+
+def test_w_eps_with_godunov_is_sound_to_one_cell_and_no_looser(pointmass_table, tmp_path):
+    """The fixture's ``W_eps`` solve (41 x 41 x 45, ENO2/RK2) again with Godunov's flux: a node claimed outside the
+    exact set lies next to it (the fixture's own criterion, ``tests/test_exact_pointmass.py``), and the symmetric
+    difference to the exact sets is no larger than Lax-Friedrichs' at any budget."""
+    from scipy.ndimage import distance_transform_cdt
+
+    from softreach.reach import SolveConfig, load_table, solve_table
+    from softreach.reach.exact_pointmass import grade
+
+    path = tmp_path / "pm-godunov.srt"
+    cfg = SolveConfig(shape=(41, 41), budget_points=45, snapshots=11,
+                      settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False,
+                                                            dissipation="godunov"))
+    solve_table(get_model("pointmass"), cfg, path, progress=False)
+    table = load_table(path)
+    budgets = (0.0, 0.06, 0.3, 0.6)
+    ours, theirs = grade(table, budgets), grade(pointmass_table, budgets)
+    for q in budgets:
+        exact = exact_mask(table, q)
+        unsound = table.set_mask(0.0, q) & ~exact
+        assert (distance_transform_cdt(~exact, metric="chessboard")[unsound] <= 1).all(), q
+        assert ours[q]["symmetric_difference"] <= theirs[q]["symmetric_difference"] + 1e-9, q
