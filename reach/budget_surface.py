@@ -32,8 +32,9 @@ continuous, so its scheme has no jump to smear. :func:`solve_budget_surface` sol
 ``cap + V_feas`` in every snapshot of ``Q_min`` wherever ``V_feas > 0``: the smeared jump can no longer pull ``Q_min``
 below the time left outside the feasible set, which is where the unmasked solve claimed infeasible states. Above the
 cap the stored value still reads as "no budget suffices", and its slope, ``V_feas``'s, gives the feedback there the
-direction back towards the feasible set. The march itself runs
-unmasked (masking every stage as well was measured slightly looser, ``docs/budget_surface.md``).
+direction back towards the feasible set. Between snapshots the march runs unmasked, and it goes on from the masked
+snapshot, what the table stores, so a resumed solve continues as an unbroken one does (masking every stage as
+well was measured slightly looser, ``docs/budget_surface.md``).
 
 **The classical ``RA`` as the zero set, marched in lockstep.** ``Q_min(t, x) = 0`` exactly where ``x`` lands without
 leaving ``C2``, in the classical ``RA(t) = {V(t) <= 0}`` (paper, Prop. 3), not only on the target. So every step of
@@ -185,10 +186,14 @@ def solve_budget_surface(problem: BudgetSurfaceProblem, grid: Grid, times: Seque
     v = ra.terminal(times[-1])
     for k in range(len(times) - 2, k0 - 1, -1):  # a resumed solve: V up to where Q_min resumes
         v = march(steppers[0], times[k + 1], v, times[k])
+    u = masked(k0, times[k0], u)
     for k in range(k0 - 1, -1, -1):
         v, u = _lockstep(steppers, op, target, times[k + 1], v, u, times[k], progress)
-        forward(k, times[k], u)
-    return masked(0, times[0], u)
+        # the march goes on from what the table stores, so that a resumed solve continues as an unbroken one
+        u = masked(k, times[k], u)
+        if sink is not None:
+            sink(k, times[k], u)
+    return u
 
 
 def _lockstep(steppers: tuple[Stepper, Stepper], op: HamiltonianOperator, target: Array, t: float, v: Array,

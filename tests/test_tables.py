@@ -224,3 +224,35 @@ def test_contains_is_the_set_mask_rule_at_the_nodes(pointmass_table):
     assert not t.contains(0.0, [[100.0, 5.0]], 0.3)[0]  # off the table: not contained
     with pytest.raises(ValueError, match="budget must be >= 0"):
         t.contains(0.0, pts[:2], -0.1)
+
+
+def test_interrupted_budget_surface_resumes_to_the_same_table(tmp_path, monkeypatch):
+    """A ``Q_min`` solve killed after three snapshots resumes from the last one stored (masked by the feasible set,
+    as the unbroken solve goes on from it); the ``V`` it marches in lockstep is marched again up to there."""
+    cfg = SolveConfig(shape=(31, 31), budget_points=0, snapshots=5, budget_surface=True,
+                      settings=SolverSettings.from_accuracy("medium", compile=False))
+    ref = tmp_path / "ref.srt"
+    solve_table(MODEL, cfg, ref, progress=False)
+    out = tmp_path / "run.srt"
+    from softreach.reach import table as table_mod
+
+    original = table_mod.TableWriter.write_snapshot
+    calls = {"n": 0}
+
+    def crash(self, field, k, value):
+        calls["n"] += 1
+        if field == "Q_min" and calls["n"] > 8:  # V's 5 snapshots, then 3 of Q_min
+            raise KeyboardInterrupt("simulated kill")
+        return original(self, field, k, value)
+
+    monkeypatch.setattr(table_mod.TableWriter, "write_snapshot", crash)
+    with pytest.raises(KeyboardInterrupt):
+        solve_table(MODEL, cfg, out, progress=False)
+    monkeypatch.setattr(table_mod.TableWriter, "write_snapshot", original)
+    solve_table(MODEL, cfg, out, progress=False)
+    a, b = load_table(ref), load_table(out)
+    np.testing.assert_array_equal(np.asarray(a.values("V")), np.asarray(b.values("V")))
+    qa, qb = np.asarray(a.values("Q_min")), np.asarray(b.values("Q_min"))
+    np.testing.assert_allclose(qa, qb, atol=1e-5)
+    for q in (0.0, 0.06, 0.3, 0.6):
+        np.testing.assert_array_equal(a.set_mask(0.0, q), b.set_mask(0.0, q))
