@@ -359,15 +359,19 @@ class ValueFilter:
         ok, nxt, bad, end_lo, end_hi, z_end, kept = la.assess(*flat, ends=True)
         cand_ok, cand_next, cand_bad = (v.reshape(N, J) for v in (ok, nxt, bad))
         if self.rule == "smooth":
+            # a candidate that keeps ranks by its distance whether or not its own end box is certified
             pref = np.linalg.norm((la.candidates[None, :, :] - pol[:, None, :]) / self.a_half, axis=2)
+            eligible = cand_ok | kept.reshape(N, J)
         else:
-            pref = cand_next
-        order = np.argsort(np.where(cand_ok, pref, np.inf), axis=1, kind="stable")
+            # only a passing candidate that keeps ranks by its next value; one that keeps but does not pass ranks
+            # after every passing one, where whether it keeps no longer matters
+            pref, eligible = cand_next, cand_ok
+        order = np.argsort(np.where(eligible, pref, np.inf), axis=1, kind="stable")
         cand_keeps = np.zeros((N, J), bool)
-        open_rows = np.nonzero(cand_ok.any(axis=1))[0]
+        open_rows = np.nonzero(eligible.any(axis=1))[0]
         for rank in range(J):
             j = order[open_rows, rank]
-            live = cand_ok[open_rows, j]  # passing candidates come first: past them a row is done
+            live = eligible[open_rows, j]  # eligible candidates come first: past them a row is done
             open_rows, j = open_rows[live], j[live]
             if not len(open_rows):
                 break

@@ -225,9 +225,9 @@ def godunov_hamiltonian(dynamics: Any, t: float, x: Sequence[Array], dx: Sequenc
 
 
 def separable(dynamics: Any, x: Sequence[Array], samples: int = 4, seed: int = 0) -> bool:
-    """Is ``H(t, x, p) = H(t, x, 0) + sum_i H(t, x, p_i e_i)`` on the grid ``x``? Checked at ``t = 0`` with
-    ``samples`` random co-states of mixed signs per node: a Hamiltonian where one input enters two state equations
-    couples their co-states and fails at almost every node."""
+    """Is ``H(t, x, p) = H(t, x, 0) + sum_i H(t, x, p_i e_i)`` on the grid ``x``? Checked at ``t = 0``, at every node,
+    for ``samples`` random co-states with components of mixed signs and sizes: a Hamiltonian where one input enters
+    two state equations couples their co-states and fails at almost every node."""
     rng = np.random.default_rng(seed)
     zero = [0.0] * len(x)
     h0 = np.asarray(B.to_numpy(dynamics.hamiltonian(0.0, x, zero)), dtype=np.float64)

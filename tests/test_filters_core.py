@@ -346,11 +346,13 @@ def test_the_safety_value_keeps_c1_where_braking_can(pointmass_held_table):
     assert np.all(S[V <= -0.05] <= 0)
 
 
-def test_one_batch_and_two_stage_decisions_agree(pointmass_held_table):
-    """Few rows are judged with the candidates in one batch, many in two stages: the same decisions."""
-    vf = ValueFilter(pointmass_held_table, DT, target_checks=10)
+@pytest.mark.parametrize("rule", ["switch", "smooth"])
+def test_one_batch_and_two_stage_decisions_agree(pointmass_held_table, rule):
+    """Judged with every candidate in one batch (``joint_rows``) or the policy first and the candidates' ``keeps``
+    in order of preference: the same decisions."""
+    vf = ValueFilter(pointmass_held_table, DT, target_checks=10, rule=rule)
     rng = np.random.default_rng(11)
-    N = 40
+    N = 120
     x = np.c_[rng.uniform(-15, 15, N), rng.uniform(0, 18, N)]
     z, t, a = rng.uniform(0, 0.6, N), rng.uniform(0, 0.95, N), rng.uniform(-60, 60, (N, 1))
     vf.joint_rows = 8
