@@ -26,10 +26,11 @@ most ``0``. The schemes see a jump of ``cap`` at the edge of the feasible set; W
 oscillation and the monotone Lax-Friedrichs flux smears it over about a cell, which blurs the sets' edges by a
 cell, as the ``W_eps`` solve does (``benchmarks/grade_pointmass.py`` measures both against the exact sets).
 
-**The feasible set, solved first.** Where no budget suffices is itself a reach-avoid set with no running cost:
+**The feasible set, solved beside it.** Where no budget suffices is itself a reach-avoid set with no running cost:
 reach the target inside ``C2`` while staying in ``C1`` (:class:`FeasibilityProblem`), whose value ``V_feas`` is
-continuous, so its scheme has no jump to smear. :func:`solve_budget_surface` solves it first and stores
-``max(Q, time left + 0.001 s + V_feas)`` in every snapshot of ``Q_min`` wherever ``V_feas > 0``: above the time left,
+continuous, so its scheme has no jump to smear. :func:`solve_budget_surface` marches it beside ``Q_min`` (the same
+steps) and stores ``max(Q, time left + 0.001 s + V_feas)`` in every snapshot of ``Q_min`` wherever ``V_feas > 0``:
+above the time left,
 which reads as "no budget suffices", so the smeared jump can no longer pull ``Q_min`` below it outside the feasible
 set, which is where the unmasked solve claimed infeasible states; ``V_feas``'s slope gives the feedback there the
 direction back towards the feasible set. Between snapshots the march runs unmasked, and it goes on from the stored
@@ -62,8 +63,7 @@ from . import backend as B
 from .dynamics import Components, Dynamics
 from .grid import Grid
 from .problem import Array, Model, ReachAvoidProblem, classical_problem
-from .solver import (HamiltonianOperator, SnapshotSink, SolverSettings, Stepper, initial_value, march, output_times,
-                     solve)
+from .solver import HamiltonianOperator, SnapshotSink, SolverSettings, Stepper, initial_value, output_times
 
 
 class RunningCost(Dynamics):
@@ -160,66 +160,62 @@ def feasibility_problem(model: Model) -> FeasibilityProblem:
 def solve_budget_surface(problem: BudgetSurfaceProblem, grid: Grid, times: Sequence[float],
                          settings: SolverSettings | None = None, *, sink: SnapshotSink | None = None,
                          start: tuple[int, Array] | None = None, progress: Any = None) -> Array:
-    """:func:`softreach.reach.solver.solve` for ``Q_min``, with ``cap`` wherever the feasible set, solved first at the
-    same output times, says that no budget suffices, and with the classical ``RA`` marched in lockstep as its zero
-    set (module docstring). Arguments as there."""
+    """:func:`softreach.reach.solver.solve` for ``Q_min``, marched in lockstep with the classical ``V``, whose
+    ``{V <= 0}`` is ``Q_min``'s zero set, and with the feasible set's ``V_feas``, which says where no budget
+    suffices (module docstring). Arguments as there."""
     settings = settings or SolverSettings()
     times = output_times(times)
-    feasibility: dict[int, Array] = {}
-
-    def keep(k: int, t: float, u: Array) -> None:
-        feasibility[k] = u
-
-    solve(feasibility_problem(problem.model), grid, times, settings, sink=keep)
-
-    def masked(k: int, t: float, u: Array) -> Array:
-        v = feasibility[k]
-        left = float(times[-1]) - t
-        # idempotent, so that a resumed solve may apply it again to the snapshot it starts from
-        return B.where(v > 0, B.maximum(u, v + (left + 1e-3)), u)
-
-    def forward(k: int, t: float, u: Array) -> None:
-        if sink is not None:
-            sink(k, t, masked(k, t, u))
-
-    ra = HamiltonianOperator(classical_problem(problem.model), grid, settings)
+    model = problem.model
+    ra = HamiltonianOperator(classical_problem(model), grid, settings)
+    feasible = HamiltonianOperator(feasibility_problem(model), grid, settings)
     op = HamiltonianOperator(problem, grid, settings)
-    steppers = (Stepper(ra, settings), Stepper(op, settings))
-    target = op.l * 1  # l_Q on its own; op.l is overwritten in place below, so compiled steps read the new values
-    k0, u = initial_value(op, times, start, forward)
-    v = ra.terminal(times[-1])
-    for k in range(len(times) - 2, k0 - 1, -1):  # a resumed solve: V up to where Q_min resumes
-        v = march(steppers[0], times[k + 1], v, times[k])
-    u = masked(k0, times[k0], u)
+    steppers = [Stepper(ra, settings), Stepper(feasible, settings), Stepper(op, settings)]
+    # l_Q on its own; op.l is overwritten in place below, so compiled steps read the new values
+    l_q = op.l * 1
+
+    def from_ra(v: Array) -> None:
+        # the RA of a step's later end (less time left: a subset of the exact one), from where no budget is needed
+        _overwrite(op.l, B.where(v <= 0, 0 * l_q, l_q))
+
+    def masked(f: Array, t: float, u: Array) -> Array:
+        # idempotent, so that a resumed solve may apply it again to the snapshot it starts from
+        return B.where(f > 0, B.maximum(u, f + (times[-1] - t + 1e-3)), u)
+
+    v, f = ra.terminal(times[-1]), feasible.terminal(times[-1])
+    k0, u = initial_value(op, times, start, None)
+    for k in range(len(times) - 2, k0 - 1, -1):  # a resumed solve: V and V_feas up to where Q_min resumes
+        v, f = _lockstep(steppers[:2], [v, f], times[k + 1], times[k], from_ra, None)
+    u = masked(f, times[k0], u)
+    if start is None and sink is not None:
+        sink(k0, times[k0], u)
     for k in range(k0 - 1, -1, -1):
-        v, u = _lockstep(steppers, op, target, times[k + 1], v, u, times[k], progress)
+        v, f, u = _lockstep(steppers, [v, f, u], times[k + 1], times[k], from_ra, progress)
         # the march goes on from what the table stores, so that a resumed solve continues as an unbroken one
-        u = masked(k, times[k], u)
+        u = masked(f, times[k], u)
         if sink is not None:
             sink(k, times[k], u)
     return u
 
 
-def _lockstep(steppers: tuple[Stepper, Stepper], op: HamiltonianOperator, target: Array, t: float, v: Array,
-              u: Array, stop: float, progress: Any) -> tuple[Array, Array]:
-    """March ``V`` and ``Q_min`` back from ``t`` to ``stop`` with the same steps; each step of ``Q_min`` takes
-    ``l_Q = 0`` on ``{V <= 0}`` at the step's later end (the ``RA`` of less time left: a subset of the exact one)."""
+def _lockstep(steppers: list[Stepper], values: list[Array], t: float, stop: float, before_step: Any,
+              progress: Any) -> list[Array]:
+    """March every value back from ``t`` to ``stop`` with the same steps (the smallest any of them needs); before
+    each step ``before_step(values[0])`` sets targets from the first value at the step's later end."""
     cfl = steppers[0].settings.cfl
     while t - stop > 1e-12 * max(1.0, abs(stop)):
-        (rv, sv), (ru, su) = steppers[0].rate(t, v), steppers[1].rate(t, u)
-        speed = max(sv, su)
+        rates = [s.rate(t, u) for s, u in zip(steppers, values)]
+        speed = max(r[1] for r in rates)
         if not math.isfinite(speed):
-            raise FloatingPointError(f"the dissipation speed is {speed} at t = {t:.6g}: a NaN in V or Q_min")
+            raise FloatingPointError(f"the dissipation speed is {speed} at t = {t:.6g}: a NaN in V, V_feas or Q_min")
         remaining = t - stop
         steps = max(1, math.ceil(remaining / (cfl / speed) - 1e-9)) if speed > 0 else 1
         dt = remaining / steps
-        _overwrite(op.l, B.where(v <= 0, 0 * target, target))
-        v = steppers[0].step(t, v, rv, dt)
-        u = steppers[1].step(t, u, ru, dt)
+        before_step(values[0])
+        values = [s.step(t, u, r[0], dt) for s, u, r in zip(steppers, values, rates)]
         t -= dt
         if progress is not None:
             progress.update(max(0.0, min(dt, (progress.total or math.inf) - progress.n)))
-    return v, u
+    return values
 
 
 def _overwrite(dst: Array, src: Array) -> None:
