@@ -159,10 +159,17 @@ def feasibility_problem(model: Model) -> FeasibilityProblem:
 
 def solve_budget_surface(problem: BudgetSurfaceProblem, grid: Grid, times: Sequence[float],
                          settings: SolverSettings | None = None, *, sink: SnapshotSink | None = None,
-                         start: tuple[int, Array] | None = None, progress: Any = None) -> Array:
+                         start: tuple[int, Array] | None = None, progress: Any = None,
+                         classical: Any = None) -> Array:
     """:func:`softreach.reach.solver.solve` for ``Q_min``, marched in lockstep with the classical ``V``, whose
     ``{V <= 0}`` is ``Q_min``'s zero set, and with the feasible set's ``V_feas``, which says where no budget
-    suffices (module docstring). Arguments as there."""
+    suffices (module docstring). Arguments as there, and:
+
+    :param classical: ``k -> V`` at ``times[k]``, the classical value a table stores beside ``Q_min``: where it is
+        positive the stored ``Q_min`` is at least ``1e-6`` s, so that ``{Q_min <= 0}`` lies in that ``V``'s ``RA``
+        (Prop. 3: ``Q_min = 0`` only there) whatever the steps of the ``V`` marched here or an undershoot of the
+        scheme next to ``RA``
+    """
     settings = settings or SolverSettings()
     times = output_times(times)
     model = problem.model
@@ -177,21 +184,25 @@ def solve_budget_surface(problem: BudgetSurfaceProblem, grid: Grid, times: Seque
         # the RA of a step's later end (less time left: a subset of the exact one), from where no budget is needed
         _overwrite(op.l, B.where(v <= 0, 0 * l_q, l_q))
 
-    def masked(f: Array, t: float, u: Array) -> Array:
+    def masked(f: Array, k: int, u: Array) -> Array:
         # idempotent, so that a resumed solve may apply it again to the snapshot it starts from
-        return B.where(f > 0, B.maximum(u, f + (times[-1] - t + 1e-3)), u)
+        u = B.where(f > 0, B.maximum(u, f + (times[-1] - times[k] + 1e-3)), u)
+        if classical is not None:
+            v_k = B.asarray(classical(k), settings.backend, settings.dtype, settings.device)
+            u = B.where(v_k > 0, B.maximum(u, 0 * u + 1e-6), u)
+        return u
 
     v, f = ra.terminal(times[-1]), feasible.terminal(times[-1])
     k0, u = initial_value(op, times, start, None)
     for k in range(len(times) - 2, k0 - 1, -1):  # a resumed solve: V and V_feas up to where Q_min resumes
         v, f = _lockstep(steppers[:2], [v, f], times[k + 1], times[k], from_ra, None)
-    u = masked(f, times[k0], u)
+    u = masked(f, k0, u)
     if start is None and sink is not None:
         sink(k0, times[k0], u)
     for k in range(k0 - 1, -1, -1):
         v, f, u = _lockstep(steppers, [v, f, u], times[k + 1], times[k], from_ra, progress)
         # the march goes on from what the table stores, so that a resumed solve continues as an unbroken one
-        u = masked(f, times[k], u)
+        u = masked(f, k, u)
         if sink is not None:
             sink(k, times[k], u)
     return u

@@ -192,8 +192,12 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
                            sink=sink)
             else:
                 # Q_min takes cap wherever its feasible set, solved first, says that no budget suffices
-                run = solve_budget_surface if name == "Q_min" else solve
-                run(problem, grid, times, cfg.settings, start=start, progress=bar, sink=sink)
+                if name == "Q_min":
+                    # the table's own V (solved first) decides where Q_min may be 0 (Prop. 3)
+                    solve_budget_surface(problem, grid, times, cfg.settings, start=start, progress=bar, sink=sink,
+                                         classical=lambda kk: writer.read_snapshot("V", kk))
+                else:
+                    solve(problem, grid, times, cfg.settings, start=start, progress=bar, sink=sink)
             walls[name] = before + time.perf_counter() - t0
             if bar is not None:
                 bar.close()

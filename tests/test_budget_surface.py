@@ -42,8 +42,8 @@ def test_sound_against_the_exact_sets(qmin_table, when):
     """A node claimed that the exact reference proves infeasible lies next to the exact set, at any budget (the
     criterion of the ``W_eps`` fixture, ``tests/test_exact_pointmass.py``), and there are at most two: the feasible
     set, solved as its own continuous value, caps Q_min where the scheme smears the jump to "no budget suffices"
-    outwards. (On this 41 x 41 grid one node, ``(v, y) = (11, 0)`` at ``t = 0.5``, is claimed at ``Q = 0`` where the
-    exact ``Q_min`` is 0.017 s, the braking from 11 to 10 m/s inside one cell; from 101 x 101 up no node is,
+    outwards. (On this 41 x 41 grid one node, ``(v, y) = (-13, 3.125)`` at ``t = 0.5``, is claimed at ``Q = 0.06``
+    where the exact ``Q_min`` is 0.075 s, 0.038 s in the table; from 101 x 101 up no node is,
     ``docs/budget_surface.md``.)"""
     t = qmin_table
     for q in BUDGETS:
