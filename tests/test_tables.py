@@ -77,31 +77,37 @@ def test_not_a_table_and_bad_header_are_refused(small_table, tmp_path):
         load_table(small_table)
 
 
-def test_interrupted_solve_resumes_to_the_same_table(tmp_path, monkeypatch):
+def _solve_killed_then_resumed(cfg, field, tmp_path, monkeypatch):
+    """``(reference table, resumed table)``: ``cfg`` solved once unbroken, and once killed after ``V``'s 5 snapshots
+    and 3 of ``field``, checked to be unloadable, then resumed by the same command."""
     ref = tmp_path / "ref.srt"
-    solve_table(MODEL, _cfg(), ref, progress=False)
+    solve_table(MODEL, cfg, ref, progress=False)
     out = tmp_path / "run.srt"
     from softreach.reach import table as table_mod
 
     original = table_mod.TableWriter.write_snapshot
     calls = {"n": 0}
 
-    def crash_after_three(self, field, k, value):
+    def crash_after_three(self, name, k, value):
         calls["n"] += 1
-        if field == "W_eps" and calls["n"] > 8:  # V's 5 snapshots, then 3 of W_eps
+        if name == field and calls["n"] > 8:
             raise KeyboardInterrupt("simulated kill")
-        return original(self, field, k, value)
+        return original(self, name, k, value)
 
     monkeypatch.setattr(table_mod.TableWriter, "write_snapshot", crash_after_three)
     with pytest.raises(KeyboardInterrupt):
-        solve_table(MODEL, _cfg(), out, progress=False)
+        solve_table(MODEL, cfg, out, progress=False)
     partial = out.with_name(out.name + ".partial")
     assert partial.exists() and not out.exists()
     with pytest.raises(TableError, match="incomplete"):
         load_table(partial)
     monkeypatch.setattr(table_mod.TableWriter, "write_snapshot", original)
-    solve_table(MODEL, _cfg(), out, progress=False)
-    a, b = load_table(ref), load_table(out)
+    solve_table(MODEL, cfg, out, progress=False)
+    return load_table(ref), load_table(out)
+
+
+def test_interrupted_solve_resumes_to_the_same_table(tmp_path, monkeypatch):
+    a, b = _solve_killed_then_resumed(_cfg(), "W_eps", tmp_path, monkeypatch)
     for f in ("V", "W_eps"):
         np.testing.assert_allclose(np.asarray(a.values(f)), np.asarray(b.values(f)), atol=1e-6)
 
@@ -231,26 +237,7 @@ def test_interrupted_budget_surface_resumes_to_the_same_table(tmp_path, monkeypa
     as the unbroken solve goes on from it); the ``V`` it marches in lockstep is marched again up to there."""
     cfg = SolveConfig(shape=(31, 31), budget_points=0, snapshots=5, budget_surface=True,
                       settings=SolverSettings.from_accuracy("medium", compile=False))
-    ref = tmp_path / "ref.srt"
-    solve_table(MODEL, cfg, ref, progress=False)
-    out = tmp_path / "run.srt"
-    from softreach.reach import table as table_mod
-
-    original = table_mod.TableWriter.write_snapshot
-    calls = {"n": 0}
-
-    def crash(self, field, k, value):
-        calls["n"] += 1
-        if field == "Q_min" and calls["n"] > 8:  # V's 5 snapshots, then 3 of Q_min
-            raise KeyboardInterrupt("simulated kill")
-        return original(self, field, k, value)
-
-    monkeypatch.setattr(table_mod.TableWriter, "write_snapshot", crash)
-    with pytest.raises(KeyboardInterrupt):
-        solve_table(MODEL, cfg, out, progress=False)
-    monkeypatch.setattr(table_mod.TableWriter, "write_snapshot", original)
-    solve_table(MODEL, cfg, out, progress=False)
-    a, b = load_table(ref), load_table(out)
+    a, b = _solve_killed_then_resumed(cfg, "Q_min", tmp_path, monkeypatch)
     np.testing.assert_array_equal(np.asarray(a.values("V")), np.asarray(b.values("V")))
     qa, qb = np.asarray(a.values("Q_min")), np.asarray(b.values("Q_min"))
     np.testing.assert_allclose(qa, qb, atol=1e-5)
