@@ -349,9 +349,9 @@ class ValueFilter:
     __call__ = filter
 
     def _candidates(self, t, x, z, pol):
-        """:meth:`Lookahead.candidates_pass` as the rule reads it: every candidate's one-period test, and whether it
-        keeps the next state certified asked only in the rule's order of preference (lowest next certificate, or
-        nearest the policy's action), up to the first that keeps. The choice is the same; the costly ``keeps`` is
+        """:meth:`Lookahead.passes` for every candidate at every row, as the rule reads it: every candidate's
+        one-period test, and whether it keeps the next state certified asked only in the rule's order of preference
+        (lowest next certificate, or nearest the policy's action), up to the first that keeps. The choice is the same; the costly ``keeps`` is
         asked of one or two candidates a row instead of all."""
         la = self.lookahead
         N, J = len(x), len(la.candidates)

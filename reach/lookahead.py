@@ -404,11 +404,6 @@ class Lookahead:
         rows = np.arange(N)
         return self.candidates[j], ok.reshape(N, J)[rows, j], nxt.reshape(N, J)[rows, j]
 
-    def candidates_pass(self, t: np.ndarray, x: np.ndarray, z: np.ndarray):
-        """:meth:`passes` for every candidate at every row: four ``(N, J)`` arrays."""
-        N, J = len(x), len(self.candidates)
-        return tuple(o.reshape(N, J) for o in self.passes(*self._each_candidate(t, x, z)))
-
     def admissible_candidates(self, t: np.ndarray, x: np.ndarray, z: np.ndarray):
         """``(admissible, next_value, badness)``, each ``(N, J)``, of every candidate at every row."""
         N, J = len(x), len(self.candidates)
