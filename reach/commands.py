@@ -17,6 +17,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("model", type=model_argument, metavar=model_metavar(),
                    help="a registered model or the module:Class path of your own Model subclass")
     p.add_argument("--grid", type=int, nargs="+", metavar="N", help="state grid sizes (default: the model's)")
+    p.add_argument("--domain", nargs="+", metavar="LO|HI|hard", default=None,
+                   help="grid box: the lower ends of every state axis, then the upper ends (2n numbers), or 'hard' "
+                        "for the hard-constraint box C1 and 3 cells around it (default: the model's box)")
     p.add_argument("--budget-points", type=int, metavar="NZ", help="nodes along the budget axis z (default: the model's)")
     p.add_argument("--eps", type=float, default=1e-3, help="width of h_eps (default 1e-3)")
     p.add_argument("--budget-scale", type=float, help="kappa in l = max(c2, -kappa z, g) (default: the model's)")
@@ -122,8 +125,10 @@ def run_solve(args: argparse.Namespace) -> int:
 
         torch.set_num_threads(threads)
     model = get_model(args.model)
+    shape = tuple(args.grid) if args.grid else model.default_shape
     cfg = SolveConfig(
-        shape=tuple(args.grid) if args.grid else model.default_shape,
+        shape=shape,
+        domain=_domain(args.domain, model, shape),
         budget_points=args.budget_points or model.default_budget_points,
         eps=args.eps,
         budget_scale=args.budget_scale,
@@ -156,6 +161,26 @@ def run_solve(args: argparse.Namespace) -> int:
     if args.json_path:
         Path(args.json_path).write_text(json.dumps(summary, indent=2))
     return 0
+
+
+def _domain(words: list[str] | None, model, shape: tuple[int, ...]):
+    """``--domain``: ``None`` (the model's box), ``hard`` (:func:`~softreach.reach.compute.hard_box_domain`), or
+    ``2 n`` numbers."""
+    from .compute import hard_box_domain
+
+    if words is None:
+        return None
+    if words == ["hard"]:
+        return hard_box_domain(model, shape)
+    n = model.state_dim
+    try:
+        values = [float(w) for w in words]
+    except ValueError:
+        raise ValueError(f"--domain takes 'hard' or {2 * n} numbers (lower ends, then upper ends), got {words}") from None
+    if len(values) != 2 * n:
+        raise ValueError(f"--domain needs {2 * n} numbers for {model.name} ({n} lower ends, then {n} upper ends), "
+                         f"got {len(values)}: {words}")
+    return tuple(values[:n]), tuple(values[n:])
 
 
 def _check_writable(path: Path, option: str) -> None:

@@ -106,6 +106,29 @@ def validate(model: Model, cfg: SolveConfig, out: str | os.PathLike | None) -> t
     return state_grid, aug
 
 
+def hard_box_domain(model: Model, shape: Sequence[int], pad_cells: int = 3) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """A grid box that spends every node on the hard-constraint set ``C1`` and ``pad_cells`` cells around it.
+
+    Outside ``C1`` no budget suffices (``Q_min = inf``, ``V, W_eps > 0``), so the default box's nodes there carry
+    only the boundary condition; ``pad_cells`` keeps the constraint's zero crossing and a WENO5 stencil (three
+    nodes each side) inside the grid. Periodic axes, and axes ``C1`` leaves unbounded, keep the model's box.
+
+    :param shape: the state grid the box is for (the pad is in that grid's cells)
+    :param pad_cells: cells beyond ``C1`` at each end
+    """
+    if model.hard_box is None:
+        raise ValueError(f"{model.name} declares no hard_box: give the domain explicitly")
+    if len(shape) != model.state_dim or any(int(n) <= 2 * pad_cells + 1 for n in shape):
+        raise ValueError(f"a fitted domain needs {model.state_dim} grid sizes > {2 * pad_cells + 1}, got {list(shape)}")
+    lo, hi = list(model.domain[0]), list(model.domain[1])
+    for i, (per, n, a, b) in enumerate(zip(model.periodic_axes(), shape, *model.hard_box)):
+        if per or not (math.isfinite(a) and math.isfinite(b)):
+            continue
+        dx = (b - a) / (int(n) - 1 - 2 * pad_cells)
+        lo[i], hi[i] = a - pad_cells * dx, b + pad_cells * dx
+    return tuple(lo), tuple(hi)
+
+
 def sample_times(horizon: float, period: float) -> list[float]:
     """``[0, dt, 2 dt, ..., T]``: the sample times of a controller with period ``dt`` over the horizon ``T``."""
     if not (isinstance(period, (int, float)) and math.isfinite(period) and period > 0):

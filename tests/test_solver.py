@@ -72,8 +72,11 @@ def test_torch_and_numpy_agree():
     assert abs(a - b) < 1e-10
 
 
-def test_compiled_step_matches_eager():
+@pytest.mark.parametrize("fused", [False, True], ids=["rate-compiled", "step-fused"])
+def test_compiled_step_matches_eager(fused, monkeypatch):
+    """Both compiled paths: the rate alone (small grids), and the whole step fused (``FUSED_STEP_NODES``)."""
     pytest.importorskip("torch")
+    monkeypatch.setattr("softreach.reach.solver.FUSED_STEP_NODES", 0 if fused else 10**12)
     eager = _advect(48, "eno2", 2, backend="torch", dtype="float32", compile=False)
     compiled = _advect(48, "eno2", 2, backend="torch", dtype="float32", compile=True)
     assert abs(eager - compiled) < 1e-5
@@ -122,9 +125,11 @@ def test_grid_validation():
         Grid((0.0,), (float("nan"),), (5,))
 
 
-def test_compiled_soft_solve_has_no_graph_break():
+@pytest.mark.parametrize("fused", [False, True], ids=["rate-compiled", "step-fused"])
+def test_compiled_soft_solve_has_no_graph_break(fused, monkeypatch):
     """A graph break sends every step back to eager Python and recompiles for each new time: ~25x slower."""
     torch = pytest.importorskip("torch")
+    monkeypatch.setattr("softreach.reach.solver.FUSED_STEP_NODES", 0 if fused else 10**12)
     from torch._dynamo.utils import counters
 
     from softreach.reach import budget_axis, get_model, soft_problem
