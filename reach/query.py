@@ -234,6 +234,12 @@ class Table:
             z = np.maximum(np.asarray(z, dtype=np.float64), self.budget_resolution)
         field, tt, pts, _ = self._queries(t, x, z)
         p = self.gradient(t, x, z, outside)
+        if field == "Q_min":
+            # on the classical RA Q_min is 0, flat: its gradient says nothing there (both players would idle). The
+            # certificate is V where V <= 0 and below Q_min - z (value()), so its gradient is V's
+            on_v = self.value(tt, pts, z) < self.interpolant("Q_min").value(tt, pts) - _as_column(z, len(pts), "z")
+            if on_v.any():
+                p = np.where(on_v[:, None], self.gradient(t, x, None, outside), p)
         n = len(self.model_metadata["state_names"])
         xs = [pts[:, i] for i in range(n)]
         ps = [p[:, i] for i in range(n)]

@@ -116,6 +116,32 @@ def test_feedback_from_the_budget_surface(qmin_table):
     assert a[0, 0] == 60.0 and b[0, 0] == -10.0 and a[1, 0] == -60.0
 
 
+def test_inputs_on_the_classical_set_follow_v(qmin_table):
+    """On the classical ``RA`` ``Q_min`` is 0 and flat, so its gradient names no input; ``a*`` and ``b*`` there come
+    from ``V``, whose value the certificate is there. (Read from ``Q_min`` alone, the adversarial wind of an env
+    given this table was 0 everywhere inside ``RA``.)"""
+    import gymnasium as gym
+
+    import softreach.envs  # noqa: F401  (registers the envs)
+
+    t = qmin_table
+    v, y = (0.5 * (a[1:] + a[:-1]) for a in t.state_axes())  # cell centres: no gradient there is a tie
+    vv, yy = np.meshgrid(v, y, indexing="ij")
+    pts = np.stack([vv.ravel(), yy.ravel()], 1)
+    deep = pts[t.value(0.0, pts) < -0.5]
+    assert len(deep) > 20
+    z = np.full(len(deep), 0.3)
+    for name in ("worst_disturbance", "optimal_control"):
+        from_q, from_v = getattr(t, name)(0.0, deep, z), getattr(t, name)(0.0, deep)
+        np.testing.assert_array_equal(from_q, from_v)
+        assert np.all(from_q != 0), name
+    env = gym.make("softreach/PointMassLanding-v0", wind="adversarial", wind_table=str(t.path))
+    env.reset(seed=0, options={"state": [0.0, 3.0], "budget": 0.3})
+    assert t.value(0.0, [[0.0, 3.0]])[0] < 0
+    winds = [float(env.step(np.zeros(1, np.float32))[4]["wind"][0]) for _ in range(5)]
+    assert all(abs(w) == 10.0 for w in winds), winds
+
+
 def test_cli_budget_surface(tmp_path, capsys):
     out, js = tmp_path / "q.srt", tmp_path / "q.json"
     assert main(["solve", "pointmass", "--budget-surface", "--grid", "31", "31", "--accuracy", "medium",
