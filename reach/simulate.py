@@ -42,16 +42,19 @@ class Rollout:
     end_time: np.ndarray
 
 
+def _budget(table, z: np.ndarray) -> np.ndarray | None:
+    """The budget a table's feedback reads: ``None`` for a classical-only table, negative budgets at 0."""
+    return np.maximum(z, 0.0) if (table.has_budget or getattr(table, "has_budget_surface", False)) else None
+
+
 def table_control(table) -> Policy:
     """The table's optimal control ``a*(t, x, z)`` as a policy (negative budgets are queried at 0)."""
-    return lambda t, x, z: table.optimal_control(t, x, np.maximum(z, 0.0) if table.has_budget else None,
-                                                 outside="nearest")
+    return lambda t, x, z: table.optimal_control(t, x, _budget(table, z), outside="nearest")
 
 
 def table_disturbance(table) -> Policy:
     """The table's worst-case disturbance ``b*(t, x, z)`` as a policy."""
-    return lambda t, x, z: table.worst_disturbance(t, x, np.maximum(z, 0.0) if table.has_budget else None,
-                                                   outside="nearest")
+    return lambda t, x, z: table.worst_disturbance(t, x, _budget(table, z), outside="nearest")
 
 
 def constant(value: Any) -> Policy:

@@ -151,3 +151,26 @@ def test_cli_budget_surface(tmp_path, capsys):
     assert main(["solve", "pointmass", "--budget-surface", "--classical", "--quiet", "--out",
                  str(tmp_path / "x.srt")]) == 2
     assert "drop --classical" in capsys.readouterr().err
+
+
+def test_compare_surface_benchmark(qmin_table, pointmass_table):
+    """``benchmarks/compare_surface.py`` on the two 41 x 41 fixtures: its measures are the tables' own, and its
+    flights from the disputed states run."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "compare_surface.py"
+    spec = importlib.util.spec_from_file_location("compare_surface", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    rows = mod.compare(qmin_table, pointmass_table, [0.0, 0.3], 0.0, simulate=1)
+    for row in rows:
+        q = row["Q"]
+        assert row["Q_min_measure"] == pytest.approx(qmin_table.set_measure(0.0, q))
+        assert row["W_eps_measure"] == pytest.approx(pointmass_table.set_measure(0.0, q))
+        both = row["Q_min_measure"] - row["only_Q_min"]
+        assert both == pytest.approx(row["W_eps_measure"] - row["only_W_eps"])
+        for part in ("only_Q_min", "only_W_eps"):
+            if row[part] > 0:
+                flown, tried = map(int, row[f"{part}_flown"].split("/"))
+                assert 0 <= flown <= tried == 1
