@@ -237,7 +237,9 @@ class Table:
         if field == "Q_min":
             # on the classical RA Q_min is 0, flat: its gradient says nothing there (both players would idle). The
             # certificate is V where V <= 0 and below Q_min - z (value()), so its gradient is V's
-            on_v = self.value(tt, pts, z) < self.interpolant("Q_min").value(tt, pts) - _as_column(z, len(pts), "z")
+            zz = _as_column(z, len(pts), "z")
+            v = self.interpolant("V").value(tt, pts)
+            on_v = (zz >= 0) & (v <= 0) & (v < self.interpolant("Q_min").value(tt, pts) - zz)
             if on_v.any():
                 p = np.where(on_v[:, None], self.gradient(t, x, None, outside), p)
         n = len(self.model_metadata["state_names"])

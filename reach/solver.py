@@ -371,12 +371,10 @@ class Stepper:
             torch = B.torch
             t0 = 0.0
             self._rate_c = torch.compile(lambda u: op.rate_lazy(t0, u), dynamic=False)
+            self._step_c = None
             if op.grid.size >= FUSED_STEP_NODES:
                 self._step_c = torch.compile(lambda u, r, dt: tvd_rk_step(op, t0, u, dt, settings.time_order, first_rate=r),
                                              dynamic=False)
-            else:
-                self._step_c = lambda u, r, dt: tvd_rk_step(op, t0, u, float(dt), settings.time_order, first_rate=r,
-                                                            rate=lambda s, v: self._rate_c(v)[0])
 
     def rate(self, t: float, u: Array) -> tuple[Array, float]:
         if self.compiled:
@@ -390,6 +388,9 @@ class Stepper:
     def step(self, t: float, u: Array, rate: Array, dt: float) -> Array:
         if self.compiled:
             try:
+                if self._step_c is None:  # the stages eagerly, each rate compiled
+                    return tvd_rk_step(self.op, t, u, dt, self.settings.time_order, first_rate=rate,
+                                       rate=lambda s, v: self._rate_c(v)[0])
                 return self._step_c(u, rate, B.torch.tensor(dt, dtype=u.dtype, device=u.device))
             except Exception as exc:
                 self._fall_back(exc)
