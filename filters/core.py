@@ -351,8 +351,8 @@ class ValueFilter:
     def _candidates(self, t, x, z, pol):
         """:meth:`Lookahead.passes` for every candidate at every row, as the rule reads it: every candidate's
         one-period test, and whether it keeps the next state certified asked only in the rule's order of preference
-        (lowest next certificate, or nearest the policy's action), up to the first that keeps. The choice is the same; the costly ``keeps`` is
-        asked of one or two candidates a row instead of all."""
+        (lowest next certificate, or nearest the policy's action), up to the first that keeps. The choice is the
+        same; the costly ``keeps`` is asked of one or two candidates a row instead of all."""
         la = self.lookahead
         N, J = len(x), len(la.candidates)
         flat = la._each_candidate(t, x, z)
