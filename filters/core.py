@@ -28,6 +28,7 @@ answered conservatively (not certified; the best candidate is applied).
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
@@ -36,6 +37,7 @@ import numpy as np
 from softreach.reach import Table, TableError
 
 from softreach.reach.lookahead import Lookahead
+from softreach.reach.safe_cells import SafeCells, cell_key, cached as safe_cells_cached
 
 try:  # torch is a base dependency, but keep numpy-only use possible
     import torch
@@ -110,7 +112,7 @@ class ValueFilter:
 
     def __init__(self, table: Table, dt: float, *, margin: float | None = None, rule: str = "switch",
                  model: Any = None, fallback_action: Any = None, smooth_iterations: int = 8,
-                 eps: float | None = None, target_checks: int = 1):
+                 eps: float | None = None, target_checks: int = 1, safe_cells: Any = "auto"):
         if not isinstance(table, Table):
             raise TypeError(f"table must be a softreach.reach.Table (load_table(path)), got {type(table).__name__}")
         if rule not in RULES:
@@ -156,10 +158,30 @@ class ValueFilter:
         self.lookahead = Lookahead.from_table(table, self.model, self.dt, self.eps, margin=self.constant_margin or 0.0,
                                               target_checks=target_checks)
         self.target_checks = self.lookahead.target_checks
+        #: the verified safe set every applied action must end in (:mod:`softreach.reach.safe_cells`), or None
+        self.safe_cells = self._safe_cells(safe_cells)
+        self.lookahead.safe_cells = self.safe_cells
         #: up to this many rows, :meth:`filter` judges the policy's action and the candidates in one batch. 0: the
         #: policy's action first, the candidates only where it fails. From certified states with a random policy
         #: (6 % interventions) that is the faster one: median 2.1 ms a decision against 2.7 ms with 8
         self.joint_rows = 0
+
+    def _safe_cells(self, cells: Any) -> SafeCells | None:
+        if isinstance(cells, str) and cells == "auto":
+            shape = self.model.safe_cell_shape
+            if not (self.sampled and shape is not None and self.lookahead.box_support):
+                return None
+            return safe_cells_cached(self.lookahead, shape)
+        if cells is None:
+            return None
+        if not isinstance(cells, SafeCells):
+            raise TypeError(f"safe_cells must be 'auto', None or a SafeCells, got {type(cells).__name__}")
+        if not self.sampled:
+            raise ValueError(f"safe cells need a table solved for the control period {self.dt} s")
+        want = cell_key(self.lookahead, cells.shape, cells.dz)
+        if json.dumps(cells.key, sort_keys=True) != json.dumps(want, sort_keys=True):
+            raise ValueError(f"safe cells built for {cells.key}, not for this filter's {want}")
+        return cells
 
     # ---------------------------------------------------------------- conversions
     def physical(self, action: Any) -> np.ndarray:
@@ -318,6 +340,16 @@ class ValueFilter:
             if self.rule == "smooth" and self.smooth_iterations:
                 lam, best_next = self._bisect(tt[rows], xs[rows], zz[rows], best, pol[rows], any_ok, best_next)
             a = best + lam[:, None] * (pol[rows] - best)
+            if self.safe_cells is not None:
+                # no candidate ends in the safe cells from this very state (a model whose enclosure of a point is
+                # not inside that of its cell): the cell's own safe action still does, from every state of it
+                weak = np.nonzero(best_bad >= 1e6)[0]
+                if len(weak):
+                    r = rows[weak]
+                    js = self.safe_cells.action(tt[r], xs[r])
+                    good = (js >= 0) & self.safe_cells.contains(tt[r], xs[r], zz[r])
+                    a[weak[good]] = best[weak[good]] = la.candidates[js[good]]
+                    best_bad[weak[good]] = 0.9e6
             # -inf: the period surely ends landed; +inf: no candidate could be bounded at all
             bounded = best_bad < np.inf
             applied[rows] = np.where(bounded[:, None], a, self.fallback_action)

@@ -105,6 +105,9 @@ class Lookahead:
                                                                             np.asarray(box[1], float))
         from .dynamics import Dynamics
 
+        #: verified safe cells (:class:`~softreach.reach.safe_cells.SafeCells`): every admissible action must end
+        #: in them; ``None``: the test asks only ``C1`` and the budget of the period itself
+        self.safe_cells = None
         #: the model bounds boxes of starts: the filter can ask that the next state be certified again
         self.box_support = type(model).held_enclosure_box is not Dynamics.held_enclosure_box
 
@@ -245,8 +248,15 @@ class Lookahead:
         t_next = t + self.dt
         in_time = t_next <= self.horizon + 1e-9 * max(1.0, self.horizon)
         t_next = np.minimum(t_next, self.horizon)
-        ok = bounded & (c1 <= 0) & (z_end >= 0) & in_time
+        kept = bounded & (c1 <= 0) & (z_end >= 0) & in_time
         in_c1 = bounded & (c1 <= 0) & in_time
+        # with verified safe cells an action is admissible only when its end box lies in them: then C1 and the
+        # budget are kept for good, whatever the table promises (:mod:`softreach.reach.safe_cells`)
+        covered = kept.copy()
+        if self.safe_cells is not None:
+            r = np.nonzero(kept)[0]
+            covered[r] = self.safe_cells.covered(t_next[r], end_lo[r], end_hi[r], z_end[r])
+        ok = kept & covered
         nxt = np.full(len(x), np.inf)
         rows = np.nonzero(in_c1)[0]
         if len(rows) and self.budget_field == "Q_min":
@@ -290,7 +300,7 @@ class Lookahead:
         ok |= lands
         nxt = np.where(lands, -np.inf, nxt)
         tie = np.arctan(np.nan_to_num(nxt, posinf=1e12)) / np.pi + 1e3 * np.maximum(-z_end, 0.0)
-        rank = np.where(safe, 1e6, 3e6) + np.where(ok, 0.0, 1e6)
+        rank = np.where(covered & kept, 0.9e6, np.where(safe, 1e6, 3e6) + np.where(kept | lands, 0.0, 1e6))
         bad = np.where(passing, nxt, np.where(in_c1, rank + tie, np.inf))
         bad = np.where(bounded & ~in_c1 & ~lands, 5e6 + np.maximum(c1, 0.0), bad)
         nxt = np.where(ok, nxt, np.inf)
