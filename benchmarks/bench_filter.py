@@ -143,7 +143,10 @@ def evaluate(table) -> dict:
                     pol = rng.uniform(-60, 60, (len(x), 1))
                     if rule == "none":
                         return pol
-                    applied, info = filters[rule].filter(tq, x, zq, pol)
+                    plan = log.get("plan")
+                    plan = plan if plan is not None and len(plan) == len(x) else None
+                    applied, info = filters[rule].filter(tq, x, zq, pol, plan=plan)
+                    log["plan"] = info["plan"]
                     log["active"] += int(info["active"].sum())
                     log["steps"] += len(x)
                     log["moved"] += float(np.abs(applied - pol).sum())

@@ -37,10 +37,11 @@ def run(vf: ValueFilter, policies: list[str], budgets: list[float], starts: int,
         for q in budgets:
             for x0 in sample_starts(vf, q, "certified", starts, rng):
                 policy, play = _policy(name, vf, rng), _wind(wind, vf, rng, 1)
-                x, z, t, was, prev = np.asarray(x0, float), float(q), 0.0, False, None
+                x, z, t, was, prev, plan = np.asarray(x0, float), float(q), 0.0, False, None, None
                 for k in range(int(round(T / dt))):
                     pol = policy(k, t, x, z)
-                    applied, info = vf.filter(t, x, z, pol)
+                    applied, info = vf.filter(t, x, z, pol, plan=plan)
+                    plan = info["plan"]
                     active = int(info["reason"]) != 0
                     steps += 1
                     if not bool(info["certified"]):

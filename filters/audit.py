@@ -173,10 +173,12 @@ def run_episode(vf: ValueFilter | None, ref: ValueFilter, x0: np.ndarray, budget
     was = False
     row.episodes += 1
     hard = landed = False
+    plan = None
     for k in range(int(round(T / dt))):
         pol = policy(k, t, x, z)
         if vf is not None:
-            app, info = vf.filter(t, x, z, pol)
+            app, info = vf.filter(t, x, z, pol, plan=plan)
+            plan = info["plan"]
             act = int(info["reason"]) != PASS
             row.steps += 1
             row.policy_steps += int(not act)

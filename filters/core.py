@@ -37,7 +37,7 @@ import numpy as np
 from softreach.reach import Table, TableError
 
 from softreach.reach.lookahead import Lookahead
-from softreach.reach.safe_cells import SafeCells, cell_key, cached as safe_cells_cached
+from softreach.reach.cell_certificate import CellCertificate, cell_key, cached as cells_cached
 
 try:  # torch is a base dependency, but keep numpy-only use possible
     import torch
@@ -112,7 +112,8 @@ class ValueFilter:
 
     def __init__(self, table: Table, dt: float, *, margin: float | None = None, rule: str = "switch",
                  model: Any = None, fallback_action: Any = None, smooth_iterations: int = 8,
-                 eps: float | None = None, target_checks: int = 1, safe_cells: Any = "auto"):
+                 eps: float | None = None, target_checks: int = 1, safe_cells: Any = "auto",
+                 landing_cells: Any = "auto"):
         if not isinstance(table, Table):
             raise TypeError(f"table must be a softreach.reach.Table (load_table(path)), got {type(table).__name__}")
         if rule not in RULES:
@@ -158,29 +159,35 @@ class ValueFilter:
         self.lookahead = Lookahead.from_table(table, self.model, self.dt, self.eps, margin=self.constant_margin or 0.0,
                                               target_checks=target_checks)
         self.target_checks = self.lookahead.target_checks
-        #: the verified safe set every applied action must end in (:mod:`softreach.reach.safe_cells`), or None
-        self.safe_cells = self._safe_cells(safe_cells)
-        self.lookahead.safe_cells = self.safe_cells
+        #: the cells that prove C1 and the budget, and landing by T (:mod:`softreach.reach.cell_certificate`);
+        #: every applied action ends in them where the state is in them
+        self.safe_cells = self._cells(safe_cells, "safe")
+        self.landing_cells = self._cells(landing_cells, "land")
+        self.lookahead.safe_cells, self.lookahead.landing_cells = self.safe_cells, self.landing_cells
         #: up to this many rows, :meth:`filter` judges the policy's action and the candidates in one batch. 0: the
         #: policy's action first, the candidates only where it fails. From certified states with a random policy
         #: (6 % interventions) that is the faster one: median 2.1 ms a decision against 2.7 ms with 8
         self.joint_rows = 0
 
-    def _safe_cells(self, cells: Any) -> SafeCells | None:
+    def _cells(self, cells: Any, game: str) -> CellCertificate | None:
+        name = "safe_cells" if game == "safe" else "landing_cells"
         if isinstance(cells, str) and cells == "auto":
-            shape = self.model.safe_cell_shape
+            shape = self.model.cell_shape
             if not (self.sampled and shape is not None and self.lookahead.box_support):
                 return None
-            return safe_cells_cached(self.lookahead, shape)
+            return cells_cached(self.lookahead, shape, game=game, holds=self.model.cell_holds)
         if cells is None:
             return None
-        if not isinstance(cells, SafeCells):
-            raise TypeError(f"safe_cells must be 'auto', None or a SafeCells, got {type(cells).__name__}")
+        if not isinstance(cells, CellCertificate):
+            raise TypeError(f"{name} must be 'auto', None or a CellCertificate, got {type(cells).__name__}")
+        if cells.game != game:
+            raise ValueError(f"{name} must be cells of the {game!r} game, got {cells.game!r}")
         if not self.sampled:
-            raise ValueError(f"safe cells need a table solved for the control period {self.dt} s")
-        want = cell_key(self.lookahead, cells.shape, cells.dz)
+            raise ValueError(f"{name} need a table solved for the control period {self.dt} s")
+        want = cell_key(self.lookahead, cells.shape, cells.dz, game, cells.key.get("holds", (1,)),
+                        cells.key.get("span_cap", 64))
         if json.dumps(cells.key, sort_keys=True) != json.dumps(want, sort_keys=True):
-            raise ValueError(f"safe cells built for {cells.key}, not for this filter's {want}")
+            raise ValueError(f"{name} built for {cells.key}, not for this filter's {want}")
         return cells
 
     # ---------------------------------------------------------------- conversions
@@ -248,6 +255,9 @@ class ValueFilter:
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
         value = self.lookahead.certificate(tt, xs, zz)
         _, ok, nxt = self.lookahead.best_candidate(tt, xs, zz)
+        if self.landing_cells is not None:
+            # a state in a landing cell has its cell's plan even where no single period ends in the cells
+            ok = ok | self.landing_cells.contains(tt, xs, zz)
         inside = self.table.inside(tt, xs, np.maximum(zz, 0.0))
         after = tt >= self.lookahead.horizon - 1e-9
         reasons = []
@@ -282,7 +292,7 @@ class ValueFilter:
         return out[0] if single else out
 
     # ---------------------------------------------------------------- the filter
-    def filter(self, t: Any, x: Any, z: Any, action: Any, *, normalized: bool = False):
+    def filter(self, t: Any, x: Any, z: Any, action: Any, *, normalized: bool = False, plan: Any = None):
         """Filter a batch of actions.
 
         :param t: time(s) [s], scalar or ``(N,)``
@@ -295,11 +305,18 @@ class ValueFilter:
             changed the action), ``reason`` (codes of :data:`REASONS`), ``optimal_action`` (the candidate the
             filter chose; NaN where the policy passed and none was needed), ``blend`` (``1`` where the policy's
             action passed), ``lookahead`` (the worst next certificate of the applied action, ``+inf`` where it
-            may leave ``C1``, overspend or leave the table), ``certified`` (the applied action passed the test)
+            may leave ``C1``, overspend or leave the table), ``certified`` (the applied action passed the test),
+            ``plan`` (numpy ``(N, 2)`` ints: the landing cells' plan the filter follows, candidate index and periods
+            still to hold it; ``(-1, 0)``: none)
+        :param plan: the ``info["plan"]`` this filter returned at the previous step of the same runs (``None`` at the
+            first): where no action ends in the landing cells the filter keeps following it, which is what makes
+            landing by ``T`` a proof (:mod:`softreach.reach.cell_certificate`)
         :raises ValueError: non-finite or wrongly shaped inputs
         """
         tt, xs, zz, act, single, ref = self._inputs(t, x, z, action)
         N = len(xs)
+        plans = self._plans(plan, N)
+        new_plans = np.tile(np.array([-1, 0], np.int64), (N, 1))
         pol = self.physical(act) if normalized else np.minimum(np.maximum(act, self.a_lo), self.a_hi)
         la = self.lookahead
         value = la.certificate(tt, xs, zz)
@@ -340,16 +357,29 @@ class ValueFilter:
             if self.rule == "smooth" and self.smooth_iterations:
                 lam, best_next = self._bisect(tt[rows], xs[rows], zz[rows], best, pol[rows], any_ok, best_next)
             a = best + lam[:, None] * (pol[rows] - best)
-            if self.safe_cells is not None:
-                # no candidate ends in the safe cells from this very state (a model whose enclosure of a point is
-                # not inside that of its cell): the cell's own safe action still does, from every state of it
-                weak = np.nonzero(best_bad >= 1e6)[0]
-                if len(weak):
-                    r = rows[weak]
-                    js = self.safe_cells.action(tt[r], xs[r])
-                    good = (js >= 0) & self.safe_cells.contains(tt[r], xs[r], zz[r])
-                    a[weak[good]] = best[weak[good]] = la.candidates[js[good]]
-                    best_bad[weak[good]] = 0.9e6
+            any_ok = any_ok.copy()
+            for cells in (self.landing_cells, self.safe_cells):
+                # no candidate ends in the cells from this very state: follow the plan the filter committed to
+                # at an earlier step, or start the plan of the state's own cell (it works from every state of the
+                # cell). Landing cells first: their plans also keep C1 and the budget
+                weak = np.nonzero(~any_ok if cells is self.landing_cells else best_bad >= 1e6)[0]
+                if cells is None or not len(weak):
+                    continue
+                r = rows[weak]
+                follow = np.zeros(len(r), bool)
+                pj, pk = np.full(len(r), -1), np.zeros(len(r), np.int64)
+                if cells is self.landing_cells and plans is not None:
+                    pj, pk = plans[r, 0], plans[r, 1]
+                    follow = (pk > 0) & (pj >= 0) & (pj < J)
+                cj, ck = cells.plan(tt[r], xs[r])
+                start = ~follow & (cj >= 0) & cells.contains(tt[r], xs[r], zz[r])
+                use = follow | start
+                jj = np.where(follow, pj, cj)[use]
+                a[weak[use]] = best[weak[use]] = la.candidates[jj]
+                best_bad[weak[use]] = -1.0 if cells is self.landing_cells else 0.9e6
+                if cells is self.landing_cells:
+                    any_ok[weak[use]] = True
+                    new_plans[r[use]] = np.stack([jj, np.where(follow, pk - 1, ck - 1)[use]], axis=1)
             # -inf: the period surely ends landed; +inf: no candidate could be bounded at all
             bounded = best_bad < np.inf
             applied[rows] = np.where(bounded[:, None], a, self.fallback_action)
@@ -375,8 +405,19 @@ class ValueFilter:
             applied = applied[0]
             info = {k: v[0] for k, v in info.items()}
         if ref is not None:
-            return _to_torch(applied, info, ref, action)
+            applied, info = _to_torch(applied, info, ref, action)
+        info["plan"] = new_plans[0] if single else new_plans
         return applied, info
+
+    def _plans(self, plan: Any, N: int) -> np.ndarray | None:
+        if plan is None:
+            return None
+        arr = np.asarray(plan.detach().cpu().numpy() if torch is not None and isinstance(plan, torch.Tensor)
+                         else plan)
+        arr = arr.reshape(N, 2) if arr.size == 2 * N else arr
+        if arr.shape != (N, 2) or not np.issubdtype(arr.dtype, np.integer):
+            raise ValueError(f"plan must be the integer (N, 2) info['plan'] of the previous step, got {plan!r}")
+        return arr.astype(np.int64)
 
     __call__ = filter
 

@@ -66,7 +66,8 @@ class VecSafetyFilter(VecEnvWrapper):
             x = np.stack([np.asarray(b.state, dtype=np.float64) for b in bases])
             z = np.array([b.budget for b in bases], dtype=np.float64)
             act = actions[rows].reshape(len(rows), -1)
-            applied, info = filters[0].value_filter.filter(t, x, z, act, normalized=True)
+            plans = np.stack([f._plan for f in filters])
+            applied, info = filters[0].value_filter.filter(t, x, z, act, normalized=True, plan=plans)
             for k, f in enumerate(filters):
                 f.expect(act[k], applied[k], {key: v[k] for key, v in info.items()})
         self.venv.step_async(actions)

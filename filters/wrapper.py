@@ -125,6 +125,8 @@ class SafetyFilter(gym.Wrapper):
         self._initial_budget = math.nan
         self._certified_start = False
         self._pending: tuple | None = None
+        #: the landing cells' plan the filter follows (``ValueFilter.filter``'s ``plan``)
+        self._plan = np.array([-1, 0], np.int64)
 
     def expect(self, action: Any, applied: np.ndarray, decision: dict[str, Any]) -> None:
         """Hand over the decision for ``action`` at the current state, made in a batch with other environments
@@ -165,7 +167,9 @@ class SafetyFilter(gym.Wrapper):
                 and np.array_equal(pending[2], x) and np.array_equal(pending[0], np.asarray(action)):
             applied, f = pending[4], pending[5]
         else:
-            applied, f = self.value_filter.filter(base.time, x, base.budget, np.asarray(action), normalized=True)
+            applied, f = self.value_filter.filter(base.time, x, base.budget, np.asarray(action), normalized=True,
+                                                  plan=self._plan)
+        self._plan = np.asarray(f["plan"], np.int64)
         active = bool(f["active"])
         dtype = self.action_space.dtype if self.action_space.dtype is not None else np.float32
         # the policy's own object passes untouched where the filter does not act (no float round trip)

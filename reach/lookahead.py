@@ -105,9 +105,11 @@ class Lookahead:
                                                                             np.asarray(box[1], float))
         from .dynamics import Dynamics
 
-        #: verified safe cells (:class:`~softreach.reach.safe_cells.SafeCells`): every admissible action must end
-        #: in them; ``None``: the test asks only ``C1`` and the budget of the period itself
+        #: cells that prove ``C1`` and the budget (``safe_cells``) and landing by ``T`` (``landing_cells``),
+        #: :class:`~softreach.reach.cell_certificate.CellCertificate`: an admissible action must end in them. With
+        #: landing cells they, not the table, certify the end states. ``None``: not used
         self.safe_cells = None
+        self.landing_cells = None
         #: the model bounds boxes of starts: the filter can ask that the next state be certified again
         self.box_support = type(model).held_enclosure_box is not Dynamics.held_enclosure_box
 
@@ -253,9 +255,10 @@ class Lookahead:
         # with verified safe cells an action is admissible only when its end box lies in them: then C1 and the
         # budget are kept for good, whatever the table promises (:mod:`softreach.reach.safe_cells`)
         covered = kept.copy()
-        if self.safe_cells is not None:
-            r = np.nonzero(kept)[0]
-            covered[r] = self.safe_cells.covered(t_next[r], end_lo[r], end_hi[r], z_end[r])
+        for cells in (self.safe_cells, self.landing_cells):
+            if cells is not None:
+                r = np.nonzero(covered)[0]
+                covered[r] = cells.covered(t_next[r], end_lo[r], end_hi[r], z_end[r])
         ok = kept & covered
         nxt = np.full(len(x), np.inf)
         rows = np.nonzero(in_c1)[0]
@@ -280,13 +283,14 @@ class Lookahead:
                 v = box_max(V, Vt, Vg, t_next[rows], end_lo[rows], end_hi[rows])
                 best = np.minimum(best, np.where(z_end[rows] >= 0, v, np.inf))
             nxt[rows] = np.where(np.isnan(best), np.inf, best)
-            if exact:
+            if exact and self.landing_cells is None:
                 nxt[rows] = exact_before_horizon(self, t_next[rows], end_lo[rows], end_hi[rows], z_end[rows],
                                                  z_top[rows], nxt[rows])
         # where no action passes, the hard constraint comes first: an action whose end box lies where C1 can
         # still be kept until T (V_safe <= 0, the held game of staying in C1) beats one that keeps only the budget
         # (only ranks actions that do not pass, so it is asked of those alone)
-        passing = ok & (nxt <= -self.margin)
+        # landing cells prove the end states certified; without them the table's interpolant must say so
+        passing = ok.copy() if self.landing_cells is not None else ok & (nxt <= -self.margin)
         safe = in_c1.copy()
         ranked = np.nonzero(in_c1 & ~passing)[0]
         if "V_safe" in self.fields and len(ranked):
@@ -370,7 +374,7 @@ class Lookahead:
               end_hi: np.ndarray, z_end: np.ndarray, kept: np.ndarray) -> np.ndarray:
         """The ``keeps`` of :meth:`passes`, from :meth:`assess` with ``ends=True`` (its outputs for the same rows)."""
         keeps = ok.copy()
-        if self.box_support:
+        if self.box_support and self.landing_cells is None:
             last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
             # a run that surely lands needs no next step; on the last period the end states must be certified.
             # Otherwise the end box need not lie in {D <= 0}: that a candidate passes from every end state is

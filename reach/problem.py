@@ -64,9 +64,11 @@ class Model(Dynamics):
     #: budgets [s] whose sets the summaries and plots show, and those of the paper's representative starts
     default_budgets: tuple[float, ...] = (0.0, 0.06, 0.3, 0.6)
     paper_budgets: tuple[float, ...] = (0.0, 0.3, 0.6)
-    #: cells per state axis over :attr:`hard_box` of the verified safe set the filter builds for a sampled-data
-    #: table (:mod:`softreach.reach.safe_cells`; ``None``: the model gives none, the filter checks each period only)
-    safe_cell_shape: tuple[int, ...] | None = None
+    #: cells per state axis over :attr:`hard_box` of the certificates the filter solves on cells for a sampled-data
+    #: table (:mod:`softreach.reach.cell_certificate`; ``None``: none, the table alone certifies), and the plan
+    #: lengths [periods] of the landing game's cells
+    cell_shape: tuple[int, ...] | None = None
+    cell_holds: tuple[int, ...] = (1,)
     #: ``f``, the sets and the target do not depend on ``t`` (the solver then evaluates the sets once)
     time_invariant: bool = True
     #: per state axis, whether it is periodic (an angle): its period is the ``domain`` along it, ``[lo, hi)``.

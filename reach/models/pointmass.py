@@ -87,9 +87,11 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         self.hard_box = ((p.hard_speed[0], p.altitude[0]), (p.hard_speed[1], p.altitude[1]))
         self.target_box = ((p.target_speed[0], p.target_altitude[0]), (p.target_speed[1], p.target_altitude[1]))
         self.default_shape = (101, 101)
-        # the verified safe set's cells: 0.2 m/s x 12.5 mm. Landing rides the stopping boundary near the ground,
-        # where the altitude cell decides how much of it the cells keep (docs/filters.md, "Safe cells")
-        self.safe_cell_shape = (150, 1440)
+        # the cell certificates: 0.2 m/s x 12.5 mm. Landing rides the stopping boundary near the ground, where the
+        # altitude cell decides how much of it the cells keep; plans up to 8 periods let a cell slower than
+        # 12.5 mm per period make progress (docs/filters.md, "Certificates on cells")
+        self.cell_shape = (150, 1440)
+        self.cell_holds = (1, 2, 4, 8)
         self.default_budget_points = 111
         self.default_snapshots = 41  # every 25 ms: the filter and the W-derived control read W(t, .) over the horizon
         # c2 is a speed margin [m/s]; the net authority u_max - d_max [m/s^2] is how fast it can be restored

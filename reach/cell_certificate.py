@@ -1,0 +1,339 @@
+"""Certificates solved on cells for the held-action game: proofs, not interpolants.
+
+The table's certificate (:class:`~softreach.reach.lookahead.Lookahead`) is an interpolant, which between grid
+nodes can promise slightly more than a held action delivers: a chain of certified steps can break. This module
+solves the sampled-data game again on *cells* and proves what it claims, by construction.
+
+Cells are boxes: the hard-constraint box ``C1`` (:attr:`~softreach.reach.problem.Model.hard_box`) cut into
+``shape`` state cells, times budget cells ``[j dz, (j + 1) dz]``. A **plan** is a candidate held action kept for
+``K`` periods (``K`` in ``holds``). A cell ``(c, j)`` is **good at sample time** ``t_k = k dt`` when some plan
+satisfies, from *every* state of the cell and for every wind signal (the model's box enclosures
+:meth:`~softreach.reach.dynamics.Dynamics.held_enclosure_box`, chained period by period):
+
+1. every period's motion stays in ``C1`` (the convex ``c1`` at the corners of each tube box);
+2. the budget spent, bounded as in the one-period test (pieces charged at their largest ``h_eps``) and summed
+   over the periods, leaves ``j dz - S >= 0``;
+3. every run surely lands at a check instant of one of the periods (then the episode ends), or every cell the
+   end box touches, at every budget the plan can leave, is good at ``t_{k+K}``, and ``k + K <= N``.
+
+Two games differ only at ``T``: in ``"safe"`` every cell inside ``C1`` is good there (stay in ``C1`` within the
+budget until ``T``, or land); in ``"land"`` none is (land by ``T``). More budget never hurts: if ``(c, j)`` is good
+so is ``(c, j + 1)`` (the same plan works, by induction from ``T``). So a cell column is stored as one number,
+``m_k[c]``, the lowest good budget index, and item 3 asks only ``j >= S / dz + max m_{k+K}`` over the touched
+state cells.
+
+**What it proves.** A state at ``t_k`` in a good cell has a plan (:meth:`CellCertificate.plan`) that keeps ``C1``
+and the budget and ends in a good cell (or landed), whatever the wind did. A controller that applies, at every
+step, either an action whose one-period end box is covered by good cells (:meth:`CellCertificate.covered`) or the
+next action of the plan it is following, never leaves ``C1``, never overspends, and (``"land"``) lands by ``T``,
+from any good start, for every wind signal. Only the enclosures and the box corners are used; the table is not.
+
+Plans longer than one period are what let a cell make progress at all where the motion of one period is shorter
+than the cell (the point mass near ``v = 0``): a one-period box from a whole cell overlaps that cell again, and
+would ask the cell to be good at every later time. Plans whose end box touches more than ``span_cap`` cells are
+not used (that only makes the certificate smaller).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import os
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: file format of :meth:`CellCertificate.save`
+FORMAT = "softreach-cell-certificate-1"
+#: the games: stay in ``C1`` within the budget until ``T`` (or land), or land by ``T``
+GAMES = ("safe", "land")
+
+
+class CellCertificate:
+    """The lowest good budget index ``m[k, c]`` and a plan ``(action[k, c], hold[k, c])`` per sample time and cell.
+
+    :param lo, hi: the cell grid's box (the model's ``hard_box``)
+    :param m: ``(N + 1, *shape)`` int16, ``never`` where no budget suffices
+    :param action: ``(N + 1, *shape)`` int8 candidate index of the plan (``-1``: none)
+    :param hold: ``(N + 1, *shape)`` int8 periods the plan holds it
+    :param candidates: ``(J, m)`` physical held actions
+    :param dt, dz, horizon: control period, budget cell, horizon [s]
+    :param game: ``"safe"`` or ``"land"``
+    :param key: what the cells were built for (model parameters, period, ``h_eps`` width, candidates, ...)
+    """
+
+    def __init__(self, lo: Any, hi: Any, m: np.ndarray, action: np.ndarray, hold: np.ndarray, candidates: Any,
+                 dt: float, dz: float, horizon: float, game: str, key: dict[str, Any]):
+        if game not in GAMES:
+            raise ValueError(f"game must be one of {GAMES}, got {game!r}")
+        self.lo, self.hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+        self.m, self.action, self.hold = np.asarray(m), np.asarray(action), np.asarray(hold)
+        self.shape = self.m.shape[1:]
+        self.width = (self.hi - self.lo) / np.asarray(self.shape, dtype=np.float64)
+        self.candidates = np.asarray(candidates, dtype=np.float64)
+        self.dt, self.dz, self.horizon = float(dt), float(dz), float(horizon)
+        self.game = game
+        self.steps = self.m.shape[0] - 1
+        self.top = int(round(self.horizon / self.dz))  # no run spends more than the horizon: budgets above are equal
+        self.never = self.top + 1
+        self.key = dict(key)
+
+    # ---------------------------------------------------------------- building
+    @classmethod
+    def build(cls, lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe",
+              holds: Any = (1,), span_cap: int = 64) -> "CellCertificate":
+        """Solve the cell game backwards from ``T`` for the look-ahead's model, period, ``h_eps`` and candidates.
+
+        :param lookahead: a :class:`~softreach.reach.lookahead.Lookahead` (its enclosures and budget bound)
+        :param shape: cells per state axis over the model's ``hard_box``
+        :param dz: budget cell [s]; default a quarter of the period
+        :param game: ``"safe"`` or ``"land"`` (module docstring)
+        :param holds: the plan lengths, in periods
+        :param span_cap: the most cells a plan's end box may touch
+        """
+        la, model = lookahead, lookahead.model
+        key = cell_key(la, shape, dz, game, holds, span_cap)
+        if model.hard_box is None:
+            raise ValueError(f"{model.name} declares no hard_box; the cells tile it")
+        shape = tuple(key["shape"])
+        if len(shape) != model.state_dim or min(shape) < 1:
+            raise ValueError(f"shape must give {model.state_dim} positive cell counts, got {shape!r}")
+        holds = tuple(key["holds"])
+        if not holds or min(holds) < 1 or max(holds) > 127:
+            raise ValueError(f"holds must be periods in 1..127, got {holds!r}")
+        dt, T, dz = la.dt, la.horizon, key["dz"]
+        if not (math.isfinite(dz) and dz > 0):
+            raise ValueError(f"dz must be a positive number of seconds, got {dz!r}")
+        N = int(round(T / dt))
+        if not math.isclose(N * dt, T, rel_tol=1e-9):
+            raise ValueError(f"the horizon {T} s is not a whole number of periods {dt} s")
+        lo, hi = (np.asarray(b, dtype=np.float64) for b in model.hard_box)
+        idx = np.stack(np.meshgrid(*[np.arange(s) for s in shape], indexing="ij"), axis=-1).reshape(-1, len(shape))
+        width = (hi - lo) / np.asarray(shape)
+        cell_lo, cell_hi = lo + idx * width, lo + (idx + 1) * width
+        blank = np.zeros((1,) + shape, np.int8)
+        cells = cls(lo, hi, blank.astype(np.int16), blank, blank, la.candidates, dt, dz, T, game, {})
+        never, C = cells.never, len(idx)
+        m = np.empty((N + 1, C), np.int16)
+        action = np.full((N + 1, C), -1, np.int8)
+        hold = np.zeros((N + 1, C), np.int8)
+        inside = la._corner_max(model.hard_constraint, np.full(C, T), cell_lo, cell_hi) <= 0
+        m[N] = np.where(inside & (game == "safe"), 0, never)
+        plans = None
+        for k in range(N - 1, -1, -1):
+            if plans is None or not model.time_invariant:
+                plans = [(j, K, g) for j, a in enumerate(la.candidates)
+                         for K, g in cells._plan_steps(la, k * dt, cell_lo, cell_hi, a, holds, span_cap)]
+            best = np.full(C, never, np.int64)
+            for j, K, (ok, spend, rows, cols, starts, lands) in plans:
+                if k + K > N:
+                    continue
+                touched = np.full(C, never, np.int64)
+                if len(rows):
+                    touched[rows] = np.maximum.reduceat(m[k + K][cols], starts)
+                need = np.where(ok, cells._budget_index(spend, np.minimum(touched, never)), never)
+                need = np.where(ok & lands, np.minimum(need, cells._budget_index(spend, 0)), need)
+                better = need < best
+                best = np.where(better, need, best)
+                action[k] = np.where(better, j, action[k])
+                hold[k] = np.where(better, K, hold[k])
+            m[k] = np.minimum(best, never)
+            action[k] = np.where(m[k] < never, action[k], -1)
+        return cls(lo, hi, m.reshape((N + 1,) + shape), action.reshape((N + 1,) + shape),
+                   hold.reshape((N + 1,) + shape), la.candidates, dt, dz, T, game, key)
+
+    def _plan_steps(self, la: Any, t0: float, lo: np.ndarray, hi: np.ndarray, a: np.ndarray, holds: tuple,
+                    span_cap: int):
+        """One candidate held from every cell for ``max(holds)`` periods, the boxes chained: per plan length
+        ``K`` in ``holds``, whether every period so far keeps ``C1``, the budget bound, the cells the end box
+        touches (and whether they are few enough to use), and whether every run surely lands by then."""
+        model, C = la.model, len(lo)
+        acts = np.broadcast_to(a, (C, len(a)))
+        ok, spend, lands = np.ones(C, bool), np.zeros(C), np.zeros(C, bool)
+        out = []
+        for p in range(1, max(holds) + 1):
+            t = np.full(C, t0 + (p - 1) * la.dt)
+            tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure_box(float(t[0]), lo, hi, acts, la.dt)
+            ok &= np.isfinite(tube_lo).all(axis=1) & np.isfinite(tube_hi).all(axis=1)
+            with np.errstate(invalid="ignore"):
+                ok &= la._corner_max(model.hard_constraint, t, tube_lo, tube_hi) <= 0
+                pieces = model.held_tube_pieces_box(float(t[0]), lo, hi, acts, la.dt, la.pieces)
+                spend = spend + np.nan_to_num(la._budget_spent(t, pieces[0], pieces[1], la.dt), nan=np.inf)
+            # landing needs only the budget spent until the landing instant, at most the plan's bound so far
+            rows = ok & ~lands & la._meets_target(np.nan_to_num(tube_lo), np.nan_to_num(tube_hi))
+            lands |= la._lands(t, lo, np.full(C, np.inf), acts, hi, rows)
+            lo, hi = np.where(ok[:, None], end_lo, lo), np.where(ok[:, None], end_hi, hi)
+            if p in holds:
+                first, last, on = self._cell_range(lo, hi)
+                rows = np.nonzero(ok & on & ((last - first + 1).prod(axis=1) <= span_cap))[0]
+                cols, starts = self._touched(first[rows], last[rows])
+                out.append((p, (ok.copy(), spend.copy(), rows, cols, starts, lands.copy())))
+        return out
+
+    def _touched(self, first: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The flat indices of the cells ``first..last`` of every row, concatenated, and where each row's start:
+        ``np.maximum.reduceat(field.ravel()[cols], starts)`` is then every row's largest value."""
+        if len(first) == 0:
+            return np.zeros(0, np.int32), np.zeros(0, np.int64)
+        span = last - first + 1
+        count = span.prod(axis=1)
+        starts = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
+        row = np.repeat(np.arange(len(first)), count)
+        local = np.arange(int(count.sum())) - np.repeat(starts, count)
+        flat = np.zeros(len(local), np.int64)
+        for d in range(len(self.shape)):
+            # mixed radix over the row's own spans, the last axis fastest
+            stride = span[:, d + 1:].prod(axis=1)[row]
+            flat = flat * self.shape[d] + first[row, d] + (local // stride) % span[row, d]
+        return flat.astype(np.int32), starts
+
+    # ---------------------------------------------------------------- cell arithmetic
+    def _cell_range(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """First and last cell index per axis a box ``[lo, hi]`` touches (closed cells), and whether it lies on
+        the grid. Off-grid boxes get a valid range and ``False``."""
+        with np.errstate(invalid="ignore"):
+            f = np.floor((lo - self.lo) / self.width)
+            g = np.floor((hi - self.lo) / self.width)
+        n = np.asarray(self.shape)
+        # a box reaching exactly the grid's upper end touches the last cell only
+        g = np.where(hi == self.hi, n - 1, g)
+        on = (np.isfinite(f) & np.isfinite(g) & (f >= 0) & (g <= n - 1)).all(axis=1)
+        f = np.clip(np.nan_to_num(f), 0, n - 1).astype(np.int64)
+        g = np.clip(np.nan_to_num(g), 0, n - 1).astype(np.int64)
+        return f, np.maximum(f, g), on
+
+    def _budget_index(self, spend: np.ndarray, needed: Any) -> np.ndarray:
+        """The lowest budget index ``j`` with ``j dz - spend >= needed dz``: the start budgets whose lowest end
+        budget still lies in a safe cell of index ``needed``."""
+        needed = np.asarray(needed, dtype=np.int64)
+        j = np.ceil(spend / self.dz + needed - 1e-12).astype(np.int64)
+        # float guard: the condition itself, not its rearrangement, decides
+        j = np.where(j * self.dz - spend >= needed * self.dz, j, j + 1)
+        return np.minimum(np.maximum(j, 0), self.never)
+
+    def step_index(self, t: np.ndarray) -> np.ndarray:
+        """The sample index whose game covers time ``t`` (between samples, a model whose motion does not depend on
+        ``t``): ``"safe"`` takes ``floor(t / dt)``, whose plans keep ``C1`` until at least ``T``; ``"land"`` takes
+        ``ceil(t / dt)``, whose plans land by ``T`` at the latest."""
+        r = np.asarray(t, dtype=np.float64) / self.dt
+        k = np.floor(r + 1e-9) if self.game == "safe" else np.ceil(r - 1e-9)
+        return np.clip(k, 0, self.steps).astype(np.int64)
+
+    def _budget_floor(self, z: np.ndarray) -> np.ndarray:
+        with np.errstate(invalid="ignore"):
+            j = np.floor(np.minimum(z, self.top * self.dz) / self.dz + 1e-12)
+        j = np.where(j * self.dz > z, j - 1, j)  # float guard: the cell's lower end lies at or below z
+        return np.where(z >= 0, j, -1).astype(np.int64)
+
+    # ---------------------------------------------------------------- queries
+    def contains(self, t: Any, x: Any, z: Any) -> np.ndarray:
+        """Is each state ``(t, x, z)`` in a good cell (``False`` off the grid, at a negative budget, after ``T``)?"""
+        x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+        first, _, on = self._cell_range(x, x)
+        k = self.step_index(np.broadcast_to(t, (len(x),)))
+        need = self.m[(k,) + tuple(first.T)]
+        z = np.broadcast_to(np.asarray(z, dtype=np.float64), (len(x),))
+        return on & (self._budget_floor(z) >= need) & self._in_time(t, len(x))
+
+    def _in_time(self, t: Any, n: int) -> np.ndarray:
+        return np.broadcast_to(np.asarray(t, dtype=np.float64), (n,)) <= self.horizon + 1e-9 * self.dt
+
+    def covered(self, t_next: np.ndarray, end_lo: np.ndarray, end_hi: np.ndarray, z_end: np.ndarray) -> np.ndarray:
+        """Does a period end inside good cells: every cell the end box ``[end_lo, end_hi]`` touches at ``t_next``
+        good at the lowest end budget ``z_end`` (and so at every higher one)?"""
+        if len(end_lo) == 0:
+            return np.zeros(0, bool)
+        first, last, on = self._cell_range(end_lo, end_hi)
+        k = self.step_index(t_next)
+        need = np.full(len(end_lo), np.iinfo(np.int64).min)
+        span = (last - first).max(axis=0) + 1
+        for off in itertools.product(*[range(int(s)) for s in span]):
+            ix = tuple(np.minimum(first[:, d] + off[d], last[:, d]) for d in range(len(self.shape)))
+            need = np.maximum(need, self.m[(k,) + ix])
+        return on & (self._budget_floor(z_end) >= need) & self._in_time(t_next, len(end_lo))
+
+    def plan(self, t: Any, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        """The stored plan of each state's cell: ``(candidate index, periods to hold it)``; ``(-1, 0)`` off the grid
+        or where no budget suffices. It is good for the state when :meth:`contains` says so."""
+        x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+        first, _, on = self._cell_range(x, x)
+        ix = (self.step_index(np.broadcast_to(t, (len(x),))),) + tuple(first.T)
+        act = np.where(on, self.action[ix], -1).astype(np.int64)
+        return act, np.where(act >= 0, self.hold[ix], 0).astype(np.int64)
+
+    def fraction(self, k: int, z: float) -> float:
+        """The share of ``C1``'s cells good at sample ``k`` with budget ``z``."""
+        return float((self.m[k] <= self._budget_floor(np.array([float(z)]))[0]).mean())
+
+    # ---------------------------------------------------------------- files
+    def save(self, path: str | Path) -> None:
+        """Write the cells (numpy ``.npz``; the key as JSON)."""
+        np.savez_compressed(path, format=FORMAT, lo=self.lo, hi=self.hi, m=self.m, action=self.action, hold=self.hold,
+                            candidates=self.candidates, scalars=np.array([self.dt, self.dz, self.horizon]),
+                            game=self.game, key=json.dumps(self.key, sort_keys=True))
+
+    @classmethod
+    def load(cls, path: str | Path, key: dict[str, Any] | None = None) -> "CellCertificate":
+        """Read cells written by :meth:`save`; with ``key``, refuse cells built for anything else.
+
+        :raises ValueError: not a cell-certificate file, or built for another model, period, game or candidate set
+        """
+        try:
+            with np.load(path, allow_pickle=False) as f:
+                if str(f["format"]) != FORMAT:
+                    raise ValueError(f"format {str(f['format'])!r}, expected {FORMAT!r}")
+                stored = json.loads(str(f["key"]))
+                dt, dz, T = (float(v) for v in f["scalars"])
+                out = cls(f["lo"], f["hi"], f["m"], f["action"], f["hold"], f["candidates"], dt, dz, T,
+                          str(f["game"]), stored)
+        except (OSError, KeyError, EOFError, ValueError) as err:
+            raise ValueError(f"{path} is not a readable cell-certificate file: {err}") from err
+        if key is not None and json.dumps(key, sort_keys=True) != json.dumps(stored, sort_keys=True):
+            raise ValueError(f"{path} was built for {stored}, not {key}")
+        return out
+
+
+def cell_key(lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe", holds: Any = (1,),
+             span_cap: int = 64) -> dict[str, Any]:
+    """What :meth:`CellCertificate.build` records for these arguments (the cache's key)."""
+    la, model = lookahead, lookahead.model
+    if game not in GAMES:
+        raise ValueError(f"game must be one of {GAMES}, got {game!r}")
+    return {"model": model.name, "parameters": model.parameters(), "dt": la.dt, "eps": la.eps,
+            "horizon": la.horizon, "candidates": la.candidates.tolist(), "pieces": la.pieces,
+            "target_checks": la.target_checks, "shape": [int(v) for v in shape],
+            "dz": la.dt / 4 if dz is None else float(dz), "game": game,
+            "holds": sorted({int(h) for h in holds}), "span_cap": int(span_cap)}
+
+
+def cache_dir() -> Path:
+    """Where built cells are kept: ``$SOFTREACH_CACHE`` or ``~/.cache/softreach``."""
+    return Path(os.environ.get("SOFTREACH_CACHE") or Path.home() / ".cache" / "softreach")
+
+
+def cached(lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe", holds: Any = (1,),
+           span_cap: int = 64) -> CellCertificate:
+    """The cells for this look-ahead, read from :func:`cache_dir` or built and written there (once per model,
+    period, ``h_eps`` width, candidate set, game and shape; a cache that cannot be written is skipped with a
+    warning)."""
+    key = cell_key(lookahead, shape, dz, game, holds, span_cap)
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
+    path = cache_dir() / f"cells-{key['model']}-{game}-{digest}.npz"
+    if path.is_file():
+        try:
+            return CellCertificate.load(path, key)
+        except ValueError as err:
+            warnings.warn(f"rebuilding the cells: {err}", stacklevel=2)
+    cells = CellCertificate.build(lookahead, shape, dz, game, holds, span_cap)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.stem + f".{os.getpid()}.tmp.npz")
+        cells.save(tmp)
+        os.replace(tmp, path)
+    except OSError as err:
+        warnings.warn(f"cells not cached ({err}); they are rebuilt next time", stacklevel=2)
+    return cells

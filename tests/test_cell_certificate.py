@@ -1,0 +1,159 @@
+"""The certificates solved on cells (``softreach.reach.cell_certificate``): sound against facts of the point mass
+the cells are not built from (the exact continuous-time sets, the stopping distance), kept by their own plans under
+winds that switch inside the period, and kept by the filter against adversarial policies and winds."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from softreach.envs.integrator import integrate_period
+from softreach.filters import ValueFilter
+from softreach.filters.audit import Row, _policy, _wind, run_episode
+from softreach.reach import get_model
+from softreach.reach.cell_certificate import CellCertificate
+from softreach.reach.exact_pointmass import exact_member
+
+DT = 0.01
+SHAPE = (60, 360)
+HOLDS = (1, 2, 4, 8)
+
+
+@pytest.fixture(scope="module")
+def vf(pointmass_held_table):
+    model = get_model("pointmass")
+    plain = ValueFilter(pointmass_held_table, DT, target_checks=model.substeps, safe_cells=None, landing_cells=None)
+    safe = CellCertificate.build(plain.lookahead, SHAPE, game="safe", holds=HOLDS)
+    land = CellCertificate.build(plain.lookahead, SHAPE, game="land", holds=HOLDS)
+    return ValueFilter(pointmass_held_table, DT, target_checks=model.substeps, safe_cells=safe, landing_cells=land)
+
+
+def _cells(sc: CellCertificate, k: int):
+    idx = np.stack(np.meshgrid(*[np.arange(s) for s in sc.shape], indexing="ij"), -1).reshape(-1, 2)
+    return sc.lo + idx * sc.width, sc.lo + (idx + 1) * sc.width, sc.m[k].reshape(-1)
+
+
+def test_no_safe_cell_holds_a_state_that_must_hit_the_ground(vf):
+    # descending at v < 0, the best the vehicle can do against the worst wind is u_max - g - d_max upwards: below
+    # the stopping altitude v^2 / (2 a) it reaches y < 0 within |v| / a < T, whatever the budget
+    p = vf.model.params
+    a = p.u_max - p.gravity - p.d_max
+    lo, hi, m = _cells(vf.safe_cells, 0)
+    safe = m < vf.safe_cells.never
+    doomed = (lo[:, 0] < 0) & (lo[:, 1] < lo[:, 0] ** 2 / (2 * a))
+    assert not (safe & doomed).any()
+    # and the cells are not empty of such starts by accident: near the ground slow cells are safe
+    assert (safe & (hi[:, 1] < 1.0) & (np.abs(lo[:, 0]) < 2)).any()
+
+
+def test_outside_the_soft_band_needs_budget(vf):
+    # outside C2 (|v| > 10) the budget drains at once: no such cell is safe with none, and some are with some
+    lo, hi, m = _cells(vf.safe_cells, 0)
+    band = (lo[:, 0] >= vf.model.params.soft_speed[1]) | (hi[:, 0] <= vf.model.params.soft_speed[0])
+    assert band.any() and (m[band] > 0).all()
+    assert (m[band] < vf.safe_cells.never).any()
+
+
+@pytest.mark.parametrize("t", [0.0, 0.4, 0.8, 0.95])
+def test_landing_cells_lie_inside_the_exact_sets_and_grow_with_the_budget(vf, t):
+    # the exact continuous-time sets (closed form, reach/exact_pointmass.py) hold every state any controller can
+    # land from; holding actions can only do less, so a landing cell outside them would be unsound
+    rng = np.random.default_rng(1)
+    x = rng.uniform([-15, 0], [15, 18], (20000, 2))
+    before = None
+    for q in (0.0, 0.06, 0.3, 0.6):
+        inside = vf.landing_cells.contains(t, x, q)
+        exact = np.asarray(exact_member(x[:, 0], x[:, 1], q, 1.0 - t), bool)
+        assert not (inside & ~exact).any(), (t, q, x[inside & ~exact][:3])
+        assert inside.sum() > 0.3 * exact.sum(), (t, q, inside.sum(), exact.sum())  # coarse test cells
+        if before is not None:
+            assert not (before & ~inside).any()
+        before = inside
+    # landing by T keeps C1 and the budget until then: the landing cells lie inside the safe cells
+    assert not (vf.landing_cells.contains(t, x, 0.3) & ~vf.safe_cells.contains(t, x, 0.3)).any()
+
+
+@pytest.mark.parametrize("game", ["safe", "land"])
+def test_a_cells_plan_keeps_its_promise_under_switching_winds(vf, game):
+    cells, model = (vf.safe_cells if game == "safe" else vf.landing_cells), vf.model
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        k = int(rng.integers(0, cells.steps))
+        lo, hi, m = _cells(cells, k)
+        good = np.nonzero(m < cells.never)[0]
+        c = int(rng.choice(good))
+        x = rng.uniform(lo[c], hi[c])
+        z = (m[c] + rng.uniform(0, 3)) * cells.dz
+        assert cells.contains(k * DT, x, z)[0]
+        j, K = (int(v[0]) for v in cells.plan(k * DT, x))
+        t, xs, spent, landed = k * DT, list(map(float, x)), 0.0, False
+        for _p in range(K):
+            # a wind that switches between the extremes at three random instants of each period
+            cuts = np.sort(rng.uniform(0, DT, 3))
+            for s0, s1 in zip(np.r_[0, cuts], np.r_[cuts, DT]):
+                if s1 - s0 <= 0 or landed:
+                    continue
+                b = [float(rng.choice([-1.0, 1.0]) * model.params.d_max)]
+                xs, cost, _, _ = integrate_period(model, t, xs, [float(cells.candidates[j, 0])], b, s1 - s0, 4,
+                                                  vf.eps, 1e-9)
+                spent += cost
+                t += s1 - s0
+                pt = [np.float64(v) for v in xs]
+                assert float(model.hard_constraint(t, pt)) <= 0 and z - spent >= -1e-12, (game, k, x, z, xs)
+                landed = bool(model.landed(t, pt))
+        assert landed or cells.contains(k * DT + K * DT, np.asarray(xs), z - spent)[0], (game, k, x, z, K, xs)
+
+
+@pytest.mark.parametrize("policy", ["always_min", "always_max", "random", "anti_optimal"])
+def test_filter_lands_every_run_from_landing_cells(vf, policy):
+    # every policy, adversarial winds: certified starts land by T, never leave C1 nor overspend
+    rng = np.random.default_rng(11)
+    x = rng.uniform([-15, 0], [15, 18], (4000, 2))
+    for q in (0.0, 0.3):
+        starts = x[vf.landing_cells.contains(0.0, x, q)][:2]
+        assert len(starts) == 2
+        for x0 in starts:
+            for wind in ("worst_case", "switch_inside", "switch_on_filter", "helps_policy"):
+                row = Row(policy, wind, "certified", True)
+                out = run_episode(vf, vf, x0, q, _policy(policy, vf, rng), _wind(wind, vf, rng, 4), 4,
+                                  vf.model.substeps, row, False)
+                assert out["landed"] and not out["hard"] and out["budget_used"] <= q + 1e-9, (x0, q, wind, out)
+                assert row.uncertified_steps == 0, (x0, q, wind)
+
+
+@pytest.mark.parametrize("policy", ["always_max", "random"])
+def test_filter_keeps_safe_starts_outside_the_landing_cells_safe(vf, policy):
+    rng = np.random.default_rng(7)
+    x = rng.uniform([-15, 0], [15, 18], (4000, 2))
+    q = 0.06
+    starts = x[vf.safe_cells.contains(0.0, x, q) & ~vf.landing_cells.contains(0.0, x, q)][:3]
+    assert len(starts) == 3
+    for x0 in starts:
+        for wind in ("worst_case", "switch_inside", "switch_on_filter"):
+            row = Row(policy, wind, "safe", True)
+            out = run_episode(vf, vf, x0, q, _policy(policy, vf, rng), _wind(wind, vf, rng, 4), 4, 2, row, False)
+            assert not out["hard"] and out["budget_used"] <= q + 1e-9, (x0, wind, out)
+
+
+def test_files_and_arguments_are_checked(vf, tmp_path):
+    sc = vf.landing_cells
+    path = tmp_path / "cells.npz"
+    sc.save(path)
+    back = CellCertificate.load(path, sc.key)
+    assert np.array_equal(back.m, sc.m) and np.array_equal(back.hold, sc.hold) and back.game == "land"
+    other = dict(sc.key, dt=0.1)
+    with pytest.raises(ValueError, match="built for"):
+        CellCertificate.load(path, other)
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a numpy file")
+    with pytest.raises(ValueError, match="bad.npz"):
+        CellCertificate.load(bad)
+    with pytest.raises(TypeError, match="safe_cells"):
+        ValueFilter(vf.table, DT, safe_cells="yes", landing_cells=None)
+    with pytest.raises(ValueError, match="'land' game"):
+        ValueFilter(vf.table, DT, safe_cells=None, landing_cells=vf.safe_cells)
+    with pytest.raises(ValueError, match="not for this filter"):
+        ValueFilter(vf.table, DT, safe_cells=None, landing_cells=CellCertificate(
+            sc.lo, sc.hi, sc.m, sc.action, sc.hold, sc.candidates, DT, sc.dz, sc.horizon, "land", other))
+    with pytest.raises(ValueError, match="plan"):
+        vf.filter(0.0, [0.0, 5.0], 0.3, [0.0], plan=[1.5, 2.0])
