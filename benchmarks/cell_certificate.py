@@ -1,10 +1,13 @@
-"""What the verified safe cells cost and keep: build time, the share of ``C1`` they prove safe, and how many of
-the states the landing certificate covers stay certified once every action must end in them.
+"""What the cell certificates cost and keep: build time, and the states they certify against the table's own
+one-period test and, for the point mass, the exact sets.
 
-    OMP_NUM_THREADS=1 python benchmarks/safe_cells.py --table pointmass-held.srt [--shape 150 1440] [--states 20000]
+    OMP_NUM_THREADS=1 python benchmarks/cell_certificate.py --table pointmass-held.srt [--shape 150 1440]
+        [--states 20000] [--times 0 0.5 0.9] [--exact-pointmass]
 
-Certified means some candidate passes the one-period test (``ValueFilter.certify``), drawn uniformly over ``C1``
-at each time and budget, with the cells (``safe_cells``) and without (``safe_cells=None``).
+Certified means ``ValueFilter.certify``: with the cells (``landing_cells``, proven) and with the table alone
+(``landing_cells=None``, by the interpolant), on states drawn uniformly over ``C1``. ``--exact-pointmass`` also
+counts the states of the exact continuous-time sets (``softreach.reach.exact_pointmass``), which hold every state
+any controller can land from, and the cells' states outside them (unsound; 0 expected).
 """
 
 from __future__ import annotations
@@ -17,41 +20,53 @@ import numpy as np
 
 from softreach.filters import ValueFilter
 from softreach.reach import load_table
-from softreach.reach.safe_cells import SafeCells
+from softreach.reach.cell_certificate import CellCertificate
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--table", required=True, help="a held table (softreach solve MODEL --held)")
-    ap.add_argument("--shape", type=int, nargs="+", help="cells per state axis (default: the model's)")
+    ap.add_argument("--shape", type=int, nargs="+", help="cells per state axis (default: the model's cell_shape)")
     ap.add_argument("--states", type=int, default=20000)
-    ap.add_argument("--times", type=float, nargs="+", default=[0.0, 0.5, 0.85])
+    ap.add_argument("--times", type=float, nargs="+", default=[0.0, 0.5, 0.9])
     ap.add_argument("--budgets", type=float, nargs="+", help="default: the model's default budgets")
+    ap.add_argument("--exact-pointmass", action="store_true", help="compare with the point mass's exact sets")
     args = ap.parse_args(argv)
     table = load_table(args.table)
     model = table.model
-    plain = ValueFilter(table, table.control_period, target_checks=model.substeps, safe_cells=None)
-    shape = tuple(args.shape) if args.shape else model.safe_cell_shape
+    plain = ValueFilter(table, table.control_period, target_checks=model.substeps, safe_cells=None,
+                        landing_cells=None)
+    shape = tuple(args.shape) if args.shape else model.cell_shape
     if shape is None:
-        ap.error(f"{model.name} declares no safe_cell_shape; give --shape")
-    t0 = time.perf_counter()
-    cells = SafeCells.build(plain.lookahead, shape)
-    build = time.perf_counter() - t0
-    vf = ValueFilter(table, table.control_period, target_checks=model.substeps, safe_cells=cells)
+        ap.error(f"{model.name} declares no cell_shape; give --shape")
+    built = {}
+    for game in ("safe", "land"):
+        t0 = time.perf_counter()
+        built[game] = CellCertificate.build(plain.lookahead, shape, game=game, holds=model.cell_holds)
+        print(f"{game} cells {shape}, plans of {list(model.cell_holds)} periods: built in "
+              f"{time.perf_counter() - t0:.1f} s")
+    vf = ValueFilter(table, table.control_period, target_checks=model.substeps, safe_cells=built["safe"],
+                     landing_cells=built["land"])
     budgets = args.budgets or list(model.default_budgets)
-    print(f"{args.table}: {len(cells.m.reshape(cells.steps + 1, -1)[0]):,} cells {shape}, built in {build:.1f} s")
-    print("share of C1's cells safe at t = 0: " + ", ".join(f"Q = {q:g}: {cells.fraction(0, q):.1%}" for q in budgets))
+    print("share of C1's cells safe at t = 0: " + ", ".join(f"Q = {q:g}: {built['safe'].fraction(0, q):.1%}"
+                                                              for q in budgets))
     rng = np.random.default_rng(0)
     lo, hi = (np.asarray(b, float) for b in model.hard_box)
     x = rng.uniform(lo, hi, (args.states, len(lo)))
-    print(f"{args.states:,} states uniform over C1; certified without cells -> with cells (kept)")
+    print(f"{args.states:,} states uniform over C1, certified: table alone / cells (proven)"
+          + (" / exact set / cells outside it" if args.exact_pointmass else ""))
     for t in args.times:
         parts = []
         for q in budgets:
-            before = plain.certify(t, x, q)[0]
-            after = vf.certify(t, x, q)[0]
-            parts.append(f"Q = {q:g}: {before.sum()} -> {after.sum()} ({after.sum() / max(before.sum(), 1):.1%}"
-                         f"{'' if not (after & ~before).any() else f', {(after & ~before).sum()} new'})")
+            table_only = int(plain.certify(t, x, q)[0].sum())
+            cells = vf.certify(t, x, q)[0]
+            part = f"Q = {q:g}: {table_only} / {int(cells.sum())}"
+            if args.exact_pointmass:
+                from softreach.reach.exact_pointmass import exact_member
+
+                exact = np.asarray(exact_member(x[:, 0], x[:, 1], q, model.horizon - t), bool)
+                part += f" / {int(exact.sum())} / {int((cells & ~exact).sum())}"
+            parts.append(part)
         print(f"  t = {t:g} s: " + "; ".join(parts))
     return 0
 

@@ -185,7 +185,7 @@ class ValueFilter:
         if not self.sampled:
             raise ValueError(f"{name} need a table solved for the control period {self.dt} s")
         want = cell_key(self.lookahead, cells.shape, cells.dz, game, cells.key.get("holds", (1,)),
-                        cells.key.get("span_cap", 64))
+                        cells.key.get("span_cap", 32))
         if json.dumps(cells.key, sort_keys=True) != json.dumps(want, sort_keys=True):
             raise ValueError(f"{name} built for {cells.key}, not for this filter's {want}")
         return cells

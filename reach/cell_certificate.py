@@ -85,7 +85,7 @@ class CellCertificate:
     # ---------------------------------------------------------------- building
     @classmethod
     def build(cls, lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe",
-              holds: Any = (1,), span_cap: int = 64) -> "CellCertificate":
+              holds: Any = (1,), span_cap: int = 32) -> "CellCertificate":
         """Solve the cell game backwards from ``T`` for the look-ahead's model, period, ``h_eps`` and candidates.
 
         :param lookahead: a :class:`~softreach.reach.lookahead.Lookahead` (its enclosures and budget bound)
@@ -129,18 +129,16 @@ class CellCertificate:
                 plans = [(j, K, g) for j, a in enumerate(la.candidates)
                          for K, g in cells._plan_steps(la, k * dt, cell_lo, cell_hi, a, holds, span_cap)]
             best = np.full(C, never, np.int64)
-            for j, K, (ok, spend, rows, cols, starts, lands) in plans:
+            for j, K, (rows, spend, cols, starts, land_rows, land_need) in plans:
                 if k + K > N:
                     continue
-                touched = np.full(C, never, np.int64)
-                if len(rows):
-                    touched[rows] = np.maximum.reduceat(m[k + K][cols], starts)
-                need = np.where(ok, cells._budget_index(spend, np.minimum(touched, never)), never)
-                need = np.where(ok & lands, np.minimum(need, cells._budget_index(spend, 0)), need)
-                better = need < best
-                best = np.where(better, need, best)
-                action[k] = np.where(better, j, action[k])
-                hold[k] = np.where(better, K, hold[k])
+                # landing inside the plan needs no later cell: its budget index does not change with k
+                for r, need in ((land_rows, land_need),
+                                (rows, cells._budget_index(spend, np.maximum.reduceat(m[k + K][cols], starts)
+                                                           if len(rows) else np.zeros(0, np.int64)))):
+                    better = need < best[r]
+                    r = r[better]
+                    best[r], action[k, r], hold[k, r] = need[better], j, K
             m[k] = np.minimum(best, never)
             action[k] = np.where(m[k] < never, action[k], -1)
         return cls(lo, hi, m.reshape((N + 1,) + shape), action.reshape((N + 1,) + shape),
@@ -171,7 +169,9 @@ class CellCertificate:
                 first, last, on = self._cell_range(lo, hi)
                 rows = np.nonzero(ok & on & ((last - first + 1).prod(axis=1) <= span_cap))[0]
                 cols, starts = self._touched(first[rows], last[rows])
-                out.append((p, (ok.copy(), spend.copy(), rows, cols, starts, lands.copy())))
+                land_rows = np.nonzero(ok & lands)[0]
+                out.append((p, (rows, spend[rows], cols, starts, land_rows,
+                                self._budget_index(spend[land_rows], 0))))
         return out
 
     def _touched(self, first: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -298,7 +298,7 @@ class CellCertificate:
 
 
 def cell_key(lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe", holds: Any = (1,),
-             span_cap: int = 64) -> dict[str, Any]:
+             span_cap: int = 32) -> dict[str, Any]:
     """What :meth:`CellCertificate.build` records for these arguments (the cache's key)."""
     la, model = lookahead, lookahead.model
     if game not in GAMES:
@@ -316,7 +316,7 @@ def cache_dir() -> Path:
 
 
 def cached(lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe", holds: Any = (1,),
-           span_cap: int = 64) -> CellCertificate:
+           span_cap: int = 32) -> CellCertificate:
     """The cells for this look-ahead, read from :func:`cache_dir` or built and written there (once per model,
     period, ``h_eps`` width, candidate set, game and shape; a cache that cannot be written is skipped with a
     warning)."""

@@ -16,7 +16,7 @@ from softreach.reach.exact_pointmass import exact_member
 
 DT = 0.01
 SHAPE = (60, 360)
-HOLDS = (1, 2, 4, 8)
+HOLDS = (1, 2, 4)
 
 
 @pytest.fixture(scope="module")

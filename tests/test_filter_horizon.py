@@ -21,9 +21,9 @@ import softreach.reach.lookahead as lookahead
 ENV_ID = "softreach/PointMassLanding-v0"
 
 
-def _hover_runs(table, winds=(-10.0, 0.0, 10.0)):
+def _hover_runs(table, winds=(-10.0, 0.0, 10.0), cells="auto"):
     """Hover thrust held from just above the target band, late in the episode: (certified starts, outcomes)."""
-    vf = ValueFilter(table, 0.01, target_checks=10)
+    vf = ValueFilter(table, 0.01, target_checks=10, safe_cells=cells, landing_cells=cells)
     base = gym.make(ENV_ID).unwrapped
     hover = float(base.normalized_action(np.array([base.model.params.gravity]))[0])
     starts, outcomes = 0, []
@@ -43,8 +43,10 @@ def _hover_runs(table, winds=(-10.0, 0.0, 10.0)):
     return starts, outcomes
 
 
-def test_hovering_above_the_target_is_made_to_land(pointmass_held_table):
-    starts, outcomes = _hover_runs(pointmass_held_table)
+@pytest.mark.parametrize("cells", ["auto", None])
+def test_hovering_above_the_target_is_made_to_land(pointmass_held_table, cells):
+    # with the landing cells (proof) and with the table and its witness window alone
+    starts, outcomes = _hover_runs(pointmass_held_table, cells=cells)
     assert starts >= 6, starts  # the scenario is exercised
     assert outcomes.count("landed") == len(outcomes), outcomes
 
@@ -52,5 +54,5 @@ def test_hovering_above_the_target_is_made_to_land(pointmass_held_table):
 def test_the_table_alone_lets_it_time_out(pointmass_held_table, monkeypatch):
     """Without the exact check the same runs time out: the scenario is the failure it claims to cure."""
     monkeypatch.setattr(lookahead, "exact_before_horizon", lambda la, t, lo, hi, zl, zh, nxt: nxt)
-    _, outcomes = _hover_runs(pointmass_held_table)
+    _, outcomes = _hover_runs(pointmass_held_table, cells=None)
     assert "timeout" in outcomes or "hard" in outcomes, outcomes

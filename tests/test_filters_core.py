@@ -260,9 +260,13 @@ def test_nonfinite_table_values_are_unsafe(pointmass_held_table):
         iy = int(round((5.0 - g.lo[1]) / g.spacing[1]))
         vals[:, iv - 2:iv + 3, iy - 2:iy + 3] = np.nan  # a NaN hole around (v, y) = (0, 5)
         table._arrays[name] = vals
-    vf = ValueFilter(table, DT)
+    vf = ValueFilter(table, DT, safe_cells=None, landing_cells=None)
     applied, info = vf.filter(0.2, [0.0, 5.0], 0.3, [3.0])
     assert info["active"] and not info["certified"] and np.isfinite(applied).all()
+    # the cells do not read the table: their proof stands, and the hole is still reported as unsafe, not NaN
+    vf = ValueFilter(table, DT)
+    applied, info = vf.filter(0.2, [0.0, 5.0], 0.3, [3.0])
+    assert info["certified"] and np.isfinite(applied).all() and info["value"] == np.inf
 
 
 # ------------------------------------------------------------------------------------------ inputs and errors

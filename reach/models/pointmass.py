@@ -88,10 +88,10 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         self.target_box = ((p.target_speed[0], p.target_altitude[0]), (p.target_speed[1], p.target_altitude[1]))
         self.default_shape = (101, 101)
         # the cell certificates: 0.2 m/s x 12.5 mm. Landing rides the stopping boundary near the ground, where the
-        # altitude cell decides how much of it the cells keep; plans up to 8 periods let a cell slower than
-        # 12.5 mm per period make progress (docs/filters.md, "Certificates on cells")
+        # altitude cell decides how much of it the cells keep; plans of 2 and 4 periods let a cell slower than
+        # 12.5 mm per period make progress; 8 certified no more (docs/filters.md, "Certificates on cells")
         self.cell_shape = (150, 1440)
-        self.cell_holds = (1, 2, 4, 8)
+        self.cell_holds = (1, 2, 4)
         self.default_budget_points = 111
         self.default_snapshots = 41  # every 25 ms: the filter and the W-derived control read W(t, .) over the horizon
         # c2 is a speed margin [m/s]; the net authority u_max - d_max [m/s^2] is how fast it can be restored
