@@ -47,6 +47,26 @@ from typing import Any
 
 import numpy as np
 
+class _LastPlans:
+    """The plans' geometry of the last build, for the other game on the same cells (it is the same: only ``T``
+    differs). One entry: it is large."""
+
+    def __init__(self):
+        self._key, self._plans = None, None
+
+    @staticmethod
+    def _norm(key: dict[str, Any]) -> str:
+        return json.dumps({k: v for k, v in key.items() if k != "game"}, sort_keys=True)
+
+    def get(self, key: dict[str, Any]):
+        return self._plans if self._key == self._norm(key) else None
+
+    def put(self, key: dict[str, Any], plans: Any) -> None:
+        self._key, self._plans = self._norm(key), plans
+
+
+_SHARED = _LastPlans()
+
 #: file format of :meth:`CellCertificate.save`
 FORMAT = "softreach-cell-certificate-1"
 #: the games: stay in ``C1`` within the budget until ``T`` (or land), or land by ``T``
@@ -124,10 +144,20 @@ class CellCertificate:
         inside = la._corner_max(model.hard_constraint, np.full(C, T), cell_lo, cell_hi) <= 0
         m[N] = np.where(inside & (game == "safe"), 0, never)
         plans = None
+        K_max = max(holds)
         for k in range(N - 1, -1, -1):
+            if model.time_invariant and k + K_max + 1 <= N and all(
+                    np.array_equal(m[k + 1], m[k + 1 + d]) for d in range(1, K_max + 1)):
+                # the recursion reads the next K_max columns; they agree, so every earlier one is the same
+                m[:k + 1], action[:k + 1], hold[:k + 1] = m[k + 1], action[k + 1], hold[k + 1]
+                break
             if plans is None or not model.time_invariant:
-                plans = [(j, K, g) for j, a in enumerate(la.candidates)
-                         for K, g in cells._plan_steps(la, k * dt, cell_lo, cell_hi, a, holds, span_cap)]
+                plans = _SHARED.get(key) if model.time_invariant else None
+                if plans is None:
+                    plans = [(j, K, g) for j, a in enumerate(la.candidates)
+                             for K, g in cells._plan_steps(la, k * dt, cell_lo, cell_hi, a, holds, span_cap)]
+                if model.time_invariant:
+                    _SHARED.put(key, plans)
             best = np.full(C, never, np.int64)
             for j, K, (rows, spend, cols, starts, land_rows, land_need) in plans:
                 if k + K > N:
