@@ -44,7 +44,7 @@ try:  # torch is a base dependency, but keep numpy-only use possible
 except ImportError:  # pragma: no cover - exercised only without torch
     torch = None  # type: ignore[assignment]
 
-__all__ = ["PASS", "BLEND", "OPTIMAL", "OUTSIDE", "AFTER_HORIZON", "NONFINITE", "FALLBACK", "UNCERTIFIED", "REASONS",
+__all__ = ["NO_PLAN", "PLAN_LAND", "PLAN_SAFE", "PASS", "BLEND", "OPTIMAL", "OUTSIDE", "AFTER_HORIZON", "NONFINITE", "FALLBACK", "UNCERTIFIED", "REASONS",
            "RULES", "CERTIFY_REASONS", "ValueFilter"]
 
 #: the policy's action passed the one-period test and was applied unchanged
@@ -64,6 +64,10 @@ NONFINITE = 5
 FALLBACK = 6
 #: inside the table, but no held action passes the test: the least-bad candidate was applied
 UNCERTIFIED = 7
+#: ``info["plan"]``: none; following a landing cell's plan; following a safe cell's plan
+NO_PLAN = (-1, 0, 0)
+PLAN_LAND = 1
+PLAN_SAFE = 2
 #: reason code -> name, as reported by the wrapper's ``info["filter_reason"]``
 REASONS = {PASS: "pass", BLEND: "blend", OPTIMAL: "optimal", OUTSIDE: "outside_domain",
            AFTER_HORIZON: "after_horizon", NONFINITE: "nonfinite_value", FALLBACK: "fallback",
@@ -306,8 +310,8 @@ class ValueFilter:
             filter chose; NaN where the policy passed and none was needed), ``blend`` (``1`` where the policy's
             action passed), ``lookahead`` (the worst next certificate of the applied action, ``+inf`` where it
             may leave ``C1``, overspend or leave the table), ``certified`` (the applied action passed the test),
-            ``plan`` (numpy ``(N, 2)`` ints: the landing cells' plan the filter follows, candidate index and periods
-            still to hold it; ``(-1, 0)``: none)
+            ``plan`` (numpy ``(N, 3)`` ints: the cells' plan the filter follows: candidate index, periods still to
+            hold it, and whose plan, :data:`PLAN_LAND` or :data:`PLAN_SAFE`; :data:`NO_PLAN`: none)
         :param plan: the ``info["plan"]`` this filter returned at the previous step of the same runs (``None`` at the
             first): where no action ends in the landing cells the filter keeps following it, which is what makes
             landing by ``T`` a proof (:mod:`softreach.reach.cell_certificate`)
@@ -316,7 +320,7 @@ class ValueFilter:
         tt, xs, zz, act, single, ref = self._inputs(t, x, z, action)
         N = len(xs)
         plans = self._plans(plan, N)
-        new_plans = np.tile(np.array([-1, 0], np.int64), (N, 1))
+        new_plans = np.tile(np.array(NO_PLAN, np.int64), (N, 1))
         pol = self.physical(act) if normalized else np.minimum(np.maximum(act, self.a_lo), self.a_hi)
         la = self.lookahead
         value = la.certificate(tt, xs, zz)
@@ -358,28 +362,29 @@ class ValueFilter:
                 lam, best_next = self._bisect(tt[rows], xs[rows], zz[rows], best, pol[rows], any_ok, best_next)
             a = best + lam[:, None] * (pol[rows] - best)
             any_ok = any_ok.copy()
-            for cells in (self.landing_cells, self.safe_cells):
+            for game, cells in ((PLAN_LAND, self.landing_cells), (PLAN_SAFE, self.safe_cells)):
                 # no candidate ends in the cells from this very state: follow the plan the filter committed to
                 # at an earlier step, or start the plan of the state's own cell (it works from every state of the
                 # cell). Landing cells first: their plans also keep C1 and the budget
-                weak = np.nonzero(~any_ok if cells is self.landing_cells else best_bad >= 1e6)[0]
+                weak = np.nonzero(~any_ok if game == PLAN_LAND else best_bad >= 1e6)[0]
                 if cells is None or not len(weak):
                     continue
                 r = rows[weak]
                 follow = np.zeros(len(r), bool)
                 pj, pk = np.full(len(r), -1), np.zeros(len(r), np.int64)
-                if cells is self.landing_cells and plans is not None:
+                if plans is not None:
                     pj, pk = plans[r, 0], plans[r, 1]
-                    follow = (pk > 0) & (pj >= 0) & (pj < J)
+                    follow = (pk > 0) & (pj >= 0) & (pj < J) & (plans[r, 2] == game)
                 cj, ck = cells.plan(tt[r], xs[r])
                 start = ~follow & (cj >= 0) & cells.contains(tt[r], xs[r], zz[r])
                 use = follow | start
                 jj = np.where(follow, pj, cj)[use]
                 a[weak[use]] = best[weak[use]] = la.candidates[jj]
-                best_bad[weak[use]] = -1.0 if cells is self.landing_cells else 0.9e6
-                if cells is self.landing_cells:
+                best_bad[weak[use]] = -1.0 if game == PLAN_LAND else 0.9e6
+                new_plans[r[use]] = np.stack([jj, np.where(follow, pk - 1, ck - 1)[use],
+                                              np.full(int(use.sum()), game)], axis=1)
+                if game == PLAN_LAND:
                     any_ok[weak[use]] = True
-                    new_plans[r[use]] = np.stack([jj, np.where(follow, pk - 1, ck - 1)[use]], axis=1)
             # -inf: the period surely ends landed; +inf: no candidate could be bounded at all
             bounded = best_bad < np.inf
             applied[rows] = np.where(bounded[:, None], a, self.fallback_action)
@@ -414,9 +419,9 @@ class ValueFilter:
             return None
         arr = np.asarray(plan.detach().cpu().numpy() if torch is not None and isinstance(plan, torch.Tensor)
                          else plan)
-        arr = arr.reshape(N, 2) if arr.size == 2 * N else arr
-        if arr.shape != (N, 2) or not np.issubdtype(arr.dtype, np.integer):
-            raise ValueError(f"plan must be the integer (N, 2) info['plan'] of the previous step, got {plan!r}")
+        arr = arr.reshape(N, 3) if arr.size == 3 * N else arr
+        if arr.shape != (N, 3) or not np.issubdtype(arr.dtype, np.integer):
+            raise ValueError(f"plan must be the integer (N, 3) info['plan'] of the previous step, got {plan!r}")
         return arr.astype(np.int64)
 
     __call__ = filter

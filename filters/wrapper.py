@@ -13,7 +13,7 @@ import gymnasium as gym
 
 from softreach.reach import Table, TableError, load_table
 
-from .core import REASONS, ValueFilter
+from .core import NO_PLAN, REASONS, ValueFilter
 
 #: what the wrapper reads from ``env.unwrapped`` (the softreach landing environments provide all of it)
 REQUIRED_ATTRIBUTES = ("model", "dt", "eps", "state", "time", "budget")
@@ -126,7 +126,7 @@ class SafetyFilter(gym.Wrapper):
         self._certified_start = False
         self._pending: tuple | None = None
         #: the landing cells' plan the filter follows (``ValueFilter.filter``'s ``plan``)
-        self._plan = np.array([-1, 0], np.int64)
+        self._plan = np.array(NO_PLAN, np.int64)
 
     def expect(self, action: Any, applied: np.ndarray, decision: dict[str, Any]) -> None:
         """Hand over the decision for ``action`` at the current state, made in a batch with other environments
