@@ -254,11 +254,14 @@ class Lookahead:
         in_c1 = bounded & (c1 <= 0) & in_time
         # with verified safe cells an action is admissible only when its end box lies in them: then C1 and the
         # budget are kept for good, whatever the table promises (:mod:`softreach.reach.safe_cells`)
-        covered = kept.copy()
-        for cells in (self.safe_cells, self.landing_cells):
-            if cells is not None:
-                r = np.nonzero(covered)[0]
-                covered[r] = cells.covered(t_next[r], end_lo[r], end_hi[r], z_end[r])
+        safe_end = kept.copy()
+        if self.safe_cells is not None:
+            r = np.nonzero(kept)[0]
+            safe_end[r] = self.safe_cells.covered(t_next[r], end_lo[r], end_hi[r], z_end[r])
+        covered = safe_end.copy()
+        if self.landing_cells is not None:
+            r = np.nonzero(safe_end)[0]
+            covered[r] = self.landing_cells.covered(t_next[r], end_lo[r], end_hi[r], z_end[r])
         ok = kept & covered
         nxt = np.full(len(x), np.inf)
         rows = np.nonzero(in_c1)[0]
@@ -304,12 +307,12 @@ class Lookahead:
         ok |= lands
         nxt = np.where(lands, -np.inf, nxt)
         tie = np.arctan(np.nan_to_num(nxt, posinf=1e12)) / np.pi + 1e3 * np.maximum(-z_end, 0.0)
-        rank = np.where(covered & kept, 0.9e6, np.where(safe, 1e6, 3e6) + np.where(kept | lands, 0.0, 1e6))
+        rank = np.where(safe_end & kept, 0.9e6, np.where(safe, 1e6, 3e6) + np.where(kept | lands, 0.0, 1e6))
         bad = np.where(passing, nxt, np.where(in_c1, rank + tie, np.inf))
         bad = np.where(bounded & ~in_c1 & ~lands, 5e6 + np.maximum(c1, 0.0), bad)
         nxt = np.where(ok, nxt, np.inf)
         out = (passing, nxt, bad)
-        return out + (end_lo, end_hi, z_end, ok) if ends else out
+        return out + (end_lo, end_hi, z_end, (kept & safe_end) | lands) if ends else out
 
     def _meets_target(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """Rows whose box ``[lo, hi]`` meets the model's :attr:`~softreach.reach.problem.Model.target_box`: a
@@ -361,7 +364,8 @@ class Lookahead:
         ``C1`` and the budget, and one candidate passes the one-period test again from every possible end state,
         so the next state is certified whatever the wind did (its ``D`` may be positive: the interpolant is
         conservative there). Elsewhere: the one-period test. On the last period the end states must be certified
-        (``D <= 0``), and an action that surely lands needs nothing more.
+        (``D <= 0``), and an action that surely lands needs nothing more. With landing cells, certified means in
+        them: the end box lies in landing cells, or one candidate's period ends in them from all of it.
 
         :return: ``(admissible, next_value, badness, keeps)``; ``keeps`` implies that the period keeps ``C1`` and
             the budget, not that every end state has ``D <= 0`` (``next_value`` may be positive)
@@ -374,8 +378,14 @@ class Lookahead:
               end_hi: np.ndarray, z_end: np.ndarray, kept: np.ndarray) -> np.ndarray:
         """The ``keeps`` of :meth:`passes`, from :meth:`assess` with ``ends=True`` (its outputs for the same rows)."""
         keeps = ok.copy()
-        if self.box_support and self.landing_cells is None:
-            last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
+        last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
+        if self.box_support and self.landing_cells is not None:
+            # an end box not all in landing cells still keeps the chain when one candidate's period ends in
+            # them from every state of it: the next state is then certified (ValueFilter.certify), whatever the
+            # wind did
+            rows = np.nonzero(kept & ~ok & ~last & (nxt > -np.inf))[0]
+            keeps[rows] = self.keeps_certified(t[rows] + self.dt, end_lo[rows], end_hi[rows], z_end[rows], z[rows])
+        elif self.box_support:
             # a run that surely lands needs no next step; on the last period the end states must be certified.
             # Otherwise the end box need not lie in {D <= 0}: that a candidate passes from every end state is
             # what keeps the chain going, and it holds also where the interpolant is conservative (D > 0)
