@@ -307,7 +307,10 @@ class Lookahead:
         ok |= lands
         nxt = np.where(lands, -np.inf, nxt)
         tie = np.arctan(np.nan_to_num(nxt, posinf=1e12)) / np.pi + 1e3 * np.maximum(-z_end, 0.0)
-        rank = np.where(safe_end & kept, 0.9e6, np.where(safe, 1e6, 3e6) + np.where(kept | lands, 0.0, 1e6))
+        # an action ending in safe cells ranks before every other that does not pass (safe cells prove C1 and the
+        # budget for good); without them V_safe and the budget rank them
+        proven = safe_end & kept if self.safe_cells is not None else np.zeros(len(x), bool)
+        rank = np.where(proven, 0.9e6, np.where(safe, 1e6, 3e6) + np.where(kept | lands, 0.0, 1e6))
         bad = np.where(passing, nxt, np.where(in_c1, rank + tie, np.inf))
         bad = np.where(bounded & ~in_c1 & ~lands, 5e6 + np.maximum(c1, 0.0), bad)
         nxt = np.where(ok, nxt, np.inf)
