@@ -44,8 +44,8 @@ try:  # torch is a base dependency, but keep numpy-only use possible
 except ImportError:  # pragma: no cover - exercised only without torch
     torch = None  # type: ignore[assignment]
 
-__all__ = ["NO_PLAN", "PLAN_LAND", "PLAN_SAFE", "PASS", "BLEND", "OPTIMAL", "OUTSIDE", "AFTER_HORIZON", "NONFINITE", "FALLBACK", "UNCERTIFIED", "REASONS",
-           "RULES", "CERTIFY_REASONS", "ValueFilter"]
+__all__ = ["NO_PLAN", "PLAN_LAND", "PLAN_SAFE", "PASS", "BLEND", "OPTIMAL", "OUTSIDE", "AFTER_HORIZON", "NONFINITE",
+           "FALLBACK", "UNCERTIFIED", "REASONS", "RULES", "CERTIFY_REASONS", "ValueFilter"]
 
 #: the policy's action passed the one-period test and was applied unchanged
 PASS = 0
@@ -380,6 +380,7 @@ class ValueFilter:
                 use = follow | start
                 jj = np.where(follow, pj, cj)[use]
                 a[weak[use]] = best[weak[use]] = la.candidates[jj]
+                best_next[weak[use]] = cand_next[weak[use], jj]
                 best_bad[weak[use]] = -1.0 if game == PLAN_LAND else 0.9e6
                 new_plans[r[use]] = np.stack([jj, np.where(follow, pk - 1, ck - 1)[use],
                                               np.full(int(use.sum()), game)], axis=1)
