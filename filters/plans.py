@@ -1,0 +1,105 @@
+"""The filter's use of the cell certificates (:mod:`softreach.reach.cell_certificate`): which cells a
+:class:`~softreach.filters.ValueFilter` uses, and the multi-period plans it follows where no single period ends
+in them.
+
+A plan travels with its run as ``info["plan"]``: the candidate index, the periods it is still to be held, and
+whose plan it is (:data:`PLAN_LAND` or :data:`PLAN_SAFE`). It is valid only for the run it came from, handed back
+at the next step: the state is then inside the box chain the plan was proven for.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+
+from softreach.reach.cell_certificate import CellCertificate, cell_key, cached
+
+try:  # torch is a base dependency, but keep numpy-only use possible
+    import torch
+except ImportError:  # pragma: no cover - exercised only without torch
+    torch = None  # type: ignore[assignment]
+
+#: ``info["plan"]`` where none is followed
+NO_PLAN = (-1, 0, 0)
+#: following a landing cell's plan (the step is certified: the run lands by ``T``)
+PLAN_LAND = 1
+#: following a safe cell's plan (``C1`` and the budget are kept; landing is not certified)
+PLAN_SAFE = 2
+
+
+def resolve_cells(vf: Any, cells: Any, game: str) -> CellCertificate | None:
+    """The cells a filter uses for ``game``: ``"auto"`` builds them (or reads the cache) where the model declares
+    ``cell_shape``, bounds boxes of starts and the table was solved for the filter's period; ``None`` none; a
+    :class:`CellCertificate` is checked against the filter (model, period, ``h_eps``, candidates, checks)."""
+    name = "safe_cells" if game == "safe" else "landing_cells"
+    la = vf.lookahead
+    if isinstance(cells, str) and cells == "auto":
+        shape = vf.model.cell_shape
+        if not (vf.sampled and shape is not None and la.box_support):
+            return None
+        return cached(la, shape, game=game, holds=vf.model.cell_holds)
+    if cells is None:
+        return None
+    if not isinstance(cells, CellCertificate):
+        raise TypeError(f"{name} must be 'auto', None or a CellCertificate, got {type(cells).__name__}")
+    if cells.game != game:
+        raise ValueError(f"{name} must be cells of the {game!r} game, got {cells.game!r}")
+    if not vf.sampled:
+        raise ValueError(f"{name} need a table solved for the control period {vf.dt} s")
+    want = cell_key(la, cells.shape, cells.dz, game, cells.key.get("holds", (1,)), cells.key.get("span_cap", 32))
+    if json.dumps(cells.key, sort_keys=True) != json.dumps(want, sort_keys=True):
+        raise ValueError(f"{name} built for {cells.key}, not for this filter's {want}")
+    return cells
+
+
+def check_plans(plan: Any, N: int) -> np.ndarray | None:
+    """``plan`` as an ``(N, 3)`` int64 array (``None`` stays ``None``).
+
+    :raises ValueError: not the integer ``(N, 3)`` ``info["plan"]`` of a previous step
+    """
+    if plan is None:
+        return None
+    arr = np.asarray(plan.detach().cpu().numpy() if torch is not None and isinstance(plan, torch.Tensor) else plan)
+    arr = arr.reshape(N, 3) if arr.size == 3 * N else arr
+    if arr.shape != (N, 3) or not np.issubdtype(arr.dtype, np.integer):
+        raise ValueError(f"plan must be the integer (N, 3) info['plan'] of the previous step, got {plan!r}")
+    return arr.astype(np.int64)
+
+
+def follow_plans(vf: Any, plans: np.ndarray | None, new_plans: np.ndarray, rows: np.ndarray, t: np.ndarray,
+                 x: np.ndarray, z: np.ndarray, applied: np.ndarray, best: np.ndarray, best_next: np.ndarray,
+                 best_bad: np.ndarray, any_ok: np.ndarray, cand_next: np.ndarray) -> np.ndarray:
+    """Where no candidate's period ends in the cells from the state itself, follow the plan committed to at an
+    earlier step, or start the plan of the state's own cell (proven from every state of the cell). Landing cells
+    first, their plans also keep ``C1`` and the budget; then safe cells, for rows whose choice does not end in
+    them. Updates ``applied``, ``best``, ``best_next``, ``best_bad`` and ``new_plans`` in place (the rows of
+    ``rows``, the policy's action having failed there).
+
+    :return: ``any_ok`` with the rows now following a landing plan set (their step is certified)
+    """
+    any_ok = any_ok.copy()
+    J = len(vf.lookahead.candidates)
+    for game, cells in ((PLAN_LAND, vf.landing_cells), (PLAN_SAFE, vf.safe_cells)):
+        weak = np.nonzero(~any_ok if game == PLAN_LAND else best_bad >= 1e6)[0]
+        if cells is None or not len(weak):
+            continue
+        r = rows[weak]
+        follow = np.zeros(len(r), bool)
+        pj, pk = np.full(len(r), -1), np.zeros(len(r), np.int64)
+        if plans is not None:
+            pj, pk = plans[r, 0], plans[r, 1]
+            follow = (pk > 0) & (pj >= 0) & (pj < J) & (plans[r, 2] == game)
+        cj, ck = cells.plan(t[r], x[r])
+        start = ~follow & (cj >= 0) & cells.contains(t[r], x[r], z[r])
+        use = follow | start
+        jj = np.where(follow, pj, cj)[use]
+        applied[weak[use]] = best[weak[use]] = vf.lookahead.candidates[jj]
+        best_next[weak[use]] = cand_next[weak[use], jj]
+        best_bad[weak[use]] = -1.0 if game == PLAN_LAND else 0.9e6
+        new_plans[r[use]] = np.stack([jj, np.where(follow, pk - 1, ck - 1)[use], np.full(int(use.sum()), game)],
+                                     axis=1)
+        if game == PLAN_LAND:
+            any_ok[weak[use]] = True
+    return any_ok
