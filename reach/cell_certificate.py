@@ -47,9 +47,10 @@ from typing import Any
 
 import numpy as np
 
+
 class _LastPlans:
     """The plans' geometry of the last build, for the other game on the same cells (it is the same: only ``T``
-    differs). One entry: it is large."""
+    differs). One entry, handed out once: it is large."""
 
     def __init__(self):
         self._key, self._plans = None, None
@@ -59,7 +60,9 @@ class _LastPlans:
         return json.dumps({k: v for k, v in key.items() if k != "game"}, sort_keys=True)
 
     def get(self, key: dict[str, Any]):
-        return self._plans if self._key == self._norm(key) else None
+        plans = self._plans if self._key == self._norm(key) else None
+        self._key, self._plans = None, None
+        return plans
 
     def put(self, key: dict[str, Any], plans: Any) -> None:
         self._key, self._plans = self._norm(key), plans
@@ -156,8 +159,8 @@ class CellCertificate:
                 if plans is None:
                     plans = [(j, K, g) for j, a in enumerate(la.candidates)
                              for K, g in cells._plan_steps(la, k * dt, cell_lo, cell_hi, a, holds, span_cap)]
-                if model.time_invariant:
-                    _SHARED.put(key, plans)
+                    if model.time_invariant:
+                        _SHARED.put(key, plans)
             best = np.full(C, never, np.int64)
             for j, K, (rows, spend, cols, starts, land_rows, land_need) in plans:
                 if k + K > N:
