@@ -252,8 +252,8 @@ class Lookahead:
         t_next = np.minimum(t_next, self.horizon)
         kept = bounded & (c1 <= 0) & (z_end >= 0) & in_time
         in_c1 = bounded & (c1 <= 0) & in_time
-        # with verified safe cells an action is admissible only when its end box lies in them: then C1 and the
-        # budget are kept for good, whatever the table promises (:mod:`softreach.reach.safe_cells`)
+        # with cells an action is admissible only when its end box lies in them: safe cells keep C1 and the budget
+        # for good, landing cells also land by T, whatever the table promises (:mod:`.cell_certificate`)
         safe_end = kept.copy()
         if self.safe_cells is not None:
             r = np.nonzero(kept)[0]
