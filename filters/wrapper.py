@@ -125,7 +125,7 @@ class SafetyFilter(gym.Wrapper):
         self._initial_budget = math.nan
         self._certified_start = False
         self._pending: tuple | None = None
-        #: the landing cells' plan the filter follows (``ValueFilter.filter``'s ``plan``)
+        #: the cells' plan the filter follows (``ValueFilter.filter``'s ``plan``)
         self._plan = np.array(NO_PLAN, np.int64)
 
     def expect(self, action: Any, applied: np.ndarray, decision: dict[str, Any]) -> None:
