@@ -157,3 +157,34 @@ def test_files_and_arguments_are_checked(vf, tmp_path):
             sc.lo, sc.hi, sc.m, sc.action, sc.hold, sc.candidates, DT, sc.dz, sc.horizon, "land", other))
     with pytest.raises(ValueError, match="plan"):
         vf.filter(0.0, [0.0, 5.0], 0.3, [0.0], plan=[1.5, 2.0])
+
+
+def test_multi_period_plans_are_followed_to_their_end(vf, monkeypatch):
+    # the runs above do meet states where no single period ends in landing cells: the filter then holds its
+    # cell's plan for several periods, and the run still lands
+    from softreach.filters import PLAN_LAND
+
+    seen = {"started": 0, "followed": 0}
+    decide = vf.filter
+
+    def counting(*args, **kwargs):
+        applied, info = decide(*args, **kwargs)
+        before, now = kwargs.get("plan"), np.atleast_2d(info["plan"])
+        seen["started"] += int(((now[:, 2] == PLAN_LAND) & (now[:, 1] > 0)).sum())
+        if before is not None:
+            # followed: the same candidate, one period less (a passing action may also end a plan early)
+            before = np.atleast_2d(before)
+            seen["followed"] += int(((before[:, 2] == PLAN_LAND) & (before[:, 1] > 0) & (now[:, 2] == PLAN_LAND)
+                                     & (now[:, 0] == before[:, 0]) & (now[:, 1] == before[:, 1] - 1)).sum())
+        return applied, info
+
+    monkeypatch.setattr(vf, "filter", counting)
+    rng = np.random.default_rng(5)
+    x = rng.uniform([-15, 0], [15, 18], (4000, 2))
+    for policy in ("always_max", "anti_optimal", "random"):
+        for x0 in x[vf.landing_cells.contains(0.0, x, 0.3)][:4]:
+            row = Row(policy, "worst_case", "certified", True)
+            out = run_episode(vf, vf, x0, 0.3, _policy(policy, vf, rng), _wind("worst_case", vf, rng, 4), 4,
+                              vf.model.substeps, row, False)
+            assert out["landed"] and not out["hard"] and out["budget_used"] <= 0.3 + 1e-9
+    assert seen["started"] > 0 and seen["followed"] > 0, seen
