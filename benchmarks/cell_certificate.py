@@ -3,11 +3,15 @@ one-period test and, for the point mass, the exact sets.
 
     OMP_NUM_THREADS=1 python benchmarks/cell_certificate.py --table pointmass-held.srt [--shape 150 1440]
         [--states 20000] [--times 0 0.5 0.9] [--exact-pointmass]
+    python benchmarks/cell_certificate.py --table pointmass-held.srt --write-packaged
 
 Certified means ``ValueFilter.certify``: with the cells (``landing_cells``, proven) and with the table alone
 (``landing_cells=None``, by the interpolant), on states drawn uniformly over ``C1``. ``--exact-pointmass`` also
 counts the states of the exact continuous-time sets (``softreach.reach.exact_pointmass``), which hold every state
 any controller can land from, and the cells' states outside them (unsound; 0 expected).
+
+``--write-packaged`` (re)writes the cells the package ships (``reach/cells/``, the model's ``cell_shape``, for the
+filter's default ``target_checks`` 1 and the environment's sub-steps) from the table's candidates and period.
 """
 
 from __future__ import annotations
@@ -20,7 +24,8 @@ import numpy as np
 
 from softreach.filters import ValueFilter
 from softreach.reach import load_table
-from softreach.reach.cell_certificate import CellCertificate
+from softreach.reach.cell_certificate import PACKAGED, CellCertificate, cache_file, cell_key
+from softreach.reach.lookahead import Lookahead
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -31,9 +36,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--times", type=float, nargs="+", default=[0.0, 0.5, 0.9])
     ap.add_argument("--budgets", type=float, nargs="+", help="default: the model's default budgets")
     ap.add_argument("--exact-pointmass", action="store_true", help="compare with the point mass's exact sets")
+    ap.add_argument("--write-packaged", action="store_true", help="write the cells the package ships, and stop")
     args = ap.parse_args(argv)
     table = load_table(args.table)
     model = table.model
+    if args.write_packaged:
+        return write_packaged(table)
     plain = ValueFilter(table, table.control_period, target_checks=model.substeps, safe_cells=None,
                         landing_cells=None)
     shape = tuple(args.shape) if args.shape else model.cell_shape
@@ -68,6 +76,22 @@ def main(argv: list[str] | None = None) -> int:
                 part += f" / {int(exact.sum())} / {int((cells & ~exact).sum())}"
             parts.append(part)
         print(f"  t = {t:g} s: " + "; ".join(parts))
+    return 0
+
+
+def write_packaged(table) -> int:
+    """Build the model's default cells for ``target_checks`` 1 and the model's sub-steps, both games, into
+    :data:`PACKAGED`."""
+    model = table.model
+    PACKAGED.mkdir(exist_ok=True)
+    for checks in sorted({1, model.substeps}):
+        la = Lookahead.from_table(table, model, table.control_period, table.eps, target_checks=checks)
+        for game in ("land", "safe"):
+            t0 = time.perf_counter()
+            cells = CellCertificate.build(la, model.cell_shape, game=game, holds=model.cell_holds)
+            path = cache_file(cell_key(la, model.cell_shape, game=game, holds=model.cell_holds), PACKAGED)
+            cells.save(path)
+            print(f"{path}: built in {time.perf_counter() - t0:.1f} s")
     return 0
 
 

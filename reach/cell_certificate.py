@@ -350,19 +350,32 @@ def cache_dir() -> Path:
     return Path(os.environ.get("SOFTREACH_CACHE") or Path.home() / ".cache" / "softreach")
 
 
+#: cells shipped with the package for the default configurations (the point mass at 0.01 s, with the default
+#: table's candidates, for ``target_checks`` 1 and the environment's 10), so that the first filter on a machine
+#: need not build them; ``tests/test_packaged_cells.py`` rebuilds each and checks it equals the file.
+#: Rewritten by ``python benchmarks/cell_certificate.py --table TABLE --write-packaged``
+PACKAGED = Path(__file__).parent / "cells"
+
+
+def cache_file(key: dict[str, Any], folder: Path) -> Path:
+    """The file that holds the cells of ``key`` (:func:`cell_key`) in ``folder``."""
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
+    return folder / f"cells-{key['model']}-{key['game']}-{digest}.npz"
+
+
 def cached(lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe", holds: Any = (1,),
            span_cap: int = 32) -> CellCertificate:
-    """The cells for this look-ahead, read from :func:`cache_dir` or built and written there (once per model,
-    period, ``h_eps`` width, candidate set, game and shape; a cache that cannot be written is skipped with a
-    warning)."""
+    """The cells for this look-ahead: the package's own (:data:`PACKAGED`), else read from :func:`cache_dir`, else
+    built and written there (once per model, period, ``h_eps`` width, candidate set, game and shape; a cache that
+    cannot be written is skipped with a warning)."""
     key = cell_key(lookahead, shape, dz, game, holds, span_cap)
-    digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
-    path = cache_dir() / f"cells-{key['model']}-{game}-{digest}.npz"
-    if path.is_file():
-        try:
-            return CellCertificate.load(path, key)
-        except ValueError as err:
-            warnings.warn(f"rebuilding the cells: {err}", stacklevel=2)
+    path = cache_file(key, cache_dir())
+    for where in (cache_file(key, PACKAGED), path):
+        if where.is_file():
+            try:
+                return CellCertificate.load(where, key)
+            except ValueError as err:
+                warnings.warn(f"rebuilding the cells: {err}", stacklevel=2)
     cells = CellCertificate.build(lookahead, shape, dz, game, holds, span_cap)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
