@@ -37,11 +37,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--budgets", type=float, nargs="+", help="default: the model's default budgets")
     ap.add_argument("--exact-pointmass", action="store_true", help="compare with the point mass's exact sets")
     ap.add_argument("--write-packaged", action="store_true", help="write the cells the package ships, and stop")
+    ap.add_argument("--checks", type=int, nargs="+", help="with --write-packaged: only these target_checks")
     args = ap.parse_args(argv)
     table = load_table(args.table)
     model = table.model
     if args.write_packaged:
-        return write_packaged(table)
+        return write_packaged(table, args.checks)
     plain = ValueFilter(table, table.control_period, target_checks=model.substeps, safe_cells=None,
                         landing_cells=None)
     shape = tuple(args.shape) if args.shape else model.cell_shape
@@ -79,12 +80,12 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def write_packaged(table) -> int:
-    """Build the model's default cells for ``target_checks`` 1 and the model's sub-steps, both games, into
-    :data:`PACKAGED`."""
+def write_packaged(table, checks_list: list[int] | None = None) -> int:
+    """Build the model's default cells for ``target_checks`` 1 and the model's sub-steps (or ``checks_list``), both
+    games, into :data:`PACKAGED`."""
     model = table.model
     PACKAGED.mkdir(exist_ok=True)
-    for checks in sorted({1, model.substeps}):
+    for checks in checks_list or sorted({1, model.substeps}):
         la = Lookahead.from_table(table, model, table.control_period, table.eps, target_checks=checks)
         for game in ("land", "safe"):
             t0 = time.perf_counter()

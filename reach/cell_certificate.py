@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
 
 
 class _LastPlans:
@@ -147,6 +148,9 @@ class CellCertificate:
         m[N] = np.where(inside & (game == "safe"), 0, never)
         plans = None
         K_max = max(holds)
+        # minutes for a fine 3-d grid (the glider's): a bar on a terminal, nothing in logs (disable=None)
+        bar = tqdm(total=N + len(la.candidates), desc=f"{model.name} {game} cells", unit="step", disable=None,
+                   leave=False)
         for k in range(N - 1, -1, -1):
             if model.time_invariant and k + K_max + 1 <= N and all(
                     np.array_equal(m[k + 1], m[k + 1 + d]) for d in range(1, K_max + 1)):
@@ -156,10 +160,14 @@ class CellCertificate:
             if plans is None or not model.time_invariant:
                 plans = _SHARED.get(key) if model.time_invariant else None
                 if plans is None:
-                    plans = [(j, K, g) for j, a in enumerate(la.candidates)
-                             for K, g in cells._plan_steps(la, k * dt, cell_lo, cell_hi, a, holds, span_cap)]
+                    plans = []
+                    for j, a in enumerate(la.candidates):
+                        plans += [(j, K, g) for K, g in cells._plan_steps(la, k * dt, cell_lo, cell_hi, a, holds,
+                                                                          span_cap)]
+                        bar.update(1)
                     if model.time_invariant:
                         _SHARED.put(key, plans)
+            bar.update(1)
             best = np.full(C, never, np.int64)
             for j, K, (rows, spend, cols, starts, land_rows, land_need) in plans:
                 if k + K > N:
@@ -173,6 +181,7 @@ class CellCertificate:
                     best[r], action[k, r], hold[k, r] = need[better], j, K
             m[k] = np.minimum(best, never)
             action[k] = np.where(m[k] < never, action[k], -1)
+        bar.close()
         return cls(lo, hi, m.reshape((N + 1,) + shape), action.reshape((N + 1,) + shape),
                    hold.reshape((N + 1,) + shape), la.candidates, dt, dz, T, game, key)
 
@@ -350,10 +359,11 @@ def cache_dir() -> Path:
     return Path(os.environ.get("SOFTREACH_CACHE") or Path.home() / ".cache" / "softreach")
 
 
-#: cells shipped with the package for the default configurations (the point mass at 0.01 s, with the default
-#: table's candidates, for ``target_checks`` 1 and the environment's 10), so that the first filter on a machine
-#: need not build them; ``tests/test_packaged_cells.py`` rebuilds each and checks it equals the file.
-#: Rewritten by ``python benchmarks/cell_certificate.py --table TABLE --write-packaged``
+#: cells shipped with the package for the default configurations, so that the first filter on a machine need not
+#: build them: the point mass at 0.01 s for ``target_checks`` 1 and its environment's 10 (``tests/test_packaged_
+#: cells.py`` rebuilds each and checks it equals the file), the glider at 0.1 s for its environment's 2, what
+#: :class:`~softreach.filters.SafetyFilter` asks (6 min to build; ``tests/test_glider_cells.py`` checks the files'
+#: claims). Rewritten by ``python benchmarks/cell_certificate.py --table TABLE --write-packaged [--checks N]``
 PACKAGED = Path(__file__).parent / "cells"
 
 

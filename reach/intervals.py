@@ -109,10 +109,12 @@ def iv_sin_any(g: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray
     return iv_cos_any((round_down(lo - HALF_PI) - 1e-15, round_up(hi - HALF_PI) + 1e-15))
 
 
-def iv_hull_step(x: np.ndarray, dt: float, d: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """``x + [0, dt] * d``: every ``x + s v`` with ``s`` in ``[0, dt]`` and ``v`` in ``d`` (``dt > 0``)."""
+def iv_hull_step(x: np.ndarray, dt: float, d: tuple[np.ndarray, np.ndarray],
+                 x_hi: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``x + [0, dt] * d``: every ``x + s v`` with ``s`` in ``[0, dt]`` and ``v`` in ``d`` (``dt > 0``); with
+    ``x_hi``, every start in the box ``[x, x_hi]``."""
     lo = round_down(dt * np.minimum(d[0], 0.0))
     hi = round_up(dt * np.maximum(d[1], 0.0))
-    return round_down(x + lo), round_up(x + hi)
+    return round_down(x + lo), round_up((x if x_hi is None else x_hi) + hi)
 
 

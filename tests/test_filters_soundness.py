@@ -73,16 +73,6 @@ def test_wrapper_reports_certification_and_keeps_it(vf, pointmass_held_table):
     assert not info["certified"] and info["certified_reason"] == "not_in_set"
 
 
-@pytest.fixture(scope="module")
-def glider_held_table(tmp_path_factory):
-    """A coarse glider table of the sampled-data game (0.1 s), 31 x 22 x 19 x 13, ENO2 / RK2."""
-    path = tmp_path_factory.mktemp("filter_tables") / "glider_held.srt"
-    cfg = SolveConfig(shape=(31, 22, 19), budget_points=13, control_period=0.1, consistency_samples=2000,
-                      settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False))
-    solve_table(get_model("glider"), cfg, path, progress=False, budgets=(0.0, 5.0, 10.0))
-    return load_table(path)
-
-
 def test_glider_audit_from_certified_starts(glider_held_table):
     vf = ValueFilter(glider_held_table, 0.1, target_checks=get_model("glider").substeps)
     assert vf.sampled

@@ -100,6 +100,33 @@ def test_trajectories_stay_in_the_boxes(model: Glider, dt: float):
         assert_inside(path[-1], end_lo, end_hi, f"end, wind {name}, dt {dt}")
 
 
+def test_box_starts_hold_every_start_and_contain_the_point_boxes(model: Glider):
+    rng = np.random.default_rng(7)
+    n, dt = 200, 0.1
+    centre, a = random_inputs(model, rng, n)
+    half = np.array([0.3, 0.2, 0.05 * DEG]) * rng.uniform(0, 1, (n, 3))
+    lo, hi = centre - half, centre + half
+    tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure_box(0.0, lo, hi, a, dt)
+    assert np.all(np.isfinite(tube_lo)) and np.all(tube_lo <= lo) and np.all(hi <= tube_hi)
+    # starts anywhere in the box (corners included), any of the extreme wind signals
+    for corner in range(4):
+        x0 = lo + rng.uniform(0, 1, (n, 3)) * (hi - lo) if corner else lo.copy()
+        if corner == 3:
+            x0 = hi.copy()
+        for name, winds in wind_signals(model, rng, n).items():
+            path = rk4_path(model, x0, a, winds, dt)
+            assert_inside(path, tube_lo[None], tube_hi[None], f"box tube, wind {name}")
+            assert_inside(path[-1], end_lo, end_hi, f"box end, wind {name}")
+    # a point start is a degenerate box: the same boxes as held_enclosure, bit for bit
+    point = model.held_enclosure(0.0, centre, a, dt)
+    degenerate = model.held_enclosure_box(0.0, centre, centre, a, dt)
+    for p_, d_ in zip(point, degenerate):
+        assert np.array_equal(p_, d_)
+    # a box far too wide for one period has no enclosure: NaN, not an exception
+    wide = model.held_enclosure_box(0.0, centre[:2] - [0, 20, 0], centre[:2], a[:2], 30.0)
+    assert np.isnan(wide[0]).all()
+
+
 @pytest.mark.parametrize("dt", [0.1, 0.01])
 def test_boxes_are_tight(model: Glider, dt: float):
     rng = np.random.default_rng(7 + int(dt * 1000))

@@ -96,9 +96,24 @@ class GliderHeldEnclosure:
             candidate reaches ``V <= 0`` or leaves ``|gamma| < pi/2`` (the period is too long for that state),
             naming the row and its state
         """
+        return self._enclose(x, x, a, dt, strict=True)
+
+    def held_enclosure_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`held_enclosure` from every start in the boxes ``[x_lo, x_hi]`` (rows of ``(N, 3)``): the same
+        steps with the start an interval (``x + [0, dt] F(X)`` holds every start of the box, and the end box is
+        ``[x_lo, x_hi] + dt F(X)``). A row with no enclosure (a box too wide for one period, or reaching ``V <= 0``
+        or ``|gamma| >= pi/2``) is returned as NaN, which every caller reads as unbounded: not admissible."""
+        return self._enclose(x_lo, x_hi, a, dt, strict=False)
+
+    def _enclose(self, x: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float, strict: bool
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         x = np.asarray(x, dtype=np.float64)
-        if x.ndim != 2 or x.shape[1] != 3:
+        x_hi = np.asarray(x_hi, dtype=np.float64)
+        if x.ndim != 2 or x.shape[1] != 3 or x_hi.shape != x.shape:
             raise ValueError(f"x must have shape (N, 3) (h, V, gamma), got {x.shape}")
+        if np.any(x_hi < x):
+            raise ValueError("a start box has x_hi < x_lo")
         n = x.shape[0]
         a = np.asarray(a, dtype=np.float64)
         if a.shape not in ((n, 1), (n,)):
@@ -111,10 +126,13 @@ class GliderHeldEnclosure:
             empty = np.empty((0, 3))
             return empty, empty.copy(), empty.copy(), empty.copy()
         self.validate_state(x)
+        self.validate_state(x_hi)
         self.validate_control(alpha)
         p = self.params
         # C_L is computed once per row as an interval: the float product cl_alpha * alpha is itself rounded
         c = iv_add(iv_point(p.cl0), iv_mul(iv_point(p.cl_alpha), iv_point(alpha)))
+        size = np.maximum(np.abs(x), np.abs(x_hi))
+        failed = np.zeros(n, bool)
 
         def describe(i: int) -> str:
             return (f"row {i}: state (h, V, gamma) = ({float(x[i, 0])!r} m, {float(x[i, 1])!r} m/s, "
@@ -125,43 +143,56 @@ class GliderHeldEnclosure:
             bad_V = ~(lo[:, 1] > 0)
             bad_g = ~((lo[:, 2] > -HALF_PI) & (hi[:, 2] < HALF_PI))
             if np.any(bad_V | bad_g):
-                k = int(np.flatnonzero(bad_V | bad_g)[0])
-                what = (f"V in [{float(lo[k, 1])!r}, {float(hi[k, 1])!r}] m/s reaches <= 0" if bad_V[k] else
-                        f"gamma in [{float(lo[k, 2])!r}, {float(hi[k, 2])!r}] rad leaves (-pi/2, pi/2)")
-                raise ValueError(f"no enclosure for {describe(int(rows[k]))}: a candidate tube has {what}; "
-                                 f"shorten dt")
+                if strict:
+                    k = int(np.flatnonzero(bad_V | bad_g)[0])
+                    what = (f"V in [{float(lo[k, 1])!r}, {float(hi[k, 1])!r}] m/s reaches <= 0" if bad_V[k] else
+                            f"gamma in [{float(lo[k, 2])!r}, {float(hi[k, 2])!r}] rad leaves (-pi/2, pi/2)")
+                    raise ValueError(f"no enclosure for {describe(int(rows[k]))}: a candidate tube has {what}; "
+                                     f"shorten dt")
+                # such a row has no enclosure: evaluate it on its start box and mark it failed
+                bad = bad_V | bad_g
+                failed[rows[bad]] = True
+                lo, hi = np.where(bad[:, None], x[rows], lo), np.where(bad[:, None], x_hi[rows], hi)
             return self._interval_field(lo, hi, (c[0][rows], c[1][rows]))
 
         def inflate(lo: np.ndarray, hi: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             pad = (self._ENCLOSURE_INFLATE_REL * (hi - lo) + self._ENCLOSURE_INFLATE_ABS
-                   + self._ENCLOSURE_INFLATE_STATE * np.abs(x[rows]))
+                   + self._ENCLOSURE_INFLATE_STATE * size[rows])
             return lo - pad, hi + pad
 
         all_rows = np.arange(n)
-        X_lo, X_hi = inflate(*iv_hull_step(x, dt, field(x, x, all_rows)), all_rows)
-        tube_lo, tube_hi = np.empty((n, 3)), np.empty((n, 3))
+        X_lo, X_hi = inflate(*iv_hull_step(x, dt, field(x, x_hi, all_rows), x_hi), all_rows)
+        tube_lo, tube_hi = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
         todo = all_rows
         for _ in range(self._ENCLOSURE_MAX_TRIES):
-            Y_lo, Y_hi = iv_hull_step(x[todo], dt, field(X_lo, X_hi, todo))
+            Y_lo, Y_hi = iv_hull_step(x[todo], dt, field(X_lo, X_hi, todo), x_hi[todo])
             # strict containment: the exit-time argument needs Y inside the interior of X
-            ok = np.all((Y_lo > X_lo) & (Y_hi < X_hi), axis=1)
+            ok = np.all((Y_lo > X_lo) & (Y_hi < X_hi), axis=1) & ~failed[todo]
             # Y (not X) is kept: it is contained in X and holds the trajectories too (step 3)
             tube_lo[todo[ok]], tube_hi[todo[ok]] = Y_lo[ok], Y_hi[ok]
-            todo = todo[~ok]
+            retry = ~ok & ~failed[todo]
+            X_lo, X_hi = inflate(Y_lo[retry], Y_hi[retry], todo[retry])
+            todo = todo[retry]
             if todo.size == 0:
                 break
-            X_lo, X_hi = inflate(Y_lo[~ok], Y_hi[~ok], todo)
         else:
-            raise ValueError(f"no enclosure for {describe(int(todo[0]))} after {self._ENCLOSURE_MAX_TRIES} "
-                             f"candidates ({todo.size} rows failed); shorten dt")
+            if strict:
+                raise ValueError(f"no enclosure for {describe(int(todo[0]))} after {self._ENCLOSURE_MAX_TRIES} "
+                                 f"candidates ({todo.size} rows failed); shorten dt")
+            failed[todo] = True
 
+        good = np.flatnonzero(~failed)
+        tube_lo[failed], tube_hi[failed] = np.nan, np.nan
+        lo, hi, xl, xh = tube_lo[good], tube_hi[good], x[good], x_hi[good]
         for _ in range(self._ENCLOSURE_REFINE):
-            Y_lo, Y_hi = iv_hull_step(x, dt, field(tube_lo, tube_hi, all_rows))
-            tube_lo, tube_hi = np.maximum(tube_lo, Y_lo), np.minimum(tube_hi, Y_hi)
+            Y_lo, Y_hi = iv_hull_step(xl, dt, field(lo, hi, good), xh)
+            lo, hi = np.maximum(lo, Y_lo), np.minimum(hi, Y_hi)
 
-        d_lo, d_hi = field(tube_lo, tube_hi, all_rows)
-        end_lo = np.maximum(round_down(x + round_down(dt * d_lo)), tube_lo)
-        end_hi = np.minimum(round_up(x + round_up(dt * d_hi)), tube_hi)
+        d_lo, d_hi = field(lo, hi, good)
+        end_lo, end_hi = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+        tube_lo[good], tube_hi[good] = lo, hi
+        end_lo[good] = np.maximum(round_down(xl + round_down(dt * d_lo)), lo)
+        end_hi[good] = np.minimum(round_up(xh + round_up(dt * d_hi)), hi)
         return tube_lo, tube_hi, end_lo, end_hi
 
 
