@@ -126,8 +126,8 @@ class Glider(GliderGame, GliderHeldEnclosure, Model):
         #: (0.05 s, RK4 error below 1e-9 (envs/glider_landing.py))
         self.substeps = 2
         # the cell certificates (0.25 m x 0.125 m/s x 1/12 deg) and plans of up to 8 periods: the airspeed cell
-        # decides most of what they keep (measured on the default held table, share of the table's own certified
-        # states at t = 0, Q = 0: 25 % at 82 x 44 x 36 cells, 65 % at 164 x 88 x 36, 78 % at 164 x 176 x 36;
+        # decides most of what they keep (on the default held table, share of the table's own certified states at
+        # t = 0, Q = 0: 28 % at 82 x 44 x 36 cells, 70 % at 164 x 88 x 36, 82 % at 164 x 176 x 36;
         # docs/filters.md, "The glider on cells")
         self.cell_shape = (164, 176, 36)
         self.cell_holds = (1, 2, 4, 8)
