@@ -7,12 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from softreach.envs.integrator import integrate_period
 from softreach.filters import ValueFilter
 from softreach.filters.audit import Row, _policy, _wind, run_episode
 from softreach.reach import get_model
 from softreach.reach.cell_certificate import CellCertificate
 from softreach.reach.exact_pointmass import exact_member
+
+from cell_plans import cell_boxes, fly_plan_from_a_good_cell
 
 DT = 0.01
 SHAPE = (60, 360)
@@ -28,17 +29,12 @@ def vf(pointmass_held_table):
     return ValueFilter(pointmass_held_table, DT, target_checks=model.substeps, safe_cells=safe, landing_cells=land)
 
 
-def _cells(sc: CellCertificate, k: int):
-    idx = np.stack(np.meshgrid(*[np.arange(s) for s in sc.shape], indexing="ij"), -1).reshape(-1, 2)
-    return sc.lo + idx * sc.width, sc.lo + (idx + 1) * sc.width, sc.m[k].reshape(-1)
-
-
 def test_no_safe_cell_holds_a_state_that_must_hit_the_ground(vf):
     # descending at v < 0, the best the vehicle can do against the worst wind is u_max - g - d_max upwards: below
     # the stopping altitude v^2 / (2 a) it reaches y < 0 within |v| / a < T, whatever the budget
     p = vf.model.params
     a = p.u_max - p.gravity - p.d_max
-    lo, hi, m = _cells(vf.safe_cells, 0)
+    lo, hi, m = cell_boxes(vf.safe_cells, 0)
     safe = m < vf.safe_cells.never
     doomed = (lo[:, 0] < 0) & (lo[:, 1] < lo[:, 0] ** 2 / (2 * a))
     assert not (safe & doomed).any()
@@ -48,7 +44,7 @@ def test_no_safe_cell_holds_a_state_that_must_hit_the_ground(vf):
 
 def test_outside_the_soft_band_needs_budget(vf):
     # outside C2 (|v| > 10) the budget drains at once: no such cell is safe with none, and some are with some
-    lo, hi, m = _cells(vf.safe_cells, 0)
+    lo, hi, m = cell_boxes(vf.safe_cells, 0)
     band = (lo[:, 0] >= vf.model.params.soft_speed[1]) | (hi[:, 0] <= vf.model.params.soft_speed[0])
     assert band.any() and (m[band] > 0).all()
     assert (m[band] < vf.safe_cells.never).any()
@@ -75,33 +71,10 @@ def test_landing_cells_lie_inside_the_exact_sets_and_grow_with_the_budget(vf, t)
 
 @pytest.mark.parametrize("game", ["safe", "land"])
 def test_a_cells_plan_keeps_its_promise_under_switching_winds(vf, game):
-    cells, model = (vf.safe_cells if game == "safe" else vf.landing_cells), vf.model
+    cells = vf.safe_cells if game == "safe" else vf.landing_cells
     rng = np.random.default_rng(0)
     for _ in range(300):
-        k = int(rng.integers(0, cells.steps))
-        lo, hi, m = _cells(cells, k)
-        good = np.nonzero(m < cells.never)[0]
-        c = int(rng.choice(good))
-        x = rng.uniform(lo[c], hi[c])
-        z = (m[c] + rng.uniform(0, 3)) * cells.dz
-        assert cells.contains(k * DT, x, z)[0]
-        j, K = (int(v[0]) for v in cells.plan(k * DT, x))
-        t, xs, spent, landed = k * DT, list(map(float, x)), 0.0, False
-        for _p in range(K):
-            # a wind that switches between the extremes at three random instants of each period
-            cuts = np.sort(rng.uniform(0, DT, 3))
-            for s0, s1 in zip(np.r_[0, cuts], np.r_[cuts, DT]):
-                if s1 - s0 <= 0 or landed:
-                    continue
-                b = [float(rng.choice([-1.0, 1.0]) * model.params.d_max)]
-                xs, cost, _, _ = integrate_period(model, t, xs, [float(cells.candidates[j, 0])], b, s1 - s0, 4,
-                                                  vf.eps, 1e-9)
-                spent += cost
-                t += s1 - s0
-                pt = [np.float64(v) for v in xs]
-                assert float(model.hard_constraint(t, pt)) <= 0 and z - spent >= -1e-12, (game, k, x, z, xs)
-                landed = bool(model.landed(t, pt))
-        assert landed or cells.contains(k * DT + K * DT, np.asarray(xs), z - spent)[0], (game, k, x, z, K, xs)
+        fly_plan_from_a_good_cell(cells, vf.model, vf.eps, rng)
 
 
 @pytest.mark.parametrize("policy", ["always_min", "always_max", "random", "anti_optimal"])

@@ -10,9 +10,10 @@ import math
 import numpy as np
 import pytest
 
-from softreach.envs.integrator import integrate_period
 from softreach.filters import ValueFilter
 from softreach.filters.audit import Row, _policy, _wind, run_episode
+
+from cell_plans import cell_boxes, fly_plan_from_a_good_cell
 
 DT = 0.1
 
@@ -24,19 +25,13 @@ def vf(glider_held_table):
     return out
 
 
-def _good_cells(cells, k: int):
-    idx = np.stack(np.meshgrid(*[np.arange(s) for s in cells.shape], indexing="ij"), -1).reshape(-1, len(cells.shape))
-    lo, hi, m = cells.lo + idx * cells.width, cells.lo + (idx + 1) * cells.width, cells.m[k].reshape(-1)
-    good = m < cells.never
-    return lo[good], hi[good], m[good]
-
-
 @pytest.mark.parametrize("t", [0.0, 5.0, 9.0, 9.8])
 def test_no_landing_cell_is_too_high_to_reach_the_ground_in_time(vf, t):
     # in C1 the glider sinks at most V_max sin(3 deg): a cell above what that reaches by T cannot land
     p = vf.model.params
     reach = p.hard_speed[1] * math.sin(-p.hard_gamma[0]) * (vf.model.horizon - t)
-    lo, _, _ = _good_cells(vf.landing_cells, vf.landing_cells.step_index(np.array([t]))[0])
+    lo, _, m = cell_boxes(vf.landing_cells, vf.landing_cells.step_index(np.array([t]))[0])
+    lo = lo[m < vf.landing_cells.never]
     assert len(lo) and (lo[:, 0] <= p.min_altitude + p.touchdown_altitude + reach + 1e-9).all()
 
 
@@ -56,33 +51,10 @@ def test_landing_cells_grow_with_the_budget_and_lie_in_the_safe_cells(vf):
 
 @pytest.mark.parametrize("game", ["safe", "land"])
 def test_a_cells_plan_keeps_its_promise_under_switching_winds(vf, game):
-    cells, model = (vf.safe_cells if game == "safe" else vf.landing_cells), vf.model
-    w_lo, w_hi = model.disturbance_bounds[0][0], model.disturbance_bounds[1][0]
+    cells = vf.safe_cells if game == "safe" else vf.landing_cells
     rng = np.random.default_rng(0)
     for _ in range(120):
-        k = int(rng.integers(0, cells.steps))
-        lo, hi, m = _good_cells(cells, k)
-        c = int(rng.integers(len(lo)))
-        x = rng.uniform(lo[c], hi[c])
-        z = (m[c] + rng.uniform(0, 3)) * cells.dz
-        assert cells.contains(k * DT, x, z)[0]
-        j, K = (int(v[0]) for v in cells.plan(k * DT, x))
-        t, xs, spent, landed = k * DT, list(map(float, x)), 0.0, False
-        for _p in range(K):
-            # the wind jumps between its extremes at three random instants of each period
-            cuts = np.sort(rng.uniform(0, DT, 3))
-            for s0, s1 in zip(np.r_[0, cuts], np.r_[cuts, DT]):
-                if s1 - s0 <= 0 or landed:
-                    continue
-                b = [float(rng.choice([w_lo, w_hi]))]
-                xs, cost, _, _ = integrate_period(model, t, xs, [float(cells.candidates[j, 0])], b, s1 - s0, 4,
-                                                  vf.eps, 1e-9)
-                spent += cost
-                t += s1 - s0
-                pt = [np.float64(v) for v in xs]
-                assert float(model.hard_constraint(t, pt)) <= 0 and z - spent >= -1e-12, (game, k, x, z, xs)
-                landed = bool(model.landed(t, pt))
-        assert landed or cells.contains(k * DT + K * DT, np.asarray(xs), z - spent)[0], (game, k, x, z, K, xs)
+        fly_plan_from_a_good_cell(cells, vf.model, vf.eps, rng)
 
 
 @pytest.mark.parametrize("policy", ["always_max", "random"])

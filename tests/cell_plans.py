@@ -1,0 +1,46 @@
+"""Test helpers for the cell certificates: every cell's box, and flying a cell's stored plan with the
+environment's integrator under a wind that switches inside the period (``tests/test_cell_certificate.py``,
+``tests/test_glider_cells.py``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from softreach.envs.integrator import integrate_period
+
+
+def cell_boxes(cells, k: int):
+    """``(lo, hi, m)`` of every cell at sample ``k``: its box and its lowest good budget index."""
+    idx = np.stack(np.meshgrid(*[np.arange(s) for s in cells.shape], indexing="ij"), -1).reshape(-1, len(cells.shape))
+    return cells.lo + idx * cells.width, cells.lo + (idx + 1) * cells.width, cells.m[k].reshape(-1)
+
+
+def fly_plan_from_a_good_cell(cells, model, eps: float, rng: np.random.Generator) -> None:
+    """Draw a good cell, a state in it and a budget it is good at, fly the cell's plan with the wind jumping between
+    its extremes at three random instants of each period, and assert the claim: ``C1`` and the budget kept at every
+    jump, and the run landed or in a good cell at the plan's end."""
+    dt = cells.dt
+    w_lo, w_hi = model.disturbance_bounds[0][0], model.disturbance_bounds[1][0]
+    k = int(rng.integers(0, cells.steps))
+    lo, hi, m = cell_boxes(cells, k)
+    good = np.nonzero(m < cells.never)[0]
+    c = int(rng.choice(good))
+    x = rng.uniform(lo[c], hi[c])
+    z = (m[c] + rng.uniform(0, 3)) * cells.dz
+    assert cells.contains(k * dt, x, z)[0]
+    j, K = (int(v[0]) for v in cells.plan(k * dt, x))
+    t, xs, spent, landed = k * dt, list(map(float, x)), 0.0, False
+    for _p in range(K):
+        cuts = np.sort(rng.uniform(0, dt, 3))
+        for s0, s1 in zip(np.r_[0, cuts], np.r_[cuts, dt]):
+            if s1 - s0 <= 0 or landed:
+                continue
+            b = [float(rng.choice([w_lo, w_hi]))]
+            xs, cost, _, _ = integrate_period(model, t, xs, [float(cells.candidates[j, 0])], b, s1 - s0, 4, eps,
+                                              1e-9)
+            spent += cost
+            t += s1 - s0
+            pt = [np.float64(v) for v in xs]
+            assert float(model.hard_constraint(t, pt)) <= 0 and z - spent >= -1e-12, (cells.game, k, x, z, xs)
+            landed = bool(model.landed(t, pt))
+    assert landed or cells.contains(k * dt + K * dt, np.asarray(xs), z - spent)[0], (cells.game, k, x, z, K, xs)
