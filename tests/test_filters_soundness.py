@@ -12,7 +12,7 @@ import gymnasium as gym
 import softreach.envs  # noqa: F401  (registers the environments)
 from softreach.filters import SafetyFilter, ValueFilter
 from softreach.filters.audit import POLICIES, Row, _policy, _wind, audit, run_episode
-from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
+from softreach.reach import get_model
 
 DT = 0.01
 #: issue 10: starts where the earlier filter (pointwise a*, held) left C1 or overspent
