@@ -111,9 +111,12 @@ class GliderHeldEnclosure:
         x = np.asarray(x, dtype=np.float64)
         x_hi = np.asarray(x_hi, dtype=np.float64)
         if x.ndim != 2 or x.shape[1] != 3 or x_hi.shape != x.shape:
-            raise ValueError(f"x must have shape (N, 3) (h, V, gamma), got {x.shape}")
+            raise ValueError(f"x must have shape (N, 3) (h, V, gamma), got {x.shape}"
+                             + (f" (upper corners {x_hi.shape})" if x_hi.shape != x.shape else ""))
         if np.any(x_hi < x):
-            raise ValueError("a start box has x_hi < x_lo")
+            i = int(np.flatnonzero((x_hi < x).any(axis=1))[0])
+            raise ValueError(f"start box {i} has an upper corner below its lower one: {x[i].tolist()} .. "
+                             f"{x_hi[i].tolist()}")
         n = x.shape[0]
         a = np.asarray(a, dtype=np.float64)
         if a.shape not in ((n, 1), (n,)):
