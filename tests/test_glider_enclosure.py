@@ -125,6 +125,9 @@ def test_box_starts_hold_every_start_and_contain_the_point_boxes(model: Glider):
     # a box far too wide for one period has no enclosure: NaN, not an exception
     wide = model.held_enclosure_box(0.0, centre[:2] - [0, 20, 0], centre[:2], a[:2], 30.0)
     assert np.isnan(wide[0]).all()
+    # a reversed box is refused, naming it
+    with pytest.raises(ValueError, match="start box 1 has an upper corner below"):
+        model.held_enclosure_box(0.0, lo[:2], np.array([hi[0], lo[1] - [0.1, 0, 0]]), a[:2], dt)
 
 
 @pytest.mark.parametrize("dt", [0.1, 0.01])
