@@ -40,6 +40,7 @@ import hashlib
 import json
 import math
 import os
+import shutil
 import warnings
 from pathlib import Path
 from typing import Any
@@ -72,6 +73,8 @@ _SHARED = _LastPlans()
 
 #: file format of :meth:`CellCertificate.save`
 FORMAT = "softreach-cell-certificate-1"
+#: the arrays of a cell certificate that scale with the cells (memory-mapped from a cache folder)
+_LARGE = ("m", "action", "hold")
 #: the games: stay in ``C1`` within the budget until ``T`` (or land), or land by ``T``
 GAMES = ("safe", "land")
 
@@ -314,26 +317,37 @@ class CellCertificate:
         return float((self.m[k] <= self._budget_floor(np.array([float(z)]))[0]).mean())
 
     # ---------------------------------------------------------------- files
-    def save(self, path: str | Path) -> None:
-        """Write the cells (numpy ``.npz``; the key as JSON)."""
-        np.savez_compressed(path, format=FORMAT, lo=self.lo, hi=self.hi, m=self.m, action=self.action, hold=self.hold,
-                            candidates=self.candidates, scalars=np.array([self.dt, self.dz, self.horizon]),
-                            game=self.game, key=json.dumps(self.key, sort_keys=True))
+    def save(self, path: str | Path, compressed: bool = True) -> None:
+        """Write the cells: one numpy ``.npz`` (the key as JSON), or with ``compressed=False`` a folder of ``.npy``
+        arrays beside the rest, which :meth:`load` maps into memory instead of reading (what the cache keeps: the
+        pages a filter touches are read, and shared between processes)."""
+        small = dict(format=FORMAT, lo=self.lo, hi=self.hi, candidates=self.candidates, game=self.game,
+                     scalars=np.array([self.dt, self.dz, self.horizon]), key=json.dumps(self.key, sort_keys=True))
+        if compressed:
+            np.savez_compressed(path, m=self.m, action=self.action, hold=self.hold, **small)
+            return
+        Path(path).mkdir()
+        for name in _LARGE:
+            np.save(Path(path) / f"{name}.npy", getattr(self, name))
+        np.savez(Path(path) / "meta.npz", **small)
 
     @classmethod
     def load(cls, path: str | Path, key: dict[str, Any] | None = None) -> "CellCertificate":
-        """Read cells written by :meth:`save`; with ``key``, refuse cells built for anything else.
+        """Read cells written by :meth:`save` (a folder memory-mapped); with ``key``, refuse cells built for
+        anything else.
 
         :raises ValueError: not a cell-certificate file, or built for another model, period, game or candidate set
         """
+        folder = Path(path).is_dir()
         try:
-            with np.load(path, allow_pickle=False) as f:
+            with np.load(Path(path) / "meta.npz" if folder else path, allow_pickle=False) as f:
                 if str(f["format"]) != FORMAT:
                     raise ValueError(f"format {str(f['format'])!r}, expected {FORMAT!r}")
                 stored = json.loads(str(f["key"]))
                 dt, dz, T = (float(v) for v in f["scalars"])
-                out = cls(f["lo"], f["hi"], f["m"], f["action"], f["hold"], f["candidates"], dt, dz, T,
-                          str(f["game"]), stored)
+                large = [np.load(Path(path) / f"{n}.npy", mmap_mode="r", allow_pickle=False) if folder else f[n]
+                         for n in _LARGE]
+                out = cls(f["lo"], f["hi"], *large, f["candidates"], dt, dz, T, str(f["game"]), stored)
         except (OSError, KeyError, EOFError, ValueError) as err:
             raise ValueError(f"{path} is not a readable cell-certificate file: {err}") from err
         if key is not None and json.dumps(key, sort_keys=True) != json.dumps(stored, sort_keys=True):
@@ -375,23 +389,33 @@ def cache_file(key: dict[str, Any], folder: Path) -> Path:
 
 def cached(lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe", holds: Any = (1,),
            span_cap: int = 32) -> CellCertificate:
-    """The cells for this look-ahead: the package's own (:data:`PACKAGED`), else read from :func:`cache_dir`, else
-    built and written there (once per model, period, ``h_eps`` width, candidate set, game and shape; a cache that
-    cannot be written is skipped with a warning)."""
+    """The cells for this look-ahead, memory-mapped from a folder in :func:`cache_dir`; where there is none yet,
+    the package's own (:data:`PACKAGED`) or a build (once per model, period, ``h_eps`` width, candidate set, game
+    and shape) is written there first. A cache that cannot be written is skipped with a warning."""
     key = cell_key(lookahead, shape, dz, game, holds, span_cap)
-    path = cache_file(key, cache_dir())
-    for where in (cache_file(key, PACKAGED), path):
-        if where.is_file():
-            try:
-                return CellCertificate.load(where, key)
-            except ValueError as err:
-                warnings.warn(f"rebuilding the cells: {err}", stacklevel=2)
-    cells = CellCertificate.build(lookahead, shape, dz, game, holds, span_cap)
+    folder = cache_file(key, cache_dir()).with_suffix("")
+    if folder.is_dir():
+        try:
+            return CellCertificate.load(folder, key)
+        except ValueError as err:
+            warnings.warn(f"rebuilding the cells: {err}", stacklevel=2)
+            shutil.rmtree(folder, ignore_errors=True)
+    cells = None
+    if cache_file(key, PACKAGED).is_file():
+        try:
+            cells = CellCertificate.load(cache_file(key, PACKAGED), key)
+        except ValueError as err:
+            warnings.warn(f"rebuilding the cells: {err}", stacklevel=2)
+    if cells is None:
+        cells = CellCertificate.build(lookahead, shape, dz, game, holds, span_cap)
+    tmp = folder.with_name(folder.name + f".{os.getpid()}.tmp")
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.stem + f".{os.getpid()}.tmp.npz")
-        cells.save(tmp)
-        os.replace(tmp, path)
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        cells.save(tmp, compressed=False)
+        os.replace(tmp, folder)
     except OSError as err:
-        warnings.warn(f"cells not cached ({err}); they are rebuilt next time", stacklevel=2)
-    return cells
+        shutil.rmtree(tmp, ignore_errors=True)
+        if not folder.is_dir():  # (another process may have written it first)
+            warnings.warn(f"cells not cached ({err}); they are read or rebuilt again next time", stacklevel=2)
+            return cells
+    return CellCertificate.load(folder, key)

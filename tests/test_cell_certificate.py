@@ -121,6 +121,15 @@ def test_files_and_arguments_are_checked(vf, tmp_path):
     bad.write_bytes(b"not a numpy file")
     with pytest.raises(ValueError, match="bad.npz"):
         CellCertificate.load(bad)
+    # the cache's form: a folder of arrays, read back memory-mapped; a truncated array is refused by its folder
+    folder = tmp_path / "cells"
+    sc.save(folder, compressed=False)
+    mapped = CellCertificate.load(folder, sc.key)
+    assert isinstance(mapped.m.base, np.memmap) and np.array_equal(mapped.m, sc.m)
+    assert np.array_equal(mapped.plan(0.3, [[1.0, 5.0]])[0], sc.plan(0.3, [[1.0, 5.0]])[0])
+    (folder / "hold.npy").write_bytes((folder / "hold.npy").read_bytes()[:200])
+    with pytest.raises(ValueError, match="cells is not a readable"):
+        CellCertificate.load(folder)
     with pytest.raises(TypeError, match="safe_cells"):
         ValueFilter(vf.table, DT, safe_cells="yes", landing_cells=None)
     with pytest.raises(ValueError, match="'land' game"):

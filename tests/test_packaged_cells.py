@@ -1,5 +1,5 @@
 """The cells the package ships (``reach/cells/``) are what a fresh build gives, and a filter on a new machine uses
-them instead of building."""
+them instead of building, through the memory-mapped cache."""
 
 from __future__ import annotations
 
@@ -44,7 +44,8 @@ def test_packaged_cells_equal_a_fresh_build(path, pointmass_held_table):
 @pytest.mark.parametrize("table", ["pointmass_held_table", "glider_held_table"])
 def test_a_new_machine_reads_the_packaged_cells_without_building(table, request, tmp_path, monkeypatch):
     table = request.getfixturevalue(table)
-    monkeypatch.setenv("SOFTREACH_CACHE", str(tmp_path / "empty"))
+    cache = tmp_path / "empty"
+    monkeypatch.setenv("SOFTREACH_CACHE", str(cache))
 
     def no_build(*args, **kwargs):
         raise AssertionError("built cells although the package ships them")
@@ -54,4 +55,21 @@ def test_a_new_machine_reads_the_packaged_cells_without_building(table, request,
     vf = ValueFilter(table, table.control_period, target_checks=table.model.substeps)
     assert vf.landing_cells is not None and vf.safe_cells is not None
     assert vf.landing_cells.key["target_checks"] == table.model.substeps
-    assert not (tmp_path / "empty").exists()  # nothing written either
+    # the package's cells were unpacked into the cache, one folder per game, and are read memory-mapped
+    assert sorted(p.name.split("-")[2] for p in cache.iterdir()) == ["land", "safe"]
+    assert isinstance(vf.landing_cells.m.base, np.memmap) and isinstance(vf.safe_cells.hold.base, np.memmap)
+    # a later filter reads the cache alone
+    monkeypatch.setattr(cell_certificate, "PACKAGED", tmp_path / "no_package")
+    again = ValueFilter(table, table.control_period, target_checks=table.model.substeps)
+    np.testing.assert_array_equal(again.landing_cells.m, vf.landing_cells.m)
+
+
+def test_a_damaged_cache_folder_is_replaced(pointmass_held_table, tmp_path, monkeypatch):
+    monkeypatch.setenv("SOFTREACH_CACHE", str(tmp_path))
+    expected = np.array(ValueFilter(pointmass_held_table, 0.01).landing_cells.m)  # a copy, not the mapped file
+    folder = next(p for p in tmp_path.iterdir() if "-land-" in p.name)
+    (folder / "m.npy").write_bytes((folder / "m.npy").read_bytes()[:1000])
+    with pytest.warns(UserWarning, match=f"rebuilding the cells: {folder}"):
+        again = ValueFilter(pointmass_held_table, 0.01)
+    np.testing.assert_array_equal(again.landing_cells.m, expected)
+    assert (folder / "m.npy").stat().st_size > 1000
