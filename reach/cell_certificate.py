@@ -324,12 +324,13 @@ class CellCertificate:
         small = dict(format=FORMAT, lo=self.lo, hi=self.hi, candidates=self.candidates, game=self.game,
                      scalars=np.array([self.dt, self.dz, self.horizon]), key=json.dumps(self.key, sort_keys=True))
         if compressed:
-            np.savez_compressed(path, m=self.m, action=self.action, hold=self.hold, **small)
+            np.savez_compressed(path, **{name: getattr(self, name) for name in _LARGE}, **small)
             return
-        Path(path).mkdir()
+        path = Path(path)
+        path.mkdir()
         for name in _LARGE:
-            np.save(Path(path) / f"{name}.npy", getattr(self, name))
-        np.savez(Path(path) / "meta.npz", **small)
+            np.save(path / f"{name}.npy", getattr(self, name))
+        np.savez(path / "meta.npz", **small)
 
     @classmethod
     def load(cls, path: str | Path, key: dict[str, Any] | None = None) -> "CellCertificate":
@@ -338,14 +339,15 @@ class CellCertificate:
 
         :raises ValueError: not a cell-certificate file, or built for another model, period, game or candidate set
         """
-        folder = Path(path).is_dir()
+        path = Path(path)
+        folder = path.is_dir()
         try:
-            with np.load(Path(path) / "meta.npz" if folder else path, allow_pickle=False) as f:
+            with np.load(path / "meta.npz" if folder else path, allow_pickle=False) as f:
                 if str(f["format"]) != FORMAT:
                     raise ValueError(f"format {str(f['format'])!r}, expected {FORMAT!r}")
                 stored = json.loads(str(f["key"]))
                 dt, dz, T = (float(v) for v in f["scalars"])
-                large = [np.load(Path(path) / f"{n}.npy", mmap_mode="r", allow_pickle=False) if folder else f[n]
+                large = [np.load(path / f"{n}.npy", mmap_mode="r", allow_pickle=False) if folder else f[n]
                          for n in _LARGE]
                 out = cls(f["lo"], f["hi"], *large, f["candidates"], dt, dz, T, str(f["game"]), stored)
         except (OSError, KeyError, EOFError, ValueError) as err:
@@ -400,10 +402,10 @@ def cached(lookahead: Any, shape: Any, dz: float | None = None, game: str = "saf
         except ValueError as err:
             warnings.warn(f"rebuilding the cells: {err}", stacklevel=2)
             shutil.rmtree(folder, ignore_errors=True)
-    cells = None
-    if cache_file(key, PACKAGED).is_file():
+    cells, packaged = None, cache_file(key, PACKAGED)
+    if packaged.is_file():
         try:
-            cells = CellCertificate.load(cache_file(key, PACKAGED), key)
+            cells = CellCertificate.load(packaged, key)
         except ValueError as err:
             warnings.warn(f"rebuilding the cells: {err}", stacklevel=2)
     if cells is None:
