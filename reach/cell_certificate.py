@@ -48,6 +48,8 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
+from .kernels import cells_need
+
 
 class _LastPlans:
     """The plans' geometry of the last build, for the other game on the same cells (it is the same: only ``T``
@@ -107,6 +109,9 @@ class CellCertificate:
         self.top = int(round(self.horizon / self.dz))  # no run spends more than the horizon: budgets above are equal
         self.never = self.top + 1
         self.key = dict(key)
+        # what the compiled cover test reads: one row of cells per sample time (a memory map stays mapped)
+        self._flat_m = np.asarray(self.m).reshape(self.steps + 1, -1)
+        self._shape = np.asarray(self.shape, dtype=np.int64)
 
     # ---------------------------------------------------------------- building
     @classmethod
@@ -295,12 +300,9 @@ class CellCertificate:
         good at the lowest end budget ``z_end`` (and so at every higher one)?"""
         if len(end_lo) == 0:
             return np.zeros(0, bool)
-        first, last, on = self._cell_range(end_lo, end_hi)
-        cols, starts = self._touched(first, last)
-        # the same gather as the build's, each row reading its own sample time's slice
-        cells = self.m[0].size
-        k = np.repeat(self.step_index(t_next), np.diff(np.append(starts, len(cols))))
-        need = np.maximum.reduceat(self.m.reshape(-1)[k * cells + cols], starts)
+        need, on = np.empty(len(end_lo), np.int64), np.empty(len(end_lo), bool)
+        cells_need(self._flat_m, self._shape, self.lo, self.hi, self.width, np.asarray(end_lo, dtype=np.float64),
+                   np.asarray(end_hi, dtype=np.float64), self.step_index(t_next), need, on)
         return on & (self._budget_floor(z_end) >= need) & self._in_time(t_next, len(end_lo))
 
     def plan(self, t: Any, x: Any) -> tuple[np.ndarray, np.ndarray]:
