@@ -35,6 +35,7 @@ import numpy as np
 
 from softreach.reach import Table, TableError
 
+from softreach.reach.compiled_pass import CompiledPass
 from softreach.reach.lookahead import Lookahead
 
 from .plans import NO_PLAN, PLAN_LAND, PLAN_SAFE, check_plans, follow_plans, resolve_cells
@@ -164,6 +165,9 @@ class ValueFilter:
         self.safe_cells = resolve_cells(self, safe_cells, "safe")
         self.landing_cells = resolve_cells(self, landing_cells, "land")
         self.lookahead.safe_cells, self.lookahead.landing_cells = self.safe_cells, self.landing_cells
+        #: the policy's action is first judged by the compiled test of whether its period ends in the cells
+        #: (:mod:`softreach.reach.compiled_pass`), where the model and the table allow; ``None``: numpy only
+        self.compiled = CompiledPass.for_lookahead(self.lookahead)
         #: up to this many rows, :meth:`filter` judges the policy's action and the candidates in one batch. 0: the
         #: policy's action first, the candidates only where it fails. From certified states with a random policy
         #: (6 % interventions) that is the faster one: median 2.1 ms a decision against 2.7 ms with 8
@@ -298,11 +302,20 @@ class ValueFilter:
         new_plans = np.tile(np.array(NO_PLAN, np.int64), (N, 1))
         pol = self.physical(act) if normalized else np.minimum(np.maximum(act, self.a_lo), self.a_hi)
         la = self.lookahead
-        value = la.certificate(tt, xs, zz)
         J = len(la.candidates)
-        if N <= self.joint_rows:
+        if self.compiled is not None:
+            # the compiled test passes most rows; the rest are asked the whole test (landing inside the period, a
+            # candidate passing from the whole end box)
+            ok, nxt, value = self.compiled(tt, xs, zz, pol)
+            rows = np.nonzero(~ok)[0]
+            if len(rows):
+                _, nxt[rows], _, ok[rows] = la.passes(tt[rows], xs[rows], zz[rows], pol[rows])
+            rows = rows[~ok[rows]]
+            cand = self._candidates(tt[rows], xs[rows], zz[rows], pol[rows]) if len(rows) else None
+        elif N <= self.joint_rows:
             # few rows: the policy's action and every candidate in one batch. The cost of a call is mostly fixed
             # overhead, so one call that may judge candidates needlessly beats a second call when it is needed
+            value = la.certificate(tt, xs, zz)
             acts = np.concatenate([pol[:, None, :], np.broadcast_to(la.candidates, (N, J, self.m))], axis=1)
             both = la.passes(np.repeat(tt, J + 1), np.repeat(xs, J + 1, axis=0), np.repeat(zz, J + 1),
                              acts.reshape(N * (J + 1), self.m))
@@ -311,6 +324,7 @@ class ValueFilter:
             rows = np.nonzero(~ok)[0]
             cand = tuple(o[rows, 1:] for o in both)
         else:
+            value = la.certificate(tt, xs, zz)
             _, nxt, _, ok = la.passes(tt, xs, zz, pol)
             rows = np.nonzero(~ok)[0]
             cand = self._candidates(tt[rows], xs[rows], zz[rows], pol[rows]) if len(rows) else None
@@ -350,8 +364,10 @@ class ValueFilter:
             reason[rows] = r
         # where the state itself is off the table, say so (the action above is still the least bad)
         after = tt >= la.horizon - 1e-9
-        off = ~self.table.inside(tt, xs, np.maximum(zz, 0.0))
-        reason = np.where(after, AFTER_HORIZON, np.where(off & (reason != PASS), OUTSIDE, reason))
+        if len(rows):
+            off = ~self.table.inside(tt[rows], xs[rows], np.maximum(zz[rows], 0.0))
+            reason[rows[off]] = OUTSIDE
+        reason = np.where(after, AFTER_HORIZON, reason)
         active = reason != PASS
         if normalized:
             applied = np.where(active[:, None], np.clip(self.normalized(applied), -1.0, 1.0), act)

@@ -32,13 +32,14 @@ def box_max(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray, lo
     """
     lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
     out = np.empty(len(lo))
-    g = geometry(grid)
-    box_max_rows(flat_values(values, times), np.asarray(times, dtype=np.float64), g.shape, g.lo, g.hi, g.h, g.inv_h,
-                 g.periodic, np.asarray(t, dtype=np.float64).reshape(-1), lo, hi, int(max_nodes), out)
+    t = np.ascontiguousarray(np.broadcast_to(np.asarray(t, dtype=np.float64), (len(lo),)))
+    box_max_rows(kernel_field(values, times, grid), t, lo, hi, int(max_nodes), out)
     return out
 
 
-def flat_values(values: Any, times: Any) -> np.ndarray:
-    """A field's values as the ``(n_times, size)`` plain array the compiled loops read (a memory map stays
-    mapped)."""
-    return np.asarray(values).reshape(len(times), -1)
+def kernel_field(values: Any, times: Any, grid: Grid) -> tuple:
+    """A field as the compiled loops read it (:mod:`softreach.reach.kernels`): its values ``(n_times, size)`` (a
+    memory map stays mapped), its snapshot times and its grid."""
+    g = geometry(grid)
+    return (np.asarray(values).reshape(len(times), -1), np.asarray(times, dtype=np.float64), g.shape, g.lo, g.hi,
+            g.h, g.inv_h, g.periodic)

@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from .kernels import cells_need
+from .kernels import budget_floor_rows, cover_rows, step_rows
 
 
 class _LastPlans:
@@ -109,9 +109,11 @@ class CellCertificate:
         self.top = int(round(self.horizon / self.dz))  # no run spends more than the horizon: budgets above are equal
         self.never = self.top + 1
         self.key = dict(key)
-        # what the compiled cover test reads: one row of cells per sample time (a memory map stays mapped)
-        self._flat_m = np.asarray(self.m).reshape(self.steps + 1, -1)
-        self._shape = np.asarray(self.shape, dtype=np.int64)
+        #: what the compiled cover test (:func:`softreach.reach.kernels.cover_row`) reads: one row of cells per
+        #: sample time (a memory map stays mapped), the grid, and the game's clock and budget cells
+        self.kernel_args = (np.asarray(self.m).reshape(self.steps + 1, -1), np.asarray(self.shape, dtype=np.int64),
+                            self.lo, self.hi, self.width, self.dt, self.dz, self.top, self.steps, self.horizon,
+                            self.game == "safe")
 
     # ---------------------------------------------------------------- building
     @classmethod
@@ -272,38 +274,34 @@ class CellCertificate:
         """The sample index whose game covers time ``t`` (between samples, a model whose motion does not depend on
         ``t``): ``"safe"`` takes ``floor(t / dt)``, whose plans keep ``C1`` until at least ``T``; ``"land"`` takes
         ``ceil(t / dt)``, whose plans land by ``T`` at the latest."""
-        r = np.asarray(t, dtype=np.float64) / self.dt
-        k = np.floor(r + 1e-9) if self.game == "safe" else np.ceil(r - 1e-9)
-        return np.clip(k, 0, self.steps).astype(np.int64)
+        t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
+        out = np.empty(len(t), np.int64)
+        step_rows(t, self.dt, self.steps, self.game == "safe", out)
+        return out
 
     def _budget_floor(self, z: np.ndarray) -> np.ndarray:
-        with np.errstate(invalid="ignore"):
-            j = np.floor(np.minimum(z, self.top * self.dz) / self.dz + 1e-12)
-        j = np.where(j * self.dz > z, j - 1, j)  # float guard: the cell's lower end lies at or below z
-        return np.where(z >= 0, j, -1).astype(np.int64)
+        z = np.ascontiguousarray(z, dtype=np.float64).reshape(-1)
+        out = np.empty(len(z), np.int64)
+        budget_floor_rows(z, self.dz, self.top, out)
+        return out
 
     # ---------------------------------------------------------------- queries
     def contains(self, t: Any, x: Any, z: Any) -> np.ndarray:
         """Is each state ``(t, x, z)`` in a good cell (``False`` off the grid, at a negative budget, after ``T``)?"""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
-        first, _, on = self._cell_range(x, x)
-        k = self.step_index(np.broadcast_to(t, (len(x),)))
-        need = self.m[(k,) + tuple(first.T)]
-        z = np.broadcast_to(np.asarray(z, dtype=np.float64), (len(x),))
-        return on & (self._budget_floor(z) >= need) & self._in_time(t, len(x))
+        return self.covered(t, x, x, z)
 
-    def _in_time(self, t: Any, n: int) -> np.ndarray:
-        return np.broadcast_to(np.asarray(t, dtype=np.float64), (n,)) <= self.horizon + 1e-9 * self.dt
-
-    def covered(self, t_next: np.ndarray, end_lo: np.ndarray, end_hi: np.ndarray, z_end: np.ndarray) -> np.ndarray:
+    def covered(self, t_next: Any, end_lo: np.ndarray, end_hi: np.ndarray, z_end: Any) -> np.ndarray:
         """Does a period end inside good cells: every cell the end box ``[end_lo, end_hi]`` touches at ``t_next``
         good at the lowest end budget ``z_end`` (and so at every higher one)?"""
-        if len(end_lo) == 0:
-            return np.zeros(0, bool)
-        need, on = np.empty(len(end_lo), np.int64), np.empty(len(end_lo), bool)
-        cells_need(self._flat_m, self._shape, self.lo, self.hi, self.width, np.asarray(end_lo, dtype=np.float64),
-                   np.asarray(end_hi, dtype=np.float64), self.step_index(t_next), need, on)
-        return on & (self._budget_floor(z_end) >= need) & self._in_time(t_next, len(end_lo))
+        N = len(end_lo)
+        out = np.empty(N, bool)
+        if N:
+            t_next, z_end = (np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (N,)))
+                             for v in (t_next, z_end))
+            cover_rows(self.kernel_args, t_next, np.asarray(end_lo, dtype=np.float64),
+                       np.asarray(end_hi, dtype=np.float64), z_end, out)
+        return out
 
     def plan(self, t: Any, x: Any) -> tuple[np.ndarray, np.ndarray]:
         """The stored plan of each state's cell: ``(candidate index, periods to hold it)``; ``(-1, 0)`` off the grid

@@ -138,6 +138,15 @@ class Dynamics(ABC):
         raise NotImplementedError(f"{self.name} does not provide held_enclosure(t, x, a, dt); the safety filter "
                                   f"needs a validated one-period enclosure of its motion")
 
+    #: the held-action enclosure compiled, for the filter's compiled one-period test
+    #: (:mod:`softreach.reach.compiled_pass`): a numba ``njit`` function ``(params, x_lo, x_hi, a, s0, s1, lo, hi)``
+    #: writing into ``lo``, ``hi`` the box of every state reachable at some time in ``[s0, s1]`` of a held period
+    #: from every start in ``[x_lo, x_hi]`` (1-d arrays), for the numbers :attr:`held_box_params`. It must be what
+    #: :meth:`held_enclosure_box` and :meth:`held_tube_pieces_box` compute (the point mass's are built on it).
+    #: ``None``: the filter runs its numpy test only
+    held_box_kernel: Any = None
+    held_box_params: np.ndarray = np.zeros(0)
+
     def held_enclosure_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float):
         """:meth:`held_enclosure` for every start in the box ``[x_lo, x_hi]`` (rows of ``(N, n)``). Optional: the
         filter then asks, before it lets the policy act, that a passing action exists from the whole end box.

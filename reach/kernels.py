@@ -17,8 +17,11 @@ import math
 import numba as nb
 import numpy as np
 
-#: tolerance of the grid checks, in cell units (:data:`softreach.reach.interpolation.TOL`)
+#: tolerance of the grid checks, in cell units, and of the time-span checks, in seconds
+#: (:data:`softreach.reach.interpolation.TOL`)
 TOL = 1e-9
+#: the table's box maximum reads boxes with at most this many nodes per axis exactly (:func:`box_max`'s default)
+MAX_NODES = 3
 
 
 @nb.njit(cache=True)
@@ -114,104 +117,184 @@ def _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first
 
 
 @nb.njit(cache=True)
-def box_max_rows(flat, times, shape, glo, ghi, h, inv_h, periodic, t, lo, hi, max_nodes, out):
-    """:func:`softreach.reach.box_max.box_max` for every row: ``out[j]`` the interpolant's maximum over
-    ``[lo[j], hi[j]]`` at ``t[j]`` (exact where the box holds at most ``max_nodes`` nodes along every axis, else the
-    largest node value of the cells it touches at both snapshots), ``+inf`` for a box off the grid."""
-    N, D = lo.shape
-    first = np.empty(D, np.int64)
-    count = np.empty(D, np.int64)
-    n_t = len(times)
-    # scratch: a block of at most max_nodes + 3 nodes per axis, and each axis' lattice coordinates located
-    buf_a = np.empty((max_nodes + 3) ** D)
-    buf_b = np.empty((max_nodes + 3) ** D)
-    coord_cell = np.empty((D, max_nodes + 2), np.int64)
-    coord_frac = np.empty((D, max_nodes + 2))
-    for r in range(N):
-        inside, exact = True, True
-        for a in range(D):
-            s_lo = (lo[r, a] - glo[a]) / h[a]
-            s_hi = (hi[r, a] - glo[a]) / h[a]
-            if not periodic[a]:
-                tol = TOL * max(1.0, shape[a])
-                if not (s_lo >= -tol and s_hi <= shape[a] - 1 + tol):
-                    inside = False
-            first[a] = math.floor(s_lo) + 1  # the first node strictly above lo (or lo itself, once)
-            count[a] = max(math.ceil(s_hi) - first[a], 0)  # nodes strictly inside (lo, hi)
-            if count[a] > max_nodes:
-                exact = False
-        if not inside:
-            out[r] = np.inf
-            continue
-        k, wt = snapshot(times, t[r])
-        if exact:
-            out[r] = _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo[r], hi[r], first, count, buf_a,
-                                  buf_b, coord_cell, coord_frac)
-            continue
-        # wide: the largest node of every cell the box touches, at both snapshots around t
-        k2 = min(k + 1, n_t - 1) if wt > 0.0 else k
-        P = 1
-        for a in range(D):
-            i0 = math.floor((lo[r, a] - glo[a]) / h[a])
-            i1 = math.ceil((hi[r, a] - glo[a]) / h[a])
-            if not periodic[a]:
-                i0, i1 = max(i0, 0), min(i1, shape[a] - 1)
-            first[a] = i0
-            count[a] = min(i1 - i0 + 1, shape[a])
-            P *= count[a]
-        best = -np.inf
-        for p in range(P):
-            rest = p
-            off = 0
-            stride = 1
-            for a in range(D - 1, -1, -1):
-                node = first[a] + rest % count[a]
-                rest //= count[a]
-                node = node % shape[a] if periodic[a] else min(node, shape[a] - 1)
-                off += node * stride
-                stride *= shape[a]
-            v = max(flat[k, off], flat[k2, off])
-            if math.isnan(flat[k, off]) or math.isnan(flat[k2, off]):
-                v = np.nan
-            if v > best or math.isnan(v):
-                best = v
-            if math.isnan(best):
-                break
-        out[r] = best
+def box_scratch(D, max_nodes):
+    """Work space of :func:`box_max_row` for ``D`` axes: a block of at most ``max_nodes + 3`` nodes per axis, and
+    each axis' lattice coordinates located."""
+    return (np.empty(D, np.int64), np.empty(D, np.int64), np.empty((max_nodes + 3) ** D),
+            np.empty((max_nodes + 3) ** D), np.empty((D, max_nodes + 2), np.int64), np.empty((D, max_nodes + 2)))
 
 
 @nb.njit(cache=True)
-def cells_need(m, shape, clo, chi, width, end_lo, end_hi, k, out_need, out_on):
-    """For :meth:`~softreach.reach.cell_certificate.CellCertificate.covered`: per row, the largest lowest-good
-    budget index ``m[k[j], c]`` over the cells ``c`` the box ``[end_lo[j], end_hi[j]]`` touches (closed cells; a box
-    reaching the grid's upper end exactly touches the last cell only), and whether the box lies on the grid."""
-    N, D = end_lo.shape
+def box_max_row(field, t, lo, hi, max_nodes, scratch):
+    """The interpolant's maximum over the box ``[lo, hi]`` at time ``t``: exact where the box holds at most
+    ``max_nodes`` nodes along every axis, else the largest node value of the cells it touches at both snapshots
+    around ``t``; ``+inf`` for a box off the grid (:func:`softreach.reach.box_max.box_max`).
+
+    :param field: ``(flat, times, shape, glo, ghi, h, inv_h, periodic)`` (the module docstring)
+    :param scratch: :func:`box_scratch`
+    """
+    flat, times, shape, glo, ghi, h, inv_h, periodic = field
+    first, count, buf_a, buf_b, coord_cell, coord_frac = scratch
+    D = len(shape)
+    exact = True
+    for a in range(D):
+        s_lo = (lo[a] - glo[a]) / h[a]
+        s_hi = (hi[a] - glo[a]) / h[a]
+        if not periodic[a]:
+            tol = TOL * max(1.0, shape[a])
+            if not (s_lo >= -tol and s_hi <= shape[a] - 1 + tol):
+                return np.inf
+        first[a] = math.floor(s_lo) + 1  # the first node strictly above lo (or lo itself, once)
+        count[a] = max(math.ceil(s_hi) - first[a], 0)  # nodes strictly inside (lo, hi)
+        if count[a] > max_nodes:
+            exact = False
+    k, wt = snapshot(times, t)
+    if exact:
+        return _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first, count, buf_a, buf_b,
+                            coord_cell, coord_frac)
+    # wide: the largest node of every cell the box touches, at both snapshots around t
+    k2 = min(k + 1, len(times) - 1) if wt > 0.0 else k
+    P = 1
+    for a in range(D):
+        i0 = math.floor((lo[a] - glo[a]) / h[a])
+        i1 = math.ceil((hi[a] - glo[a]) / h[a])
+        if not periodic[a]:
+            i0, i1 = max(i0, 0), min(i1, shape[a] - 1)
+        first[a] = i0
+        count[a] = min(i1 - i0 + 1, shape[a])
+        P *= count[a]
+    best = -np.inf
+    for p in range(P):
+        rest = p
+        off = 0
+        stride = 1
+        for a in range(D - 1, -1, -1):
+            node = first[a] + rest % count[a]
+            rest //= count[a]
+            node = node % shape[a] if periodic[a] else min(node, shape[a] - 1)
+            off += node * stride
+            stride *= shape[a]
+        v0, v1 = flat[k, off], flat[k2, off]
+        if math.isnan(v0) or math.isnan(v1):
+            return np.nan
+        best = max(best, v0, v1)
+    return best
+
+
+@nb.njit(cache=True)
+def box_max_rows(field, t, lo, hi, max_nodes, out):
+    """:func:`box_max_row` for every row."""
+    scratch = box_scratch(lo.shape[1], max_nodes)
+    for r in range(len(lo)):
+        out[r] = box_max_row(field, t[r], lo[r], hi[r], max_nodes, scratch)
+
+
+@nb.njit(cache=True)
+def certificate_row(W, z_top, z_floor, V, has_V, t, x, z, point, scratch_W, scratch_V):
+    """``D(t, x, z) = min(V~(t, x), W~(t, x, min(z, z_top)))`` (:meth:`~softreach.reach.lookahead.Lookahead.certificate`); ``+inf`` off the
+    grid or the time span, at a budget below the table's (``W``) or a negative one (``V``), or where not finite."""
+    times = W[1]
+    if not (t >= times[0] - TOL and t <= times[-1] + TOL):
+        return np.inf
+    n = len(x)
+    for a in range(n):
+        point[a] = x[a]
+    point[n] = min(z, z_top)
+    w = box_max_row(W, t, point, point, MAX_NODES, scratch_W)
+    out = w if (z >= z_floor and math.isfinite(w)) else np.inf
+    if has_V:
+        v = box_max_row(V, t, x, x, MAX_NODES, scratch_V)
+        if z >= 0 and math.isfinite(v):
+            out = min(out, v)
+    return out
+
+
+@nb.njit(cache=True)
+def certificate_rows(W, z_top, z_floor, V, has_V, t, x, z, out):
+    """:func:`certificate_row` for every row."""
+    n = x.shape[1]
+    point = np.empty(n + 1)
+    scratch_W, scratch_V = box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES)
+    for r in range(len(x)):
+        out[r] = certificate_row(W, z_top, z_floor, V, has_V, t[r], x[r], z[r], point, scratch_W, scratch_V)
+
+
+@nb.njit(cache=True)
+def step_index(t, dt, steps, safe):
+    """The sample index whose cell game covers time ``t`` (:meth:`~softreach.reach.cell_certificate.
+    CellCertificate.step_index`): ``floor(t / dt)`` for the safe game, ``ceil(t / dt)`` for the landing game."""
+    r = t / dt
+    k = math.floor(r + 1e-9) if safe else math.ceil(r - 1e-9)
+    return min(max(k, 0), steps)
+
+
+@nb.njit(cache=True)
+def budget_floor(z, dz, top):
+    """The budget cell whose lower end lies at or below ``z`` (at most ``top``); ``-1`` at a negative budget."""
+    if not z >= 0.0:
+        return -1
+    j = math.floor(min(z, top * dz) / dz + 1e-12)
+    if j * dz > z:  # float guard: the cell's lower end lies at or below z
+        j -= 1
+    return j
+
+
+@nb.njit(cache=True)
+def cover_row(cells, t, lo, hi, z):
+    """Whether every cell the box ``[lo, hi]`` touches (closed cells; a box reaching the grid's upper end exactly
+    touches the last cell only) is good at sample time ``t`` with budget ``z``: on the grid, ``t`` not past the
+    horizon, and ``z``'s budget cell at least the largest lowest good budget index ``m`` of those cells.
+
+    :param cells: :attr:`~softreach.reach.cell_certificate.CellCertificate.kernel_args`
+    """
+    m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
+    D = len(shape)
+    on = True
     first = np.empty(D, np.int64)
     span = np.empty(D, np.int64)
-    for r in range(N):
-        on = True
-        P = 1
-        for a in range(D):
-            f = math.floor((end_lo[r, a] - clo[a]) / width[a])
-            g = math.floor((end_hi[r, a] - clo[a]) / width[a])
-            if end_hi[r, a] == chi[a]:
-                g = shape[a] - 1.0
-            if not (math.isfinite(f) and math.isfinite(g) and f >= 0 and g <= shape[a] - 1):
-                on = False
-            fi = int(min(max(f, 0.0), shape[a] - 1.0)) if math.isfinite(f) else 0
-            gi = int(min(max(g, 0.0), shape[a] - 1.0)) if math.isfinite(g) else 0
-            first[a] = fi
-            span[a] = max(fi, gi) - fi + 1
-            P *= span[a]
-        need = -1
-        for p in range(P):
-            rest = p
-            off = 0
-            stride = 1
-            for a in range(D - 1, -1, -1):
-                off += (first[a] + rest % span[a]) * stride
-                rest //= span[a]
-                stride *= shape[a]
-            need = max(need, int(m[k[r], off]))
-        out_need[r] = need
-        out_on[r] = on
+    P = 1
+    for a in range(D):
+        f = math.floor((lo[a] - clo[a]) / width[a])
+        g = math.floor((hi[a] - clo[a]) / width[a])
+        if hi[a] == chi[a]:
+            g = shape[a] - 1.0
+        if not (math.isfinite(f) and math.isfinite(g) and f >= 0 and g <= shape[a] - 1):
+            on = False
+        fi = int(min(max(f, 0.0), shape[a] - 1.0)) if math.isfinite(f) else 0
+        gi = int(min(max(g, 0.0), shape[a] - 1.0)) if math.isfinite(g) else 0
+        first[a] = fi
+        span[a] = max(fi, gi) - fi + 1
+        P *= span[a]
+    if not on or not t <= horizon + 1e-9 * dt:
+        return False
+    k = step_index(t, dt, steps, safe)
+    need = -1
+    for p in range(P):
+        rest = p
+        off = 0
+        stride = 1
+        for a in range(D - 1, -1, -1):
+            off += (first[a] + rest % span[a]) * stride
+            rest //= span[a]
+            stride *= shape[a]
+        need = max(need, int(m[k, off]))
+    return budget_floor(z, dz, top) >= need
+
+
+@nb.njit(cache=True)
+def cover_rows(cells, t, lo, hi, z, out):
+    """:func:`cover_row` for every row."""
+    for r in range(len(lo)):
+        out[r] = cover_row(cells, t[r], lo[r], hi[r], z[r])
+
+
+@nb.njit(cache=True)
+def step_rows(t, dt, steps, safe, out):
+    for r in range(len(t)):
+        out[r] = step_index(t[r], dt, steps, safe)
+
+
+@nb.njit(cache=True)
+def budget_floor_rows(z, dz, top, out):
+    for r in range(len(z)):
+        out[r] = budget_floor(z[r], dz, top)

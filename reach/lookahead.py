@@ -47,7 +47,9 @@ from typing import Any
 import numpy as np
 
 from .horizon import exact_before_horizon, in_window
-from .interpolation import box_max, interpolate
+from .box_max import box_max, kernel_field
+from .interpolation import interpolate
+from .kernels import certificate_rows
 
 
 #: the fields that say how much budget suffices, in the order a table's is picked
@@ -92,6 +94,13 @@ class Lookahead:
         b_values, b_times, b_grid = self.fields[self.budget_field]
         self.z_top = b_grid.hi[-1] if self.budget_field == "W_eps" else np.inf
         self.horizon = float(b_times[-1])
+        #: a ``W_eps`` table's fields as the compiled certificate reads them (:func:`~softreach.reach.kernels.
+        #: certificate_row`): ``(W, z_top, z_floor, V, has_V)``; ``None`` for a budget surface
+        self.table_args = None
+        if self.budget_field == "W_eps":
+            V = self.fields.get("V", self.fields["W_eps"])
+            self.table_args = (kernel_field(*self.fields["W_eps"]), float(self.z_top), float(b_grid.lo[-1]),
+                               kernel_field(*V), "V" in self.fields)
         if self.budget_field == "Q_min":
             # where no budget suffices (above the time left) Q_min is infinite, held at a cap: no interpolant
             # between such a node and a feasible one says where feasibility ends, so every cell with such a corner
@@ -135,10 +144,10 @@ class Lookahead:
             none, _ = interpolate(self._no_budget, Qt, Qg, t, x)
             out = np.where(inside & (z >= 0) & np.isfinite(q) & (none <= 0), q - self._usable(t, z), np.inf)
         else:
-            W, Wt, Wg = self.fields["W_eps"]
-            X = np.concatenate([x, np.minimum(z, self.z_top)[:, None]], axis=1)
-            w, inside = interpolate(W, Wt, Wg, t, X)
-            out = np.where(inside & (z >= Wg.lo[-1]) & np.isfinite(w), w, np.inf)
+            out = np.empty(len(x))
+            certificate_rows(*self.table_args, np.ascontiguousarray(t, dtype=np.float64),
+                             np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64), out)
+            return out
         if "V" in self.fields:
             V, Vt, Vg = self.fields["V"]
             v, vin = interpolate(V, Vt, Vg, t, x)

@@ -87,6 +87,11 @@ class Model(Dynamics):
     #: ``(lo, hi)`` of a box that holds the target set (``-inf``/``inf`` where unbounded), or ``None``. The safety
     #: filter skips its landing test for periods whose motion cannot meet this box; only speed depends on it
     target_box: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    #: ``{"target": (lo, hi), "hard_constraint": ..., "soft_constraint": ...}`` where each of these set functions
+    #: is exactly :func:`~softreach.reach.sets.box` of that box, with no scale (``tests/test_compiled_pass.py``
+    #: checks it). The filter's compiled one-period test (:mod:`softreach.reach.compiled_pass`) needs it; ``None``:
+    #: not declared
+    set_boxes: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] | None = None
 
     @abstractmethod
     def target(self, t: float, x: Components) -> Array:

@@ -6,6 +6,7 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+import numba as nb
 import numpy as np
 
 from .. import sets
@@ -103,6 +104,10 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         self.substeps = 10
         # hover (v' = d): the held action that rides a speed limit with the least drift
         self.trim_controls = ((p.gravity,),) if p.gravity <= p.u_max else ()
+        self.held_box_kernel, self.held_box_params = held_box_kernel, np.array([p.gravity, p.d_max])
+        # every set is a plain box distance (sets.box, no scale): the filter's compiled test bounds them
+        self.set_boxes = {"target": self.target_box, "hard_constraint": self.hard_box,
+                          "soft_constraint": ((p.soft_speed[0], p.altitude[0]), (p.soft_speed[1], p.altitude[1]))}
 
     def parameters(self) -> dict[str, Any]:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self.params).items()}
@@ -147,16 +152,19 @@ class PointMass(Model, ControlAndDisturbanceAffine):
     def _held_box(self, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, s0: Any, s1: Any
                   ) -> tuple[np.ndarray, np.ndarray]:
         """The box of every state reachable at some time in ``[s0, s1]`` of the held period from ``[x_lo, x_hi]``
-        (``s0``, ``s1`` floats, or arrays that broadcast against the rows: one box per entry)."""
-        p = self.params
-        x_lo, x_hi = np.asarray(x_lo, dtype=np.float64), np.asarray(x_hi, dtype=np.float64)
-        u = np.asarray(a, dtype=np.float64)[..., 0]
-        acc_lo, acc_hi = u - p.gravity - p.d_max, u - p.gravity + p.d_max
-        # v lies between two lines: their extremes are at the interval's ends
-        v_lo = np.minimum(x_lo[..., 0] + acc_lo * s0, x_lo[..., 0] + acc_lo * s1)
-        v_hi = np.maximum(x_hi[..., 0] + acc_hi * s0, x_hi[..., 0] + acc_hi * s1)
-        return (np.stack([v_lo, _parabola(x_lo[..., 1], x_lo[..., 0], acc_lo, s0, s1, np.minimum)], axis=-1),
-                np.stack([v_hi, _parabola(x_hi[..., 1], x_hi[..., 0], acc_hi, s0, s1, np.maximum)], axis=-1))
+        (``s0``, ``s1`` floats, or arrays that broadcast against the rows: one box per entry), by
+        :func:`held_box_kernel` row by row."""
+        x_lo, x_hi, a = (np.asarray(v, dtype=np.float64) for v in (x_lo, x_hi, a))
+        shape = np.broadcast_shapes(x_lo.shape[:-1], x_hi.shape[:-1], a.shape[:-1], np.shape(s0), np.shape(s1))
+
+        def rows(v: Any, k: int) -> np.ndarray:
+            return np.ascontiguousarray(np.broadcast_to(v, shape + (k,)).reshape(-1, k))
+
+        lo, hi = np.empty((int(np.prod(shape)), 2)), np.empty((int(np.prod(shape)), 2))
+        _held_box_rows(self.held_box_params, rows(x_lo, 2), rows(x_hi, 2), rows(a, 1),
+                       rows(np.asarray(s0, dtype=np.float64)[..., None], 1)[:, 0],
+                       rows(np.asarray(s1, dtype=np.float64)[..., None], 1)[:, 0], lo, hi)
+        return lo.reshape(shape + (2,)), hi.reshape(shape + (2,))
 
     def sink_rate(self, x) -> float:
         """The vertical speed downwards, ``-v`` [m/s].
@@ -229,17 +237,38 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         return drop + p.target_altitude[1]
 
 
-def _parabola(y, v, acc, s0: float, s1: float, pick) -> np.ndarray:
-    """The smallest (``pick=np.minimum``) or largest (``np.maximum``) value of ``y + v s + acc s^2 / 2`` over
-    ``s`` in ``[s0, s1]``: at an end or where its slope ``v + acc s`` vanishes."""
-    def q(s):
-        return y + v * s + 0.5 * acc * s * s
+@nb.njit(cache=True)
+def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
+    """The box of every state reachable at some time in ``[s0, s1]`` of a period with the thrust ``a[0]`` held, from
+    every start in ``[x_lo, x_hi]`` (:meth:`PointMass.held_enclosure`), written into ``lo`` and ``hi``; ``params``
+    is ``(gravity, d_max)``. ``v`` lies between two lines, extreme at the interval's ends; ``y`` between two
+    parabolas, extreme at an end or where ``v`` vanishes."""
+    acc_lo = a[0] - params[0] - params[1]
+    acc_hi = a[0] - params[0] + params[1]
+    lo[0] = min(x_lo[0] + acc_lo * s0, x_lo[0] + acc_lo * s1)
+    hi[0] = max(x_hi[0] + acc_hi * s0, x_hi[0] + acc_hi * s1)
+    lo[1] = _parabola(x_lo[1], x_lo[0], acc_lo, s0, s1, False)
+    hi[1] = _parabola(x_hi[1], x_hi[0], acc_hi, s0, s1, True)
 
-    out = pick(q(s0), q(s1))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(acc != 0, -v / acc, -1.0)
-    inside = (s > s0) & (s < s1)
-    return np.where(inside, pick(out, q(np.where(inside, s, s0))), out)
+
+@nb.njit(cache=True)
+def _held_box_rows(params, x_lo, x_hi, a, s0, s1, lo, hi):
+    for r in range(len(x_lo)):
+        held_box_kernel(params, x_lo[r], x_hi[r], a[r], s0[r], s1[r], lo[r], hi[r])
+
+
+@nb.njit(cache=True)
+def _parabola(y, v, acc, s0, s1, largest):
+    """The smallest (or ``largest``) value of ``y + v s + acc s^2 / 2`` over ``s`` in ``[s0, s1]``: at an end or
+    where its slope ``v + acc s`` vanishes."""
+    q0 = y + v * s0 + 0.5 * acc * s0 * s0
+    q1 = y + v * s1 + 0.5 * acc * s1 * s1
+    out = max(q0, q1) if largest else min(q0, q1)
+    s = -v / acc if acc != 0 else -1.0
+    if s0 < s < s1:
+        q = y + v * s + 0.5 * acc * s * s
+        out = max(out, q) if largest else min(out, q)
+    return out
 
 
 def _box_scalar(x, speed: tuple[float, float], altitude: tuple[float, float]) -> float:
