@@ -138,8 +138,8 @@ class Dynamics(ABC):
         raise NotImplementedError(f"{self.name} does not provide held_enclosure(t, x, a, dt); the safety filter "
                                   f"needs a validated one-period enclosure of its motion")
 
-    #: the held-action enclosure compiled, for the filter's compiled one-period test
-    #: (:mod:`softreach.reach.compiled_pass`): a numba ``njit`` function ``(params, x_lo, x_hi, a, s0, s1, lo, hi)``
+    #: the held-action enclosure compiled, for the filter's compiled decision
+    #: (:mod:`softreach.filters.compiled`): a numba ``njit`` function ``(params, x_lo, x_hi, a, s0, s1, lo, hi)``
     #: writing into ``lo``, ``hi`` the box of every state reachable at some time in ``[s0, s1]`` of a held period
     #: from every start in ``[x_lo, x_hi]`` (1-d arrays), for the numbers :attr:`held_box_params`. It must be what
     #: :meth:`held_enclosure_box` and :meth:`held_tube_pieces_box` compute (the point mass's are built on it).

@@ -88,8 +88,8 @@ class Model(Dynamics):
     #: filter skips its landing test for periods whose motion cannot meet this box; only speed depends on it
     target_box: tuple[tuple[float, ...], tuple[float, ...]] | None = None
     #: ``{"target": (lo, hi), "hard_constraint": ..., "soft_constraint": ...}`` where each of these set functions
-    #: is exactly :func:`~softreach.reach.sets.box` of that box, with no scale (``tests/test_compiled_pass.py``
-    #: checks it). The filter's compiled one-period test (:mod:`softreach.reach.compiled_pass`) needs it; ``None``:
+    #: is exactly :func:`~softreach.reach.sets.box` of that box, with no scale (``tests/test_compiled_filter.py``
+    #: checks it). The filter's compiled decision (:mod:`softreach.filters.compiled`) needs it; ``None``:
     #: not declared
     set_boxes: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] | None = None
 

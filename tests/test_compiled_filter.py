@@ -1,13 +1,14 @@
-"""The filter's compiled test (:mod:`softreach.reach.compiled_pass`) decides as the numpy test does, and what it
-relies on holds: the declared set boxes are the model's set functions, their box maxima are the corner maxima,
-and the compiled certificate is the table's interpolant."""
+"""The filter's compiled decision (:mod:`softreach.filters.compiled`) decides as the numpy filter does, in batches,
+one row at a time and in closed loop with its plans, and what it relies on holds: the declared set boxes are the
+model's set functions, their box maxima are the corner maxima, and the compiled certificate is the table's
+interpolant."""
 
 import numpy as np
 import pytest
 
 from softreach.filters import ValueFilter
 from softreach.reach import get_model, sets
-from softreach.reach.compiled_pass import box_excess
+from softreach.filters.compiled import box_excess
 from softreach.reach.registry import model_names
 
 SETS = ("target", "hard_constraint", "soft_constraint")
@@ -59,22 +60,60 @@ def _same(info_a, info_b):
         assert u.shape == v.shape and np.array_equal(u, v, equal_nan=u.dtype.kind == "f"), key
 
 
-def test_compiled_filter_decides_as_the_numpy_filter(pointmass_held_table):
-    fast = ValueFilter(pointmass_held_table, 0.01)
-    slow = ValueFilter(pointmass_held_table, 0.01)
+def _pair(table, rule="switch"):
+    fast = ValueFilter(table, 0.01, rule=rule)
+    slow = ValueFilter(table, 0.01, rule=rule)
     slow.compiled = None
+    return fast, slow
+
+
+@pytest.mark.parametrize("rule", ["switch", "smooth"])
+def test_compiled_filter_decides_as_the_numpy_filter(pointmass_held_table, rule):
+    fast, slow = _pair(pointmass_held_table, rule)
     assert fast.compiled is not None
-    t, x, z, a = _draws(2000, 5)
+    t, x, z, a = _draws(2000 if rule == "switch" else 300, 5)
     applied, info = fast.filter(t, x, z, a)
     expect, expect_info = slow.filter(t, x, z, a)
     np.testing.assert_array_equal(applied, expect)
     _same(info, expect_info)
     # both kinds of rows occur, so both paths were compared
     assert 0.05 < (info["reason"] == 0).mean() < 0.95
-    for i in range(0, 2000, 40):  # one row at a time: the call a SafetyFilter.step makes
+    for i in range(0, len(x), 40):  # one row at a time: the call a SafetyFilter.step makes
         one, one_info = fast.filter(t[i], x[i], z[i], a[i])
         np.testing.assert_array_equal(one, applied[i])
         _same(one_info, {k: v[i] for k, v in info.items()})
+
+
+def test_compiled_filter_follows_the_same_plans_in_closed_loop(pointmass_held_table):
+    """Runs from landing-cell states, each filter fed back its own ``info["plan"]``, under winds that switch at
+    random: the two filters apply the same actions and carry the same plans at every step (the plans are followed
+    where no candidate's period ends in the cells)."""
+    fast, slow = _pair(pointmass_held_table)
+    model = fast.model
+    rng = np.random.default_rng(11)
+    cells = fast.landing_cells
+    x = np.c_[rng.uniform(-14, 14, 4000), rng.uniform(0, 17, 4000)]
+    z = rng.uniform(0, 0.6, 4000)
+    keep = cells.contains(0.0, x, z)
+    x, z = x[keep][:200], z[keep][:200]
+    t = np.zeros(len(x))
+    plans = {"fast": None, "slow": None}
+    followed = 0
+    for _ in range(40):
+        a = rng.uniform(-60, 60, (len(x), 1))
+        applied, info = fast.filter(t, x, z, a, plan=plans["fast"])
+        expect, expect_info = slow.filter(t, x, z, a, plan=plans["slow"])
+        np.testing.assert_array_equal(applied, expect)
+        _same(info, expect_info)
+        plans = {"fast": info["plan"], "slow": expect_info["plan"]}
+        followed += int((info["plan"][:, 0] >= 0).sum())
+        # one period of the exact motion under a constant wind drawn per run
+        d = rng.choice([-1.0, 1.0], len(x)) * model.params.d_max
+        acc = applied[:, 0] - model.params.gravity + d
+        x = np.c_[x[:, 0] + acc * 0.01, x[:, 1] + x[:, 0] * 0.01 + 0.5 * acc * 0.01 ** 2]
+        z = z - 0.01 * np.clip(model.soft_constraint(0.0, [x[:, 0], x[:, 1]]) / fast.eps, 0, 1)
+        t = t + 0.01
+    assert followed > 0
 
 
 def test_compiled_certificate_is_the_tables_interpolant(pointmass_held_table):

@@ -1,0 +1,352 @@
+"""The switch rule's whole decision, compiled: one loop over the rows instead of hundreds of numpy calls a row.
+
+:class:`~softreach.filters.ValueFilter` decides by the one-period test of :mod:`softreach.reach.lookahead` and the
+plans of :mod:`softreach.filters.plans`; this module decides the same way, row by row in numba, where
+
+* the model gives its held-action enclosure compiled (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`)
+  and declares its sets as boxes (:attr:`~softreach.reach.problem.Model.set_boxes`),
+* the table holds ``W_eps`` (with ``V`` and ``V_safe`` if it has them) and the filter has landing cells (which then
+  decide what passes, :meth:`~softreach.reach.lookahead.Lookahead.assess`).
+
+For the ``"smooth"`` rule it judges the policy's action only; the rows where that fails are decided in numpy.
+
+Each step below names the numpy method it mirrors: the arithmetic is the same, in the same order, on the numbers
+of the same kernels (the enclosure, :mod:`softreach.reach.kernels` for the table and the cells), so the decisions
+are equal, which ``tests/test_compiled_filter.py`` checks on thousands of rows of every kind. A change to the one-
+period test must be made in both.
+
+The per-row outputs: the applied action, the reason code, the certificate at the state, the applied action's worst
+next certificate, whether it is certified, the chosen candidate (NaN where the policy passed) and the new plan.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numba as nb
+import numpy as np
+
+from softreach.reach.box_max import kernel_field
+from softreach.reach.kernels import MAX_NODES, box_max_row, box_scratch, certificate_row, cover_row, step_index
+
+# reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
+_PASS, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 2, 3, 6, 7
+#: the policy's action failed and ``pass_only`` was asked: the caller decides the row
+_UNDECIDED = -1
+_PLAN_LAND, _PLAN_SAFE = 1, 2
+
+
+@nb.njit(cache=True)
+def box_excess(box_lo, box_hi, lo, hi):
+    """The largest value of the box distance :func:`~softreach.reach.sets.box` of ``[box_lo, box_hi]`` over the
+    box ``[lo, hi]``: per axis the larger of ``box_lo - lo`` and ``hi - box_hi`` (the corners' terms), the largest
+    over the axes; an infinite bound has no term (:meth:`Lookahead._corner_max` of a box set)."""
+    out = -np.inf
+    for a in range(len(lo)):
+        if box_lo[a] != -np.inf:
+            term = max(box_lo[a] - lo[a], hi[a] - box_hi[a]) if box_hi[a] != np.inf else box_lo[a] - lo[a]
+        elif box_hi[a] != np.inf:
+            term = hi[a] - box_hi[a]
+        else:
+            continue
+        out = max(out, term)
+    return out
+
+
+@nb.njit(cache=True)
+def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
+    """:meth:`Lookahead._budget_spent` over the pieces ``[edges[j], edges[j + 1]]`` of a held action's motion."""
+    params, eps, soft = M[0], M[1], M[2]
+    P = len(edges) - 1
+    length = edges[P]
+    out = 0.0
+    for j in range(P):
+        enclose(params, x_lo, x_hi, a, edges[j], edges[j + 1], lo, hi)
+        out += (length / P) * min(max(box_excess(soft[0], soft[1], lo, hi) / eps, 0.0), 1.0)
+    return out
+
+
+@nb.njit(cache=True)
+def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
+    """:meth:`Lookahead._lands` of one row: at some check instant ``s`` every run is in the target inside ``C2``,
+    the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``."""
+    params, soft, hard, target = M[0], M[2], M[3], M[4]
+    for j in range(check_edges.shape[0]):
+        edges = check_edges[j]
+        s = edges[len(edges) - 1]
+        enclose(params, x_lo, x_hi, a, 0.0, s, lo, hi)
+        enclose(params, x_lo, x_hi, a, s, s, e_lo, e_hi)
+        good = True
+        for i in range(len(lo)):
+            good = good and math.isfinite(lo[i]) and math.isfinite(hi[i])
+        if not (good and box_excess(target[0], target[1], e_lo, e_hi) <= 0
+                and box_excess(soft[0], soft[1], e_lo, e_hi) <= 0 and box_excess(hard[0], hard[1], lo, hi) <= 0):
+            continue
+        if z - _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi) >= 0:
+            return True
+    return False
+
+
+@nb.njit(cache=True)
+def _assess(enclose, M, C, T, t, x_lo, x_hi, z, z_hi, a, end_lo, end_hi, work, level):
+    """:meth:`Lookahead.assess` with ``ends=True`` for one row (a point where ``x_lo`` is ``x_hi``): returns
+    ``(passing, next_value, badness, z_end, kept)`` and writes the end box into ``end_lo``, ``end_hi``. Only what
+    the caller reads is computed: ``level`` 0 whether it passes (the next value stays ``+inf``), 1 also the next
+    value, 2 also the badness."""
+    params, hard = M[0], M[3]
+    target_lo, target_hi, edges, check_edges, horizon = M[5], M[6], M[7], M[8], M[9]
+    safe, has_safe, land = C[0], C[1], C[2]
+    W, z_top, z_floor, V, has_V, S, has_S = T
+    tube_lo, tube_hi, lo, hi, box_lo, box_hi, scratch_W, scratch_V = work
+    n = len(x_lo)
+    P = len(edges) - 1
+    dt = edges[P]
+    enclose(params, x_lo, x_hi, a, edges[0], dt, tube_lo, tube_hi)
+    enclose(params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
+    bounded = True
+    for i in range(n):
+        bounded = bounded and math.isfinite(tube_lo[i]) and math.isfinite(tube_hi[i])
+    c1 = box_excess(hard[0], hard[1], tube_lo, tube_hi)
+    z_end = z - _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi)
+    t_next = t + dt
+    in_time = t_next <= horizon + 1e-9 * max(1.0, horizon)
+    t_next = min(t_next, horizon)
+    kept = bounded and c1 <= 0 and z_end >= 0 and in_time
+    in_c1 = bounded and c1 <= 0 and in_time
+    safe_end = kept and (not has_safe or cover_row(safe, t_next, end_lo, end_hi, z_end))
+    ok = safe_end and cover_row(land, t_next, end_lo, end_hi, z_end)
+    nxt = np.inf
+    if in_c1 and level >= 1:
+        z_lo = max(z_end, z_floor)
+        for i in range(n):
+            box_lo[i], box_hi[i] = end_lo[i], end_hi[i]
+        box_lo[n], box_hi[n] = z_lo, max(min(z_hi, z_top), z_lo)
+        best = box_max_row(W, t_next, box_lo, box_hi, MAX_NODES, scratch_W)
+        if has_V:
+            v = box_max_row(V, t_next, end_lo, end_hi, MAX_NODES, scratch_V)
+            if not z_end >= 0:
+                v = np.inf
+            best = np.nan if (math.isnan(v) or math.isnan(best)) else min(best, v)
+        nxt = np.inf if math.isnan(best) else best
+    passing = ok
+    is_safe = in_c1
+    if has_S and in_c1 and not passing and level >= 2:
+        is_safe = box_max_row(S, t_next, end_lo, end_hi, MAX_NODES, scratch_V) <= 0
+    meets = True
+    for i in range(n):
+        meets = meets and tube_hi[i] >= target_lo[i] and tube_lo[i] <= target_hi[i]
+    lands = False
+    if not passing and bounded and in_time and meets:
+        lands = _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, box_lo[:n], box_hi[:n])
+    passing = passing or lands
+    ok = ok or lands
+    if lands:
+        nxt = -np.inf
+    tie = math.atan(1e12 if nxt == np.inf else nxt) / math.pi + 1e3 * max(-z_end, 0.0)
+    proven = safe_end and kept and has_safe
+    rank = 0.9e6 if proven else (1e6 if is_safe else 3e6) + (0.0 if (kept or lands) else 1e6)
+    bad = nxt if passing else (rank + tie if in_c1 else np.inf)
+    if bounded and not in_c1 and not lands:
+        bad = 5e6 + max(c1, 0.0)
+    if not ok:
+        nxt = np.inf
+    return passing, nxt, bad, z_end, (kept and safe_end) or lands
+
+
+@nb.njit(cache=True)
+def _keeps(enclose, M, C, T, cands, t, z, ok, nxt, end_lo, end_hi, z_end, kept, work, work_box):
+    """:meth:`Lookahead.keeps` with landing cells: a row that passes keeps; one whose period keeps ``C1`` and the
+    budget keeps when some candidate passes from its whole end box (:meth:`Lookahead.keeps_certified`)."""
+    horizon = M[9]
+    dt = M[7][len(M[7]) - 1]
+    if ok:
+        return True
+    if not (kept and not t + dt >= horizon - 1e-9 * max(1.0, horizon) and nxt > -np.inf):
+        return False
+    e_lo, e_hi = work_box[0], work_box[1]
+    for j in range(cands.shape[0]):
+        if _assess(enclose, M, C, T, t + dt, end_lo, end_hi, max(z_end, 0.0), z, cands[j], e_lo, e_hi, work, 0)[0]:
+            return True
+    return False
+
+
+@nb.njit(cache=True)
+def _plan(cells, action, hold, t, x):
+    """:meth:`CellCertificate.plan` of one state: ``(candidate, periods)``, ``(-1, 0)`` off the grid."""
+    m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
+    off, stride = 0, 1
+    for a in range(len(shape) - 1, -1, -1):
+        f = math.floor((x[a] - clo[a]) / width[a])
+        g = shape[a] - 1.0 if x[a] == chi[a] else f
+        if not (math.isfinite(f) and f >= 0 and g <= shape[a] - 1):
+            return -1, 0
+        off += int(min(f, shape[a] - 1.0)) * stride
+        stride *= shape[a]
+    k = step_index(t, dt, steps, safe)
+    j = int(action[k, off])
+    return (j, int(hold[k, off])) if j >= 0 else (-1, 0)
+
+
+@nb.njit(cache=True)
+def decide_rows(enclose, M, C, T, cands, fallback, t, x, z, pol, plans, has_plans, pass_only, applied, reason, value,
+                nxt, certified, chosen, new_plans):
+    """The switch rule's decision for every row (:meth:`ValueFilter.filter`); see the module docstring. With
+    ``pass_only`` rows whose policy action fails are left undecided (reason ``-1``), for another rule to decide."""
+    N, n = x.shape
+    J = cands.shape[0]
+    safe, has_safe, land, safe_plan, land_plan = C[0], C[1], C[2], C[3], C[4]
+    W, z_top, z_floor, V, has_V, S, has_S = T
+    work = (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n + 1), np.empty(n + 1),
+            box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES))
+    work_box = (np.empty(n), np.empty(n))
+    end_lo, end_hi = np.empty((J + 1, n)), np.empty((J + 1, n))
+    c_ok, c_next, c_bad = np.empty(J, np.bool_), np.empty(J), np.empty(J)
+    c_zend, c_kept, c_score = np.empty(J), np.empty(J, np.bool_), np.empty(J)
+    point = np.empty(n + 1)
+    for r in range(N):
+        tr, xr, zr = t[r], x[r], z[r]
+        value[r] = certificate_row(W, z_top, z_floor, V, has_V, tr, xr, zr, point, work[6], work[7])
+        new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = -1, 0, 0
+        # the policy's action (Lookahead.passes)
+        ok, p_next, _, z_end, kept = _assess(enclose, M, C, T, tr, xr, xr, zr, zr, pol[r], end_lo[J], end_hi[J], work,
+                                             1)
+        if _keeps(enclose, M, C, T, cands, tr, zr, ok, p_next, end_lo[J], end_hi[J], z_end, kept, work, work_box):
+            applied[r] = pol[r]
+            reason[r], nxt[r], certified[r] = _PASS, p_next, True
+            chosen[r] = np.nan
+            continue
+        if pass_only:
+            reason[r], nxt[r], certified[r] = _UNDECIDED, np.inf, False
+            continue
+        # every candidate (ValueFilter._candidates): the one-period test, then whether it keeps, asked in the
+        # order of the lowest next certificate up to the first that does
+        any_ok = False
+        for j in range(J):
+            c_ok[j], c_next[j], c_bad[j], c_zend[j], c_kept[j] = _assess(enclose, M, C, T, tr, xr, xr, zr, zr, cands[j],
+                                                                          end_lo[j], end_hi[j], work, 2)
+            any_ok = any_ok or c_ok[j]
+        order = np.argsort(np.where(c_ok, c_next, np.inf), kind="mergesort")
+        keeps_j = -1
+        for j in order:
+            if not c_ok[j]:
+                break
+            if _keeps(enclose, M, C, T, cands, tr, zr, c_ok[j], c_next[j], end_lo[j], end_hi[j], c_zend[j], c_kept[j],
+                      work, work_box):
+                keeps_j = j
+                break
+        for j in range(J):
+            if j == keeps_j:
+                c_score[j] = c_next[j]
+            elif c_ok[j]:
+                c_score[j] = 5e5 + min(c_next[j], 1e5)
+            else:
+                c_score[j] = c_bad[j]
+        best = np.argmin(c_score)
+        best_next, best_bad = c_next[best], c_bad[best]
+        # the plans (follow_plans): landing cells first, then safe cells
+        for game in (_PLAN_LAND, _PLAN_SAFE):
+            if game == _PLAN_LAND:
+                weak, cells, plan_cells = not any_ok, land, land_plan
+            else:
+                weak, cells, plan_cells = has_safe and best_bad >= 1e6, safe, safe_plan
+            if not weak:
+                continue
+            pj, pk = -1, 0
+            follow = False
+            if has_plans:
+                pj, pk = plans[r, 0], plans[r, 1]
+                follow = pk > 0 and 0 <= pj < J and plans[r, 2] == game
+            if follow:
+                jj, left = pj, pk - 1
+            else:
+                cj, ck = _plan(cells, plan_cells[0], plan_cells[1], tr, xr)
+                if not (cj >= 0 and cover_row(cells, tr, xr, xr, zr)):
+                    continue
+                jj, left = cj, ck - 1
+            best, best_next = jj, c_next[jj]
+            best_bad = -1.0 if game == _PLAN_LAND else 0.9e6
+            new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = jj, left, game
+            if game == _PLAN_LAND:
+                any_ok = True
+        bounded = best_bad < np.inf
+        applied[r] = cands[best] if bounded else fallback
+        chosen[r] = cands[best]
+        nxt[r], certified[r] = best_next, any_ok
+        reason[r] = (_OPTIMAL if any_ok else _UNCERTIFIED) if bounded else _FALLBACK
+        if not _on_table(W, tr, xr, max(zr, 0.0), point, work):
+            reason[r] = _OUTSIDE
+
+
+@nb.njit(cache=True)
+def _on_table(W, t, x, z, point, work):
+    """:meth:`Table.inside` of a ``W_eps`` table: the interpolant of ``W_eps`` is finite at ``(t, x, z)`` (a budget
+    above the grid is read at its top)."""
+    times, glo = W[1], W[3]
+    n = len(x)
+    if not (t >= times[0] - 1e-9 and t <= times[-1] + 1e-9) or not z >= glo[n]:
+        return False
+    for a in range(n):
+        point[a] = x[a]
+    point[n] = min(z, W[4][n])
+    return math.isfinite(box_max_row(W, t, point, point, MAX_NODES, work[6]))
+
+
+class CompiledDecision:
+    """:func:`decide_rows` bound to one filter (build it with :meth:`for_filter`)."""
+
+    def __init__(self, vf: Any):
+        la, model = vf.lookahead, vf.model
+        boxes = model.set_boxes
+
+        def box(name: str) -> tuple[np.ndarray, np.ndarray]:
+            return tuple(np.asarray(b, dtype=np.float64) for b in boxes[name])
+
+        tb = model.target_box
+        t_lo, t_hi = ((np.full(la.n, -np.inf), np.full(la.n, np.inf)) if tb is None
+                      else (np.asarray(tb[0], dtype=np.float64), np.asarray(tb[1], dtype=np.float64)))
+        checks = np.stack([np.linspace(0.0, la.dt * j / la.target_checks, la.pieces + 1)
+                           for j in range(1, la.target_checks + 1)])
+        self.model = model
+        self.M = (model.held_box_params, la.eps, box("soft_constraint"),
+                  box("hard_constraint"), box("target"), t_lo, t_hi, np.linspace(0.0, la.dt, la.pieces + 1), checks,
+                  la.horizon)
+        safe, land = vf.safe_cells, vf.landing_cells
+        some = safe if safe is not None else land
+        self.C = (some.kernel_args, safe is not None, land.kernel_args, _plan_arrays(some), _plan_arrays(land))
+        W_args = la.table_args
+        has_S = "V_safe" in la.fields
+        self.T = W_args + ((kernel_field(*la.fields["V_safe"]) if has_S else W_args[3]), has_S)
+        self.cands = np.ascontiguousarray(la.candidates)
+        self.fallback = np.asarray(vf.fallback_action, dtype=np.float64)
+        self.no_plans = np.zeros((1, 3), np.int64)
+
+    @staticmethod
+    def for_filter(vf: Any) -> "CompiledDecision | None":
+        """The compiled decision for this filter, or ``None`` where it does not apply (the module docstring)."""
+        la, model = vf.lookahead, vf.model
+        boxes = model.set_boxes or {}
+        if (model.held_box_kernel is None or not set(boxes) >= {"target", "hard_constraint", "soft_constraint"}
+                or la.budget_field != "W_eps" or vf.landing_cells is None
+                or any(model.set_box_max(w, 0.0, np.zeros((1, la.n)), np.zeros((1, la.n))) is not None
+                       for w in ("target", "hard_constraint", "soft_constraint"))):
+            return None
+        return CompiledDecision(vf)
+
+    def __call__(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, pol: np.ndarray, plans: np.ndarray | None,
+                 pass_only: bool = False):
+        """``(applied, reason, value, next_value, certified, chosen, new_plans)`` for ``N`` rows; with
+        ``pass_only``, rows whose policy action fails get reason ``-1`` (undecided)."""
+        N, m = len(x), self.cands.shape[1]
+        applied, chosen = np.empty((N, m)), np.empty((N, m))
+        reason, new_plans = np.empty(N, np.int64), np.empty((N, 3), np.int64)
+        value, nxt, certified = np.empty(N), np.empty(N), np.empty(N, bool)
+        decide_rows(self.model.held_box_kernel, self.M, self.C, self.T, self.cands, self.fallback, t, x, z, pol,
+                    self.no_plans if plans is None else plans, plans is not None, pass_only, applied, reason, value,
+                    nxt, certified, chosen, new_plans)
+        return applied, reason, value, nxt, certified, chosen, new_plans
+
+
+def _plan_arrays(cells: Any) -> tuple[np.ndarray, np.ndarray]:
+    """A cell certificate's plans, one row of cells per sample time (memory maps stay mapped)."""
+    return (np.asarray(cells.action).reshape(cells.steps + 1, -1), np.asarray(cells.hold).reshape(cells.steps + 1, -1))
