@@ -28,7 +28,8 @@ import numba as nb
 import numpy as np
 
 from softreach.reach.box_max import kernel_field
-from softreach.reach.kernels import MAX_NODES, box_max_row, box_scratch, certificate_row, cover_row, step_index
+from softreach.reach.kernels import (MAX_NODES, box_max_row, box_scratch, call_held_box, certificate_row, cover_row,
+                                    held_box_address, step_index)
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 2, 3, 6, 7
@@ -62,7 +63,7 @@ def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
     length = edges[P]
     out = 0.0
     for j in range(P):
-        enclose(params, x_lo, x_hi, a, edges[j], edges[j + 1], lo, hi)
+        call_held_box(enclose, params, x_lo, x_hi, a, edges[j], edges[j + 1], lo, hi)
         out += (length / P) * min(max(box_excess(soft[0], soft[1], lo, hi) / eps, 0.0), 1.0)
     return out
 
@@ -75,8 +76,8 @@ def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
     for j in range(check_edges.shape[0]):
         edges = check_edges[j]
         s = edges[len(edges) - 1]
-        enclose(params, x_lo, x_hi, a, 0.0, s, lo, hi)
-        enclose(params, x_lo, x_hi, a, s, s, e_lo, e_hi)
+        call_held_box(enclose, params, x_lo, x_hi, a, 0.0, s, lo, hi)
+        call_held_box(enclose, params, x_lo, x_hi, a, s, s, e_lo, e_hi)
         good = True
         for i in range(len(lo)):
             good = good and math.isfinite(lo[i]) and math.isfinite(hi[i])
@@ -102,8 +103,8 @@ def _assess(enclose, M, C, T, t, x_lo, x_hi, z, z_hi, a, end_lo, end_hi, work, l
     n = len(x_lo)
     P = len(edges) - 1
     dt = edges[P]
-    enclose(params, x_lo, x_hi, a, edges[0], dt, tube_lo, tube_hi)
-    enclose(params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
+    call_held_box(enclose, params, x_lo, x_hi, a, edges[0], dt, tube_lo, tube_hi)
+    call_held_box(enclose, params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
     bounded = True
     for i in range(n):
         bounded = bounded and math.isfinite(tube_lo[i]) and math.isfinite(tube_hi[i])
@@ -307,7 +308,8 @@ class CompiledDecision:
                       else (np.asarray(tb[0], dtype=np.float64), np.asarray(tb[1], dtype=np.float64)))
         checks = np.stack([np.linspace(0.0, la.dt * j / la.target_checks, la.pieces + 1)
                            for j in range(1, la.target_checks + 1)])
-        self.model = model
+        #: the model's enclosure, called by address (:func:`~softreach.reach.kernels.held_box_address`)
+        self.enclose = held_box_address(model)
         self.M = (model.held_box_params, la.eps, box("soft_constraint"),
                   box("hard_constraint"), box("target"), t_lo, t_hi, np.linspace(0.0, la.dt, la.pieces + 1), checks,
                   la.horizon)
@@ -341,7 +343,9 @@ class CompiledDecision:
         applied, chosen = np.empty((N, m)), np.empty((N, m))
         reason, new_plans = np.empty(N, np.int64), np.empty((N, 3), np.int64)
         value, nxt, certified = np.empty(N), np.empty(N), np.empty(N, bool)
-        decide_rows(self.model.held_box_kernel, self.M, self.C, self.T, self.cands, self.fallback, t, x, z, pol,
+        # the enclosure reads rows by address: contiguous rows
+        t, x, z, pol = (np.ascontiguousarray(v, dtype=np.float64) for v in (t, x, z, pol))
+        decide_rows(self.enclose, self.M, self.C, self.T, self.cands, self.fallback, t, x, z, pol,
                     self.no_plans if plans is None else plans, plans is not None, pass_only, applied, reason, value,
                     nxt, certified, chosen, new_plans)
         return applied, reason, value, nxt, certified, chosen, new_plans

@@ -13,9 +13,13 @@ Grids are passed as arrays: ``shape`` (int64), ``glo`` and ``ghi`` the first and
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba as nb
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
 
 #: tolerance of the grid checks, in cell units, and of the time-span checks, in seconds
 #: (:data:`softreach.reach.interpolation.TOL`)
@@ -191,8 +195,9 @@ def box_max_rows(field, t, lo, hi, max_nodes, out):
 
 @nb.njit(cache=True)
 def certificate_row(W, z_top, z_floor, V, has_V, t, x, z, point, scratch_W, scratch_V):
-    """``D(t, x, z) = min(V~(t, x), W~(t, x, min(z, z_top)))`` (:meth:`~softreach.reach.lookahead.Lookahead.certificate`); ``+inf`` off the
-    grid or the time span, at a budget below the table's (``W``) or a negative one (``V``), or where not finite."""
+    """``D(t, x, z) = min(V~(t, x), W~(t, x, min(z, z_top)))`` (:meth:`~softreach.reach.lookahead.Lookahead.
+    certificate`); ``+inf`` off the grid or the time span, at a budget below the table's (``W``) or a negative one
+    (``V``), or where not finite."""
     times = W[1]
     if not (t >= times[0] - TOL and t <= times[-1] + TOL):
         return np.inf
@@ -298,3 +303,47 @@ def step_rows(t, dt, steps, safe, out):
 def budget_floor_rows(z, dz, top, out):
     for r in range(len(z)):
         out[r] = budget_floor(z[r], dz, top)
+
+
+# ---------------------------------------------------------------- a model's compiled enclosure, by address
+# Compiled code that takes a model's enclosure as a function argument is compiled again in every process (numba
+# keys its disk cache by the function's identity), so the enclosure is handed over as the address of a C callback
+# instead, and called through it: one cached compilation serves every model.
+
+_P = types.CPointer(types.float64)
+#: the C signature of :func:`held_box_address`'s callbacks: ``(params, x_lo, x_hi, a, s0, s1, lo, hi)``
+HELD_BOX_SIGNATURE = types.void(_P, _P, _P, _P, types.float64, types.float64, _P, _P)
+_CALLBACKS: dict[Any, Any] = {}
+
+
+def held_box_address(model: Any) -> int:
+    """The address of a C callback running ``model.held_box_kernel`` (:attr:`~softreach.reach.dynamics.Dynamics.
+    held_box_kernel`) for :func:`call_held_box`; built once per kernel and dimensions (a fraction of a second)."""
+    kernel, n, m, k = model.held_box_kernel, model.state_dim, model.control_dim, len(model.held_box_params)
+    key = (kernel, n, m, k)
+    if key not in _CALLBACKS:
+        @nb.cfunc(HELD_BOX_SIGNATURE)
+        def callback(params, x_lo, x_hi, a, s0, s1, lo, hi):
+            kernel(nb.carray(params, k), nb.carray(x_lo, n), nb.carray(x_hi, n), nb.carray(a, m), s0, s1,
+                   nb.carray(lo, n), nb.carray(hi, n))
+
+        _CALLBACKS[key] = callback  # kept alive: its address is used by compiled code
+    return _CALLBACKS[key].address
+
+
+@intrinsic
+def call_held_box(typingctx, address, params, x_lo, x_hi, a, s0, s1, lo, hi):
+    """Call the callback at ``address`` (:func:`held_box_address`) on contiguous 1-d float64 arrays and two
+    times: the enclosure writes the box into ``lo`` and ``hi``."""
+    sig = types.void(address, params, x_lo, x_hi, a, s0, s1, lo, hi)
+
+    def codegen(context, builder, signature, args):
+        values = []
+        for ty, val in zip(signature.args[1:], args[1:]):
+            is_array = isinstance(ty, types.Array)
+            values.append(context.make_array(ty)(context, builder, val).data if is_array else val)
+        fn = builder.inttoptr(args[0], ir.FunctionType(ir.VoidType(), [v.type for v in values]).as_pointer())
+        builder.call(fn, values)
+        return context.get_dummy_value()
+
+    return sig, codegen
