@@ -1,4 +1,4 @@
-"""The switch rule's whole decision, compiled: one loop over the rows instead of hundreds of numpy calls a row.
+"""The filter's whole decision, compiled: one loop over the rows instead of hundreds of numpy calls a row.
 
 :class:`~softreach.filters.ValueFilter` decides by the one-period test of :mod:`softreach.reach.lookahead` and the
 plans of :mod:`softreach.filters.plans`; this module decides the same way, row by row in numba, where
@@ -8,7 +8,7 @@ plans of :mod:`softreach.filters.plans`; this module decides the same way, row b
 * the table holds ``W_eps`` (with ``V`` and ``V_safe`` if it has them) and the filter has landing cells (which then
   decide what passes, :meth:`~softreach.reach.lookahead.Lookahead.assess`).
 
-For the ``"smooth"`` rule it judges the policy's action only; the rows where that fails are decided in numpy.
+Both rules are compiled, the ``"switch"`` rule and the ``"smooth"`` one with its bisection.
 
 Each step below names the numpy method it mirrors: the arithmetic is the same, in the same order, on the numbers
 of the same kernels (the enclosure, :mod:`softreach.reach.kernels` for the table and the cells), so the decisions
@@ -32,9 +32,7 @@ from softreach.reach.kernels import (MAX_NODES, box_max_row, box_scratch, call_h
                                     held_box_address, step_index)
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
-_PASS, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 2, 3, 6, 7
-#: the policy's action failed and ``pass_only`` was asked: the caller decides the row
-_UNDECIDED = -1
+_PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7
 _PLAN_LAND, _PLAN_SAFE = 1, 2
 
 
@@ -190,12 +188,12 @@ def _plan(cells, action, hold, t, x):
 
 
 @nb.njit(cache=True)
-def decide_rows(enclose, M, C, T, cands, fallback, t, x, z, pol, plans, has_plans, pass_only, applied, reason, value,
-                nxt, certified, chosen, new_plans):
-    """The switch rule's decision for every row (:meth:`ValueFilter.filter`); see the module docstring. With
-    ``pass_only`` rows whose policy action fails are left undecided (reason ``-1``), for another rule to decide."""
+def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t, x, z, pol, plans, has_plans,
+                applied, reason, value, nxt, certified, chosen, blend, new_plans):
+    """The decision for every row (:meth:`ValueFilter.filter`) by the ``"switch"`` rule, or with ``smooth`` by the
+    ``"smooth"`` rule with ``iterations`` bisection steps; see the module docstring."""
     N, n = x.shape
-    J = cands.shape[0]
+    J, m = cands.shape
     safe, has_safe, land, safe_plan, land_plan = C[0], C[1], C[2], C[3], C[4]
     W, z_top, z_floor, V, has_V, S, has_S = T
     work = (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n + 1), np.empty(n + 1),
@@ -204,6 +202,7 @@ def decide_rows(enclose, M, C, T, cands, fallback, t, x, z, pol, plans, has_plan
     end_lo, end_hi = np.empty((J + 1, n)), np.empty((J + 1, n))
     c_ok, c_next, c_bad = np.empty(J, np.bool_), np.empty(J), np.empty(J)
     c_zend, c_kept, c_score = np.empty(J), np.empty(J, np.bool_), np.empty(J)
+    c_dist, c_pref, act = np.empty(J), np.empty(J), np.empty(m)
     point = np.empty(n + 1)
     for r in range(N):
         tr, xr, zr = t[r], x[r], z[r]
@@ -214,37 +213,61 @@ def decide_rows(enclose, M, C, T, cands, fallback, t, x, z, pol, plans, has_plan
                                              1)
         if _keeps(enclose, M, C, T, cands, tr, zr, ok, p_next, end_lo[J], end_hi[J], z_end, kept, work, work_box):
             applied[r] = pol[r]
-            reason[r], nxt[r], certified[r] = _PASS, p_next, True
+            reason[r], nxt[r], certified[r], blend[r] = _PASS, p_next, True, 1.0
             chosen[r] = np.nan
             continue
-        if pass_only:
-            reason[r], nxt[r], certified[r] = _UNDECIDED, np.inf, False
-            continue
-        # every candidate (ValueFilter._candidates): the one-period test, then whether it keeps, asked in the
-        # order of the lowest next certificate up to the first that does
+        # every candidate (ValueFilter._candidates): the one-period test, then whether it keeps, asked in the rule's
+        # order of preference (lowest next certificate, or nearest the policy's action) up to the first that does
         any_ok = False
         for j in range(J):
             c_ok[j], c_next[j], c_bad[j], c_zend[j], c_kept[j] = _assess(enclose, M, C, T, tr, xr, xr, zr, zr, cands[j],
                                                                           end_lo[j], end_hi[j], work, 2)
             any_ok = any_ok or c_ok[j]
-        order = np.argsort(np.where(c_ok, c_next, np.inf), kind="mergesort")
+            d = 0.0
+            for i in range(m):
+                q = (cands[j, i] - pol[r, i]) / a_half[i]
+                d += q * q
+            c_dist[j] = math.sqrt(d)
+            if smooth:
+                c_pref[j] = c_dist[j] if (c_ok[j] or c_kept[j]) else np.inf
+            else:
+                c_pref[j] = c_next[j] if c_ok[j] else np.inf
         keeps_j = -1
-        for j in order:
-            if not c_ok[j]:
+        for j in np.argsort(c_pref, kind="mergesort"):
+            if not (c_ok[j] or (smooth and c_kept[j])):
                 break
             if _keeps(enclose, M, C, T, cands, tr, zr, c_ok[j], c_next[j], end_lo[j], end_hi[j], c_zend[j], c_kept[j],
                       work, work_box):
                 keeps_j = j
                 break
         for j in range(J):
+            first = c_dist[j] if smooth else c_next[j]
             if j == keeps_j:
-                c_score[j] = c_next[j]
+                c_score[j] = first
             elif c_ok[j]:
-                c_score[j] = 5e5 + min(c_next[j], 1e5)
+                c_score[j] = 10.0 + c_dist[j] if smooth else 5e5 + min(c_next[j], 1e5)
             else:
                 c_score[j] = c_bad[j]
         best = np.argmin(c_score)
         best_next, best_bad = c_next[best], c_bad[best]
+        # the smooth rule: the largest step from the candidate towards the policy's action that passes (_bisect)
+        lam = 0.0
+        if smooth and iterations > 0:
+            lo, hi = 0.0, 1.0
+            for _ in range(iterations):
+                mid = 0.5 * (lo + hi)
+                for i in range(m):
+                    act[i] = cands[best, i] + mid * (pol[r, i] - cands[best, i])
+                b_ok, b_next, _, b_zend, b_kept = _assess(enclose, M, C, T, tr, xr, xr, zr, zr, act, end_lo[J],
+                                                          end_hi[J], work, 1)
+                if any_ok and _keeps(enclose, M, C, T, cands, tr, zr, b_ok, b_next, end_lo[J], end_hi[J], b_zend,
+                                     b_kept, work, work_box):
+                    lo, best_next = mid, b_next
+                else:
+                    hi = mid
+            lam = lo
+        for i in range(m):
+            act[i] = cands[best, i] + lam * (pol[r, i] - cands[best, i])
         # the plans (follow_plans): landing cells first, then safe cells
         for game in (_PLAN_LAND, _PLAN_SAFE):
             if game == _PLAN_LAND:
@@ -266,15 +289,16 @@ def decide_rows(enclose, M, C, T, cands, fallback, t, x, z, pol, plans, has_plan
                     continue
                 jj, left = cj, ck - 1
             best, best_next = jj, c_next[jj]
+            act[:] = cands[jj]
             best_bad = -1.0 if game == _PLAN_LAND else 0.9e6
             new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = jj, left, game
             if game == _PLAN_LAND:
                 any_ok = True
         bounded = best_bad < np.inf
-        applied[r] = cands[best] if bounded else fallback
+        applied[r] = act if bounded else fallback
         chosen[r] = cands[best]
-        nxt[r], certified[r] = best_next, any_ok
-        reason[r] = (_OPTIMAL if any_ok else _UNCERTIFIED) if bounded else _FALLBACK
+        nxt[r], certified[r], blend[r] = best_next, any_ok, lam
+        reason[r] = ((_BLEND if lam > 0 else _OPTIMAL) if any_ok else _UNCERTIFIED) if bounded else _FALLBACK
         if not _on_table(W, tr, xr, max(zr, 0.0), point, work):
             reason[r] = _OUTSIDE
 
@@ -298,6 +322,7 @@ class CompiledDecision:
 
     def __init__(self, vf: Any):
         la, model = vf.lookahead, vf.model
+        self.filter = vf
         boxes = model.set_boxes
 
         def box(name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -335,20 +360,20 @@ class CompiledDecision:
             return None
         return CompiledDecision(vf)
 
-    def __call__(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, pol: np.ndarray, plans: np.ndarray | None,
-                 pass_only: bool = False):
-        """``(applied, reason, value, next_value, certified, chosen, new_plans)`` for ``N`` rows; with
-        ``pass_only``, rows whose policy action fails get reason ``-1`` (undecided)."""
+    def __call__(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, pol: np.ndarray, plans: np.ndarray | None):
+        """``(applied, reason, value, next_value, certified, chosen, blend, new_plans)`` for ``N`` rows (physical
+        policy actions; ``plans`` the previous step's or ``None``)."""
         N, m = len(x), self.cands.shape[1]
         applied, chosen = np.empty((N, m)), np.empty((N, m))
         reason, new_plans = np.empty(N, np.int64), np.empty((N, 3), np.int64)
-        value, nxt, certified = np.empty(N), np.empty(N), np.empty(N, bool)
+        value, nxt, certified, blend = np.empty(N), np.empty(N), np.empty(N, bool), np.empty(N)
         # the enclosure reads rows by address: contiguous rows
         t, x, z, pol = (np.ascontiguousarray(v, dtype=np.float64) for v in (t, x, z, pol))
-        decide_rows(self.enclose, self.M, self.C, self.T, self.cands, self.fallback, t, x, z, pol,
-                    self.no_plans if plans is None else plans, plans is not None, pass_only, applied, reason, value,
-                    nxt, certified, chosen, new_plans)
-        return applied, reason, value, nxt, certified, chosen, new_plans
+        vf = self.filter
+        decide_rows(self.enclose, self.M, self.C, self.T, self.cands, self.fallback, vf.rule == "smooth",
+                    vf.smooth_iterations, vf.a_half, t, x, z, pol, self.no_plans if plans is None else plans,
+                    plans is not None, applied, reason, value, nxt, certified, chosen, blend, new_plans)
+        return applied, reason, value, nxt, certified, chosen, blend, new_plans
 
 
 def _plan_arrays(cells: Any) -> tuple[np.ndarray, np.ndarray]:

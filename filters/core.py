@@ -303,13 +303,8 @@ class ValueFilter:
         la = self.lookahead
         J = len(la.candidates)
         if self.compiled is not None:
-            # the whole switch rule compiled; for the smooth rule only the policy's action, the rows where it fails
-            # (reason -1) are decided below
-            applied, reason, value, nxt, ok, chosen, new_plans = self.compiled(tt, xs, zz, pol, plans,
-                                                                               pass_only=self.rule != "switch")
-            blend = (reason == PASS).astype(np.float64)
-            rows = np.nonzero(reason < 0)[0]
-            cand = self._candidates(tt[rows], xs[rows], zz[rows], pol[rows]) if len(rows) else None
+            applied, reason, value, nxt, ok, chosen, blend, new_plans = self.compiled(tt, xs, zz, pol, plans)
+            rows = np.zeros(0, np.int64)
         else:
             new_plans = np.tile(np.array(NO_PLAN, np.int64), (N, 1))
             value = la.certificate(tt, xs, zz)

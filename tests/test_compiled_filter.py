@@ -84,18 +84,19 @@ def test_compiled_filter_decides_as_the_numpy_filter(pointmass_held_table, rule)
         _same(one_info, {k: v[i] for k, v in info.items()})
 
 
-def test_compiled_filter_follows_the_same_plans_in_closed_loop(pointmass_held_table):
+@pytest.mark.parametrize("rule", ["switch", "smooth"])
+def test_compiled_filter_follows_the_same_plans_in_closed_loop(pointmass_held_table, rule):
     """Runs from landing-cell states, each filter fed back its own ``info["plan"]``, under winds that switch at
     random: the two filters apply the same actions and carry the same plans at every step (the plans are followed
     where no candidate's period ends in the cells)."""
-    fast, slow = _pair(pointmass_held_table)
+    fast, slow = _pair(pointmass_held_table, rule)
     model = fast.model
     rng = np.random.default_rng(11)
     cells = fast.landing_cells
     x = np.c_[rng.uniform(-14, 14, 4000), rng.uniform(0, 17, 4000)]
     z = rng.uniform(0, 0.6, 4000)
     keep = cells.contains(0.0, x, z)
-    x, z = x[keep][:200], z[keep][:200]
+    x, z = x[keep][:200 if rule == "switch" else 60], z[keep][:200 if rule == "switch" else 60]
     t = np.zeros(len(x))
     plans = {"fast": None, "slow": None}
     followed = 0
