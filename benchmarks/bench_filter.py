@@ -14,8 +14,10 @@ use). Each latency is the mean time per call over many calls, on fixed random in
   filter certifies (before the last 0.1 s), where a deployed policy spends its steps.
 * **batch of 1,024** — the same call on ``(1024, n)`` states (numpy). Target: under 1 ms. Once over the random
   states (most of them outside the sets, where the filter searches the candidates), once over certified ones.
-* the same for the smooth rule, for torch tensors (CPU) in and out, and, for scale, the ``Table`` API calls the
-  filter replaces (``Table.value`` + ``Table.optimal_control``).
+* the same for the smooth rule, for torch tensors (CPU) in and out, for the same filter without its compiled
+  decision (``numpy_*``: ``ValueFilter.compiled = None``, the numpy path every model without a compiled enclosure
+  takes), and, for scale, the ``Table`` API calls the filter replaces (``Table.value`` +
+  ``Table.optimal_control``).
 
 Each figure is given as the best and the median wall-clock time over the runs and the median CPU time of the
 process (on a machine shared with other jobs the wall clock includes their time slices; CPU time does not).
@@ -76,6 +78,9 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
     a = rng.uniform(-60, 60, (n, 1))
     switch = ValueFilter(table, DT)
     smooth = ValueFilter(table, DT, rule="smooth")
+    # the same decisions in numpy alone, side by side (where the model has no compiled enclosure, both are numpy)
+    numpy_only = ValueFilter(table, DT)
+    numpy_only.compiled = None
     # a single query cycles through the drawn states so that caches do not flatter it
     singles = [(float(t[i]), x[i].copy(), float(z[i]), a[i].copy()) for i in range(256)]
 
@@ -107,6 +112,10 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
         "switch_single_certified_us": _per_call(single_from(switch, inside), 300, repeats),
         "switch_batch1024_us": _per_call(lambda: switch.filter(t, x, z, a), 5, repeats),
         "switch_batch1024_certified_us": _per_call(lambda: switch.filter(*cert_batch), 5, repeats),
+        "numpy_switch_single_us": _per_call(single(numpy_only), 100, repeats),
+        "numpy_switch_single_certified_us": _per_call(single_from(numpy_only, inside), 100, repeats),
+        "numpy_switch_batch1024_us": _per_call(lambda: numpy_only.filter(t, x, z, a), 2, repeats),
+        "numpy_switch_batch1024_certified_us": _per_call(lambda: numpy_only.filter(*cert_batch), 2, repeats),
         "smooth_single_us": _per_call(single(smooth), 100, repeats),
         "smooth_batch1024_us": _per_call(lambda: smooth.filter(t, x, z, a), 2, repeats),
         "table_api_single_us": _per_call(lambda: (table.value(t[:1], x[:1], z[:1]),

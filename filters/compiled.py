@@ -36,7 +36,7 @@ _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7
 _PLAN_LAND, _PLAN_SAFE = 1, 2
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def box_excess(box_lo, box_hi, lo, hi):
     """The largest value of the box distance :func:`~softreach.reach.sets.box` of ``[box_lo, box_hi]`` over the
     box ``[lo, hi]``: per axis the larger of ``box_lo - lo`` and ``hi - box_hi`` (the corners' terms), the largest
@@ -53,7 +53,7 @@ def box_excess(box_lo, box_hi, lo, hi):
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
     """:meth:`Lookahead._budget_spent` over the pieces ``[edges[j], edges[j + 1]]`` of a held action's motion."""
     params, eps, soft = M[0], M[1], M[2]
@@ -66,7 +66,7 @@ def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
     """:meth:`Lookahead._lands` of one row: at some check instant ``s`` every run is in the target inside ``C2``,
     the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``."""
@@ -170,7 +170,7 @@ def _keeps(enclose, M, C, T, cands, t, z, ok, nxt, end_lo, end_hi, z_end, kept, 
     return False
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _plan(cells, action, hold, t, x):
     """:meth:`CellCertificate.plan` of one state: ``(candidate, periods)``, ``(-1, 0)`` off the grid."""
     m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
@@ -303,7 +303,7 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
             reason[r] = _OUTSIDE
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _on_table(W, t, x, z, point, work):
     """:meth:`Table.inside` of a ``W_eps`` table: the interpolant of ``W_eps`` is finite at ``(t, x, z)`` (a budget
     above the grid is read at its top)."""

@@ -4,7 +4,9 @@ A filter decision asks a few hundred tiny questions of a table and of the cells 
 box, which cells a box touches); numpy answers each with a dozen calls whose fixed cost dwarfs the arithmetic, so
 these loops are compiled instead, and the numpy-facing functions (:func:`softreach.reach.box_max.box_max`,
 :meth:`~softreach.reach.cell_certificate.CellCertificate.covered`) call them. Compiled code is cached on disk
-(numba's ``cache=True``): the first process on a machine compiles for a few seconds, later ones load it.
+(numba's ``cache=True``): the first process on a machine compiles for a few seconds, later ones load it. Small
+functions that are handed the filter's large tuples of arrays are inlined (``inline="always"``): such a call costs
+more than their work; the box maximum is not, which would make the first compilation half as long again.
 
 Grids are passed as arrays: ``shape`` (int64), ``glo`` and ``ghi`` the first and last node (float64), ``inv_h``
 ``1 / spacing``, ``periodic`` (bool); a field's values as ``(n_times, size)``, C-ordered.
@@ -28,7 +30,7 @@ TOL = 1e-9
 MAX_NODES = 3
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def snapshot(times, t):
     """``(k, wt)``: the snapshot interval ``[times[k], times[k + 1]]`` of ``t`` and the later snapshot's weight,
     clamped to ``[0, 1]`` (:func:`softreach.reach.interpolation.snapshot_pair`)."""
@@ -193,7 +195,7 @@ def box_max_rows(field, t, lo, hi, max_nodes, out):
         out[r] = box_max_row(field, t[r], lo[r], hi[r], max_nodes, scratch)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def certificate_row(W, z_top, z_floor, V, has_V, t, x, z, point, scratch_W, scratch_V):
     """``D(t, x, z) = min(V~(t, x), W~(t, x, min(z, z_top)))`` (:meth:`~softreach.reach.lookahead.Lookahead.
     certificate`); ``+inf`` off the grid or the time span, at a budget below the table's (``W``) or a negative one
@@ -244,7 +246,7 @@ def budget_floor(z, dz, top):
     return j
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def cover_row(cells, t, lo, hi, z):
     """Whether every cell the box ``[lo, hi]`` touches (closed cells; a box reaching the grid's upper end exactly
     touches the last cell only) is good at sample time ``t`` with budget ``z``: on the grid, ``t`` not past the
