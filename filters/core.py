@@ -20,6 +20,10 @@ makes a candidate exist there again (its value is the minimum over the same cand
 free at every instant), and the audit (``benchmarks/audit_filter.py``) counts the rare states where none does
 (reason ``"uncertified"``). With a continuous-time table the same checks run, but nothing is certified.
 
+Where the model gives its enclosure compiled, :class:`ValueFilter` runs this same decision compiled, row by row
+(:mod:`softreach.filters.compiled`, :attr:`ValueFilter.compiled`); the numpy code below is the reference it is
+tested against and what every other model runs.
+
 Everything works on batches: ``t`` and ``z`` are scalars or ``(N,)``, ``x`` is ``(N, n)`` (or ``(n,)``), actions
 ``(N, m)`` (or ``(m,)``) in physical units unless ``normalized=True``. numpy in, numpy out; torch in, torch out.
 Non-finite or wrongly shaped inputs raise :class:`ValueError` naming the value; states outside the table are
