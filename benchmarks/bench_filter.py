@@ -19,6 +19,8 @@ use). Each latency is the mean time per call over many calls, on fixed random in
   takes), and, for scale, the ``Table`` API calls the filter replaces (``Table.value`` +
   ``Table.optimal_control``).
 
+Then one ``step`` of ``PointMassLanding-v0``, bare and in ``SafetyFilter``: what the filter adds to a training step.
+
 Each figure is given as the best and the median wall-clock time over the runs and the median CPU time of the
 process (on a machine shared with other jobs the wall clock includes their time slices; CPU time does not).
 
@@ -134,6 +136,35 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
     return {k: {kind: v * 1e6 for kind, v in d.items()} for k, d in out.items()}
 
 
+def env_steps(table, repeats: int, steps: int = 3000) -> dict[str, float]:
+    """Microseconds per ``step`` of ``PointMassLanding-v0`` with uniformly random actions (resets included), bare
+    and wrapped in :class:`SafetyFilter` with a filter on ``table``: what the filter adds to a training step. The
+    best of ``repeats`` runs, taken round robin."""
+    import gymnasium as gym
+
+    import softreach.envs  # noqa: F401  (registers the ids)
+    from softreach.filters import SafetyFilter
+
+    def make(filtered: bool):
+        env = gym.make("softreach/PointMassLanding-v0")
+        return SafetyFilter(env, table) if filtered else env
+
+    envs = {"env_step_us": make(False), "safety_filter_step_us": make(True)}
+    best = {k: float("inf") for k in envs}
+    for _ in range(repeats):
+        for key, env in envs.items():
+            rng = np.random.default_rng(0)
+            actions = rng.uniform(-1, 1, (steps, 1)).astype(np.float32)
+            env.reset(seed=0)
+            t0 = time.perf_counter()
+            for a in actions:
+                _, _, terminated, truncated, _ = env.step(a)
+                if terminated or truncated:
+                    env.reset()
+            best[key] = min(best[key], (time.perf_counter() - t0) / steps * 1e6)
+    return best
+
+
 def evaluate(table) -> dict:
     """Closed-loop comparison of the two rules (and no filter) with a random policy."""
     model = table.model
@@ -215,6 +246,9 @@ def main(argv: list[str] | None = None) -> dict:
               f"decision: {first * 1e3:.0f} ms; compiled decision: {vf.compiled is not None}")
         lat = latency(table, args.repeats)
         results["latency_us"] = lat
+        results["env_step_us"] = steps = env_steps(table, args.repeats)
+        print(f"PointMassLanding-v0 step: {steps['env_step_us']:.1f} us bare, {steps['safety_filter_step_us']:.1f} us "
+              f"in SafetyFilter (random actions, resets included; best of {args.repeats})")
         print(f"{'latency [us]':32s} {'wall best':>10s} {'wall median':>12s} {'cpu median':>11s}")
         for k, v in lat.items():
             print(f"{k:32s} {v['wall_best']:10.1f} {v['wall_median']:12.1f} {v['cpu_median']:11.1f}")
