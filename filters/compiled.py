@@ -29,7 +29,7 @@ import numpy as np
 
 from softreach.reach.box_max import kernel_field
 from softreach.reach.kernels import (MAX_NODES, box_max_row, box_scratch, call_held_box, certificate_row, cover_row,
-                                    held_box_address, step_index)
+                                    held_box_address, plan_row)
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7
@@ -170,23 +170,6 @@ def _keeps(enclose, M, C, T, cands, t, z, ok, nxt, end_lo, end_hi, z_end, kept, 
     return False
 
 
-@nb.njit(cache=True, inline="always")
-def _plan(cells, action, hold, t, x):
-    """:meth:`CellCertificate.plan` of one state: ``(candidate, periods)``, ``(-1, 0)`` off the grid."""
-    m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
-    off, stride = 0, 1
-    for a in range(len(shape) - 1, -1, -1):
-        f = math.floor((x[a] - clo[a]) / width[a])
-        g = shape[a] - 1.0 if x[a] == chi[a] else f
-        if not (math.isfinite(f) and f >= 0 and g <= shape[a] - 1):
-            return -1, 0
-        off += int(min(f, shape[a] - 1.0)) * stride
-        stride *= shape[a]
-    k = step_index(t, dt, steps, safe)
-    j = int(action[k, off])
-    return (j, int(hold[k, off])) if j >= 0 else (-1, 0)
-
-
 @nb.njit(cache=True)
 def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t, x, z, pol, plans, has_plans,
                 applied, reason, value, nxt, certified, chosen, blend, new_plans):
@@ -284,7 +267,7 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
             if follow:
                 jj, left = pj, pk - 1
             else:
-                cj, ck = _plan(cells, plan_cells[0], plan_cells[1], tr, xr)
+                cj, ck = plan_row(cells, plan_cells[0], plan_cells[1], tr, xr)
                 if not (cj >= 0 and cover_row(cells, tr, xr, xr, zr)):
                     continue
                 jj, left = cj, ck - 1
@@ -340,7 +323,7 @@ class CompiledDecision:
                   la.horizon)
         safe, land = vf.safe_cells, vf.landing_cells
         some = safe if safe is not None else land
-        self.C = (some.kernel_args, safe is not None, land.kernel_args, _plan_arrays(some), _plan_arrays(land))
+        self.C = (some.kernel_args, safe is not None, land.kernel_args, some.plan_args, land.plan_args)
         W_args = la.table_args
         has_S = "V_safe" in la.fields
         self.T = W_args + ((kernel_field(*la.fields["V_safe"]) if has_S else W_args[3]), has_S)
@@ -374,8 +357,3 @@ class CompiledDecision:
                     vf.smooth_iterations, vf.a_half, t, x, z, pol, self.no_plans if plans is None else plans,
                     plans is not None, applied, reason, value, nxt, certified, chosen, blend, new_plans)
         return applied, reason, value, nxt, certified, chosen, blend, new_plans
-
-
-def _plan_arrays(cells: Any) -> tuple[np.ndarray, np.ndarray]:
-    """A cell certificate's plans, one row of cells per sample time (memory maps stay mapped)."""
-    return (np.asarray(cells.action).reshape(cells.steps + 1, -1), np.asarray(cells.hold).reshape(cells.steps + 1, -1))

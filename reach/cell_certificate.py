@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from .kernels import budget_floor_rows, cover_rows, step_rows
+from .kernels import budget_floor_rows, cover_rows, plan_rows, step_rows
 
 
 class _LastPlans:
@@ -114,6 +114,9 @@ class CellCertificate:
         self.kernel_args = (np.asarray(self.m).reshape(self.steps + 1, -1), np.asarray(self.shape, dtype=np.int64),
                             self.lo, self.hi, self.width, self.dt, self.dz, self.top, self.steps, self.horizon,
                             self.game == "safe")
+        #: the plans, one row of cells per sample time, as :func:`softreach.reach.kernels.plan_row` reads them
+        self.plan_args = (np.asarray(self.action).reshape(self.steps + 1, -1),
+                          np.asarray(self.hold).reshape(self.steps + 1, -1))
 
     # ---------------------------------------------------------------- building
     @classmethod
@@ -306,11 +309,11 @@ class CellCertificate:
     def plan(self, t: Any, x: Any) -> tuple[np.ndarray, np.ndarray]:
         """The stored plan of each state's cell: ``(candidate index, periods to hold it)``; ``(-1, 0)`` off the grid
         or where no budget suffices. It is good for the state when :meth:`contains` says so."""
-        x = np.atleast_2d(np.asarray(x, dtype=np.float64))
-        first, _, on = self._cell_range(x, x)
-        ix = (self.step_index(np.broadcast_to(t, (len(x),))),) + tuple(first.T)
-        act = np.where(on, self.action[ix], -1).astype(np.int64)
-        return act, np.where(act >= 0, self.hold[ix], 0).astype(np.int64)
+        x = np.ascontiguousarray(np.atleast_2d(np.asarray(x, dtype=np.float64)))
+        t = np.ascontiguousarray(np.broadcast_to(np.asarray(t, dtype=np.float64), (len(x),)))
+        act, hold = np.empty(len(x), np.int64), np.empty(len(x), np.int64)
+        plan_rows(self.kernel_args, *self.plan_args, t, x, act, hold)
+        return act, hold
 
     def fraction(self, k: int, z: float) -> float:
         """The share of ``C1``'s cells good at sample ``k`` with budget ``z``."""

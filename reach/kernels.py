@@ -288,6 +288,32 @@ def cover_row(cells, t, lo, hi, z):
     return budget_floor(z, dz, top) >= need
 
 
+@nb.njit(cache=True, inline="always")
+def plan_row(cells, action, hold, t, x):
+    """The stored plan of the cell holding ``x`` at sample time ``t``: ``(candidate index, periods to hold it)``,
+    ``(-1, 0)`` off the grid or where no budget suffices (:meth:`~softreach.reach.cell_certificate.CellCertificate.
+    plan`; ``action``, ``hold`` its ``plan_args``)."""
+    m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
+    off, stride = 0, 1
+    for a in range(len(shape) - 1, -1, -1):
+        f = math.floor((x[a] - clo[a]) / width[a])
+        g = shape[a] - 1.0 if x[a] == chi[a] else f
+        if not (math.isfinite(f) and f >= 0 and g <= shape[a] - 1):
+            return -1, 0
+        off += int(min(f, shape[a] - 1.0)) * stride
+        stride *= shape[a]
+    k = step_index(t, dt, steps, safe)
+    j = int(action[k, off])
+    return (j, int(hold[k, off])) if j >= 0 else (-1, 0)
+
+
+@nb.njit(cache=True)
+def plan_rows(cells, action, hold, t, x, out_action, out_hold):
+    """:func:`plan_row` for every row."""
+    for r in range(len(x)):
+        out_action[r], out_hold[r] = plan_row(cells, action, hold, t[r], x[r])
+
+
 @nb.njit(cache=True)
 def cover_rows(cells, t, lo, hi, z, out):
     """:func:`cover_row` for every row."""
