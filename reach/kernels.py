@@ -1,16 +1,14 @@
 """Compiled loops behind the safety filter's per-decision mechanisms (numba, one row at a time).
 
-A filter decision asks a few hundred tiny questions of a table and of the cells (the interpolant's maximum over a
-box, which cells a box touches); numpy answers each with a dozen calls whose fixed cost dwarfs the arithmetic, so
-these loops are compiled instead, and the numpy-facing functions (:func:`softreach.reach.box_max.box_max`,
-:meth:`~softreach.reach.cell_certificate.CellCertificate.covered`) call them. Compiled code is cached on disk
-(numba's ``cache=True``): the first process on a machine compiles for a few seconds, later ones load it. Small
-functions that are handed the filter's large tuples of arrays are inlined (``inline="always"``): such a call costs
-more than their work; the box maximum is not, which would make the first compilation half as long again.
-
-Grids are passed as arrays: ``shape`` (int64), ``glo`` and ``ghi`` the first and last node (float64), ``inv_h``
-``1 / spacing``, ``periodic`` (bool); a field's values as ``(n_times, size)``, C-ordered.
-"""
+A filter decision asks a few hundred tiny questions of a table and of the cells; numpy answers each with a dozen
+calls whose fixed cost dwarfs the arithmetic, so they are compiled here, once each, and both the numpy-facing
+functions and the compiled decision (:mod:`softreach.filters.compiled`) call them: the interpolant's maximum over a
+box (:func:`softreach.reach.box_max.box_max`; the certificate at a state is the same with a box of no width), the
+cells' cover test and plans (:class:`~softreach.reach.cell_certificate.CellCertificate`), and the call of a
+model's compiled enclosure by address. Compiled code is cached on disk (numba's ``cache=True``): the first process
+on a machine compiles it (about 20 s with the decision), later ones load it. Small functions that are handed the
+filter's large tuples of arrays are inlined (``inline="always"``): such a call costs more than their work; the box
+maximum is not, which would make the first compilation half as long again."""
 
 from __future__ import annotations
 
