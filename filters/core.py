@@ -43,11 +43,7 @@ from softreach.reach.lookahead import Lookahead
 
 from .compiled import CompiledDecision
 from .plans import NO_PLAN, PLAN_LAND, PLAN_SAFE, check_plans, follow_plans, resolve_cells
-
-try:  # torch is a base dependency, but keep numpy-only use possible
-    import torch
-except ImportError:  # pragma: no cover - exercised only without torch
-    torch = None  # type: ignore[assignment]
+from .tensors import first_bad, to_numpy, to_torch
 
 __all__ = ["NO_PLAN", "PLAN_LAND", "PLAN_SAFE", "PASS", "BLEND", "OPTIMAL", "OUTSIDE", "AFTER_HORIZON", "NONFINITE",
            "FALLBACK", "UNCERTIFIED", "REASONS", "RULES", "CERTIFY_REASONS", "ValueFilter"]
@@ -77,24 +73,6 @@ RULES = ("switch", "smooth")
 #: why a state is or is not certified (:meth:`ValueFilter.certify`)
 CERTIFY_REASONS = ("certified", "table_not_sampled", "outside_table", "after_horizon", "not_in_set",
                    "no_certified_action")
-
-
-def _to_numpy(v: Any) -> tuple[np.ndarray, Any]:
-    """A float64 numpy copy of ``v`` and the tensor it came from (``None`` for non-tensors)."""
-    if torch is not None and isinstance(v, torch.Tensor):
-        return v.detach().to("cpu", torch.float64).numpy(), v
-    return np.asarray(v, dtype=np.float64), None
-
-
-def _first_bad(arr: np.ndarray) -> str:
-    bad = ~np.isfinite(arr)
-    if arr.ndim == 2:
-        row = int(np.nonzero(bad.any(axis=1))[0][0])
-        return f"{arr[row].tolist()} at row {row}"
-    if arr.ndim == 1:
-        i = int(np.nonzero(bad)[0][0])
-        return f"{arr[i]!r} at index {i}"
-    return repr(float(arr))
 
 
 class ValueFilter:
@@ -187,7 +165,7 @@ class ValueFilter:
         return (np.asarray(physical, dtype=np.float64) - self.a_mid) / self.a_half
 
     def _inputs(self, t: Any, x: Any, z: Any, action: Any | None):
-        xs, x_tensor = _to_numpy(x)
+        xs, x_tensor = to_numpy(x)
         single = xs.ndim == 1
         if single:
             xs = xs[None, :]
@@ -197,7 +175,7 @@ class ValueFilter:
         N = len(xs)
         cols = []
         for name, v in (("t", t), ("z", z)):
-            arr, _ = _to_numpy(v)
+            arr, _ = to_numpy(v)
             arr = arr.reshape(-1)
             if arr.size == 1:
                 arr = np.full(N, float(arr[0]))
@@ -207,17 +185,17 @@ class ValueFilter:
         tt, zz = cols
         for name, arr in (("x", xs), ("t", tt), ("z", zz)):
             if not np.isfinite(arr).all():
-                raise ValueError(f"{name} must be finite, got {_first_bad(arr)}")
+                raise ValueError(f"{name} must be finite, got {first_bad(arr)}")
         act = tensor = None
         if action is not None:
-            act, tensor = _to_numpy(action)
+            act, tensor = to_numpy(action)
             if act.ndim == 1 and single:
                 act = act[None, :]
             if act.ndim != 2 or act.shape != (N, self.m):
                 raise ValueError(f"action must have shape ({N}, {self.m})" + (f" or ({self.m},)" if single else "")
                                  + f" to match x, got {tuple(np.shape(action))}")
             if not np.isfinite(act).all():
-                raise ValueError(f"action must be finite, got {_first_bad(act)}")
+                raise ValueError(f"action must be finite, got {first_bad(act)}")
         ref = tensor if tensor is not None else x_tensor
         return tt, xs, zz, act, single, ref
 
@@ -377,7 +355,7 @@ class ValueFilter:
             applied = applied[0]
             info = {k: v[0] for k, v in info.items()}
         if ref is not None:
-            applied, info = _to_torch(applied, info, ref, action)
+            applied, info = to_torch(applied, info, ref, action)
         info["plan"] = new_plans[0] if single else new_plans
         return applied, info
 
@@ -428,24 +406,3 @@ class ValueFilter:
             hi = np.where(ok, hi, mid)
             nxt = np.where(ok, val, nxt)
         return lo, nxt
-
-
-def _to_torch(applied: np.ndarray, info: dict[str, Any], ref: Any, action: Any):
-    """Convert the outputs to tensors on the reference tensor's device, in its floating dtype."""
-    dtype = ref.dtype if ref.dtype.is_floating_point else torch.float32
-    if torch is not None and isinstance(action, torch.Tensor) and action.dtype.is_floating_point:
-        dtype_a = action.dtype
-    else:
-        dtype_a = dtype
-    dev = ref.device
-    out = {}
-    for key, v in info.items():
-        if key == "active":
-            out[key] = torch.as_tensor(np.asarray(v), dtype=torch.bool, device=dev)
-        elif key == "reason":
-            out[key] = torch.as_tensor(np.asarray(v), dtype=torch.int64, device=dev)
-        elif key == "optimal_action":
-            out[key] = torch.as_tensor(np.asarray(v), dtype=dtype_a, device=dev)
-        else:
-            out[key] = torch.as_tensor(np.asarray(v), dtype=dtype, device=dev)
-    return torch.as_tensor(np.asarray(applied), dtype=dtype_a, device=dev), out

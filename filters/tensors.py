@@ -1,0 +1,53 @@
+"""numpy in, numpy out; torch in, torch out: the conversions around :meth:`~softreach.filters.ValueFilter.filter`,
+and the message naming a non-finite input."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+try:  # torch is a base dependency, but keep numpy-only use possible
+    import torch
+except ImportError:  # pragma: no cover - exercised only without torch
+    torch = None  # type: ignore[assignment]
+
+
+def to_numpy(v: Any) -> tuple[np.ndarray, Any]:
+    """A float64 numpy copy of ``v`` and the tensor it came from (``None`` for non-tensors)."""
+    if torch is not None and isinstance(v, torch.Tensor):
+        return v.detach().to("cpu", torch.float64).numpy(), v
+    return np.asarray(v, dtype=np.float64), None
+
+
+def first_bad(arr: np.ndarray) -> str:
+    """The first non-finite entry of ``arr`` and where it is, for an error message."""
+    bad = ~np.isfinite(arr)
+    if arr.ndim == 2:
+        row = int(np.nonzero(bad.any(axis=1))[0][0])
+        return f"{arr[row].tolist()} at row {row}"
+    if arr.ndim == 1:
+        i = int(np.nonzero(bad)[0][0])
+        return f"{arr[i]!r} at index {i}"
+    return repr(float(arr))
+
+
+def to_torch(applied: np.ndarray, info: dict[str, Any], ref: Any, action: Any):
+    """Convert the outputs to tensors on the reference tensor's device, in its floating dtype."""
+    dtype = ref.dtype if ref.dtype.is_floating_point else torch.float32
+    if torch is not None and isinstance(action, torch.Tensor) and action.dtype.is_floating_point:
+        dtype_a = action.dtype
+    else:
+        dtype_a = dtype
+    dev = ref.device
+    out = {}
+    for key, v in info.items():
+        if key == "active":
+            out[key] = torch.as_tensor(np.asarray(v), dtype=torch.bool, device=dev)
+        elif key == "reason":
+            out[key] = torch.as_tensor(np.asarray(v), dtype=torch.int64, device=dev)
+        elif key == "optimal_action":
+            out[key] = torch.as_tensor(np.asarray(v), dtype=dtype_a, device=dev)
+        else:
+            out[key] = torch.as_tensor(np.asarray(v), dtype=dtype, device=dev)
+    return torch.as_tensor(np.asarray(applied), dtype=dtype_a, device=dev), out
