@@ -42,6 +42,20 @@ def snapshot(times, t):
     return k, wt
 
 
+@nb.njit(cache=True, inline="always")
+def _node_offset(q, first, extent, shape, periodic):
+    """The flat index of the ``q``-th node (the last axis fastest) of the block of ``extent`` nodes from ``first``
+    along each axis: wrapped along a periodic axis, held at the grid's last node along another."""
+    off, stride = 0, 1
+    for a in range(len(shape) - 1, -1, -1):
+        node = first[a] + q % extent[a]
+        q //= extent[a]
+        node = node % shape[a] if periodic[a] else min(node, shape[a] - 1)
+        off += node * stride
+        stride *= shape[a]
+    return off
+
+
 @nb.njit(cache=True)
 def _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first, count, buf_a, buf_b, coord_cell,
                  coord_frac):
@@ -77,14 +91,7 @@ def _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first
     for a in range(D):
         size *= dims[a]
     for q in range(size):
-        rest = q
-        off = 0
-        stride = 1
-        for a in range(D - 1, -1, -1):
-            i = base[a] + rest % dims[a]
-            rest //= dims[a]
-            off += (i % shape[a]) * stride
-            stride *= shape[a]
+        off = _node_offset(q, base, dims, shape, periodic)
         v = flat[k, off]
         buf_a[q] = (1.0 - wt) * v + wt * flat[k + 1, off] if wt > 0.0 else v
     # contract axis by axis: each lattice coordinate reads its cell's two nodes
@@ -169,15 +176,7 @@ def box_max_row(field, t, lo, hi, max_nodes, scratch):
         P *= count[a]
     best = -np.inf
     for p in range(P):
-        rest = p
-        off = 0
-        stride = 1
-        for a in range(D - 1, -1, -1):
-            node = first[a] + rest % count[a]
-            rest //= count[a]
-            node = node % shape[a] if periodic[a] else min(node, shape[a] - 1)
-            off += node * stride
-            stride *= shape[a]
+        off = _node_offset(p, first, count, shape, periodic)
         v0, v1 = flat[k, off], flat[k2, off]
         if math.isnan(v0) or math.isnan(v1):
             return np.nan
