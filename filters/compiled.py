@@ -268,7 +268,8 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
                 jj, left = pj, pk - 1
             else:
                 cj, ck = plan_row(cells, plan_cells[0], plan_cells[1], tr, xr)
-                if not (cj >= 0 and cover_row(cells, tr, xr, xr, zr)):
+                # (a candidate index past the set can only come from a damaged file: no plan, never a wild read)
+                if not (0 <= cj < J and cover_row(cells, tr, xr, xr, zr)):
                     continue
                 jj, left = cj, ck - 1
             best, best_next = jj, c_next[jj]
