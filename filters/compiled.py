@@ -150,7 +150,7 @@ def _assess(enclose, M, C, T, t, x_lo, x_hi, z, z_hi, a, end_lo, end_hi, work, l
         bad = 5e6 + max(c1, 0.0)
     if not ok:
         nxt = np.inf
-    return passing, nxt, bad, z_end, (kept and safe_end) or lands
+    return passing, nxt, bad, z_end, kept or lands
 
 
 @nb.njit(cache=True)

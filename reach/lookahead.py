@@ -324,7 +324,7 @@ class Lookahead:
         bad = np.where(bounded & ~in_c1 & ~lands, 5e6 + np.maximum(c1, 0.0), bad)
         nxt = np.where(ok, nxt, np.inf)
         out = (passing, nxt, bad)
-        return out + (end_lo, end_hi, z_end, (kept & safe_end) | lands) if ends else out
+        return out + (end_lo, end_hi, z_end, kept | lands) if ends else out
 
     def _meets_target(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """Rows whose box ``[lo, hi]`` meets the model's :attr:`~softreach.reach.problem.Model.target_box`: a
