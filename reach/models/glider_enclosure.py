@@ -1,15 +1,165 @@
 """Validated enclosures of the glider's motion over one control period with the angle of attack held
-(:meth:`GliderHeldEnclosure.held_enclosure`), in interval arithmetic; the safety filter's look-ahead reads them."""
+(:meth:`GliderHeldEnclosure.held_enclosure`), in interval arithmetic; the safety filter's look-ahead reads them.
+
+The enclosure is one compiled kernel (:func:`held_box_kernel`, numba): the numpy methods run it row by row, and the
+filter's compiled decision calls it by address (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`), so
+both read the same boxes."""
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
+import numba as nb
 import numpy as np
 
-from ..intervals import (round_down, round_up, iv_point, iv_add, iv_sub, iv_mul,
-                         iv_div_pos, iv_sqr_pos, iv_sin, iv_cos, iv_hull_step, HALF_PI)
+from ..intervals import HALF_PI, ROUND_ABS, ROUND_REL
 from .glider_params import GliderParams
+
+#: inflation of a failed Picard candidate: relative to its width, and absolute (plus relative to |x|) so that a
+#: zero-width side still grows
+_INFLATE_REL, _INFLATE_ABS, _INFLATE_STATE = 0.1, 1e-9, 1e-6
+#: Picard candidates tried before a row is declared to have no enclosure, and refinements of a found tube
+_MAX_TRIES, _REFINE = 20, 3
+
+
+@nb.njit(cache=True, inline="always")
+def _dn(v):
+    return v - (abs(v) * ROUND_REL + ROUND_ABS)
+
+
+@nb.njit(cache=True, inline="always")
+def _up(v):
+    return v + (abs(v) * ROUND_REL + ROUND_ABS)
+
+
+@nb.njit(cache=True, inline="always")
+def _mul(a0, a1, b0, b1):
+    # the extremes of a bilinear function over a box lie at its corners, whatever the signs
+    p1, p2, p3, p4 = a0 * b0, a0 * b1, a1 * b0, a1 * b1
+    return _dn(min(min(p1, p2), min(p3, p4))), _up(max(max(p1, p2), max(p3, p4)))
+
+
+@nb.njit(cache=True, inline="always")
+def _div_pos(a0, a1, b0, b1):
+    """``a / b`` for ``b0 > 0``: ``1 / b`` is decreasing, so its ends swap."""
+    return _mul(a0, a1, _dn(1.0 / b1), _up(1.0 / b0))
+
+
+@nb.njit(cache=True)
+def _field(P, c0, c1, lo, hi, out_lo, out_hi):
+    """Interval extension of :meth:`Glider.f` over the state box ``[lo, hi]``, the lift coefficients ``[c0, c1]``
+    and every wind in ``[-wind_max, wind_max]``, written into ``out_lo``, ``out_hi``: the formulas of ``f`` term by
+    term, each result rounded outwards (sin increasing and cos unimodal on ``(-pi/2, pi/2)``), so every value of
+    ``f`` over the box lies in it (inclusion property). ``P`` is :attr:`GliderHeldEnclosure.held_box_params`.
+
+    :return: ``False`` where the box leaves the formulas' domain (``V <= 0`` or ``|gamma| >= pi/2``, or NaN)
+    """
+    cd0, cd_k, mass, g, half_rho_s, wind_max = P[2], P[3], P[4], P[5], P[6], P[7]
+    V0, V1, g0, g1 = lo[1], hi[1], lo[2], hi[2]
+    if not (V0 > 0.0 and g0 > -HALF_PI and g1 < HALF_PI):
+        return False
+    s0, s1 = _dn(math.sin(g0)), _up(math.sin(g1))
+    k0, k1 = math.cos(g0), math.cos(g1)
+    cg0, cg1 = _dn(min(k0, k1)), _up(1.0 if (g0 <= 0.0 and g1 >= 0.0) else max(k0, k1))
+    out_lo[0], out_hi[0] = _mul(V0, V1, s0, s1)
+    cc0, cc1 = _mul(c0, c1, c0, c1)
+    q0, q1 = _mul(cd_k, cd_k, cc0, cc1)
+    dc0, dc1 = _dn(cd0 + q0), _up(cd0 + q1)
+    d0, d1 = _mul(dc0, dc1, _dn(V0 * V0), _up(V1 * V1))
+    drag0, drag1 = _div_pos(d0, d1, mass, mass)
+    w0, w1 = _div_pos(-wind_max, wind_max, mass, mass)
+    gs0, gs1 = _mul(g, g, s0, s1)
+    a0, a1 = _dn(w0 - drag1), _up(w1 - drag0)
+    out_lo[1], out_hi[1] = _dn(a0 - gs1), _up(a1 - gs0)
+    l0, l1 = _mul(half_rho_s, half_rho_s, c0, c1)
+    l0, l1 = _mul(l0, l1, V0, V1)
+    l0, l1 = _div_pos(l0, l1, mass, mass)
+    gc0, gc1 = _mul(g, g, cg0, cg1)
+    r0, r1 = _div_pos(gc0, gc1, V0, V1)
+    out_lo[2], out_hi[2] = _dn(l0 - r1), _up(l1 - r0)
+    return True
+
+
+@nb.njit(cache=True, inline="always")
+def _hull_step(x_lo, x_hi, s, d_lo, d_hi, out_lo, out_hi):
+    """``[x_lo, x_hi] + [0, s] * [d_lo, d_hi]`` (``s >= 0``), rounded outwards."""
+    for i in range(len(x_lo)):
+        out_lo[i] = _dn(x_lo[i] + _dn(s * min(d_lo[i], 0.0)))
+        out_hi[i] = _up(x_hi[i] + _up(s * max(d_hi[i], 0.0)))
+
+
+@nb.njit(cache=True)
+def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
+    """The box of every state reachable at some time in ``[s0, s1]`` of a period with ``alpha = a[0]`` held, from
+    every start in ``[x_lo, x_hi]``, for every wind signal of the box, written into ``lo`` and ``hi``; NaN where
+    no enclosure is found. ``params``: :attr:`GliderHeldEnclosure.held_box_params`.
+
+    Method, and why each step is sound:
+
+    1. ``F(X)``, the interval extension :func:`_field`: ``f(y, alpha, w)`` lies in ``F(X)`` for every ``y`` in the
+       box ``X`` and wind ``w``, despite floating point (each result widened by a few ulps).
+    2. Tube (Picard, a-priori enclosure): if ``Y = [x_lo, x_hi] + [0, s1] F(X)`` lies strictly inside ``X``, every
+       trajectory stays in ``X`` on ``[0, s1]``. Were there a first exit time ``s* <= s1``, on ``[0, s*]`` the
+       path is in ``X``, so ``x(s*) - x(0)``, the integral of ``f``, lies in ``s* F(X)``, hence ``x(s*)`` in
+       ``Y``, the interior of ``X``: a contradiction. The bound keeps the solution in a compact set, so it exists
+       on all of ``[0, s1]``; it uses only the values of ``f``, so it holds for any measurable wind, also one that
+       switches at any instant or answers the control. Candidates start from the Euler hull
+       ``[x_lo, x_hi] + [0, s1] F([x_lo, x_hi])``; a failed one is replaced by its ``Y``, inflated, and retried.
+    3. Refinement: once ``X`` holds every trajectory, the argument of 2 shows that ``Y`` does too, so ``X`` is
+       intersected with it a few times without a new containment test.
+    4. The box of ``[s0, s1]``: ``x(s) - x(0)`` lies in ``s F(X)``, whose ends are linear in ``s``, so over
+       ``s`` in ``[s0, s1]`` every ``x(s)`` is in ``[x_lo + min(s0 d_lo, s1 d_lo), x_hi + max(s0 d_hi, s1 d_hi)]``
+       (``[d_lo, d_hi] = F(X)``), intersected with ``X``. With ``s0 = s1`` it is the end box at ``s1``.
+    """
+    n = len(x_lo)
+    P = params
+    alpha = a[0]
+    c0, c1 = _mul(P[1], P[1], alpha, alpha)
+    c0, c1 = _dn(P[0] + c0), _up(P[0] + c1)
+    d_lo, d_hi = np.empty(n), np.empty(n)
+    X_lo, X_hi, Y_lo, Y_hi = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    for i in range(n):
+        lo[i], hi[i] = np.nan, np.nan
+    if not _field(P, c0, c1, x_lo, x_hi, d_lo, d_hi):
+        return
+    _hull_step(x_lo, x_hi, s1, d_lo, d_hi, X_lo, X_hi)
+    found = False
+    for _ in range(_MAX_TRIES):
+        for i in range(n):
+            pad = (_INFLATE_REL * (X_hi[i] - X_lo[i]) + _INFLATE_ABS
+                   + _INFLATE_STATE * max(abs(x_lo[i]), abs(x_hi[i])))
+            X_lo[i], X_hi[i] = X_lo[i] - pad, X_hi[i] + pad
+        if not _field(P, c0, c1, X_lo, X_hi, d_lo, d_hi):
+            return
+        _hull_step(x_lo, x_hi, s1, d_lo, d_hi, Y_lo, Y_hi)
+        # strict containment: the exit-time argument needs Y inside the interior of X
+        inside = True
+        for i in range(n):
+            inside = inside and Y_lo[i] > X_lo[i] and Y_hi[i] < X_hi[i]
+        for i in range(n):
+            X_lo[i], X_hi[i] = Y_lo[i], Y_hi[i]
+        if inside:
+            found = True
+            break
+    if not found:
+        return
+    for _ in range(_REFINE):
+        # (Y ⊂ X keeps the domain, so the field is defined on every refined tube)
+        _field(P, c0, c1, X_lo, X_hi, d_lo, d_hi)
+        _hull_step(x_lo, x_hi, s1, d_lo, d_hi, Y_lo, Y_hi)
+        for i in range(n):
+            X_lo[i], X_hi[i] = max(X_lo[i], Y_lo[i]), min(X_hi[i], Y_hi[i])
+    _field(P, c0, c1, X_lo, X_hi, d_lo, d_hi)
+    for i in range(n):
+        lo[i] = max(_dn(x_lo[i] + _dn(min(s0 * d_lo[i], s1 * d_lo[i]))), X_lo[i])
+        hi[i] = min(_up(x_hi[i] + _up(max(s0 * d_hi[i], s1 * d_hi[i]))), X_hi[i])
+
+
+@nb.njit(cache=True)
+def _held_box_rows(params, x_lo, x_hi, a, s0, s1, lo, hi):
+    for r in range(len(x_lo)):
+        held_box_kernel(params, x_lo[r], x_hi[r], a[r], s0[r], s1[r], lo[r], hi[r])
 
 
 class GliderHeldEnclosure:
@@ -19,44 +169,16 @@ class GliderHeldEnclosure:
     """
 
     params: GliderParams
+    #: the compiled enclosure (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`)
+    held_box_kernel = staticmethod(held_box_kernel)
 
-    #: inflation of a failed Picard candidate: relative to its width, and absolute (plus relative to |x|) so that
-    #: a zero-width side still grows
-    _ENCLOSURE_INFLATE_REL = 0.1
-    _ENCLOSURE_INFLATE_ABS = 1e-9
-    _ENCLOSURE_INFLATE_STATE = 1e-6
-    _ENCLOSURE_MAX_TRIES = 20
-    _ENCLOSURE_REFINE = 3
-
-    def _interval_field(self, lo: np.ndarray, hi: np.ndarray, c: tuple[np.ndarray, np.ndarray]
-                        ) -> tuple[np.ndarray, np.ndarray]:
-        """Interval extension of :meth:`f` over the state boxes ``[lo, hi]`` (N, 3), the lift coefficients ``c``
-        (an interval per row, from the held control) and every wind in ``[-wind_max, wind_max]``.
-
-        The formulas are those of :meth:`f`, term by term, so each value of ``f`` over the box is in the result
-        (inclusion property of interval arithmetic, with outward rounding).
-
-        :return: ``(lo, hi)``, each (N, 3)
-        """
+    @property
+    def held_box_params(self) -> np.ndarray:
+        """The numbers :func:`held_box_kernel` reads: ``(cl0, cl_alpha, cd0, cd_k, mass, gravity, half_rho_s,
+        wind_max)``."""
         p = self.params
-        V = (lo[:, 1], hi[:, 1])
-        g = (lo[:, 2], hi[:, 2])
-        if np.any(~(V[0] > 0)):
-            i = int(np.flatnonzero(~(V[0] > 0))[0])
-            raise ValueError(f"airspeed interval [{float(V[0][i])!r}, {float(V[1][i])!r}] m/s reaches <= 0 "
-                             f"(row {i}); gamma' divides by V")
-        sg, cg = iv_sin(g), iv_cos(g)
-        mass = iv_point(p.mass)
-        h_dot = iv_mul(V, sg)
-        drag_coef = iv_add(iv_point(p.cd0), iv_mul(iv_point(p.cd_k), iv_mul(c, c)))
-        drag_acc = iv_div_pos(iv_mul(drag_coef, iv_sqr_pos(V)), mass, "mass")
-        wind_acc = iv_div_pos((-float(p.wind_max), float(p.wind_max)), mass, "mass")
-        V_dot = iv_sub(iv_sub(wind_acc, drag_acc), iv_mul(iv_point(p.gravity), sg))
-        lift_acc = iv_div_pos(iv_mul(iv_mul(iv_point(p.half_rho_s), c), V), mass, "mass")
-        gamma_dot = iv_sub(lift_acc, iv_div_pos(iv_mul(iv_point(p.gravity), cg), V, "airspeed"))
-        out_lo = np.stack(np.broadcast_arrays(h_dot[0], V_dot[0], gamma_dot[0]), axis=1)
-        out_hi = np.stack(np.broadcast_arrays(h_dot[1], V_dot[1], gamma_dot[1]), axis=1)
-        return out_lo, out_hi
+        return np.array([p.cl0, p.cl_alpha, p.cd0, p.cd_k, p.mass, p.gravity, p.half_rho_s, p.wind_max],
+                        dtype=np.float64)
 
     def held_enclosure(self, t: float, x: np.ndarray, a: np.ndarray, dt: float
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -65,25 +187,7 @@ class GliderHeldEnclosure:
         For every disturbance signal b(.) with values in the disturbance box (any measurable signal: it may switch
         at any instant, also in answer to the control), the solution x(s), s in [0, dt], of x' = f(t, x, a, b(s))
         from x with the control ``a`` held constant satisfies tube_lo <= x(s) <= tube_hi for all s, and
-        end_lo <= x(dt) <= end_hi.
-
-        Method and why each step is sound (all rows at once, numpy only):
-
-        1. ``F(X)``, an interval extension of :meth:`f` over a state box ``X`` with ``alpha`` fixed and every
-           wind of the box: the same formulas as :meth:`f` in interval arithmetic (sin increasing and cos
-           unimodal on ``(-pi/2, pi/2)``), each result rounded outwards by a few ulps. By the inclusion property
-           ``f(y, a, w)`` lies in ``F(X)`` for every ``y`` in ``X`` and wind ``w``, despite floating point.
-        2. Tube (Picard / a-priori enclosure test): if ``Y = x + [0, dt] F(X)`` lies strictly inside ``X``, every
-           trajectory stays in ``X`` on ``[0, dt]``. Were there a first exit time ``s* <= dt``, then on
-           ``[0, s*]`` the path is in ``X``, so ``x(s*) - x``, the integral of ``f`` over ``[0, s*]``, lies in
-           ``s* F(X)``, hence ``x(s*)`` in ``Y``, the interior of ``X``: not on its boundary, a contradiction.
-           The same bound keeps the solution in a compact set, so it exists on all of ``[0, dt]``; and it holds
-           for any measurable wind, since it uses only the values of ``f``. Candidates start from the Euler hull
-           ``x + [0, dt] F([x, x])``; a failed candidate is replaced by its ``Y``, inflated, and retried.
-        3. Refinement: once ``X`` holds every trajectory, the argument of 2 shows ``x + [0, dt] F(X)`` does too, so
-           ``X`` may be intersected with it a few times without a new containment test.
-        4. End box: ``x(dt) - x`` is the integral of ``f`` over the tube, in ``dt F(X)`` (mean value for
-           integrals), so ``x(dt)`` is in ``x + dt F(X)``, intersected with the tube.
+        end_lo <= x(dt) <= end_hi. The method, and why it is sound: :func:`held_box_kernel`.
 
         :param t: time [s] (unused: the dynamics are autonomous)
         :param x: (N, 3) states (h [m], V [m/s], gamma [rad]), float64
@@ -92,111 +196,84 @@ class GliderHeldEnclosure:
         :param dt: the period [s] (> 0)
         :return: (tube_lo, tube_hi, end_lo, end_hi), each (N, 3) float64
         :raises ValueError: on a bad shape, ``dt <= 0``, ``V <= 0``, non-finite values or angles that look like
-            degrees; or when no enclosure is found for a row within ``_ENCLOSURE_MAX_TRIES`` candidates, or a
-            candidate reaches ``V <= 0`` or leaves ``|gamma| < pi/2`` (the period is too long for that state),
+            degrees; or when no enclosure is found for a row (within the kernel's Picard candidates, or because a
+            candidate reaches ``V <= 0`` or leaves ``|gamma| < pi/2``: the period is too long for that state),
             naming the row and its state
         """
         return self._enclose(x, x, a, dt, strict=True)
 
     def held_enclosure_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`held_enclosure` from every start in the boxes ``[x_lo, x_hi]`` (rows of ``(N, 3)``): the same
-        steps with the start an interval (``x + [0, dt] F(X)`` holds every start of the box, and the end box is
-        ``[x_lo, x_hi] + dt F(X)``). A row with no enclosure (a box too wide for one period, or reaching ``V <= 0``
-        or ``|gamma| >= pi/2``) is returned as NaN, which every caller reads as unbounded: not admissible."""
+        """:meth:`held_enclosure` from every start in the boxes ``[x_lo, x_hi]`` (rows of ``(N, 3)``). A row with
+        no enclosure (a box too wide for one period, or reaching ``V <= 0`` or ``|gamma| >= pi/2``) is returned as
+        NaN, which every caller reads as unbounded: not admissible."""
         return self._enclose(x_lo, x_hi, a, dt, strict=False)
 
-    def _enclose(self, x: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float, strict: bool
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        x = np.asarray(x, dtype=np.float64)
+    def held_tube_pieces(self, t: float, x: np.ndarray, a: np.ndarray, dt: float, pieces: int
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """Boxes of the motion over each of ``pieces`` equal sub-intervals of the period (step 4 of
+        :func:`held_box_kernel`), each ``(pieces, N, 3)``."""
+        return self.held_tube_pieces_box(t, x, x, a, dt, pieces)
+
+    def held_tube_pieces_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float,
+                             pieces: int) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`held_tube_pieces` from every start in the boxes ``[x_lo, x_hi]`` (NaN rows: no enclosure)."""
+        x_lo, x_hi, alpha, dt = self._checked(x_lo, x_hi, a, dt)
+        edges = np.linspace(0.0, dt, int(pieces) + 1)[:, None]
+        return self._boxes(x_lo, x_hi, alpha, edges[:-1], edges[1:])
+
+    def _checked(self, x_lo: Any, x_hi: Any, a: Any, dt: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        x_lo = np.asarray(x_lo, dtype=np.float64)
         x_hi = np.asarray(x_hi, dtype=np.float64)
-        if x.ndim != 2 or x.shape[1] != 3 or x_hi.shape != x.shape:
-            raise ValueError(f"x must have shape (N, 3) (h, V, gamma), got {x.shape}"
-                             + (f" (upper corners {x_hi.shape})" if x_hi.shape != x.shape else ""))
-        if np.any(x_hi < x):
-            i = int(np.flatnonzero((x_hi < x).any(axis=1))[0])
-            raise ValueError(f"start box {i} has an upper corner below its lower one: {x[i].tolist()} .. "
+        if x_lo.ndim != 2 or x_lo.shape[1] != 3 or x_hi.shape != x_lo.shape:
+            raise ValueError(f"x must have shape (N, 3) (h, V, gamma), got {x_lo.shape}"
+                             + (f" (upper corners {x_hi.shape})" if x_hi.shape != x_lo.shape else ""))
+        if np.any(x_hi < x_lo):
+            i = int(np.flatnonzero((x_hi < x_lo).any(axis=1))[0])
+            raise ValueError(f"start box {i} has an upper corner below its lower one: {x_lo[i].tolist()} .. "
                              f"{x_hi[i].tolist()}")
-        n = x.shape[0]
+        n = x_lo.shape[0]
         a = np.asarray(a, dtype=np.float64)
         if a.shape not in ((n, 1), (n,)):
             raise ValueError(f"a must have shape ({n}, 1) (alpha), got {a.shape}")
-        alpha = a.reshape(n)
         dt = float(dt)
         if not (math.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be a finite positive period [s], got {dt!r}")
-        if n == 0:
-            empty = np.empty((0, 3))
-            return empty, empty.copy(), empty.copy(), empty.copy()
-        self.validate_state(x)
-        self.validate_state(x_hi)
-        self.validate_control(alpha)
-        p = self.params
-        # C_L is computed once per row as an interval: the float product cl_alpha * alpha is itself rounded
-        c = iv_add(iv_point(p.cl0), iv_mul(iv_point(p.cl_alpha), iv_point(alpha)))
-        size = np.maximum(np.abs(x), np.abs(x_hi))
-        failed = np.zeros(n, bool)
+        if n:
+            self.validate_state(x_lo)
+            self.validate_state(x_hi)
+            self.validate_control(a)
+        return x_lo, x_hi, a.reshape(n, 1), dt
 
-        def describe(i: int) -> str:
-            return (f"row {i}: state (h, V, gamma) = ({float(x[i, 0])!r} m, {float(x[i, 1])!r} m/s, "
-                    f"{float(x[i, 2])!r} rad), alpha = {float(alpha[i])!r} rad, dt = {dt!r} s")
+    def _boxes(self, x_lo: np.ndarray, x_hi: np.ndarray, alpha: np.ndarray, s0: Any, s1: Any
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`held_box_kernel` for every row and every entry of ``s0``, ``s1`` (floats, or ``(P, 1)`` arrays:
+        one box per piece and row)."""
+        shape = np.broadcast_shapes(x_lo.shape[:-1], np.shape(s0), np.shape(s1))
 
-        def field(lo: np.ndarray, hi: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            # the helpers name only the offending interval; add which row and state it came from
-            bad_V = ~(lo[:, 1] > 0)
-            bad_g = ~((lo[:, 2] > -HALF_PI) & (hi[:, 2] < HALF_PI))
-            if np.any(bad_V | bad_g):
-                if strict:
-                    k = int(np.flatnonzero(bad_V | bad_g)[0])
-                    what = (f"V in [{float(lo[k, 1])!r}, {float(hi[k, 1])!r}] m/s reaches <= 0" if bad_V[k] else
-                            f"gamma in [{float(lo[k, 2])!r}, {float(hi[k, 2])!r}] rad leaves (-pi/2, pi/2)")
-                    raise ValueError(f"no enclosure for {describe(int(rows[k]))}: a candidate tube has {what}; "
-                                     f"shorten dt")
-                # such a row has no enclosure: evaluate it on its start box and mark it failed
-                bad = bad_V | bad_g
-                failed[rows[bad]] = True
-                lo, hi = np.where(bad[:, None], x[rows], lo), np.where(bad[:, None], x_hi[rows], hi)
-            return self._interval_field(lo, hi, (c[0][rows], c[1][rows]))
+        def rows(v: Any, k: int) -> np.ndarray:
+            return np.ascontiguousarray(np.broadcast_to(v, shape + (k,)).reshape(-1, k))
 
-        def inflate(lo: np.ndarray, hi: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            pad = (self._ENCLOSURE_INFLATE_REL * (hi - lo) + self._ENCLOSURE_INFLATE_ABS
-                   + self._ENCLOSURE_INFLATE_STATE * size[rows])
-            return lo - pad, hi + pad
+        size = int(np.prod(shape))
+        lo, hi = np.empty((size, 3)), np.empty((size, 3))
+        _held_box_rows(self.held_box_params, rows(x_lo, 3), rows(x_hi, 3), rows(alpha, 1),
+                       rows(np.asarray(s0, dtype=np.float64)[..., None], 1)[:, 0],
+                       rows(np.asarray(s1, dtype=np.float64)[..., None], 1)[:, 0], lo, hi)
+        return lo.reshape(shape + (3,)), hi.reshape(shape + (3,))
 
-        all_rows = np.arange(n)
-        X_lo, X_hi = inflate(*iv_hull_step(x, dt, field(x, x_hi, all_rows), x_hi), all_rows)
-        tube_lo, tube_hi = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
-        todo = all_rows
-        for _ in range(self._ENCLOSURE_MAX_TRIES):
-            Y_lo, Y_hi = iv_hull_step(x[todo], dt, field(X_lo, X_hi, todo), x_hi[todo])
-            # strict containment: the exit-time argument needs Y inside the interior of X
-            ok = np.all((Y_lo > X_lo) & (Y_hi < X_hi), axis=1) & ~failed[todo]
-            # Y (not X) is kept: it is contained in X and holds the trajectories too (step 3)
-            tube_lo[todo[ok]], tube_hi[todo[ok]] = Y_lo[ok], Y_hi[ok]
-            retry = ~ok & ~failed[todo]
-            X_lo, X_hi = inflate(Y_lo[retry], Y_hi[retry], todo[retry])
-            todo = todo[retry]
-            if todo.size == 0:
-                break
-        else:
-            if strict:
-                raise ValueError(f"no enclosure for {describe(int(todo[0]))} after {self._ENCLOSURE_MAX_TRIES} "
-                                 f"candidates ({todo.size} rows failed); shorten dt")
-            failed[todo] = True
-
-        good = np.flatnonzero(~failed)
-        tube_lo[failed], tube_hi[failed] = np.nan, np.nan
-        lo, hi, xl, xh = tube_lo[good], tube_hi[good], x[good], x_hi[good]
-        for _ in range(self._ENCLOSURE_REFINE):
-            Y_lo, Y_hi = iv_hull_step(xl, dt, field(lo, hi, good), xh)
-            lo, hi = np.maximum(lo, Y_lo), np.minimum(hi, Y_hi)
-
-        d_lo, d_hi = field(lo, hi, good)
-        end_lo, end_hi = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
-        tube_lo[good], tube_hi[good] = lo, hi
-        end_lo[good] = np.maximum(round_down(xl + round_down(dt * d_lo)), lo)
-        end_hi[good] = np.minimum(round_up(xh + round_up(dt * d_hi)), hi)
+    def _enclose(self, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float, strict: bool
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        x_lo, x_hi, alpha, dt = self._checked(x_lo, x_hi, a, dt)
+        tube_lo, tube_hi = self._boxes(x_lo, x_hi, alpha, 0.0, dt)
+        end_lo, end_hi = self._boxes(x_lo, x_hi, alpha, dt, dt)
+        failed = ~(np.isfinite(tube_lo).all(axis=1) & np.isfinite(end_lo).all(axis=1))
+        if strict and failed.any():
+            i = int(np.flatnonzero(failed)[0])
+            raise ValueError(f"no enclosure for row {i}: state (h, V, gamma) = ({float(x_lo[i, 0])!r} m, "
+                             f"{float(x_lo[i, 1])!r} m/s, {float(x_lo[i, 2])!r} rad), alpha = {float(alpha[i, 0])!r} "
+                             f"rad, dt = {dt!r} s: no Picard candidate within {_MAX_TRIES} held, or one reached "
+                             f"V <= 0 or |gamma| >= pi/2 ({int(failed.sum())} rows failed); shorten dt")
         return tube_lo, tube_hi, end_lo, end_hi
 
 
-__all__ = ["GliderHeldEnclosure"]
+__all__ = ["GliderHeldEnclosure", "held_box_kernel"]
