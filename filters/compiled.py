@@ -3,15 +3,17 @@
 :class:`~softreach.filters.ValueFilter` decides by the one-period test of :mod:`softreach.reach.lookahead` and the
 plans of :mod:`softreach.filters.plans`; this module decides the same way, row by row in numba, where
 
-* the model gives its held-action enclosure compiled (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`)
-  and declares its sets as boxes (:attr:`~softreach.reach.problem.Model.set_boxes`),
+* the model gives its held-action enclosure and its sets' maxima over boxes compiled
+  (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`, :attr:`~softreach.reach.problem.Model.
+  set_max_kernel`): the point mass and the glider do,
 * the table holds ``W_eps`` (with ``V`` and ``V_safe`` if it has them) and the filter has landing cells (which then
   decide what passes, :meth:`~softreach.reach.lookahead.Lookahead.assess`).
 
 Both rules are compiled, the ``"switch"`` rule and the ``"smooth"`` one with its bisection.
 
 Each step below names the numpy method it mirrors: the arithmetic is the same, in the same order, on the numbers
-of the same kernels (the enclosure, :mod:`softreach.reach.kernels` for the table and the cells), so the decisions
+of the same kernels (the enclosure, the set maxima, :mod:`softreach.reach.kernels` for the table and the cells), so
+the decisions
 are equal, which ``tests/test_compiled_filter.py`` checks on thousands of rows of every kind. A change to the one-
 period test must be made in both.
 
@@ -28,41 +30,26 @@ import numba as nb
 import numpy as np
 
 from softreach.reach.box_max import kernel_field
-from softreach.reach.kernels import (MAX_NODES, box_max_row, box_scratch, call_held_box, certificate_row, cover_row,
-                                    held_box_address, plan_row)
+from softreach.reach.kernels import (MAX_NODES, SET_INDEX, box_max_row, box_scratch, call_held_box, call_set_max,
+                                    certificate_row, cover_row, held_box_address, plan_row)
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7
 _PLAN_LAND, _PLAN_SAFE = 1, 2
-
-
-@nb.njit(cache=True, inline="always")
-def box_excess(box_lo, box_hi, lo, hi):
-    """The largest value of the box distance :func:`~softreach.reach.sets.box` of ``[box_lo, box_hi]`` over the
-    box ``[lo, hi]``: per axis the larger of ``box_lo - lo`` and ``hi - box_hi`` (the corners' terms), the largest
-    over the axes; an infinite bound has no term (:meth:`Lookahead._corner_max` of a box set)."""
-    out = -np.inf
-    for a in range(len(lo)):
-        if box_lo[a] != -np.inf:
-            term = max(box_lo[a] - lo[a], hi[a] - box_hi[a]) if box_hi[a] != np.inf else box_lo[a] - lo[a]
-        elif box_hi[a] != np.inf:
-            term = hi[a] - box_hi[a]
-        else:
-            continue
-        out = max(out, term)
-    return out
+# the sets' indices in the model's set-maximum kernel
+_TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_INDEX["soft_constraint"]
 
 
 @nb.njit(cache=True, inline="always")
 def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
     """:meth:`Lookahead._budget_spent` over the pieces ``[edges[j], edges[j + 1]]`` of a held action's motion."""
-    params, eps, soft = M[0], M[1], M[2]
+    params, eps, set_params, sets = M[0], M[1], M[2], M[3]
     P = len(edges) - 1
     length = edges[P]
     out = 0.0
     for j in range(P):
         call_held_box(enclose, params, x_lo, x_hi, a, edges[j], edges[j + 1], lo, hi)
-        out += (length / P) * min(max(box_excess(soft[0], soft[1], lo, hi) / eps, 0.0), 1.0)
+        out += (length / P) * min(max(call_set_max(sets, set_params, _SOFT, lo, hi) / eps, 0.0), 1.0)
     return out
 
 
@@ -70,7 +57,7 @@ def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
 def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
     """:meth:`Lookahead._lands` of one row: at some check instant ``s`` every run is in the target inside ``C2``,
     the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``."""
-    params, soft, hard, target = M[0], M[2], M[3], M[4]
+    params, set_params, sets = M[0], M[2], M[3]
     for j in range(check_edges.shape[0]):
         edges = check_edges[j]
         s = edges[len(edges) - 1]
@@ -79,8 +66,9 @@ def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
         good = True
         for i in range(len(lo)):
             good = good and math.isfinite(lo[i]) and math.isfinite(hi[i])
-        if not (good and box_excess(target[0], target[1], e_lo, e_hi) <= 0
-                and box_excess(soft[0], soft[1], e_lo, e_hi) <= 0 and box_excess(hard[0], hard[1], lo, hi) <= 0):
+        if not (good and call_set_max(sets, set_params, _TARGET, e_lo, e_hi) <= 0
+                and call_set_max(sets, set_params, _SOFT, e_lo, e_hi) <= 0
+                and call_set_max(sets, set_params, _HARD, lo, hi) <= 0):
             continue
         if z - _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi) >= 0:
             return True
@@ -93,8 +81,8 @@ def _assess(enclose, M, C, T, t, x_lo, x_hi, z, z_hi, a, end_lo, end_hi, work, l
     ``(passing, next_value, badness, z_end, kept)`` and writes the end box into ``end_lo``, ``end_hi``. Only what
     the caller reads is computed: ``level`` 0 whether it passes (the next value stays ``+inf``), 1 also the next
     value, 2 also the badness."""
-    params, hard = M[0], M[3]
-    target_lo, target_hi, edges, check_edges, horizon = M[5], M[6], M[7], M[8], M[9]
+    params, set_params, sets = M[0], M[2], M[3]
+    target_lo, target_hi, edges, check_edges, horizon = M[4], M[5], M[6], M[7], M[8]
     safe, has_safe, land = C[0], C[1], C[2]
     W, z_top, z_floor, V, has_V, S, has_S = T
     tube_lo, tube_hi, lo, hi, box_lo, box_hi, scratch_W, scratch_V = work
@@ -106,7 +94,7 @@ def _assess(enclose, M, C, T, t, x_lo, x_hi, z, z_hi, a, end_lo, end_hi, work, l
     bounded = True
     for i in range(n):
         bounded = bounded and math.isfinite(tube_lo[i]) and math.isfinite(tube_hi[i])
-    c1 = box_excess(hard[0], hard[1], tube_lo, tube_hi)
+    c1 = call_set_max(sets, set_params, _HARD, tube_lo, tube_hi)
     z_end = z - _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi)
     t_next = t + dt
     in_time = t_next <= horizon + 1e-9 * max(1.0, horizon)
@@ -157,8 +145,8 @@ def _assess(enclose, M, C, T, t, x_lo, x_hi, z, z_hi, a, end_lo, end_hi, work, l
 def _keeps(enclose, M, C, T, cands, t, z, ok, nxt, end_lo, end_hi, z_end, kept, work, work_box):
     """:meth:`Lookahead.keeps` with landing cells: a row that passes keeps; one whose period keeps ``C1`` and the
     budget keeps when some candidate passes from its whole end box (:meth:`Lookahead.keeps_certified`)."""
-    horizon = M[9]
-    dt = M[7][len(M[7]) - 1]
+    horizon = M[8]
+    dt = M[6][len(M[6]) - 1]
     if ok:
         return True
     if not (kept and not t + dt >= horizon - 1e-9 * max(1.0, horizon) and nxt > -np.inf):
@@ -307,11 +295,6 @@ class CompiledDecision:
     def __init__(self, vf: Any):
         la, model = vf.lookahead, vf.model
         self.filter = vf
-        boxes = model.set_boxes
-
-        def box(name: str) -> tuple[np.ndarray, np.ndarray]:
-            return tuple(np.asarray(b, dtype=np.float64) for b in boxes[name])
-
         tb = model.target_box
         t_lo, t_hi = ((np.full(la.n, -np.inf), np.full(la.n, np.inf)) if tb is None
                       else (np.asarray(tb[0], dtype=np.float64), np.asarray(tb[1], dtype=np.float64)))
@@ -319,9 +302,10 @@ class CompiledDecision:
                            for j in range(1, la.target_checks + 1)])
         #: the model's enclosure, called by address (:func:`~softreach.reach.kernels.held_box_address`)
         self.enclose = held_box_address(model)
-        self.M = (model.held_box_params, la.eps, box("soft_constraint"),
-                  box("hard_constraint"), box("target"), t_lo, t_hi, np.linspace(0.0, la.dt, la.pieces + 1), checks,
-                  la.horizon)
+        # the sets over boxes: the lookahead's compiled set maxima (its _corner_max), called by address too
+        set_address, set_params = la.set_kernel
+        self.M = (np.asarray(model.held_box_params, dtype=np.float64), la.eps, set_params, set_address, t_lo, t_hi,
+                  np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon)
         safe, land = vf.safe_cells, vf.landing_cells
         some = safe if safe is not None else land
         self.C = (some.kernel_args, safe is not None, land.kernel_args, some.plan_args, land.plan_args)
@@ -336,8 +320,7 @@ class CompiledDecision:
     def for_filter(vf: Any) -> "CompiledDecision | None":
         """The compiled decision for this filter, or ``None`` where it does not apply (the module docstring)."""
         la, model = vf.lookahead, vf.model
-        boxes = model.set_boxes or {}
-        if (model.held_box_kernel is None or not set(boxes) >= {"target", "hard_constraint", "soft_constraint"}
+        if (model.held_box_kernel is None or la.set_kernel is None
                 or la.budget_field != "W_eps" or vf.landing_cells is None
                 or any(model.set_box_max(w, 0.0, np.zeros((1, la.n)), np.zeros((1, la.n))) is not None
                        for w in ("target", "hard_constraint", "soft_constraint"))):

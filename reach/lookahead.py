@@ -49,7 +49,7 @@ import numpy as np
 from .horizon import exact_before_horizon, in_window
 from .box_max import box_max, kernel_field
 from .interpolation import interpolate
-from .kernels import certificate_rows
+from .kernels import SET_INDEX, certificate_rows, set_max_address, set_max_rows
 
 
 #: the fields that say how much budget suffices, in the order a table's is picked
@@ -121,6 +121,10 @@ class Lookahead:
         self.landing_cells = None
         #: the model bounds boxes of starts: the filter can ask that the next state be certified again
         self.box_support = type(model).held_enclosure_box is not Dynamics.held_enclosure_box
+        #: ``(address, params)`` of the model's compiled set maxima (:attr:`~softreach.reach.problem.Model.
+        #: set_max_kernel`), which :meth:`_corner_max` runs; ``None``: the set functions at the corners, in numpy
+        self.set_kernel = ((set_max_address(model), model.set_max_params)
+                           if getattr(model, "set_max_kernel", None) is not None else None)
 
     @classmethod
     def from_table(cls, table: Any, model: Any, dt: float, eps: float, margin: float = 0.0,
@@ -172,6 +176,11 @@ class Lookahead:
         bound = self.model.set_box_max(fn.__name__, _time_arg(t), lo, hi)
         if bound is not None:
             return np.asarray(bound, dtype=np.float64)
+        if self.set_kernel is not None and fn.__name__ in SET_INDEX:
+            out = np.empty(len(lo))
+            set_max_rows(*self.set_kernel, SET_INDEX[fn.__name__], np.ascontiguousarray(lo, dtype=np.float64),
+                         np.ascontiguousarray(hi, dtype=np.float64), out)
+            return out
         N, C = len(lo), len(self.corners)
         pts = np.where(self.corners[None, :, :], hi[:, None, :], lo[:, None, :]).reshape(N * C, self.n)
         t_arg = _time_arg(t)

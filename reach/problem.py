@@ -27,6 +27,7 @@ import numpy as np
 
 from . import backend as B
 from .dynamics import Components, Dynamics
+from .kernels import box_params, boxes_set_max
 
 Array = B.Array
 
@@ -88,10 +89,26 @@ class Model(Dynamics):
     #: filter skips its landing test for periods whose motion cannot meet this box; only speed depends on it
     target_box: tuple[tuple[float, ...], tuple[float, ...]] | None = None
     #: ``{"target": (lo, hi), "hard_constraint": ..., "soft_constraint": ...}`` where each of these set functions
-    #: is exactly :func:`~softreach.reach.sets.box` of that box, with no scale (``tests/test_compiled_filter.py``
-    #: checks it). The filter's compiled decision (:mod:`softreach.filters.compiled`) needs it; ``None``:
-    #: not declared
-    set_boxes: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] | None = None
+    #: is exactly :func:`~softreach.reach.sets.box` of that box (``(lo, hi, scale)`` with a scale), time-invariant
+    #: (``tests/test_compiled_filter.py`` checks it). It gives the default :attr:`set_max_kernel`; ``None``: not
+    #: declared
+    set_boxes: dict[str, tuple[tuple[float, ...], ...]] | None = None
+
+    @property
+    def set_max_kernel(self) -> Any:
+        """The largest value of each set function over a box of states, compiled: a numba ``njit`` function
+        ``(params, which, lo, hi) -> float`` for the numbers :attr:`set_max_params`, ``which`` the set's index in
+        :data:`~softreach.reach.kernels.SET_INDEX`, ``lo``, ``hi`` 1-d arrays. It must be the largest value of
+        the (time-invariant) set function at the box's corners, which the safety filter's one-period test takes
+        (:meth:`set_box_max`); ``tests/test_compiled_filter.py`` checks it for every model that gives one. The
+        default is :func:`~softreach.reach.kernels.boxes_set_max` where :attr:`set_boxes` are declared; ``None``:
+        the filter evaluates the set functions at the corners in numpy, and has no compiled decision."""
+        return boxes_set_max if self.set_boxes else None
+
+    @property
+    def set_max_params(self) -> np.ndarray:
+        """The numbers :attr:`set_max_kernel` reads."""
+        return box_params(self.set_boxes, self.state_dim) if self.set_boxes else np.zeros(0)
 
     @abstractmethod
     def target(self, t: float, x: Components) -> Array:

@@ -1,14 +1,16 @@
 """The filter's compiled decision (:mod:`softreach.filters.compiled`) decides as the numpy filter does, in batches,
-one row at a time and in closed loop with its plans, and what it relies on holds: the declared set boxes are the
-model's set functions, their box maxima are the corner maxima, and the compiled certificate is the table's
-interpolant."""
+one row at a time and in closed loop with its plans, for the point mass and the glider, and what it relies on
+holds: the declared set boxes are the model's set functions, the compiled set maxima over boxes are the largest
+values at the corners, and the compiled certificate is the table's interpolant."""
+
+import itertools
 
 import numpy as np
 import pytest
 
 from softreach.filters import ValueFilter
 from softreach.reach import get_model, sets
-from softreach.filters.compiled import box_excess
+from softreach.reach.kernels import SET_INDEX, set_max_address, set_max_rows
 from softreach.reach.registry import model_names
 
 SETS = ("target", "hard_constraint", "soft_constraint")
@@ -28,17 +30,26 @@ def test_declared_set_boxes_are_the_set_functions(name):
         np.testing.assert_array_equal(getattr(model, which)(0.0, cols), sets.box(cols, *box), err_msg=which)
 
 
-def test_box_excess_is_the_largest_value_at_the_corners():
-    model = get_model("pointmass")
+@pytest.mark.parametrize("name", model_names())
+def test_set_kernels_are_the_largest_values_at_the_corners(name):
+    """Boxes across and beyond the domain, wide and narrow, some of no width: the compiled maximum of each set
+    equals the largest value of the model's own set function at the box's corners, to the bit."""
+    model = get_model(name)
+    if model.set_max_kernel is None:
+        pytest.skip(f"{name} gives no compiled set maxima")
+    d_lo, d_hi = (np.asarray(b, dtype=float) for b in model.domain)
+    n = len(d_lo)
     rng = np.random.default_rng(1)
-    lo = np.c_[rng.uniform(-20, 20, 500), rng.uniform(-5, 20, 500)]
-    hi = lo + rng.exponential(1.0, (500, 2))
-    corners = [np.where(np.array(c, bool), hi, lo) for c in ((0, 0), (0, 1), (1, 0), (1, 1))]
-    for which in ("hard_constraint", "soft_constraint"):
-        expect = np.max([getattr(model, which)(0.0, [c[:, 0], c[:, 1]]) for c in corners], axis=0)
-        b_lo, b_hi = (np.asarray(b, dtype=float) for b in model.set_boxes[which])
-        got = np.array([box_excess(b_lo, b_hi, lo[i], hi[i]) for i in range(len(lo))])
-        np.testing.assert_array_equal(got, expect)
+    lo = rng.uniform(d_lo - 0.2 * (d_hi - d_lo), d_hi + 0.2 * (d_hi - d_lo), (3000, n))
+    hi = lo + (d_hi - d_lo) * rng.exponential(0.05, (3000, n))
+    hi[::10] = lo[::10]
+    address, params = set_max_address(model), model.set_max_params
+    for which, index in SET_INDEX.items():
+        expect = np.max([getattr(model, which)(0.0, [np.where(c[i], hi[:, i], lo[:, i]) for i in range(n)])
+                         for c in itertools.product((False, True), repeat=n)], axis=0)
+        got = np.empty(len(lo))
+        set_max_rows(address, params, index, lo, hi, got)
+        np.testing.assert_array_equal(got, expect, err_msg=f"{name} {which}")
 
 
 def _draws(n, seed):
@@ -130,6 +141,50 @@ def test_compiled_certificate_is_the_tables_interpolant(pointmass_held_table):
     np.testing.assert_allclose(got[finite], expect[finite], rtol=0, atol=1e-12)
 
 
-def test_models_without_a_compiled_enclosure_keep_the_numpy_test(glider_held_table):
-    assert get_model("glider").held_box_kernel is None
-    assert ValueFilter(glider_held_table, 0.1, safe_cells=None, landing_cells=None).compiled is None
+def _glider_draws(model, n, seed):
+    """Glider states across and beyond the table's domain, budgets from negative to above the table's, times up to
+    past ``T``, angles of attack random and at the ends of their box."""
+    rng = np.random.default_rng(seed)
+    lo, hi = (np.asarray(b, dtype=float) for b in model.domain)
+    x = rng.uniform(lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo), (n, 3))
+    z = rng.uniform(-0.5, 11.0, n)
+    t = np.round(rng.uniform(0, 1.01 * model.horizon, n), 1)
+    (a_lo,), (a_hi,) = model.control_bounds
+    a = rng.uniform(a_lo, a_hi, (n, 1))
+    a[::3] = rng.choice([a_lo, a_hi], (len(a[::3]), 1))
+    return t, x, z, a
+
+
+@pytest.mark.parametrize("rule", ["switch", "smooth"])
+def test_compiled_glider_filter_decides_as_the_numpy_filter(glider_held_table, rule):
+    """The glider at its 0.1 s period with its environment's two landing checks and the packaged cells: the
+    compiled enclosure and set maxima drive the same decisions in both paths."""
+    checks = glider_held_table.model.substeps
+    fast = ValueFilter(glider_held_table, 0.1, rule=rule, target_checks=checks)
+    slow = ValueFilter(glider_held_table, 0.1, rule=rule, target_checks=checks)
+    slow.compiled = None
+    assert fast.compiled is not None
+    n = 600 if rule == "switch" else 150
+    t, x, z, a = _glider_draws(fast.model, n, 9)
+    # half of the rows certified (in landing cells at t = 0), where the policy's action passes or is replaced
+    # near the sets' edges
+    _, xc, zc, _ = _glider_draws(fast.model, 40 * n, 10)
+    zc = np.abs(zc)
+    inside = fast.landing_cells.contains(np.zeros(len(xc)), xc, zc)
+    k = min(n // 2, int(inside.sum()))
+    assert k > n // 4
+    t[:k], x[:k], z[:k] = 0.0, xc[inside][:k], zc[inside][:k]
+    applied, info = fast.filter(t, x, z, a)
+    expect, expect_info = slow.filter(t, x, z, a)
+    np.testing.assert_array_equal(applied, expect)
+    _same(info, expect_info)
+    assert 0.05 < (info["reason"] == 0).mean() < 0.95
+    for i in range(0, len(x), 50):
+        one, one_info = fast.filter(t[i], x[i], z[i], a[i])
+        np.testing.assert_array_equal(one, applied[i])
+        _same(one_info, {k: v[i] for k, v in info.items()})
+
+
+def test_models_without_a_compiled_enclosure_keep_the_numpy_test(dubins_held_table):
+    assert get_model("dubins").held_box_kernel is None
+    assert ValueFilter(dubins_held_table, 0.1, safe_cells=None, landing_cells=None).compiled is None

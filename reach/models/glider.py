@@ -23,11 +23,13 @@ import math
 from dataclasses import asdict
 from typing import Any, Sequence
 
+import numba as nb
 import numpy as np
 
 from .. import backend as B
 from .. import sets
 from ..dynamics import Components
+from ..kernels import box_distance_max, box_params
 from ..problem import Model
 from .glider_enclosure import GliderHeldEnclosure
 from .glider_game import GliderGame
@@ -36,6 +38,20 @@ from .glider_params import (DEGREES_SUSPECT, GliderParams, _as_numpy, _check_rad
                             degrees_to_radians, radians_to_degrees)
 
 Array = B.Array
+
+
+@nb.njit(cache=True)
+def _set_max(params, which, lo, hi):
+    """The largest value of the glider's set ``which`` (:data:`~softreach.reach.kernels.SET_INDEX`) over the box
+    ``[lo, hi]``: its box distance's, and for the target also the sink-rate term's, which is ``-V sin(gamma)``,
+    bilinear in ``V`` and ``sin(gamma)`` with ``sin`` increasing on ``(-pi/2, pi/2)``: largest at a corner."""
+    out = box_distance_max(params, 9 * which, lo, hi)
+    if which == 0:
+        limit, scale = params[27], params[28]
+        for V in (lo[1], hi[1]):
+            for gamma in (lo[2], hi[2]):
+                out = max(out, (-V * math.sin(gamma) - limit) / scale)
+    return out
 
 
 class Glider(GliderGame, GliderHeldEnclosure, Model):
@@ -255,6 +271,22 @@ class Glider(GliderGame, GliderHeldEnclosure, Model):
         """
         p = self.params
         return sets.box([x[1]], (p.soft_speed[0],), (p.soft_speed[1],), (p.speed_scale,))
+
+    #: the sets over boxes, compiled (:attr:`~softreach.reach.problem.Model.set_max_kernel`)
+    set_max_kernel = staticmethod(_set_max)
+
+    @property
+    def set_max_params(self) -> np.ndarray:
+        """:func:`_set_max`'s numbers: the three sets' box distances (:func:`~softreach.reach.kernels.box_params`),
+        then the sink-rate limit and scale."""
+        p, inf = self.params, math.inf
+        boxes = {"target": ((p.min_altitude - p.touchdown_altitude, -inf, -inf),
+                            (p.min_altitude + p.touchdown_altitude, inf, inf), (p.altitude_scale, 1.0, 1.0)),
+                 "hard_constraint": ((p.min_altitude - p.touchdown_altitude, p.hard_speed[0], p.hard_gamma[0]),
+                                     (inf, p.hard_speed[1], p.hard_gamma[1]), self._scales()),
+                 "soft_constraint": ((-inf, p.soft_speed[0], -inf), (inf, p.soft_speed[1], inf),
+                                     (1.0, p.speed_scale, 1.0))}
+        return np.concatenate([box_params(boxes, 3), [p.max_sink_rate, p.sink_rate_scale]])
 
     # ------------------------------------------------------------------------------------------ units
     def validate_state(self, x: Array | Sequence[Any]) -> None:
