@@ -14,10 +14,11 @@ use). Each latency is the mean time per call over many calls, on fixed random in
   filter certifies (before the last 0.1 s), where a deployed policy spends its steps.
 * **batch of 1,024** — the same call on ``(1024, n)`` states (numpy). Target: under 1 ms. Once over the random
   states (most of them outside the sets, where the filter searches the candidates), once over certified ones.
-* the same for the smooth rule, for torch tensors (CPU) in and out, for the same filter without its compiled
-  decision (``numpy_*``: ``ValueFilter.compiled = None``, the numpy path every model without a compiled enclosure
-  takes), and, for scale, the ``Table`` API calls the filter replaces (``Table.value`` +
-  ``Table.optimal_control``).
+* the same for the smooth rule, for torch tensors (CPU) in and out, for the same filter with its compiled decision
+  at every batch size (``compiled_*``: by default a batch above ``ValueFilter.compiled_max_rows`` rows runs numpy,
+  and these figures are why), without it (``numpy_*``: ``ValueFilter.compiled = None``, the numpy path every model
+  without a compiled enclosure takes), and, for scale, the ``Table`` API calls the filter replaces
+  (``Table.value`` + ``Table.optimal_control``).
 
 Then one ``step`` of ``PointMassLanding-v0``, bare and in ``SafetyFilter``: what the filter adds to a training step.
 
@@ -80,9 +81,12 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
     a = rng.uniform(-60, 60, (n, 1))
     switch = ValueFilter(table, DT)
     smooth = ValueFilter(table, DT, rule="smooth")
-    # the same decisions in numpy alone, side by side (where the model has no compiled enclosure, both are numpy)
+    # the same decisions in numpy alone, side by side (where the model has no compiled enclosure, both are numpy),
+    # and compiled at every batch size (by default batches above ValueFilter.compiled_max_rows run numpy)
     numpy_only = ValueFilter(table, DT)
     numpy_only.compiled = None
+    compiled_only = ValueFilter(table, DT)
+    compiled_only.compiled_max_rows = 10 ** 9
     # a single query cycles through the drawn states so that caches do not flatter it
     singles = [(float(t[i]), x[i].copy(), float(z[i]), a[i].copy()) for i in range(256)]
 
@@ -114,6 +118,8 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
         "switch_single_certified_us": _per_call(single_from(switch, inside), 300, repeats),
         "switch_batch1024_us": _per_call(lambda: switch.filter(t, x, z, a), 5, repeats),
         "switch_batch1024_certified_us": _per_call(lambda: switch.filter(*cert_batch), 5, repeats),
+        "compiled_switch_batch1024_us": _per_call(lambda: compiled_only.filter(t, x, z, a), 5, repeats),
+        "compiled_switch_batch1024_certified_us": _per_call(lambda: compiled_only.filter(*cert_batch), 5, repeats),
         "numpy_switch_single_us": _per_call(single(numpy_only), 100, repeats),
         "numpy_switch_single_certified_us": _per_call(single_from(numpy_only, inside), 100, repeats),
         "numpy_switch_batch1024_us": _per_call(lambda: numpy_only.filter(t, x, z, a), 2, repeats),

@@ -20,9 +20,10 @@ makes a candidate exist there again (its value is the minimum over the same cand
 free at every instant), and the audit (``benchmarks/audit_filter.py``) counts the rare states where none does
 (reason ``"uncertified"``). With a continuous-time table the same checks run, but nothing is certified.
 
-Where the model gives its enclosure compiled, :class:`ValueFilter` runs this same decision compiled, row by row
-(:mod:`softreach.filters.compiled`, :attr:`ValueFilter.compiled`); the numpy code below is the reference it is
-tested against and what every other model runs.
+Where the model gives its enclosure and set maxima compiled, :class:`ValueFilter` runs this same decision compiled,
+row by row (:mod:`softreach.filters.compiled`, :attr:`ValueFilter.compiled`), for batches of up to
+:attr:`ValueFilter.compiled_max_rows` rows; the numpy code below is the reference it is tested against, what larger
+batches run, and what every other model runs.
 
 Everything works on batches: ``t`` and ``z`` are scalars or ``(N,)``, ``x`` is ``(N, n)`` (or ``(n,)``), actions
 ``(N, m)`` (or ``(m,)``) in physical units unless ``normalized=True``. numpy in, numpy out; torch in, torch out.
@@ -150,6 +151,10 @@ class ValueFilter:
         #: the decision compiled (:mod:`softreach.filters.compiled`), where the model, the table and the cells allow;
         #: ``None``: numpy only
         self.compiled = CompiledDecision.for_filter(self)
+        #: batches of more rows than this run the numpy decision even where :attr:`compiled` exists: both decide
+        #: the same, the compiled one pays a fixed cost a row and numpy a fixed cost a call, and on the point mass's
+        #: default table they cross between 64 and 256 rows (``benchmarks/bench_filter.py`` times both)
+        self.compiled_max_rows = 128
         #: up to this many rows, :meth:`filter` judges the policy's action and the candidates in one batch. 0: the
         #: policy's action first, the candidates only where it fails. From certified states with a random policy
         #: (6 % interventions) that is the faster one: median 2.1 ms a decision against 2.7 ms with 8
@@ -284,7 +289,7 @@ class ValueFilter:
         pol = self.physical(act) if normalized else np.minimum(np.maximum(act, self.a_lo), self.a_hi)
         la = self.lookahead
         J = len(la.candidates)
-        if self.compiled is not None:
+        if self.compiled is not None and N <= self.compiled_max_rows:
             applied, reason, value, nxt, ok, chosen, blend, new_plans = self.compiled(tt, xs, zz, pol, plans)
             rows = np.zeros(0, np.int64)
         else:

@@ -73,6 +73,7 @@ def _same(info_a, info_b):
 
 def _pair(table, rule="switch"):
     fast = ValueFilter(table, 0.01, rule=rule)
+    fast.compiled_max_rows = 10 ** 9  # every batch compiled, however large: the comparison is the point
     slow = ValueFilter(table, 0.01, rule=rule)
     slow.compiled = None
     return fast, slow
@@ -163,6 +164,7 @@ def test_compiled_glider_filter_decides_as_the_numpy_filter(glider_held_table, r
     fast = ValueFilter(glider_held_table, 0.1, rule=rule, target_checks=checks)
     slow = ValueFilter(glider_held_table, 0.1, rule=rule, target_checks=checks)
     slow.compiled = None
+    fast.compiled_max_rows = 10 ** 9
     assert fast.compiled is not None
     n = 600 if rule == "switch" else 150
     t, x, z, a = _glider_draws(fast.model, n, 9)
