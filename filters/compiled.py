@@ -30,8 +30,8 @@ import numba as nb
 import numpy as np
 
 from softreach.reach.box_max import kernel_field
-from softreach.reach.kernels import (MAX_NODES, SET_INDEX, box_max_row, box_scratch, call_held_box, call_set_max,
-                                    certificate_row, cover_row, held_box_address, plan_row)
+from softreach.reach.kernels import MAX_NODES, box_max_row, box_scratch, certificate_row, cover_row, plan_row
+from softreach.reach.model_kernels import SET_INDEX, call_held_box, call_set_max, held_box_address
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7
@@ -300,7 +300,7 @@ class CompiledDecision:
                       else (np.asarray(tb[0], dtype=np.float64), np.asarray(tb[1], dtype=np.float64)))
         checks = np.stack([np.linspace(0.0, la.dt * j / la.target_checks, la.pieces + 1)
                            for j in range(1, la.target_checks + 1)])
-        #: the model's enclosure, called by address (:func:`~softreach.reach.kernels.held_box_address`)
+        #: the model's enclosure, called by address (:func:`~softreach.reach.model_kernels.held_box_address`)
         self.enclose = held_box_address(model)
         # the sets over boxes: the lookahead's compiled set maxima (its _corner_max), called by address too
         set_address, set_params = la.set_kernel

@@ -49,7 +49,8 @@ import numpy as np
 from .horizon import exact_before_horizon, in_window
 from .box_max import box_max, kernel_field
 from .interpolation import interpolate
-from .kernels import SET_INDEX, certificate_rows, set_max_address, set_max_rows
+from .kernels import certificate_rows
+from .model_kernels import SET_INDEX, set_max_address, set_max_rows
 
 
 #: the fields that say how much budget suffices, in the order a table's is picked

@@ -27,7 +27,7 @@ import numpy as np
 
 from . import backend as B
 from .dynamics import Components, Dynamics
-from .kernels import box_params, boxes_set_max
+from .model_kernels import box_params, boxes_set_max
 
 Array = B.Array
 
@@ -98,10 +98,10 @@ class Model(Dynamics):
     def set_max_kernel(self) -> Any:
         """The largest value of each set function over a box of states, compiled: a numba ``njit`` function
         ``(params, which, lo, hi) -> float`` for the numbers :attr:`set_max_params`, ``which`` the set's index in
-        :data:`~softreach.reach.kernels.SET_INDEX`, ``lo``, ``hi`` 1-d arrays. It must be the largest value of
+        :data:`~softreach.reach.model_kernels.SET_INDEX`, ``lo``, ``hi`` 1-d arrays. It must be the largest value of
         the (time-invariant) set function at the box's corners, which the safety filter's one-period test takes
         (:meth:`set_box_max`); ``tests/test_compiled_filter.py`` checks it for every model that gives one. The
-        default is :func:`~softreach.reach.kernels.boxes_set_max` where :attr:`set_boxes` are declared; ``None``:
+        default is :func:`~softreach.reach.model_kernels.boxes_set_max` where :attr:`set_boxes` are declared; ``None``:
         the filter evaluates the set functions at the corners in numpy, and has no compiled decision."""
         return boxes_set_max if self.set_boxes else None
 

@@ -10,7 +10,7 @@ import pytest
 
 from softreach.filters import ValueFilter
 from softreach.reach import get_model, sets
-from softreach.reach.kernels import SET_INDEX, set_max_address, set_max_rows
+from softreach.reach.model_kernels import SET_INDEX, set_max_address, set_max_rows
 from softreach.reach.registry import model_names
 
 SETS = ("target", "hard_constraint", "soft_constraint")

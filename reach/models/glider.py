@@ -29,7 +29,7 @@ import numpy as np
 from .. import backend as B
 from .. import sets
 from ..dynamics import Components
-from ..kernels import box_distance_max, box_params
+from ..model_kernels import box_distance_max, box_params
 from ..problem import Model
 from .glider_enclosure import GliderHeldEnclosure
 from .glider_game import GliderGame
@@ -42,7 +42,7 @@ Array = B.Array
 
 @nb.njit(cache=True)
 def _set_max(params, which, lo, hi):
-    """The largest value of the glider's set ``which`` (:data:`~softreach.reach.kernels.SET_INDEX`) over the box
+    """The largest value of the glider's set ``which`` (:data:`~softreach.reach.model_kernels.SET_INDEX`) over the box
     ``[lo, hi]``: its box distance's, and for the target also the sink-rate term's, which is ``-V sin(gamma)``,
     bilinear in ``V`` and ``sin(gamma)`` with ``sin`` increasing on ``(-pi/2, pi/2)``: largest at a corner."""
     out = box_distance_max(params, 9 * which, lo, hi)
@@ -277,7 +277,7 @@ class Glider(GliderGame, GliderHeldEnclosure, Model):
 
     @property
     def set_max_params(self) -> np.ndarray:
-        """:func:`_set_max`'s numbers: the three sets' box distances (:func:`~softreach.reach.kernels.box_params`),
+        """:func:`_set_max`'s numbers: the three sets' box distances (:func:`~softreach.reach.model_kernels.box_params`),
         then the sink-rate limit and scale."""
         p, inf = self.params, math.inf
         boxes = {"target": ((p.min_altitude - p.touchdown_altitude, -inf, -inf),

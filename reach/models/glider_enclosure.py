@@ -145,7 +145,7 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
     if not found:
         return
     for _ in range(_REFINE):
-        # (Y ⊂ X keeps the domain, so the field is defined on every refined tube)
+        # Y lies in X, which keeps the domain: the field is defined on every refined tube
         _field(P, c0, c1, X_lo, X_hi, d_lo, d_hi)
         _hull_step(x_lo, x_hi, s1, d_lo, d_hi, Y_lo, Y_hi)
         for i in range(n):
