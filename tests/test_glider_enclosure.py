@@ -100,6 +100,26 @@ def test_trajectories_stay_in_the_boxes(model: Glider, dt: float):
         assert_inside(path[-1], end_lo, end_hi, f"end, wind {name}, dt {dt}")
 
 
+@pytest.mark.parametrize("dt", [0.1, 0.01])
+def test_tube_pieces_hold_their_part_of_every_trajectory(model: Glider, dt: float):
+    """Each of the 4 pieces' boxes (what the filter charges the budget by) holds the states of its quarter of the
+    period under every wind signal, lies in the whole tube, and is typically a fraction of it in altitude."""
+    rng = np.random.default_rng(99 + int(dt * 1000))
+    n, pieces = 200, 4
+    x, a = random_inputs(model, rng, n)
+    lo, hi = model.held_tube_pieces(0.0, x, a, dt, pieces)
+    assert lo.shape == hi.shape == (pieces, n, 3) and np.all(np.isfinite(lo)) and np.all(lo <= hi)
+    tube_lo, tube_hi, _, _ = model.held_enclosure(0.0, x, a, dt)
+    assert np.all(lo >= tube_lo) and np.all(hi <= tube_hi)
+    per = SUBSTEPS // pieces
+    for name, winds in wind_signals(model, rng, n).items():
+        path = rk4_path(model, x, a, winds, dt)
+        for j in range(pieces):
+            assert_inside(path[j * per:(j + 1) * per + 1], lo[j][None], hi[j][None], f"piece {j}, wind {name}")
+    share = (hi - lo)[..., 0] / (tube_hi - tube_lo)[None, :, 0]
+    assert np.median(share) < 0.5
+
+
 def test_box_starts_hold_every_start_and_contain_the_point_boxes(model: Glider):
     rng = np.random.default_rng(7)
     n, dt = 200, 0.1
