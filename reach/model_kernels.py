@@ -9,6 +9,7 @@ and called through it: one cached compilation serves every model."""
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numba as nb
@@ -73,8 +74,9 @@ SET_MAX_SIGNATURE = types.float64(_P, types.int64, _P, _P)
 def box_distance_max(params, offset, lo, hi):
     """The largest value over the box ``[lo, hi]`` of the box distance :func:`~softreach.reach.sets.box` whose
     lower bounds, upper bounds and scales are ``params[offset:]`` (``n`` of each): per axis the larger of the
-    corners' terms over the scale, the largest over the axes (``-inf`` where every axis is unbounded). It is the
-    largest value at the box's corners, to the bit: each corner term is one of the same differences."""
+    corners' terms over the scale, the largest over the axes (``-inf`` where every axis is unbounded; NaN where a
+    bounded axis of the box is NaN, an enclosure that failed). It is the largest value at the box's corners, to the
+    bit: each corner term is one of the same differences."""
     n = len(lo)
     out = -np.inf
     for a in range(n):
@@ -85,6 +87,8 @@ def box_distance_max(params, offset, lo, hi):
             term = hi[a] - b_hi
         else:
             continue
+        if math.isnan(term):
+            return np.nan
         out = max(out, term / scale)
     return out
 

@@ -46,11 +46,14 @@ def _set_max(params, which, lo, hi):
     ``[lo, hi]``: its box distance's, and for the target also the sink-rate term's, which is ``-V sin(gamma)``,
     bilinear in ``V`` and ``sin(gamma)`` with ``sin`` increasing on ``(-pi/2, pi/2)``: largest at a corner."""
     out = box_distance_max(params, 9 * which, lo, hi)
-    if which == 0:
+    if which == 0 and not math.isnan(out):
         limit, scale = params[27], params[28]
         for V in (lo[1], hi[1]):
             for gamma in (lo[2], hi[2]):
-                out = max(out, (-V * math.sin(gamma) - limit) / scale)
+                sink = (-V * math.sin(gamma) - limit) / scale
+                if math.isnan(sink):
+                    return np.nan
+                out = max(out, sink)
     return out
 
 
@@ -277,8 +280,8 @@ class Glider(GliderGame, GliderHeldEnclosure, Model):
 
     @property
     def set_max_params(self) -> np.ndarray:
-        """:func:`_set_max`'s numbers: the three sets' box distances (:func:`~softreach.reach.model_kernels.box_params`),
-        then the sink-rate limit and scale."""
+        """:func:`_set_max`'s numbers: the three sets' box distances
+        (:func:`~softreach.reach.model_kernels.box_params`), then the sink-rate limit and scale."""
         p, inf = self.params, math.inf
         boxes = {"target": ((p.min_altitude - p.touchdown_altitude, -inf, -inf),
                             (p.min_altitude + p.touchdown_altitude, inf, inf), (p.altitude_scale, 1.0, 1.0)),
