@@ -13,9 +13,8 @@ Both rules are compiled, the ``"switch"`` rule and the ``"smooth"`` one with its
 
 Each step below names the numpy method it mirrors: the arithmetic is the same, in the same order, on the numbers
 of the same kernels (the enclosure, the set maxima, :mod:`softreach.reach.kernels` for the table and the cells), so
-the decisions
-are equal, which ``tests/test_compiled_filter.py`` checks on thousands of rows of every kind. A change to the one-
-period test must be made in both.
+the decisions are equal, which ``tests/test_compiled_filter.py`` checks on thousands of rows of every kind. A change
+to the one-period test must be made in both.
 
 The per-row outputs: the applied action, the reason code, the certificate at the state, the applied action's worst
 next certificate, whether it is certified, the chosen candidate (NaN where the policy passed) and the new plan.

@@ -248,8 +248,7 @@ class Glider(GliderGame, GliderHeldEnclosure, Model):
         :param x: ``(h, V, gamma)`` components [m, m/s, rad]
         """
         p = self.params
-        band = sets.box([x[0]], (p.min_altitude - p.touchdown_altitude,), (p.min_altitude + p.touchdown_altitude,),
-                        (p.altitude_scale,))
+        band = sets.box(x, *self._set_boxes()["target"])
         sink = (self.sink_rate(x) - p.max_sink_rate) / p.sink_rate_scale
         return B.maximum(band, sink) if hasattr(band, "shape") else B.maximum(sink, band)
 
@@ -261,10 +260,7 @@ class Glider(GliderGame, GliderHeldEnclosure, Model):
         :param t: time [s] (unused)
         :param x: ``(h, V, gamma)`` components [m, m/s, rad]
         """
-        p = self.params
-        lo = (p.min_altitude - p.touchdown_altitude, p.hard_speed[0], p.hard_gamma[0])
-        hi = (sets.INF, p.hard_speed[1], p.hard_gamma[1])
-        return sets.box(x, lo, hi, self._scales())
+        return sets.box(x, *self._set_boxes()["hard_constraint"])
 
     def soft_constraint(self, t: float, x: Components) -> Array:
         """``c2``: scaled distance to ``{V in soft_speed}`` [units of ``speed_scale``].
@@ -272,8 +268,18 @@ class Glider(GliderGame, GliderHeldEnclosure, Model):
         :param t: time [s] (unused)
         :param x: ``(h, V, gamma)`` components [m, m/s, rad]
         """
-        p = self.params
-        return sets.box([x[1]], (p.soft_speed[0],), (p.soft_speed[1],), (p.speed_scale,))
+        return sets.box(x, *self._set_boxes()["soft_constraint"])
+
+    def _set_boxes(self) -> dict[str, tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]]:
+        """``(lo, hi, scale)`` of the box distance in each set: the target's altitude band (its sink-rate term is
+        not a box), ``C1`` and ``C2``; an unbounded axis has no term."""
+        p, inf = self.params, sets.INF
+        return {"target": ((p.min_altitude - p.touchdown_altitude, -inf, -inf),
+                           (p.min_altitude + p.touchdown_altitude, inf, inf), (p.altitude_scale, 1.0, 1.0)),
+                "hard_constraint": ((p.min_altitude - p.touchdown_altitude, p.hard_speed[0], p.hard_gamma[0]),
+                                    (inf, p.hard_speed[1], p.hard_gamma[1]), self._scales()),
+                "soft_constraint": ((-inf, p.soft_speed[0], -inf), (inf, p.soft_speed[1], inf),
+                                    (1.0, p.speed_scale, 1.0))}
 
     #: the sets over boxes, compiled (:attr:`~softreach.reach.problem.Model.set_max_kernel`)
     set_max_kernel = staticmethod(_set_max)
@@ -282,14 +288,8 @@ class Glider(GliderGame, GliderHeldEnclosure, Model):
     def set_max_params(self) -> np.ndarray:
         """:func:`_set_max`'s numbers: the three sets' box distances
         (:func:`~softreach.reach.model_kernels.box_params`), then the sink-rate limit and scale."""
-        p, inf = self.params, math.inf
-        boxes = {"target": ((p.min_altitude - p.touchdown_altitude, -inf, -inf),
-                            (p.min_altitude + p.touchdown_altitude, inf, inf), (p.altitude_scale, 1.0, 1.0)),
-                 "hard_constraint": ((p.min_altitude - p.touchdown_altitude, p.hard_speed[0], p.hard_gamma[0]),
-                                     (inf, p.hard_speed[1], p.hard_gamma[1]), self._scales()),
-                 "soft_constraint": ((-inf, p.soft_speed[0], -inf), (inf, p.soft_speed[1], inf),
-                                     (1.0, p.speed_scale, 1.0))}
-        return np.concatenate([box_params(boxes, 3), [p.max_sink_rate, p.sink_rate_scale]])
+        p = self.params
+        return np.concatenate([box_params(self._set_boxes(), 3), [p.max_sink_rate, p.sink_rate_scale]])
 
     # ------------------------------------------------------------------------------------------ units
     def validate_state(self, x: Array | Sequence[Any]) -> None:
