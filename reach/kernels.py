@@ -148,10 +148,11 @@ def _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first
 @nb.njit(cache=True)
 def box_scratch(D, max_nodes):
     """Work space of :func:`box_max_row` for ``D`` axes: a block of at most ``max_nodes + 3`` nodes per axis, and
-    each axis' lattice coordinates located, the block's extent and each node's share of the flat index."""
+    each axis' lattice coordinates located, the block's extent and each node's share of the flat index, and a
+    point's block of nodes (:func:`point_value`)."""
     return (np.empty(D, np.int64), np.empty(D, np.int64), np.empty((max_nodes + 3) ** D),
             np.empty((max_nodes + 3) ** D), np.empty((D, max_nodes + 2), np.int64), np.empty((D, max_nodes + 2)),
-            np.empty((4, D), np.int64), np.empty((D, max_nodes + 3), np.int64))
+            np.empty((4, D), np.int64), np.empty((D, max_nodes + 3), np.int64), np.empty(1 << D, np.int64))
 
 
 @nb.njit(cache=True)
@@ -164,7 +165,7 @@ def box_max_row(field, t, lo, hi, max_nodes, scratch):
     :param scratch: :func:`box_scratch`
     """
     flat, times, shape, glo, ghi, h, inv_h, periodic = field
-    first, count, buf_a, buf_b, coord_cell, coord_frac, axes, contrib = scratch
+    first, count, buf_a, buf_b, coord_cell, coord_frac, axes, contrib, _ = scratch
     D = len(shape)
     exact = True
     for a in range(D):
@@ -212,6 +213,55 @@ def box_max_rows(field, t, lo, hi, max_nodes, out):
 
 
 @nb.njit(cache=True, inline="always")
+def point_value(field, t, x, buf, node):
+    """The interpolant at the point ``x`` at time ``t``: :func:`box_max_row` of a box of no width (the same grid
+    check, the same arithmetic in the same order: each node blended in time, then the axes contracted from the
+    first), without its lattice and inlined, as the certificate at a state is asked on every row; ``+inf`` off the
+    grid. ``buf``, ``node``: work space of ``2 ** D`` floats and integers."""
+    flat, times, shape, glo, ghi, h, inv_h, periodic = field
+    D = len(shape)
+    for a in range(D):
+        if not periodic[a]:
+            s = (x[a] - glo[a]) / h[a]
+            tol = TOL * max(1.0, shape[a])
+            if not (s >= -tol and s <= shape[a] - 1 + tol):
+                return np.inf
+    k, wt = snapshot(times, t)
+    size = 1 << D
+    for q in range(size):
+        node[q] = 0
+    # the block's flat indices, the last axis fastest: each axis adds its lower or its upper node's share
+    stride = 1
+    for a in range(D - 1, -1, -1):
+        if periodic[a]:
+            cell = int(math.floor(((x[a] - glo[a]) * inv_h[a]) % shape[a]))
+            n0, n1 = cell % shape[a], (cell + 1) % shape[a]
+        else:
+            S = min((min(max(x[a], glo[a]), ghi[a]) - glo[a]) * inv_h[a], shape[a] - 1.0)
+            n0 = min(int(S), shape[a] - 2)
+            n1 = min(n0 + 1, shape[a] - 1)
+        bit = 1 << (D - 1 - a)
+        for q in range(size):
+            node[q] += (n1 if q & bit else n0) * stride
+        stride *= shape[a]
+    for q in range(size):
+        v = flat[k, node[q]]
+        buf[q] = (1.0 - wt) * v + wt * flat[k + 1, node[q]] if wt > 0.0 else v
+    n = size
+    for a in range(D):
+        if periodic[a]:
+            S = ((x[a] - glo[a]) * inv_h[a]) % shape[a]
+            f = S - math.floor(S)
+        else:
+            S = min((min(max(x[a], glo[a]), ghi[a]) - glo[a]) * inv_h[a], shape[a] - 1.0)
+            f = S - min(int(S), shape[a] - 2)
+        n //= 2
+        for i in range(n):
+            buf[i] = (1.0 - f) * buf[i] + f * buf[n + i]
+    return buf[0]
+
+
+@nb.njit(cache=True, inline="always")
 def certificate_row(W, z_top, z_floor, V, has_V, t, x, z, point, scratch_W, scratch_V):
     """``D(t, x, z) = min(V~(t, x), W~(t, x, min(z, z_top)))`` (:meth:`~softreach.reach.lookahead.Lookahead.
     certificate`); ``+inf`` off the grid or the time span, at a budget below the table's (``W``) or a negative one
@@ -223,10 +273,10 @@ def certificate_row(W, z_top, z_floor, V, has_V, t, x, z, point, scratch_W, scra
     for a in range(n):
         point[a] = x[a]
     point[n] = min(z, z_top)
-    w = box_max_row(W, t, point, point, MAX_NODES, scratch_W)
+    w = point_value(W, t, point, scratch_W[2], scratch_W[8])
     out = w if (z >= z_floor and math.isfinite(w)) else np.inf
     if has_V:
-        v = box_max_row(V, t, x, x, MAX_NODES, scratch_V)
+        v = point_value(V, t, x, scratch_V[2], scratch_V[8])
         if z >= 0 and math.isfinite(v):
             out = min(out, v)
     return out
