@@ -153,8 +153,8 @@ class ValueFilter:
         self.compiled = CompiledDecision.for_filter(self)
         #: batches of more rows than this run the numpy decision even where :attr:`compiled` exists: both decide
         #: the same, the compiled one pays a fixed cost a row and numpy a fixed cost a call. On the point mass's
-        #: default table the switch rule's cross between 64 and 256 rows (1,024 certified rows: 3.3 ms numpy,
-        #: 4.7 ms compiled); the smooth rule's numpy bisection stays slower (129 against 82 ms), so it is always
+        #: default table the switch rule's cross between 64 and 256 rows (1,024 certified rows: 3.0 ms numpy,
+        #: 5.0 ms compiled); the smooth rule's numpy bisection stays slower (129 against 82 ms), so it is always
         #: compiled (``benchmarks/bench_filter.py`` times them)
         self.compiled_max_rows = 128 if rule == "switch" else 10 ** 9
         #: up to this many rows, :meth:`filter` judges the policy's action and the candidates in one batch. 0: the
