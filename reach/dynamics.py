@@ -142,7 +142,8 @@ class Dynamics(ABC):
     #: (:mod:`softreach.filters.compiled`): a numba ``njit`` function ``(params, x_lo, x_hi, a, s0, s1, lo, hi)``
     #: writing into ``lo``, ``hi`` the box of every state reachable at some time in ``[s0, s1]`` of a held period
     #: from every start in ``[x_lo, x_hi]`` (1-d arrays), for the numbers :attr:`held_box_params`. It must be what
-    #: :meth:`held_enclosure_box` and :meth:`held_tube_pieces_box` compute (the point mass's are built on it).
+    #: :meth:`held_enclosure_box` and :meth:`held_tube_pieces_box` compute
+    #: (:func:`~softreach.reach.model_kernels.held_boxes` runs it for them).
     #: ``None``: the filter runs its numpy test only
     held_box_kernel: Any = None
     held_box_params: np.ndarray = np.zeros(0)

@@ -62,6 +62,36 @@ def call_held_box(typingctx, address, params, x_lo, x_hi, a, s0, s1, lo, hi):
     return types.void(address, params, x_lo, x_hi, a, s0, s1, lo, hi), _call_by_address(None)
 
 
+@nb.njit(cache=True)
+def held_box_rows(address, params, x_lo, x_hi, a, s0, s1, lo, hi):
+    """:func:`call_held_box` for every row (2-d C-contiguous arrays, and ``s0``, ``s1`` one time per row)."""
+    for r in range(x_lo.shape[0]):
+        call_held_box(address, params, x_lo[r], x_hi[r], a[r], s0[r], s1[r], lo[r], hi[r])
+
+
+def held_boxes(model: Any, x_lo: Any, x_hi: Any, a: Any, s0: Any, s1: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The box of every state reachable at some time in ``[s0, s1]`` of a held period from ``[x_lo, x_hi]``, by the
+    model's :attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`: what a model's numpy enclosure methods
+    return, on the same kernel as the filter's compiled decision. ``s0``, ``s1`` are floats, or arrays that
+    broadcast against the rows (``(P, 1)``: one box per piece and row).
+
+    :return: ``(lo, hi)``, each of the broadcast shape plus the state axis
+    """
+    n, m = model.state_dim, model.control_dim
+    x_lo, x_hi, a = (np.asarray(v, dtype=np.float64) for v in (x_lo, x_hi, a))
+    shape = np.broadcast_shapes(x_lo.shape[:-1], x_hi.shape[:-1], a.shape[:-1], np.shape(s0), np.shape(s1))
+
+    def rows(v: Any, k: int) -> np.ndarray:
+        return np.ascontiguousarray(np.broadcast_to(v, shape + (k,)).reshape(-1, k))
+
+    size = int(np.prod(shape))
+    lo, hi = np.empty((size, n)), np.empty((size, n))
+    held_box_rows(held_box_address(model), np.ascontiguousarray(model.held_box_params, dtype=np.float64),
+                  rows(x_lo, n), rows(x_hi, n), rows(a, m), rows(np.asarray(s0, dtype=np.float64)[..., None], 1)[:, 0],
+                  rows(np.asarray(s1, dtype=np.float64)[..., None], 1)[:, 0], lo, hi)
+    return lo.reshape(shape + (n,)), hi.reshape(shape + (n,))
+
+
 # ---------------------------------------------------------------- a model's sets over boxes, compiled
 #: the index of each set function in a set-maximum kernel's ``which`` (:attr:`~softreach.reach.problem.Model.
 #: set_max_kernel`)

@@ -1,9 +1,9 @@
 """Validated enclosures of the glider's motion over one control period with the angle of attack held
 (:meth:`GliderHeldEnclosure.held_enclosure`), in interval arithmetic; the safety filter's look-ahead reads them.
 
-The enclosure is one compiled kernel (:func:`held_box_kernel`, numba): the numpy methods run it row by row, and the
-filter's compiled decision calls it by address (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`), so
-both read the same boxes."""
+The enclosure is one compiled kernel (:func:`held_box_kernel`, numba): the numpy methods run it row by row
+(:func:`~softreach.reach.model_kernels.held_boxes`), and the filter's compiled decision calls it by address
+(:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`), so both read the same boxes."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ import numba as nb
 import numpy as np
 
 from ..intervals import HALF_PI, ROUND_ABS, ROUND_REL
+from ..model_kernels import held_boxes
 from .glider_params import GliderParams
 
 #: inflation of a failed Picard candidate: relative to its width, and absolute (plus relative to |x|) so that a
@@ -156,12 +157,6 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
         hi[i] = min(_up(x_hi[i] + _up(max(s0 * d_hi[i], s1 * d_hi[i]))), X_hi[i])
 
 
-@nb.njit(cache=True)
-def _held_box_rows(params, x_lo, x_hi, a, s0, s1, lo, hi):
-    for r in range(len(x_lo)):
-        held_box_kernel(params, x_lo[r], x_hi[r], a[r], s0[r], s1[r], lo[r], hi[r])
-
-
 class GliderHeldEnclosure:
     """The held-period enclosure of :class:`~softreach.reach.models.glider.Glider`, a base class of it.
 
@@ -220,7 +215,7 @@ class GliderHeldEnclosure:
         """:meth:`held_tube_pieces` from every start in the boxes ``[x_lo, x_hi]`` (NaN rows: no enclosure)."""
         x_lo, x_hi, alpha, dt = self._checked(x_lo, x_hi, a, dt)
         edges = np.linspace(0.0, dt, int(pieces) + 1)[:, None]
-        return self._boxes(x_lo, x_hi, alpha, edges[:-1], edges[1:])
+        return held_boxes(self, x_lo, x_hi, alpha, edges[:-1], edges[1:])
 
     def _checked(self, x_lo: Any, x_hi: Any, a: Any, dt: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         x_lo = np.asarray(x_lo, dtype=np.float64)
@@ -245,27 +240,11 @@ class GliderHeldEnclosure:
             self.validate_control(a)
         return x_lo, x_hi, a.reshape(n, 1), dt
 
-    def _boxes(self, x_lo: np.ndarray, x_hi: np.ndarray, alpha: np.ndarray, s0: Any, s1: Any
-               ) -> tuple[np.ndarray, np.ndarray]:
-        """:func:`held_box_kernel` for every row and every entry of ``s0``, ``s1`` (floats, or ``(P, 1)`` arrays:
-        one box per piece and row)."""
-        shape = np.broadcast_shapes(x_lo.shape[:-1], np.shape(s0), np.shape(s1))
-
-        def rows(v: Any, k: int) -> np.ndarray:
-            return np.ascontiguousarray(np.broadcast_to(v, shape + (k,)).reshape(-1, k))
-
-        size = int(np.prod(shape))
-        lo, hi = np.empty((size, 3)), np.empty((size, 3))
-        _held_box_rows(self.held_box_params, rows(x_lo, 3), rows(x_hi, 3), rows(alpha, 1),
-                       rows(np.asarray(s0, dtype=np.float64)[..., None], 1)[:, 0],
-                       rows(np.asarray(s1, dtype=np.float64)[..., None], 1)[:, 0], lo, hi)
-        return lo.reshape(shape + (3,)), hi.reshape(shape + (3,))
-
     def _enclose(self, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float, strict: bool
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         x_lo, x_hi, alpha, dt = self._checked(x_lo, x_hi, a, dt)
-        tube_lo, tube_hi = self._boxes(x_lo, x_hi, alpha, 0.0, dt)
-        end_lo, end_hi = self._boxes(x_lo, x_hi, alpha, dt, dt)
+        tube_lo, tube_hi = held_boxes(self, x_lo, x_hi, alpha, 0.0, dt)
+        end_lo, end_hi = held_boxes(self, x_lo, x_hi, alpha, dt, dt)
         failed = ~(np.isfinite(tube_lo).all(axis=1) & np.isfinite(end_lo).all(axis=1))
         if strict and failed.any():
             i = int(np.flatnonzero(failed)[0])

@@ -11,6 +11,7 @@ import numpy as np
 
 from .. import sets
 from ..dynamics import ControlAndDisturbanceAffine
+from ..model_kernels import held_boxes
 from ..problem import Model
 
 
@@ -141,30 +142,13 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         """:meth:`held_enclosure` from every start in ``[x_lo, x_hi]``: every bound grows with ``v`` and ``y``
         (the motion is monotone in the start), so the lower bounds come from ``x_lo``, the upper from ``x_hi``."""
         lo, hi = self.held_tube_pieces_box(t, x_lo, x_hi, a, dt, 1)
-        end_lo, end_hi = self._held_box(x_lo, x_hi, a, dt, dt)
+        end_lo, end_hi = held_boxes(self, x_lo, x_hi, a, dt, dt)
         return lo[0], hi[0], end_lo, end_hi
 
     def held_tube_pieces_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float,
                              pieces: int):
         edges = np.linspace(0.0, dt, pieces + 1)[:, None]  # every piece at once: (pieces, 1) against N rows
-        return self._held_box(x_lo, x_hi, a, edges[:-1], edges[1:])
-
-    def _held_box(self, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, s0: Any, s1: Any
-                  ) -> tuple[np.ndarray, np.ndarray]:
-        """The box of every state reachable at some time in ``[s0, s1]`` of the held period from ``[x_lo, x_hi]``
-        (``s0``, ``s1`` floats, or arrays that broadcast against the rows: one box per entry), by
-        :func:`held_box_kernel` row by row."""
-        x_lo, x_hi, a = (np.asarray(v, dtype=np.float64) for v in (x_lo, x_hi, a))
-        shape = np.broadcast_shapes(x_lo.shape[:-1], x_hi.shape[:-1], a.shape[:-1], np.shape(s0), np.shape(s1))
-
-        def rows(v: Any, k: int) -> np.ndarray:
-            return np.ascontiguousarray(np.broadcast_to(v, shape + (k,)).reshape(-1, k))
-
-        lo, hi = np.empty((int(np.prod(shape)), 2)), np.empty((int(np.prod(shape)), 2))
-        _held_box_rows(self.held_box_params, rows(x_lo, 2), rows(x_hi, 2), rows(a, 1),
-                       rows(np.asarray(s0, dtype=np.float64)[..., None], 1)[:, 0],
-                       rows(np.asarray(s1, dtype=np.float64)[..., None], 1)[:, 0], lo, hi)
-        return lo.reshape(shape + (2,)), hi.reshape(shape + (2,))
+        return held_boxes(self, x_lo, x_hi, a, edges[:-1], edges[1:])
 
     def sink_rate(self, x) -> float:
         """The vertical speed downwards, ``-v`` [m/s].
@@ -249,12 +233,6 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
     hi[0] = max(x_hi[0] + acc_hi * s0, x_hi[0] + acc_hi * s1)
     lo[1] = _parabola(x_lo[1], x_lo[0], acc_lo, s0, s1, False)
     hi[1] = _parabola(x_hi[1], x_hi[0], acc_hi, s0, s1, True)
-
-
-@nb.njit(cache=True)
-def _held_box_rows(params, x_lo, x_hi, a, s0, s1, lo, hi):
-    for r in range(len(x_lo)):
-        held_box_kernel(params, x_lo[r], x_hi[r], a[r], s0[r], s1[r], lo[r], hi[r])
 
 
 @nb.njit(cache=True)
