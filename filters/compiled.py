@@ -52,7 +52,7 @@ def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
     return out
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
     """:meth:`Lookahead._lands` of one row: at some check instant ``s`` every run is in the target inside ``C2``,
     the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``."""
@@ -74,7 +74,7 @@ def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
     return False
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _assess(enclose, M, C, T, t, x_lo, x_hi, z, z_hi, a, end_lo, end_hi, work, level):
     """:meth:`Lookahead.assess` with ``ends=True`` for one row (a point where ``x_lo`` is ``x_hi``): returns
     ``(passing, next_value, badness, z_end, kept)`` and writes the end box into ``end_lo``, ``end_hi``. Only what
@@ -178,21 +178,45 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
         tr, xr, zr = t[r], x[r], z[r]
         value[r] = certificate_row(W, z_top, z_floor, V, has_V, tr, xr, zr, point, work[6], work[7])
         new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = -1, 0, 0
-        # the policy's action (Lookahead.passes)
-        ok, p_next, _, z_end, kept = _assess(enclose, M, C, T, tr, xr, xr, zr, zr, pol[r], end_lo[J], end_hi[J], work,
-                                             1)
-        if _keeps(enclose, M, C, T, cands, tr, zr, ok, p_next, end_lo[J], end_hi[J], z_end, kept, work, work_box):
-            applied[r] = pol[r]
-            reason[r], nxt[r], certified[r], blend[r] = _PASS, p_next, True, 1.0
-            chosen[r] = np.nan
-            continue
-        # every candidate (ValueFilter._candidates): the one-period test, then whether it keeps, asked in the rule's
-        # order of preference (lowest next certificate, or nearest the policy's action) up to the first that does
-        any_ok = False
-        for j in range(J):
-            c_ok[j], c_next[j], c_bad[j], c_zend[j], c_kept[j] = _assess(enclose, M, C, T, tr, xr, xr, zr, zr, cands[j],
-                                                                          end_lo[j], end_hi[j], work, 2)
-            any_ok = any_ok or c_ok[j]
+        # one call of _assess serves every action a row tries, since each inlined copy costs seconds of the first
+        # compilation: step 0 the policy's action (Lookahead.passes), steps 1 to J every candidate
+        # (ValueFilter._candidates), then the smooth rule's bisection (ValueFilter._bisect): the largest step from
+        # the chosen candidate towards the policy's action that passes
+        passed, any_ok = False, False
+        best, best_next, best_bad = 0, np.inf, np.inf
+        lo, hi, mid = 0.0, 1.0, 0.0
+        for s in range(1 + J + (iterations if smooth else 0)):
+            slot, level = (s - 1, 2) if 1 <= s <= J else (J, 1)
+            for i in range(m):
+                if s == 0:
+                    act[i] = pol[r, i]
+                elif s <= J:
+                    act[i] = cands[s - 1, i]
+                else:
+                    mid = 0.5 * (lo + hi)
+                    act[i] = cands[best, i] + mid * (pol[r, i] - cands[best, i])
+            a_ok, a_next, a_bad, a_zend, a_kept = _assess(enclose, M, C, T, tr, xr, xr, zr, zr, act, end_lo[slot],
+                                                          end_hi[slot], work, level)
+            # a passing action keeps: the call of _keeps, with its large tuples, is skipped
+            if s == 0:
+                if a_ok or _keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J], end_hi[J], a_zend, a_kept,
+                                  work, work_box):
+                    applied[r] = pol[r]
+                    reason[r], nxt[r], certified[r], blend[r] = _PASS, a_next, True, 1.0
+                    chosen[r] = np.nan
+                    passed = True
+                    break
+                continue
+            if s > J:
+                if any_ok and (a_ok or _keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J], end_hi[J],
+                                              a_zend, a_kept, work, work_box)):
+                    lo, best_next = mid, a_next
+                else:
+                    hi = mid
+                continue
+            j = s - 1
+            c_ok[j], c_next[j], c_bad[j], c_zend[j], c_kept[j] = a_ok, a_next, a_bad, a_zend, a_kept
+            any_ok = any_ok or a_ok
             d = 0.0
             for i in range(m):
                 q = (cands[j, i] - pol[r, i]) / a_half[i]
@@ -202,40 +226,31 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
                 c_pref[j] = c_dist[j] if (c_ok[j] or c_kept[j]) else np.inf
             else:
                 c_pref[j] = c_next[j] if c_ok[j] else np.inf
-        keeps_j = -1
-        for j in np.argsort(c_pref, kind="mergesort"):
-            if not (c_ok[j] or (smooth and c_kept[j])):
-                break
-            if _keeps(enclose, M, C, T, cands, tr, zr, c_ok[j], c_next[j], end_lo[j], end_hi[j], c_zend[j], c_kept[j],
-                      work, work_box):
-                keeps_j = j
-                break
-        for j in range(J):
-            first = c_dist[j] if smooth else c_next[j]
-            if j == keeps_j:
-                c_score[j] = first
-            elif c_ok[j]:
-                c_score[j] = 10.0 + c_dist[j] if smooth else 5e5 + min(c_next[j], 1e5)
-            else:
-                c_score[j] = c_bad[j]
-        best = np.argmin(c_score)
-        best_next, best_bad = c_next[best], c_bad[best]
-        # the smooth rule: the largest step from the candidate towards the policy's action that passes (_bisect)
-        lam = 0.0
-        if smooth and iterations > 0:
-            lo, hi = 0.0, 1.0
-            for _ in range(iterations):
-                mid = 0.5 * (lo + hi)
-                for i in range(m):
-                    act[i] = cands[best, i] + mid * (pol[r, i] - cands[best, i])
-                b_ok, b_next, _, b_zend, b_kept = _assess(enclose, M, C, T, tr, xr, xr, zr, zr, act, end_lo[J],
-                                                          end_hi[J], work, 1)
-                if any_ok and _keeps(enclose, M, C, T, cands, tr, zr, b_ok, b_next, end_lo[J], end_hi[J], b_zend,
-                                     b_kept, work, work_box):
-                    lo, best_next = mid, b_next
+            if s < J:
+                continue
+            # every candidate judged: whether it keeps is asked in the rule's order of preference (lowest next
+            # certificate, or nearest the policy's action) up to the first that does
+            keeps_j = -1
+            for k in np.argsort(c_pref, kind="mergesort"):
+                if not (c_ok[k] or (smooth and c_kept[k])):
+                    break
+                if c_ok[k] or _keeps(enclose, M, C, T, cands, tr, zr, c_ok[k], c_next[k], end_lo[k], end_hi[k],
+                                     c_zend[k], c_kept[k], work, work_box):
+                    keeps_j = k
+                    break
+            for k in range(J):
+                first = c_dist[k] if smooth else c_next[k]
+                if k == keeps_j:
+                    c_score[k] = first
+                elif c_ok[k]:
+                    c_score[k] = 10.0 + c_dist[k] if smooth else 5e5 + min(c_next[k], 1e5)
                 else:
-                    hi = mid
-            lam = lo
+                    c_score[k] = c_bad[k]
+            best = np.argmin(c_score)
+            best_next, best_bad = c_next[best], c_bad[best]
+        if passed:
+            continue
+        lam = lo
         for i in range(m):
             act[i] = cands[best, i] + lam * (pol[r, i] - cands[best, i])
         # the plans (follow_plans): landing cells first, then safe cells
