@@ -7,7 +7,8 @@ Measures, for one table (``filters.core.ValueFilter`` at the table's control per
    holds, as a measure (nodes x cell volume), beside the table's own ``RA~_Q`` (``set_measure(0, Q)``) and, with
    ``--continuous``, the continuous-time table's ``RA~_Q``, with their ratios;
 3. latency: one decision (median of 200 calls, us) for a policy action that passes and for one the filter
-   replaces, and a batch of 1,024 random states (median of 20 calls, ms);
+   replaces, and a batch of 1,024 random states (median of 20 calls, ms), also on the numpy path where the
+   decision is compiled (median of 5);
 4. the audit (``filters.audit.audit``): start classes x policies x winds, with and without the filter, one line
    per row and totals per (start class, filtered);
 5. point mass only: the four starts of issue 10, each certified or not (and why) and run once.
@@ -105,6 +106,13 @@ def timings(vf: ValueFilter, q: float, seed: int) -> dict[str, Any]:
                    single_replaced_us=_median_time(lambda: vf.filter(0.0, xi, q, a_rep), 200) * 1e6)
     xb, ab = x[:1024], rng.uniform(vf.a_lo, vf.a_hi, size=(1024, vf.m))
     out["batch1024_ms"] = _median_time(lambda: vf.filter(0.0, xb, q, ab), 20) * 1e3
+    if vf.compiled is not None:
+        # the same batch on the numpy path, which decides the same: what the compiled decision saves
+        compiled, vf.compiled = vf.compiled, None
+        try:
+            out["batch1024_numpy_ms"] = _median_time(lambda: vf.filter(0.0, xb, q, ab), 5) * 1e3
+        finally:
+            vf.compiled = compiled
     return out
 
 
@@ -204,7 +212,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     tm = res["timing"]
     print(f"\nlatency at Q={tm['Q']}: " + (f"single pass {tm['single_pass_us']:.0f} us, single replaced "
                                         f"{tm['single_replaced_us']:.0f} us, " if "single_pass_us" in tm else "")
-          + f"batch of 1024 {tm['batch1024_ms']:.2f} ms")
+          + f"batch of 1024 {tm['batch1024_ms']:.2f} ms"
+          + (f" (numpy path {tm['batch1024_numpy_ms']:.2f} ms)" if "batch1024_numpy_ms" in tm else ""))
 
     t0 = time.perf_counter()
     rows = audit(vf, budgets, starts_per_row=args.starts, kinds=args.kinds, policies=args.policies, winds=args.winds,

@@ -14,11 +14,11 @@ use). Each latency is the mean time per call over many calls, on fixed random in
   filter certifies (before the last 0.1 s), where a deployed policy spends its steps.
 * **batch of 1,024** — the same call on ``(1024, n)`` states (numpy). Target: under 1 ms. Once over the random
   states (most of them outside the sets, where the filter searches the candidates), once over certified ones.
-* the same for the smooth rule, for torch tensors (CPU) in and out, for the same filter with its compiled decision
-  at every batch size (``compiled_*``: by default a batch above ``ValueFilter.compiled_max_rows`` rows runs numpy,
-  and these figures are why), without it (``numpy_*``: ``ValueFilter.compiled = None``, the numpy path every model
-  without a compiled enclosure takes), and, for scale, the ``Table`` API calls the filter replaces
-  (``Table.value`` + ``Table.optimal_control``).
+* the same for the smooth rule, for torch tensors (CPU) in and out, for the same filter forced to its compiled
+  decision at every batch size (``compiled_*``, what ``ValueFilter.compiled_max_rows`` allows by default) and
+  without it (``numpy_*``: ``ValueFilter.compiled = None``, the numpy path every model without a compiled
+  enclosure takes), also for batches of 16 and 128 certified rows, where the two could cross; and, for scale, the
+  ``Table`` API calls the filter replaces (``Table.value`` + ``Table.optimal_control``).
 
 Then one ``step`` of ``PointMassLanding-v0``, bare and in ``SafetyFilter``: what the filter adds to a training step.
 
@@ -82,7 +82,7 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
     switch = ValueFilter(table, DT)
     smooth = ValueFilter(table, DT, rule="smooth")
     # the same decisions in numpy alone, side by side (where the model has no compiled enclosure, both are numpy),
-    # and compiled at every batch size (by default batches above ValueFilter.compiled_max_rows run numpy)
+    # and compiled at every batch size whatever ValueFilter.compiled_max_rows says
     numpy_only = ValueFilter(table, DT)
     numpy_only.compiled = None
     compiled_only = ValueFilter(table, DT)
@@ -124,6 +124,9 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
         "numpy_switch_single_certified_us": _per_call(single_from(numpy_only, inside), 100, repeats),
         "numpy_switch_batch1024_us": _per_call(lambda: numpy_only.filter(t, x, z, a), 2, repeats),
         "numpy_switch_batch1024_certified_us": _per_call(lambda: numpy_only.filter(*cert_batch), 2, repeats),
+        **{f"{kind}_switch_batch{k}_certified_us": _per_call(lambda vf=vf, k=k: vf.filter(*(v[:k] for v in cert_batch)),
+                                                             max(5, 2048 // k), repeats)
+           for k in (16, 128) for kind, vf in (("compiled", compiled_only), ("numpy", numpy_only))},
         "smooth_single_us": _per_call(single(smooth), 100, repeats),
         "smooth_batch1024_us": _per_call(lambda: smooth.filter(t, x, z, a), 2, repeats),
         "table_api_single_us": _per_call(lambda: (table.value(t[:1], x[:1], z[:1]),

@@ -21,9 +21,8 @@ free at every instant), and the audit (``benchmarks/audit_filter.py``) counts th
 (reason ``"uncertified"``). With a continuous-time table the same checks run, but nothing is certified.
 
 Where the model gives its enclosure and set maxima compiled, :class:`ValueFilter` runs this same decision compiled,
-row by row (:mod:`softreach.filters.compiled`, :attr:`ValueFilter.compiled`), for batches of up to
-:attr:`ValueFilter.compiled_max_rows` rows; the numpy code below is the reference it is tested against, what larger
-batches run, and what every other model runs.
+row by row (:mod:`softreach.filters.compiled`, :attr:`ValueFilter.compiled`); the numpy code below is the
+reference it is tested against, and what every other model runs.
 
 Everything works on batches: ``t`` and ``z`` are scalars or ``(N,)``, ``x`` is ``(N, n)`` (or ``(n,)``), actions
 ``(N, m)`` (or ``(m,)``) in physical units unless ``normalized=True``. numpy in, numpy out; torch in, torch out.
@@ -151,12 +150,10 @@ class ValueFilter:
         #: the decision compiled (:mod:`softreach.filters.compiled`), where the model, the table and the cells allow;
         #: ``None``: numpy only
         self.compiled = CompiledDecision.for_filter(self)
-        #: batches of more rows than this run the numpy decision even where :attr:`compiled` exists: both decide
-        #: the same, the compiled one pays a fixed cost a row and numpy a fixed cost a call. On the point mass's
-        #: default table the switch rule's cross between 64 and 256 rows (1,024 certified rows: 3.0 ms numpy,
-        #: 5.0 ms compiled); the smooth rule's numpy bisection stays slower (129 against 82 ms), so it is always
-        #: compiled (``benchmarks/bench_filter.py`` times them)
-        self.compiled_max_rows = 128 if rule == "switch" else 10 ** 9
+        #: batches of more rows than this run the numpy decision even where :attr:`compiled` exists (both decide
+        #: the same). By default none does: the compiled decision is the faster at every batch size
+        #: ``benchmarks/bench_filter.py`` times (1,024 rows: ``compiled_*`` against ``numpy_*``)
+        self.compiled_max_rows = 10 ** 9
         #: up to this many rows, :meth:`filter` judges the policy's action and the candidates in one batch. 0: the
         #: policy's action first, the candidates only where it fails. From certified states with a random policy
         #: (6 % interventions) that is the faster one: median 2.1 ms a decision against 2.7 ms with 8
