@@ -313,20 +313,6 @@ def budget_floor(z, dz, top):
 
 
 @nb.njit(cache=True, inline="always")
-def _cell_span(lo, hi, clo, chi, width, n_cells):
-    """Along one axis: the first cell a closed box ``[lo, hi]`` touches, how many it touches, and whether it lies on
-    the grid (a box reaching the grid's upper end exactly touches the last cell only)."""
-    f = math.floor((lo - clo) / width)
-    g = math.floor((hi - clo) / width)
-    if hi == chi:
-        g = n_cells - 1.0
-    on = math.isfinite(f) and math.isfinite(g) and f >= 0 and g <= n_cells - 1
-    fi = int(min(max(f, 0.0), n_cells - 1.0)) if math.isfinite(f) else 0
-    gi = int(min(max(g, 0.0), n_cells - 1.0)) if math.isfinite(g) else 0
-    return fi, max(fi, gi) - fi + 1, on
-
-
-@nb.njit(cache=True, inline="always")
 def cover_row(cells, t, lo, hi, z):
     """Whether every cell the box ``[lo, hi]`` touches (closed cells; a box reaching the grid's upper end exactly
     touches the last cell only) is good at sample time ``t`` with budget ``z``: on the grid, ``t`` not past the
@@ -336,26 +322,33 @@ def cover_row(cells, t, lo, hi, z):
     """
     m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
     D = len(shape)
+    on = True
+    first = np.empty(D, np.int64)
+    span = np.empty(D, np.int64)
     P = 1
     for a in range(D):
-        _, span, on = _cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a])
-        if not on:
-            return False
-        P *= span
-    if not t <= horizon + 1e-9 * dt:
+        f = math.floor((lo[a] - clo[a]) / width[a])
+        g = math.floor((hi[a] - clo[a]) / width[a])
+        if hi[a] == chi[a]:
+            g = shape[a] - 1.0
+        if not (math.isfinite(f) and math.isfinite(g) and f >= 0 and g <= shape[a] - 1):
+            on = False
+        fi = int(min(max(f, 0.0), shape[a] - 1.0)) if math.isfinite(f) else 0
+        gi = int(min(max(g, 0.0), shape[a] - 1.0)) if math.isfinite(g) else 0
+        first[a] = fi
+        span[a] = max(fi, gi) - fi + 1
+        P *= span[a]
+    if not on or not t <= horizon + 1e-9 * dt:
         return False
     k = step_index(t, dt, steps, safe)
     need = -1
-    # the touched block, the last axis fastest; each axis' first cell and extent recomputed (cheaper than the two
-    # small arrays this would otherwise allocate on every call)
     for p in range(P):
         rest = p
         off = 0
         stride = 1
         for a in range(D - 1, -1, -1):
-            first, span, _ = _cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a])
-            off += (first + rest % span) * stride
-            rest //= span
+            off += (first[a] + rest % span[a]) * stride
+            rest //= span[a]
             stride *= shape[a]
         need = max(need, int(m[k, off]))
     return budget_floor(z, dz, top) >= need
