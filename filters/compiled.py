@@ -189,13 +189,14 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
         lo, hi, mid = 0.0, 1.0, 0.0
         for s in range(1 + J + (iterations if smooth else 0)):
             slot, level = (s - 1, 2) if 1 <= s <= J else (J, 1)
+            if s > J:
+                mid = 0.5 * (lo + hi)
             for i in range(m):
                 if s == 0:
                     act[i] = pol[r, i]
                 elif s <= J:
                     act[i] = cands[s - 1, i]
                 else:
-                    mid = 0.5 * (lo + hi)
                     act[i] = cands[best, i] + mid * (pol[r, i] - cands[best, i])
             a_ok, a_next, a_bad, a_zend, a_kept = _assess(enclose, M, C, T, tr, xr, xr, zr, zr, act, end_lo[slot],
                                                           end_hi[slot], work, level)
