@@ -23,11 +23,13 @@ next certificate, whether it is certified, the chosen candidate (NaN where the p
 from __future__ import annotations
 
 import math
+import threading
 from typing import Any
 
 import numba as nb
 import numpy as np
 
+from softreach.reach.borrowed import borrowed
 from softreach.reach.box_max import kernel_field
 from softreach.reach.kernels import MAX_NODES, box_max_row, box_scratch, certificate_row, cover_row, plan_row
 from softreach.reach.model_kernels import SET_INDEX, call_held_box, call_set_max, held_box_address
@@ -159,23 +161,32 @@ def _keeps(enclose, M, C, T, cands, t, z, ok, nxt, end_lo, end_hi, z_end, kept, 
     return False
 
 
+def decision_space(n: int, m: int, J: int) -> tuple:
+    """The work space of :func:`decide_rows` for ``n`` states, ``m`` controls and ``J`` candidates."""
+    work = (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n + 1), np.empty(n + 1),
+            box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES))
+    return (work, (np.empty(n), np.empty(n)), np.empty((J + 1, n)), np.empty((J + 1, n)), np.empty(J, np.bool_),
+            np.empty(J), np.empty(J), np.empty(J), np.empty(J, np.bool_), np.empty(J), np.empty(J), np.empty(J),
+            np.empty(m), np.empty(n + 1))
+
+
 @nb.njit(cache=True)
 def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t, x, z, pol, plans, has_plans,
-                applied, reason, value, nxt, certified, chosen, blend, new_plans):
+                applied, reason, value, nxt, certified, chosen, blend, new_plans, space):
     """The decision for every row (:meth:`ValueFilter.filter`) by the ``"switch"`` rule, or with ``smooth`` by the
-    ``"smooth"`` rule with ``iterations`` bisection steps; see the module docstring."""
+    ``"smooth"`` rule with ``iterations`` bisection steps, in the work space ``space`` (:func:`decision_space`); see
+    the module docstring."""
+    # every array here is an argument, held by the caller until the call returns: borrowed, they are bound and
+    # unpacked without reference counting (softreach.reach.borrowed), a third of a row's time
+    M, C, T, cands, fallback, a_half, t, x, z, pol, plans = borrowed((M, C, T, cands, fallback, a_half, t, x, z, pol,
+                                                                      plans))
+    applied, reason, value, nxt, certified, chosen, blend, new_plans, space = borrowed(
+        (applied, reason, value, nxt, certified, chosen, blend, new_plans, space))
     N, n = x.shape
     J, m = cands.shape
     safe, has_safe, land, safe_plan, land_plan = C[0], C[1], C[2], C[3], C[4]
     W, z_top, z_floor, V, has_V, S, has_S = T
-    work = (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n + 1), np.empty(n + 1),
-            box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES))
-    work_box = (np.empty(n), np.empty(n))
-    end_lo, end_hi = np.empty((J + 1, n)), np.empty((J + 1, n))
-    c_ok, c_next, c_bad = np.empty(J, np.bool_), np.empty(J), np.empty(J)
-    c_zend, c_kept, c_score = np.empty(J), np.empty(J, np.bool_), np.empty(J)
-    c_dist, c_pref, act = np.empty(J), np.empty(J), np.empty(m)
-    point = np.empty(n + 1)
+    work, work_box, end_lo, end_hi, c_ok, c_next, c_bad, c_zend, c_kept, c_score, c_dist, c_pref, act, point = space
     for r in range(N):
         tr, xr, zr = t[r], x[r], z[r]
         value[r] = certificate_row(W, z_top, z_floor, V, has_V, tr, xr, zr, point, work[6], work[7])
@@ -332,6 +343,8 @@ class CompiledDecision:
         self.cands = np.ascontiguousarray(la.candidates)
         self.fallback = np.asarray(vf.fallback_action, dtype=np.float64)
         self.no_plans = np.zeros((1, 3), np.int64)
+        # one work space per thread: decide_rows writes into it
+        self._local = threading.local()
 
     @staticmethod
     def for_filter(vf: Any) -> "CompiledDecision | None":
@@ -356,5 +369,21 @@ class CompiledDecision:
         vf = self.filter
         decide_rows(self.enclose, self.M, self.C, self.T, self.cands, self.fallback, vf.rule == "smooth",
                     vf.smooth_iterations, vf.a_half, t, x, z, pol, self.no_plans if plans is None else plans,
-                    plans is not None, applied, reason, value, nxt, certified, chosen, blend, new_plans)
+                    plans is not None, applied, reason, value, nxt, certified, chosen, blend, new_plans, self._space())
         return applied, reason, value, nxt, certified, chosen, blend, new_plans
+
+    def __getstate__(self) -> dict:
+        # a thread's work space stays with the thread (and threading.local does not pickle)
+        return {k: v for k, v in self.__dict__.items() if k != "_local"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._local = threading.local()
+
+    def _space(self) -> tuple:
+        """This thread's work space for :func:`decide_rows`, made at its first call."""
+        space = getattr(self._local, "space", None)
+        if space is None:
+            J, m = self.cands.shape
+            space = self._local.space = decision_space(self.filter.lookahead.n, m, J)
+        return space

@@ -191,3 +191,24 @@ def test_compiled_glider_filter_decides_as_the_numpy_filter(glider_held_table, r
 def test_models_without_a_compiled_enclosure_keep_the_numpy_test(dubins_held_table):
     assert get_model("dubins").held_box_kernel is None
     assert ValueFilter(dubins_held_table, 0.1, safe_cells=None, landing_cells=None).compiled is None
+
+
+def test_borrowed_arrays_are_the_same_arrays():
+    """``borrowed`` hands over the caller's arrays themselves (same data, shape, strides; nested tuples kept in
+    order): reads see the arguments, writes land in them."""
+    import numba as nb
+
+    from softreach.reach.borrowed import borrowed
+
+    @nb.njit
+    def use(a, nested):
+        a, nested = borrowed((a, nested))
+        b, (c, k) = nested
+        a[1] = 7.0
+        c[0, 1] = -1.0
+        return a.sum() + b[::2].sum() + c.T[1, 0] + k
+
+    a, b, c = np.arange(3.0), np.arange(10.0, 16.0), np.zeros((2, 2))
+    # a becomes (0, 7, 2); b's even entries 10 + 12 + 14; c.T[1, 0] is c[0, 1]
+    assert use(a, (b, (c, 0.5))) == 9.0 + 36.0 - 1.0 + 0.5
+    assert a[1] == 7.0 and c[0, 1] == -1.0
