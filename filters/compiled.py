@@ -172,10 +172,11 @@ def decision_space(n: int, m: int, J: int) -> tuple:
 
 @nb.njit(cache=True)
 def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t, x, z, pol, plans, has_plans,
-                applied, reason, value, nxt, certified, chosen, blend, new_plans, space):
+                diagnostics, applied, reason, value, nxt, certified, chosen, blend, new_plans, space):
     """The decision for every row (:meth:`ValueFilter.filter`) by the ``"switch"`` rule, or with ``smooth`` by the
     ``"smooth"`` rule with ``iterations`` bisection steps, in the work space ``space`` (:func:`decision_space`); see
-    the module docstring."""
+    the module docstring. Without ``diagnostics`` the certificate at the state and the next one of a passing
+    policy action, which decide nothing, are not read: both are NaN."""
     # every array here is an argument, held by the caller until the call returns: borrowed, they are bound and
     # unpacked without reference counting (softreach.reach.borrowed), a third of a row's time
     M, C, T, cands, fallback, a_half, t, x, z, pol, plans = borrowed((M, C, T, cands, fallback, a_half, t, x, z, pol,
@@ -189,7 +190,8 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
     work, work_box, end_lo, end_hi, c_ok, c_next, c_bad, c_zend, c_kept, c_score, c_dist, c_pref, act, point = space
     for r in range(N):
         tr, xr, zr = t[r], x[r], z[r]
-        value[r] = certificate_row(W, z_top, z_floor, V, has_V, tr, xr, zr, point, work[6], work[7])
+        value[r] = (certificate_row(W, z_top, z_floor, V, has_V, tr, xr, zr, point, work[6], work[7]) if diagnostics
+                    else np.nan)
         new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = -1, 0, 0
         # one call of _assess serves every action a row tries, since each inlined copy costs seconds of the first
         # compilation: step 0 the policy's action (Lookahead.passes), steps 1 to J every candidate
@@ -199,7 +201,7 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
         best, best_next, best_bad = 0, np.inf, np.inf
         lo, hi, mid = 0.0, 1.0, 0.0
         for s in range(1 + J + (iterations if smooth else 0)):
-            slot, level = (s - 1, 2) if 1 <= s <= J else (J, 1)
+            slot, level = (s - 1, 2) if 1 <= s <= J else (J, 1 if s > 0 or diagnostics else 0)
             if s > J:
                 mid = 0.5 * (lo + hi)
             for i in range(m):
@@ -216,7 +218,7 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
                 if a_ok or _keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J], end_hi[J], a_zend, a_kept,
                                   work, work_box):
                     applied[r] = pol[r]
-                    reason[r], nxt[r], certified[r], blend[r] = _PASS, a_next, True, 1.0
+                    reason[r], nxt[r], certified[r], blend[r] = _PASS, a_next if diagnostics else np.nan, True, 1.0
                     chosen[r] = np.nan
                     passed = True
                     break
@@ -357,9 +359,10 @@ class CompiledDecision:
             return None
         return CompiledDecision(vf)
 
-    def __call__(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, pol: np.ndarray, plans: np.ndarray | None):
+    def __call__(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, pol: np.ndarray, plans: np.ndarray | None,
+                 diagnostics: bool = True):
         """``(applied, reason, value, next_value, certified, chosen, blend, new_plans)`` for ``N`` rows (physical
-        policy actions; ``plans`` the previous step's or ``None``)."""
+        policy actions; ``plans`` the previous step's or ``None``; ``diagnostics`` as :func:`decide_rows`)."""
         N, m = len(x), self.cands.shape[1]
         applied, chosen = np.empty((N, m)), np.empty((N, m))
         reason, new_plans = np.empty(N, np.int64), np.empty((N, 3), np.int64)
@@ -369,7 +372,8 @@ class CompiledDecision:
         vf = self.filter
         decide_rows(self.enclose, self.M, self.C, self.T, self.cands, self.fallback, vf.rule == "smooth",
                     vf.smooth_iterations, vf.a_half, t, x, z, pol, self.no_plans if plans is None else plans,
-                    plans is not None, applied, reason, value, nxt, certified, chosen, blend, new_plans, self._space())
+                    plans is not None, diagnostics, applied, reason, value, nxt, certified, chosen, blend, new_plans,
+                    self._space())
         return applied, reason, value, nxt, certified, chosen, blend, new_plans
 
     def __getstate__(self) -> dict:

@@ -261,7 +261,8 @@ class ValueFilter:
         return out[0] if single else out
 
     # ---------------------------------------------------------------- the filter
-    def filter(self, t: Any, x: Any, z: Any, action: Any, *, normalized: bool = False, plan: Any = None):
+    def filter(self, t: Any, x: Any, z: Any, action: Any, *, normalized: bool = False, plan: Any = None,
+               diagnostics: bool = True):
         """Filter a batch of actions.
 
         :param t: time(s) [s], scalar or ``(N,)``
@@ -280,6 +281,10 @@ class ValueFilter:
         :param plan: the ``info["plan"]`` this filter returned at the previous step of the same runs (``None`` at the
             first): where no action ends in the landing cells the filter keeps following it, which is what makes
             landing by ``T`` a proof (:mod:`softreach.reach.cell_certificate`)
+        :param diagnostics: ``False`` leaves out what decides nothing, for batches that want only the actions
+            (about twice as fast where most policy actions pass, ``benchmarks/bench_filter.py``): ``value`` is NaN,
+            and so is ``lookahead`` where the policy's action passed. The applied actions and every other entry are
+            the same.
         :raises ValueError: non-finite or wrongly shaped inputs
         """
         tt, xs, zz, act, single, ref = self._inputs(t, x, z, action)
@@ -289,11 +294,12 @@ class ValueFilter:
         la = self.lookahead
         J = len(la.candidates)
         if self.compiled is not None and N <= self.compiled_max_rows:
-            applied, reason, value, nxt, ok, chosen, blend, new_plans = self.compiled(tt, xs, zz, pol, plans)
+            applied, reason, value, nxt, ok, chosen, blend, new_plans = self.compiled(tt, xs, zz, pol, plans,
+                                                                                      diagnostics)
             rows = np.zeros(0, np.int64)
         else:
             new_plans = np.tile(np.array(NO_PLAN, np.int64), (N, 1))
-            value = la.certificate(tt, xs, zz)
+            value = la.certificate(tt, xs, zz) if diagnostics else np.full(N, np.nan)
             if N <= self.joint_rows:
                 # few rows: the policy's action and every candidate in one batch. The cost of a call is mostly
                 # fixed overhead, so one call that may judge candidates needlessly beats a second call when needed
@@ -308,6 +314,8 @@ class ValueFilter:
                 _, nxt, _, ok = la.passes(tt, xs, zz, pol)
                 rows = np.nonzero(~ok)[0]
                 cand = self._candidates(tt[rows], xs[rows], zz[rows], pol[rows]) if len(rows) else None
+            if not diagnostics:
+                nxt = np.full(N, np.nan)  # the rows replaced below get their chosen action's
             applied = pol.copy()
             reason = np.full(N, PASS, dtype=np.int64)
             blend = np.ones(N)

@@ -98,6 +98,24 @@ def test_compiled_filter_decides_as_the_numpy_filter(pointmass_held_table, rule)
 
 
 @pytest.mark.parametrize("rule", ["switch", "smooth"])
+def test_without_diagnostics_the_same_decisions(pointmass_held_table, rule):
+    """``diagnostics=False`` leaves out the certificate at the state and the passing policy action's next one, on
+    both paths: every action, reason, plan and the replaced rows' ``lookahead`` are those of the full decision."""
+    fast, slow = _pair(pointmass_held_table, rule)
+    t, x, z, a = _draws(1500 if rule == "switch" else 300, 9)
+    applied, info = fast.filter(t, x, z, a)
+    passed = info["reason"] == 0
+    assert 0.05 < passed.mean() < 0.95
+    for vf in (fast, slow):
+        lean, lean_info = vf.filter(t, x, z, a, diagnostics=False)
+        np.testing.assert_array_equal(lean, applied)
+        assert np.isnan(lean_info["value"]).all() and np.isnan(lean_info["lookahead"][passed]).all()
+        np.testing.assert_array_equal(lean_info["lookahead"][~passed], info["lookahead"][~passed])
+        _same({k: v for k, v in lean_info.items() if k not in ("value", "lookahead")},
+              {k: v for k, v in info.items() if k not in ("value", "lookahead")})
+
+
+@pytest.mark.parametrize("rule", ["switch", "smooth"])
 def test_compiled_filter_follows_the_same_plans_in_closed_loop(pointmass_held_table, rule):
     """Runs from landing-cell states, each filter fed back its own ``info["plan"]``, under winds that switch at
     random: the two filters apply the same actions and carry the same plans at every step (the plans are followed
