@@ -83,7 +83,8 @@ def _assess(enclose, M, C, T, t, x_lo, x_hi, z, z_hi, a, end_lo, end_hi, work, l
     """:meth:`Lookahead.assess` with ``ends=True`` for one row (a point where ``x_lo`` is ``x_hi``): returns
     ``(passing, next_value, badness, z_end, kept)`` and writes the end box into ``end_lo``, ``end_hi``. Only what
     the caller reads is computed: ``level`` 0 whether it passes (the next value stays ``+inf``), 1 also the next
-    value, 2 also the badness."""
+    value, 2 also the badness; 3 the next value only where the action passes (a failing one's badness is then
+    not exact: for a caller that knows some other action passes)."""
     params, set_params, sets = M[0], M[2], M[3]
     target_lo, target_hi, edges, check_edges, horizon = M[4], M[5], M[6], M[7], M[8]
     safe, has_safe, land = C[0], C[1], C[2]
@@ -107,7 +108,7 @@ def _assess(enclose, M, C, T, t, x_lo, x_hi, z, z_hi, a, end_lo, end_hi, work, l
     safe_end = kept and (not has_safe or cover_row(safe, t_next, end_lo, end_hi, z_end))
     ok = safe_end and cover_row(land, t_next, end_lo, end_hi, z_end)
     nxt = np.inf
-    if in_c1 and level >= 1:
+    if in_c1 and level >= 1 and (level != 3 or ok):
         z_lo = max(z_end, z_floor)
         for i in range(n):
             box_lo[i], box_hi[i] = end_lo[i], end_hi[i]
@@ -121,7 +122,7 @@ def _assess(enclose, M, C, T, t, x_lo, x_hi, z, z_hi, a, end_lo, end_hi, work, l
         nxt = np.inf if math.isnan(best) else best
     passing = ok
     is_safe = in_c1
-    if has_S and in_c1 and not passing and level >= 2:
+    if has_S and in_c1 and not passing and level == 2:
         is_safe = box_max_row(S, t_next, end_lo, end_hi, MAX_NODES, scratch_V) <= 0
     meets = True
     for i in range(n):
@@ -202,6 +203,9 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
         lo, hi, mid = 0.0, 1.0, 0.0
         for s in range(1 + J + (iterations if smooth else 0)):
             slot, level = (s - 1, 2) if 1 <= s <= J else (J, 1 if s > 0 or diagnostics else 0)
+            # once a candidate passes, the switch rule chooses among the passing ones: a failing one needs no value
+            if 1 <= s <= J and any_ok and not smooth:
+                level = 3
             if s > J:
                 mid = 0.5 * (lo + hi)
             for i in range(m):
