@@ -19,8 +19,10 @@ use). Each latency is the mean time per call over many calls, on fixed random in
 * the same for the smooth rule, for torch tensors (CPU) in and out, for the same filter forced to its compiled
   decision at every batch size (``compiled_*``, what ``ValueFilter.compiled_max_rows`` allows by default) and
   without it (``numpy_*``: ``ValueFilter.compiled = None``, the numpy path every model without a compiled
-  enclosure takes), also for batches of 16 and 128 certified rows, where the two could cross; and, for scale, the
-  ``Table`` API calls the filter replaces (``Table.value`` + ``Table.optimal_control``).
+  enclosure takes), also for batches of 16 and 128 certified rows, where the two could cross; in the calling thread
+  alone (``one_thread_*``: ``ValueFilter.threads = 1``) beside the default threads, at 256, 512 and 1,024 rows,
+  where a batch is cut into blocks for them; and, for scale, the ``Table`` API calls the filter replaces
+  (``Table.value`` + ``Table.optimal_control``).
 
 Then one ``step`` of ``PointMassLanding-v0``, bare and in ``SafetyFilter``: what the filter adds to a training step.
 
@@ -89,6 +91,9 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
     numpy_only.compiled = None
     compiled_only = ValueFilter(table, DT)
     compiled_only.compiled_max_rows = 10 ** 9
+    # and in the calling thread alone (ValueFilter.threads = 1), beside the default threads
+    one_thread = ValueFilter(table, DT)
+    one_thread.threads = 1
     # a single query cycles through the drawn states so that caches do not flatter it
     singles = [(float(t[i]), x[i].copy(), float(z[i]), a[i].copy()) for i in range(256)]
 
@@ -134,6 +139,14 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
         **{f"{kind}_switch_batch{k}_certified_us": _per_call(lambda vf=vf, k=k: vf.filter(*(v[:k] for v in cert_batch)),
                                                              max(5, 2048 // k), repeats)
            for k in (16, 128) for kind, vf in (("compiled", compiled_only), ("numpy", numpy_only))},
+        # threads: the default against one, where the batch is cut (ValueFilter.threads, PARALLEL_MIN_ROWS)
+        **{f"{kind}_switch_batch{k}_certified_us": _per_call(lambda vf=vf, k=k: vf.filter(*(v[:k] for v in cert_batch)),
+                                                             max(5, 2048 // k), repeats)
+           for k in (256, 512) for kind, vf in (("default_threads", switch), ("one_thread", one_thread))},
+        "one_thread_switch_batch1024_certified_us": _per_call(lambda: one_thread.filter(*cert_batch), 5, repeats),
+        "one_thread_switch_batch1024_certified_actions_only_us": _per_call(
+            lambda: one_thread.filter(*cert_batch, diagnostics=False), 5, repeats),
+        "one_thread_switch_batch1024_us": _per_call(lambda: one_thread.filter(t, x, z, a), 5, repeats),
         "smooth_single_us": _per_call(single(smooth), 100, repeats),
         "smooth_batch1024_us": _per_call(lambda: smooth.filter(t, x, z, a), 2, repeats),
         "table_api_single_us": _per_call(lambda: (table.value(t[:1], x[:1], z[:1]),

@@ -23,7 +23,9 @@ next certificate, whether it is certified, the chosen candidate (NaN where the p
 from __future__ import annotations
 
 import math
+import os
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numba as nb
@@ -171,7 +173,7 @@ def decision_space(n: int, m: int, J: int) -> tuple:
             np.empty(m), np.empty(n + 1))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t, x, z, pol, plans, has_plans,
                 diagnostics, applied, reason, value, nxt, certified, chosen, blend, new_plans, space):
     """The decision for every row (:meth:`ValueFilter.filter`) by the ``"switch"`` rule, or with ``smooth`` by the
@@ -323,6 +325,22 @@ def _on_table(W, t, x, z, point, work):
     return math.isfinite(box_max_row(W, t, point, point, MAX_NODES, work[6]))
 
 
+#: the fewest rows a thread of :meth:`CompiledDecision.__call__` takes: handing a block to another thread costs
+#: about 50 us, as much as 128 certified rows (``benchmarks/bench_filter.py`` times 16 to 1,024 rows with one and
+#: two threads)
+PARALLEL_MIN_ROWS = 256
+_POOL: dict[str, Any] = {}
+
+
+def _pool(workers: int) -> ThreadPoolExecutor:
+    """A pool of at least ``workers`` threads, made again in a forked child (whose copy of the pool has none)."""
+    pool = _POOL.get("pool")
+    if pool is None or _POOL["pid"] != os.getpid() or _POOL["workers"] < workers:
+        pool = ThreadPoolExecutor(workers, thread_name_prefix="softreach-filter")
+        _POOL.update(pool=pool, pid=os.getpid(), workers=workers)
+    return pool
+
+
 class CompiledDecision:
     """:func:`decide_rows` bound to one filter (build it with :meth:`for_filter`)."""
 
@@ -374,11 +392,24 @@ class CompiledDecision:
         # the enclosure reads rows by address: contiguous rows
         t, x, z, pol = (np.ascontiguousarray(v, dtype=np.float64) for v in (t, x, z, pol))
         vf = self.filter
-        decide_rows(self.enclose, self.M, self.C, self.T, self.cands, self.fallback, vf.rule == "smooth",
-                    vf.smooth_iterations, vf.a_half, t, x, z, pol, self.no_plans if plans is None else plans,
-                    plans is not None, diagnostics, applied, reason, value, nxt, certified, chosen, blend, new_plans,
-                    self._space())
-        return applied, reason, value, nxt, certified, chosen, blend, new_plans
+        outs = (applied, reason, value, nxt, certified, chosen, blend, new_plans)
+
+        def run(lo: int, hi: int) -> None:
+            rows = slice(lo, hi)
+            decide_rows(self.enclose, self.M, self.C, self.T, self.cands, self.fallback, vf.rule == "smooth",
+                        vf.smooth_iterations, vf.a_half, t[rows], x[rows], z[rows], pol[rows],
+                        self.no_plans if plans is None else plans[rows], plans is not None, diagnostics,
+                        *(o[rows] for o in outs), self._space())
+
+        # rows are independent: a large batch is cut into one block of rows per thread (decide_rows releases the
+        # GIL), each in its own work space; the calling thread takes the first block
+        k = max(1, min(int(vf.threads), N // PARALLEL_MIN_ROWS))
+        cuts = [N * i // k for i in range(k + 1)]
+        others = [_pool(k - 1).submit(run, cuts[i], cuts[i + 1]) for i in range(1, k)]
+        run(cuts[0], cuts[1])
+        for f in others:
+            f.result()
+        return outs
 
     def __getstate__(self) -> dict:
         # a thread's work space stays with the thread (and threading.local does not pickle)

@@ -115,6 +115,24 @@ def test_without_diagnostics_the_same_decisions(pointmass_held_table, rule):
               {k: v for k, v in info.items() if k not in ("value", "lookahead")})
 
 
+def test_threads_decide_as_one_thread(pointmass_held_table):
+    """A batch cut into blocks for several threads (uneven block sizes, plans fed back, with and without the
+    diagnostics) gives every row exactly what one thread gives it."""
+    from softreach.filters.compiled import PARALLEL_MIN_ROWS
+
+    one, many = ValueFilter(pointmass_held_table, 0.01), ValueFilter(pointmass_held_table, 0.01)
+    one.threads, many.threads = 1, 3
+    t, x, z, a = _draws(3 * PARALLEL_MIN_ROWS + 17, 12)
+    plan = None
+    for diagnostics in (True, False):
+        applied, info = one.filter(t, x, z, a, plan=plan, diagnostics=diagnostics)
+        got, got_info = many.filter(t, x, z, a, plan=plan, diagnostics=diagnostics)
+        np.testing.assert_array_equal(got, applied)
+        _same(got_info, info)
+        plan = info["plan"]
+    assert (plan[:, 0] >= 0).any()  # plans were fed back in the second round
+
+
 @pytest.mark.parametrize("rule", ["switch", "smooth"])
 def test_compiled_filter_follows_the_same_plans_in_closed_loop(pointmass_held_table, rule):
     """Runs from landing-cell states, each filter fed back its own ``info["plan"]``, under winds that switch at
