@@ -23,9 +23,7 @@ next certificate, whether it is certified, the chosen candidate (NaN where the p
 from __future__ import annotations
 
 import math
-import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numba as nb
@@ -35,6 +33,8 @@ from softreach.reach.borrowed import borrowed
 from softreach.reach.box_max import kernel_field
 from softreach.reach.kernels import MAX_NODES, box_max_row, box_scratch, certificate_row, cover_row, plan_row
 from softreach.reach.model_kernels import SET_INDEX, call_held_box, call_set_max, held_box_address
+
+from .blocks import run_in_blocks
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7
@@ -325,22 +325,6 @@ def _on_table(W, t, x, z, point, work):
     return math.isfinite(box_max_row(W, t, point, point, MAX_NODES, work[6]))
 
 
-#: the fewest rows a thread of :meth:`CompiledDecision.__call__` takes: handing a block to another thread costs
-#: about 50 us, as much as 128 certified rows (``benchmarks/bench_filter.py`` times 16 to 1,024 rows with one and
-#: two threads)
-PARALLEL_MIN_ROWS = 256
-_POOL: dict[str, Any] = {}
-
-
-def _pool(workers: int) -> ThreadPoolExecutor:
-    """A pool of at least ``workers`` threads, made again in a forked child (whose copy of the pool has none)."""
-    pool = _POOL.get("pool")
-    if pool is None or _POOL["pid"] != os.getpid() or _POOL["workers"] < workers:
-        pool = ThreadPoolExecutor(workers, thread_name_prefix="softreach-filter")
-        _POOL.update(pool=pool, pid=os.getpid(), workers=workers)
-    return pool
-
-
 class CompiledDecision:
     """:func:`decide_rows` bound to one filter (build it with :meth:`for_filter`)."""
 
@@ -401,14 +385,8 @@ class CompiledDecision:
                         self.no_plans if plans is None else plans[rows], plans is not None, diagnostics,
                         *(o[rows] for o in outs), self._space())
 
-        # rows are independent: a large batch is cut into one block of rows per thread (decide_rows releases the
-        # GIL), each in its own work space; the calling thread takes the first block
-        k = max(1, min(int(vf.threads), N // PARALLEL_MIN_ROWS))
-        cuts = [N * i // k for i in range(k + 1)]
-        others = [_pool(k - 1).submit(run, cuts[i], cuts[i + 1]) for i in range(1, k)]
-        run(cuts[0], cuts[1])
-        for f in others:
-            f.result()
+        # each thread in its own work space (decide_rows releases the GIL)
+        run_in_blocks(run, N, vf.threads)
         return outs
 
     def __getstate__(self) -> dict:

@@ -33,7 +33,6 @@ answered conservatively (not certified; the best candidate is applied).
 from __future__ import annotations
 
 import math
-import os
 from typing import Any
 
 import numpy as np
@@ -42,6 +41,7 @@ from softreach.reach import Table, TableError
 
 from softreach.reach.lookahead import Lookahead
 
+from .blocks import default_threads
 from .compiled import CompiledDecision
 from .plans import NO_PLAN, PLAN_LAND, PLAN_SAFE, check_plans, follow_plans, resolve_cells
 from .tensors import first_bad, to_numpy, to_torch
@@ -156,9 +156,9 @@ class ValueFilter:
         #: ``benchmarks/bench_filter.py`` times (1,024 rows: ``compiled_*`` against ``numpy_*``)
         self.compiled_max_rows = 10 ** 9
         #: threads that share a large batch of the compiled decision (blocks of at least
-        #: :data:`~softreach.filters.compiled.PARALLEL_MIN_ROWS` rows); 1: the calling thread alone. By default two
+        #: :data:`~softreach.filters.blocks.PARALLEL_MIN_ROWS` rows); 1: the calling thread alone. By default two
         #: where the machine has them: ``benchmarks/bench_filter.py`` times 1,024 rows both ways
-        self.threads = min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+        self.threads = default_threads()
         #: up to this many rows, :meth:`filter` judges the policy's action and the candidates in one batch. 0: the
         #: policy's action first, the candidates only where it fails. From certified states with a random policy
         #: (6 % interventions) that is the faster one: median 2.1 ms a decision against 2.7 ms with 8

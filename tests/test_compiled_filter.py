@@ -115,10 +115,28 @@ def test_without_diagnostics_the_same_decisions(pointmass_held_table, rule):
               {k: v for k, v in info.items() if k not in ("value", "lookahead")})
 
 
+def test_blocks_cover_every_row_once_and_raise_a_blocks_error():
+    from softreach.filters.blocks import PARALLEL_MIN_ROWS, run_in_blocks
+
+    for rows, threads, blocks in ((10, 4, 1), (2 * PARALLEL_MIN_ROWS - 1, 4, 1), (5 * PARALLEL_MIN_ROWS, 3, 3)):
+        seen = []
+        run_in_blocks(lambda lo, hi: seen.append((lo, hi)), rows, threads)
+        seen.sort()
+        assert len(seen) == blocks and seen[0][0] == 0 and seen[-1][1] == rows
+        assert all(a[1] == b[0] and a[0] < a[1] for a, b in zip(seen, seen[1:]))
+
+    def fail_late(lo, hi):
+        if lo > 0:
+            raise RuntimeError(f"block {lo}")
+
+    with pytest.raises(RuntimeError, match="block"):
+        run_in_blocks(fail_late, 4 * PARALLEL_MIN_ROWS, 2)
+
+
 def test_threads_decide_as_one_thread(pointmass_held_table):
     """A batch cut into blocks for several threads (uneven block sizes, plans fed back, with and without the
     diagnostics) gives every row exactly what one thread gives it."""
-    from softreach.filters.compiled import PARALLEL_MIN_ROWS
+    from softreach.filters.blocks import PARALLEL_MIN_ROWS
 
     one, many = ValueFilter(pointmass_held_table, 0.01), ValueFilter(pointmass_held_table, 0.01)
     one.threads, many.threads = 1, 3
