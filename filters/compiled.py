@@ -377,13 +377,14 @@ class CompiledDecision:
         t, x, z, pol = (np.ascontiguousarray(v, dtype=np.float64) for v in (t, x, z, pol))
         vf = self.filter
         outs = (applied, reason, value, nxt, certified, chosen, blend, new_plans)
+        rows = (t, x, z, pol, self.no_plans if plans is None else plans) + outs
 
         def run(lo: int, hi: int) -> None:
-            rows = slice(lo, hi)
+            # a block of rows; the whole batch, where one thread decides it, goes as it is (slicing thirteen arrays
+            # costs about as much as deciding one row)
+            r = rows if hi - lo == N else tuple(v if v is self.no_plans else v[lo:hi] for v in rows)
             decide_rows(self.enclose, self.M, self.C, self.T, self.cands, self.fallback, vf.rule == "smooth",
-                        vf.smooth_iterations, vf.a_half, t[rows], x[rows], z[rows], pol[rows],
-                        self.no_plans if plans is None else plans[rows], plans is not None, diagnostics,
-                        *(o[rows] for o in outs), self._space())
+                        vf.smooth_iterations, vf.a_half, *r[:5], plans is not None, diagnostics, *r[5:], self._space())
 
         # each thread in its own work space (decide_rows releases the GIL)
         run_in_blocks(run, N, vf.threads)
