@@ -10,6 +10,8 @@ import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable
 
+import numpy as np
+
 #: the fewest rows a thread takes: handing a block to another thread costs about 50 us, as much as deciding 128
 #: certified rows (``benchmarks/bench_filter.py`` times 16 to 1,024 rows, with one thread and with two)
 PARALLEL_MIN_ROWS = 256
@@ -39,7 +41,10 @@ def run_in_blocks(run: Callable[[int, int], None], rows: int, threads: int) -> N
     :param run: decides the rows ``lo`` to ``hi - 1``; it must release the GIL for the blocks to overlap
     :param rows: the batch's rows
     :param threads: the most threads to use (1: the calling thread alone)
+    :raises ValueError: ``threads`` is not a whole number of at least 1
     """
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+        raise ValueError(f"threads must be a whole number of at least 1, got {threads!r}")
     k = max(1, min(int(threads), rows // PARALLEL_MIN_ROWS))
     cuts = [rows * i // k for i in range(k + 1)]
     others = [_pool(k - 1).submit(run, cuts[i], cuts[i + 1]) for i in range(1, k)]

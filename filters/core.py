@@ -290,8 +290,11 @@ class ValueFilter:
             (about twice as fast where most policy actions pass, ``benchmarks/bench_filter.py``): ``value`` is NaN,
             and so is ``lookahead`` where the policy's action passed. The applied actions and every other entry are
             the same.
-        :raises ValueError: non-finite or wrongly shaped inputs
+        :raises ValueError: non-finite or wrongly shaped inputs, or :attr:`threads` below 1
+        :raises TypeError: ``diagnostics`` is not a bool
         """
+        if not isinstance(diagnostics, (bool, np.bool_)):
+            raise TypeError(f"diagnostics must be True or False, got {diagnostics!r}")
         tt, xs, zz, act, single, ref = self._inputs(t, x, z, action)
         N = len(xs)
         plans = check_plans(plan, N)

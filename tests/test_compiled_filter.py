@@ -113,6 +113,8 @@ def test_without_diagnostics_the_same_decisions(pointmass_held_table, rule):
         np.testing.assert_array_equal(lean_info["lookahead"][~passed], info["lookahead"][~passed])
         _same({k: v for k, v in lean_info.items() if k not in ("value", "lookahead")},
               {k: v for k, v in info.items() if k not in ("value", "lookahead")})
+    with pytest.raises(TypeError, match="diagnostics must be True or False, got 'no'"):
+        fast.filter(t, x, z, a, diagnostics="no")
 
 
 def test_blocks_cover_every_row_once_and_raise_a_blocks_error():
@@ -131,6 +133,9 @@ def test_blocks_cover_every_row_once_and_raise_a_blocks_error():
 
     with pytest.raises(RuntimeError, match="block"):
         run_in_blocks(fail_late, 4 * PARALLEL_MIN_ROWS, 2)
+    for bad in (0, -1, 1.5, "2", True):
+        with pytest.raises(ValueError, match=f"threads .* got {bad!r}"):
+            run_in_blocks(lambda lo, hi: None, 10, bad)
 
 
 def test_threads_decide_as_one_thread(pointmass_held_table):
