@@ -1,8 +1,8 @@
 """What the cell certificates cost and keep: build time, and the states they certify against the table's own
 one-period test and, for the point mass, the exact sets.
 
-    OMP_NUM_THREADS=1 python benchmarks/cell_certificate.py --table pointmass-held.srt [--shape 150 1440]
-        [--states 20000] [--times 0 0.5 0.9] [--exact-pointmass]
+    OMP_NUM_THREADS=1 python benchmarks/cell_certificate.py --table pointmass-held.srt [--shape 150 1440 | --cached]
+        [--states 20000] [--times 0 0.5 0.9] [--exact-pointmass] [--later 0.5 1 2]
     python benchmarks/cell_certificate.py --table pointmass-held.srt --write-packaged [--checks 2]
 
 Certified means ``ValueFilter.certify``: with the cells (``landing_cells``, proven) and with the table alone
@@ -38,6 +38,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--times", type=float, nargs="+", default=[0.0, 0.5, 0.9])
     ap.add_argument("--budgets", type=float, nargs="+", help="default: the model's default budgets")
     ap.add_argument("--exact-pointmass", action="store_true", help="compare with the point mass's exact sets")
+    ap.add_argument("--cached", action="store_true",
+                    help="the cells a filter uses (packaged, or cached by an earlier build) instead of a build")
+    ap.add_argument("--later", type=float, nargs="+",
+                    help="also: of the states the table certifies and the cells miss, the share the table still "
+                         "certifies from a start this many seconds later, beside that share of the cells' states")
     ap.add_argument("--write-packaged", action="store_true", help="write the cells the package ships, and stop")
     ap.add_argument("--checks", type=int, nargs="+", help="with --write-packaged: only these target_checks")
     args = ap.parse_args(argv)
@@ -50,14 +55,20 @@ def main(argv: list[str] | None = None) -> int:
     shape = tuple(args.shape) if args.shape else model.cell_shape
     if shape is None:
         ap.error(f"{model.name} declares no cell_shape; give --shape")
-    built = {}
-    for game in ("safe", "land"):
-        t0 = time.perf_counter()
-        built[game] = CellCertificate.build(plain.lookahead, shape, game=game, holds=model.cell_holds)
-        print(f"{game} cells {shape}, plans of {list(model.cell_holds)} periods: built in "
-              f"{time.perf_counter() - t0:.1f} s")
-    vf = ValueFilter(table, table.control_period, target_checks=model.substeps, safe_cells=built["safe"],
-                     landing_cells=built["land"])
+    if args.cached:
+        if args.shape:
+            ap.error("--cached uses the model's cell_shape; leave out --shape")
+        vf = ValueFilter(table, table.control_period, target_checks=model.substeps)
+        built = {"safe": vf.safe_cells, "land": vf.landing_cells}
+    else:
+        built = {}
+        for game in ("safe", "land"):
+            t0 = time.perf_counter()
+            built[game] = CellCertificate.build(plain.lookahead, shape, game=game, holds=model.cell_holds)
+            print(f"{game} cells {shape}, plans of {list(model.cell_holds)} periods: built in "
+                  f"{time.perf_counter() - t0:.1f} s")
+        vf = ValueFilter(table, table.control_period, target_checks=model.substeps, safe_cells=built["safe"],
+                         landing_cells=built["land"])
     budgets = args.budgets or list(model.default_budgets)
     print("share of C1's cells safe at t = 0: " + ", ".join(f"Q = {q:g}: {built['safe'].fraction(0, q):.1%}"
                                                               for q in budgets))
@@ -67,18 +78,27 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.states:,} states uniform over C1, certified: table alone / cells (proven)"
           + (" / exact set / cells outside it" if args.exact_pointmass else ""))
     for t in args.times:
-        parts = []
+        parts, late = [], []
         for q in budgets:
-            table_only = int(plain.certify(t, x, q)[0].sum())
+            table_only = plain.certify(t, x, q)[0]
             cells = vf.certify(t, x, q)[0]
-            part = f"Q = {q:g}: {table_only} / {int(cells.sum())}"
+            part = f"Q = {q:g}: {int(table_only.sum())} / {int(cells.sum())}"
             if args.exact_pointmass:
                 from softreach.reach.exact_pointmass import exact_member
 
                 exact = np.asarray(exact_member(x[:, 0], x[:, 1], q, model.horizon - t), bool)
                 part += f" / {int(exact.sum())} / {int((cells & ~exact).sum())}"
             parts.append(part)
+            # how much time to spare the states the cells miss have, against the cells' own states
+            for later in args.later or ():
+                missed = table_only & ~cells
+                share = [float(plain.certify(t + later, x[k], q)[0].mean()) if k.any() else float("nan")
+                         for k in (missed, cells)]
+                late.append(f"Q = {q:g}, {later:g} s later: {share[0]:.0%} of the missed, {share[1]:.0%} of the "
+                            f"cells' states")
         print(f"  t = {t:g} s: " + "; ".join(parts))
+        for line in late:
+            print(f"    table-certified from a later start: {line}")
     return 0
 
 
