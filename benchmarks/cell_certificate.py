@@ -90,8 +90,8 @@ def main(argv: list[str] | None = None) -> int:
                 part += f" / {int(exact.sum())} / {int((cells & ~exact).sum())}"
             parts.append(part)
             # how much time to spare the states the cells miss have, against the cells' own states
+            missed = table_only & ~cells
             for later in args.later or ():
-                missed = table_only & ~cells
                 share = [float(plain.certify(t + later, x[k], q)[0].mean()) if k.any() else float("nan")
                          for k in (missed, cells)]
                 late.append(f"Q = {q:g}, {later:g} s later: {share[0]:.0%} of the missed, {share[1]:.0%} of the "
