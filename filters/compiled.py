@@ -14,7 +14,10 @@ Both rules are compiled, the ``"switch"`` rule and the ``"smooth"`` one with its
 Each step below names the numpy method it mirrors: the arithmetic is the same, in the same order, on the numbers
 of the same kernels (the enclosure, the set maxima, :mod:`softreach.reach.kernels` for the table and the cells), so
 the decisions are equal, which ``tests/test_compiled_filter.py`` checks on thousands of rows of every kind. A change
-to the one-period test must be made in both.
+to the one-period test must be made in both. The test of one action is :mod:`softreach.filters.judge`, in parts,
+so that the table is read only where its values can decide: a candidate's next value where it passes; where none
+does, the safe value and the next value of those that can still be chosen (the decisions are those of reading
+every value: the test above compares them).
 
 The per-row outputs: the applied action, the reason code, the certificate at the state, the applied action's worst
 next certificate, whether it is certified, the chosen candidate (NaN where the policy passed) and the new plan.
@@ -32,136 +35,14 @@ import numpy as np
 from softreach.reach.borrowed import borrowed
 from softreach.reach.box_max import kernel_field
 from softreach.reach.kernels import MAX_NODES, box_max_row, box_scratch, certificate_row, cover_row, plan_row
-from softreach.reach.model_kernels import SET_INDEX, call_held_box, call_set_max, held_box_address
+from softreach.reach.model_kernels import held_box_address
 
 from .blocks import run_in_blocks
+from .judge import LOWEST_BAD, badness, judge, keeps, next_value
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7
 _PLAN_LAND, _PLAN_SAFE = 1, 2
-# the sets' indices in the model's set-maximum kernel
-_TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_INDEX["soft_constraint"]
-
-
-@nb.njit(cache=True, inline="always")
-def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
-    """:meth:`Lookahead._budget_spent` over the pieces ``[edges[j], edges[j + 1]]`` of a held action's motion."""
-    params, eps, set_params, sets = M[0], M[1], M[2], M[3]
-    P = len(edges) - 1
-    length = edges[P]
-    out = 0.0
-    for j in range(P):
-        call_held_box(enclose, params, x_lo, x_hi, a, edges[j], edges[j + 1], lo, hi)
-        out += (length / P) * min(max(call_set_max(sets, set_params, _SOFT, lo, hi) / eps, 0.0), 1.0)
-    return out
-
-
-@nb.njit(cache=True)
-def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
-    """:meth:`Lookahead._lands` of one row: at some check instant ``s`` every run is in the target inside ``C2``,
-    the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``. Not inlined into
-    :func:`_assess`: asked only of actions that do not pass and whose motion meets the target, it would add to the
-    first compilation more than its call costs."""
-    params, set_params, sets = M[0], M[2], M[3]
-    for j in range(check_edges.shape[0]):
-        edges = check_edges[j]
-        s = edges[len(edges) - 1]
-        call_held_box(enclose, params, x_lo, x_hi, a, 0.0, s, lo, hi)
-        call_held_box(enclose, params, x_lo, x_hi, a, s, s, e_lo, e_hi)
-        good = True
-        for i in range(len(lo)):
-            good = good and math.isfinite(lo[i]) and math.isfinite(hi[i])
-        if not (good and call_set_max(sets, set_params, _TARGET, e_lo, e_hi) <= 0
-                and call_set_max(sets, set_params, _SOFT, e_lo, e_hi) <= 0
-                and call_set_max(sets, set_params, _HARD, lo, hi) <= 0):
-            continue
-        if z - _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi) >= 0:
-            return True
-    return False
-
-
-@nb.njit(cache=True, inline="always")
-def _assess(enclose, M, C, T, t, x_lo, x_hi, z, z_hi, a, end_lo, end_hi, work, level):
-    """:meth:`Lookahead.assess` with ``ends=True`` for one row (a point where ``x_lo`` is ``x_hi``): returns
-    ``(passing, next_value, badness, z_end, kept)`` and writes the end box into ``end_lo``, ``end_hi``. Only what
-    the caller reads is computed: ``level`` 0 whether it passes (the next value stays ``+inf``), 1 also the next
-    value, 2 also the badness; 3 the next value only where the action passes (a failing one's badness is then
-    not exact: for a caller that knows some other action passes)."""
-    params, set_params, sets = M[0], M[2], M[3]
-    target_lo, target_hi, edges, check_edges, horizon = M[4], M[5], M[6], M[7], M[8]
-    safe, has_safe, land = C[0], C[1], C[2]
-    W, z_top, z_floor, V, has_V, S, has_S = T
-    tube_lo, tube_hi, lo, hi, box_lo, box_hi, scratch_W, scratch_V = work
-    n = len(x_lo)
-    P = len(edges) - 1
-    dt = edges[P]
-    call_held_box(enclose, params, x_lo, x_hi, a, edges[0], dt, tube_lo, tube_hi)
-    call_held_box(enclose, params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
-    bounded = True
-    for i in range(n):
-        bounded = bounded and math.isfinite(tube_lo[i]) and math.isfinite(tube_hi[i])
-    c1 = call_set_max(sets, set_params, _HARD, tube_lo, tube_hi)
-    z_end = z - _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi)
-    t_next = t + dt
-    in_time = t_next <= horizon + 1e-9 * max(1.0, horizon)
-    t_next = min(t_next, horizon)
-    kept = bounded and c1 <= 0 and z_end >= 0 and in_time
-    in_c1 = bounded and c1 <= 0 and in_time
-    safe_end = kept and (not has_safe or cover_row(safe, t_next, end_lo, end_hi, z_end))
-    ok = safe_end and cover_row(land, t_next, end_lo, end_hi, z_end)
-    nxt = np.inf
-    if in_c1 and level >= 1 and (level != 3 or ok):
-        z_lo = max(z_end, z_floor)
-        for i in range(n):
-            box_lo[i], box_hi[i] = end_lo[i], end_hi[i]
-        box_lo[n], box_hi[n] = z_lo, max(min(z_hi, z_top), z_lo)
-        best = box_max_row(W, t_next, box_lo, box_hi, MAX_NODES, scratch_W)
-        if has_V:
-            v = box_max_row(V, t_next, end_lo, end_hi, MAX_NODES, scratch_V)
-            if not z_end >= 0:
-                v = np.inf
-            best = np.nan if (math.isnan(v) or math.isnan(best)) else min(best, v)
-        nxt = np.inf if math.isnan(best) else best
-    passing = ok
-    is_safe = in_c1
-    if has_S and in_c1 and not passing and level == 2:
-        is_safe = box_max_row(S, t_next, end_lo, end_hi, MAX_NODES, scratch_V) <= 0
-    meets = True
-    for i in range(n):
-        meets = meets and tube_hi[i] >= target_lo[i] and tube_lo[i] <= target_hi[i]
-    lands = False
-    if not passing and bounded and in_time and meets:
-        lands = _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, box_lo[:n], box_hi[:n])
-    passing = passing or lands
-    ok = ok or lands
-    if lands:
-        nxt = -np.inf
-    tie = math.atan(1e12 if nxt == np.inf else nxt) / math.pi + 1e3 * max(-z_end, 0.0)
-    proven = safe_end and kept and has_safe
-    rank = 0.9e6 if proven else (1e6 if is_safe else 3e6) + (0.0 if (kept or lands) else 1e6)
-    bad = nxt if passing else (rank + tie if in_c1 else np.inf)
-    if bounded and not in_c1 and not lands:
-        bad = 5e6 + max(c1, 0.0)
-    if not ok:
-        nxt = np.inf
-    return passing, nxt, bad, z_end, kept or lands
-
-
-@nb.njit(cache=True)
-def _keeps(enclose, M, C, T, cands, t, z, ok, nxt, end_lo, end_hi, z_end, kept, work, work_box):
-    """:meth:`Lookahead.keeps` with landing cells: a row that passes keeps; one whose period keeps ``C1`` and the
-    budget keeps when some candidate passes from its whole end box (:meth:`Lookahead.keeps_certified`)."""
-    horizon = M[8]
-    dt = M[6][len(M[6]) - 1]
-    if ok:
-        return True
-    if not (kept and not t + dt >= horizon - 1e-9 * max(1.0, horizon) and nxt > -np.inf):
-        return False
-    e_lo, e_hi = work_box[0], work_box[1]
-    for j in range(cands.shape[0]):
-        if _assess(enclose, M, C, T, t + dt, end_lo, end_hi, max(z_end, 0.0), z, cands[j], e_lo, e_hi, work, 0)[0]:
-            return True
-    return False
 
 
 def decision_space(n: int, m: int, J: int) -> tuple:
@@ -170,7 +51,8 @@ def decision_space(n: int, m: int, J: int) -> tuple:
             box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES))
     return (work, (np.empty(n), np.empty(n)), np.empty((J + 1, n)), np.empty((J + 1, n)), np.empty(J, np.bool_),
             np.empty(J), np.empty(J), np.empty(J), np.empty(J, np.bool_), np.empty(J), np.empty(J), np.empty(J),
-            np.empty(m), np.empty(n + 1))
+            np.empty(m), np.empty(n + 1), np.empty(J, np.bool_), np.empty(J, np.bool_), np.empty(J, np.bool_),
+            np.empty(J))
 
 
 @nb.njit(cache=True, nogil=True)
@@ -190,13 +72,14 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
     J, m = cands.shape
     safe, has_safe, land, safe_plan, land_plan = C[0], C[1], C[2], C[3], C[4]
     W, z_top, z_floor, V, has_V, S, has_S = T
-    work, work_box, end_lo, end_hi, c_ok, c_next, c_bad, c_zend, c_kept, c_score, c_dist, c_pref, act, point = space
+    (work, work_box, end_lo, end_hi, c_ok, c_next, c_bad, c_zend, c_kept, c_score, c_dist, c_pref, act, point, c_in,
+     c_bounded, c_proven, c_c1) = space
     for r in range(N):
         tr, xr, zr = t[r], x[r], z[r]
         value[r] = (certificate_row(W, z_top, z_floor, V, has_V, tr, xr, zr, point, work[6], work[7]) if diagnostics
                     else np.nan)
         new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = -1, 0, 0
-        # one call of _assess serves every action a row tries, since each inlined copy costs seconds of the first
+        # one call of judge serves every action a row tries, since each inlined copy costs seconds of the first
         # compilation: step 0 the policy's action (Lookahead.passes), steps 1 to J every candidate
         # (ValueFilter._candidates), then the smooth rule's bisection (ValueFilter._bisect): the largest step from
         # the chosen candidate towards the policy's action that passes
@@ -204,10 +87,7 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
         best, best_next, best_bad = 0, np.inf, np.inf
         lo, hi, mid = 0.0, 1.0, 0.0
         for s in range(1 + J + (iterations if smooth else 0)):
-            slot, level = (s - 1, 2) if 1 <= s <= J else (J, 1 if s > 0 or diagnostics else 0)
-            # once a candidate passes, the switch rule chooses among the passing ones: a failing one needs no value
-            if 1 <= s <= J and any_ok and not smooth:
-                level = 3
+            slot = s - 1 if 1 <= s <= J else J
             if s > J:
                 mid = 0.5 * (lo + hi)
             for i in range(m):
@@ -217,11 +97,16 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
                     act[i] = cands[s - 1, i]
                 else:
                     act[i] = cands[best, i] + mid * (pol[r, i] - cands[best, i])
-            a_ok, a_next, a_bad, a_zend, a_kept = _assess(enclose, M, C, T, tr, xr, xr, zr, zr, act, end_lo[slot],
-                                                          end_hi[slot], work, level)
-            # a passing action keeps: the call of _keeps, with its large tuples, is skipped
+            a_ok, a_lands, a_bounded, a_in, a_kept, a_proven, a_c1, a_zend, t_next = judge(
+                enclose, M, C, tr, xr, xr, zr, act, end_lo[slot], end_hi[slot], work)
+            a_next = -np.inf if a_lands else np.inf
+            a_ok, a_kept = a_ok or a_lands, a_kept or a_lands
+            # the policy's and the bisection's next value (the policy's, a diagnostic, only with diagnostics)
+            if a_ok and not a_lands and (s > J or (s == 0 and diagnostics)):
+                a_next = next_value(T, t_next, end_lo[slot], end_hi[slot], a_zend, zr, work)
+            # a passing action keeps: the call of keeps, with its large tuples, is skipped
             if s == 0:
-                if a_ok or _keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J], end_hi[J], a_zend, a_kept,
+                if a_ok or keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J], end_hi[J], a_zend, a_kept,
                                   work, work_box):
                     applied[r] = pol[r]
                     reason[r], nxt[r], certified[r], blend[r] = _PASS, a_next if diagnostics else np.nan, True, 1.0
@@ -230,44 +115,54 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
                     break
                 continue
             if s > J:
-                if any_ok and (a_ok or _keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J], end_hi[J],
+                if any_ok and (a_ok or keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J], end_hi[J],
                                               a_zend, a_kept, work, work_box)):
                     lo, best_next = mid, a_next
                 else:
                     hi = mid
                 continue
+            # a candidate: its table values are read below, only where they can decide
             j = s - 1
-            c_ok[j], c_next[j], c_bad[j], c_zend[j], c_kept[j] = a_ok, a_next, a_bad, a_zend, a_kept
+            c_ok[j], c_next[j], c_zend[j], c_kept[j] = a_ok, a_next, a_zend, a_kept
+            c_in[j], c_bounded[j], c_proven[j], c_c1[j] = a_in, a_bounded, a_proven, a_c1
             any_ok = any_ok or a_ok
             d = 0.0
             for i in range(m):
                 q = (cands[j, i] - pol[r, i]) / a_half[i]
                 d += q * q
             c_dist[j] = math.sqrt(d)
-            if smooth:
-                c_pref[j] = c_dist[j] if (c_ok[j] or c_kept[j]) else np.inf
-            else:
-                c_pref[j] = c_next[j] if c_ok[j] else np.inf
             if s < J:
                 continue
-            # every candidate judged: whether it keeps is asked in the rule's order of preference (lowest next
-            # certificate, or nearest the policy's action) up to the first that does
+            # every candidate judged. A passing one's next value decides among the passing ones
+            for k in range(J):
+                if c_ok[k] and c_next[k] == np.inf:
+                    c_next[k] = next_value(T, t_next, end_lo[k], end_hi[k], c_zend[k], zr, work)
+                c_bad[k] = c_next[k]
+                if smooth:
+                    c_pref[k] = c_dist[k] if (c_ok[k] or c_kept[k]) else np.inf
+                else:
+                    c_pref[k] = c_next[k] if c_ok[k] else np.inf
+            # whether it keeps is asked in the rule's order of preference (lowest next certificate, or nearest the
+            # policy's action) up to the first that does
             keeps_j = -1
             for k in np.argsort(c_pref, kind="mergesort"):
                 if not (c_ok[k] or (smooth and c_kept[k])):
                     break
-                if c_ok[k] or _keeps(enclose, M, C, T, cands, tr, zr, c_ok[k], c_next[k], end_lo[k], end_hi[k],
+                if c_ok[k] or keeps(enclose, M, C, T, cands, tr, zr, c_ok[k], c_next[k], end_lo[k], end_hi[k],
                                      c_zend[k], c_kept[k], work, work_box):
                     keeps_j = k
                     break
+            floor = np.inf
             for k in range(J):
-                first = c_dist[k] if smooth else c_next[k]
                 if k == keeps_j:
-                    c_score[k] = first
+                    c_score[k] = c_dist[k] if smooth else c_next[k]
                 elif c_ok[k]:
                     c_score[k] = 10.0 + c_dist[k] if smooth else 5e5 + min(c_next[k], 1e5)
                 else:
-                    c_score[k] = c_bad[k]
+                    continue
+                floor = min(floor, c_score[k])
+            badness(T, t_next, end_lo, end_hi, zr, work, c_ok, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend,
+                     keeps_j, floor >= LOWEST_BAD, c_bad, c_score)
             best = np.argmin(c_score)
             best_next, best_bad = c_next[best], c_bad[best]
         if passed:

@@ -1,0 +1,198 @@
+"""One held action judged, compiled: the one-period test of :meth:`~softreach.reach.lookahead.Lookahead.assess`
+for one row, in parts that :mod:`softreach.filters.compiled` calls only where their answer can decide.
+
+* :func:`judge` reads no table: the enclosures, ``C1``, the budget, the cells, whether the period surely lands;
+* :func:`next_value` and :func:`_safe_end` read the table over the period's end box;
+* :func:`_rank` and :func:`_tie` make the badness of an action that does not pass, by which the filter chooses
+  where none does; :func:`badness` reads the table for it only where the choice can depend on it.
+
+Each mirrors the numpy method it names, with the same arithmetic in the same order.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from softreach.reach.kernels import MAX_NODES, box_max_row, cover_row
+from softreach.reach.model_kernels import SET_INDEX, call_held_box, call_set_max
+
+# the sets' indices in the model's set-maximum kernel
+_TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_INDEX["soft_constraint"]
+
+
+@nb.njit(cache=True, inline="always")
+def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
+    """:meth:`Lookahead._budget_spent` over the pieces ``[edges[j], edges[j + 1]]`` of a held action's motion."""
+    params, eps, set_params, sets = M[0], M[1], M[2], M[3]
+    P = len(edges) - 1
+    length = edges[P]
+    out = 0.0
+    for j in range(P):
+        call_held_box(enclose, params, x_lo, x_hi, a, edges[j], edges[j + 1], lo, hi)
+        out += (length / P) * min(max(call_set_max(sets, set_params, _SOFT, lo, hi) / eps, 0.0), 1.0)
+    return out
+
+
+@nb.njit(cache=True)
+def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
+    """:meth:`Lookahead._lands` of one row: at some check instant ``s`` every run is in the target inside ``C2``,
+    the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``. Not inlined into
+    :func:`judge`: asked only of actions that do not pass and whose motion meets the target, it would add to the
+    first compilation more than its call costs."""
+    params, set_params, sets = M[0], M[2], M[3]
+    for j in range(check_edges.shape[0]):
+        edges = check_edges[j]
+        s = edges[len(edges) - 1]
+        call_held_box(enclose, params, x_lo, x_hi, a, 0.0, s, lo, hi)
+        call_held_box(enclose, params, x_lo, x_hi, a, s, s, e_lo, e_hi)
+        good = True
+        for i in range(len(lo)):
+            good = good and math.isfinite(lo[i]) and math.isfinite(hi[i])
+        if not (good and call_set_max(sets, set_params, _TARGET, e_lo, e_hi) <= 0
+                and call_set_max(sets, set_params, _SOFT, e_lo, e_hi) <= 0
+                and call_set_max(sets, set_params, _HARD, lo, hi) <= 0):
+            continue
+        if z - _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi) >= 0:
+            return True
+    return False
+
+
+@nb.njit(cache=True, inline="always")
+def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
+    """What :meth:`Lookahead.assess` decides without the table, for one row: ``(ok, lands, bounded, in_c1, kept,
+    proven, c1, z_end, t_next)``; writes the end box into ``end_lo``, ``end_hi``. ``ok``: the action passes by the
+    cells; ``lands``: every run surely lands inside the period; ``proven``: its end keeps inside the safe cells."""
+    params, set_params, sets = M[0], M[2], M[3]
+    target_lo, target_hi, edges, horizon = M[4], M[5], M[6], M[8]
+    check_edges = M[7]
+    safe, has_safe, land = C[0], C[1], C[2]
+    tube_lo, tube_hi, lo, hi, box_lo, box_hi = work[0], work[1], work[2], work[3], work[4], work[5]
+    n = len(x_lo)
+    P = len(edges) - 1
+    dt = edges[P]
+    call_held_box(enclose, params, x_lo, x_hi, a, edges[0], dt, tube_lo, tube_hi)
+    call_held_box(enclose, params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
+    bounded = True
+    for i in range(n):
+        bounded = bounded and math.isfinite(tube_lo[i]) and math.isfinite(tube_hi[i])
+    c1 = call_set_max(sets, set_params, _HARD, tube_lo, tube_hi)
+    z_end = z - _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi)
+    t_next = t + dt
+    in_time = t_next <= horizon + 1e-9 * max(1.0, horizon)
+    t_next = min(t_next, horizon)
+    kept = bounded and c1 <= 0 and z_end >= 0 and in_time
+    in_c1 = bounded and c1 <= 0 and in_time
+    safe_end = kept and (not has_safe or cover_row(safe, t_next, end_lo, end_hi, z_end))
+    ok = safe_end and cover_row(land, t_next, end_lo, end_hi, z_end)
+    meets = True
+    for i in range(n):
+        meets = meets and tube_hi[i] >= target_lo[i] and tube_lo[i] <= target_hi[i]
+    lands = False
+    if not ok and bounded and in_time and meets:
+        lands = _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, box_lo[:n], box_hi[:n])
+    return ok, lands, bounded, in_c1, kept, safe_end and kept and has_safe, c1, z_end, t_next
+
+
+@nb.njit(cache=True, inline="always")
+def next_value(T, t_next, end_lo, end_hi, z_end, z_hi, work):
+    """The worst certificate over a period's end box, the budget between ``z_end`` and ``z_hi`` (``+inf`` where
+    the table has no number): :meth:`Lookahead.assess`'s next value of an action whose motion keeps ``C1``."""
+    W, z_top, z_floor, V, has_V = T[0], T[1], T[2], T[3], T[4]
+    box_lo, box_hi, scratch_W, scratch_V = work[4], work[5], work[6], work[7]
+    n = len(end_lo)
+    z_lo = max(z_end, z_floor)
+    for i in range(n):
+        box_lo[i], box_hi[i] = end_lo[i], end_hi[i]
+    box_lo[n], box_hi[n] = z_lo, max(min(z_hi, z_top), z_lo)
+    best = box_max_row(W, t_next, box_lo, box_hi, MAX_NODES, scratch_W)
+    if has_V:
+        v = box_max_row(V, t_next, end_lo, end_hi, MAX_NODES, scratch_V)
+        if not z_end >= 0:
+            v = np.inf
+        best = np.nan if (math.isnan(v) or math.isnan(best)) else min(best, v)
+    return np.inf if math.isnan(best) else best
+
+
+@nb.njit(cache=True, inline="always")
+def _safe_end(T, t_next, end_lo, end_hi, work):
+    """Whether the safe value ``V_safe`` (where the table has it) is at most 0 over a period's end box."""
+    S, has_S = T[5], T[6]
+    return (not has_S) or box_max_row(S, t_next, end_lo, end_hi, MAX_NODES, work[7]) <= 0
+
+
+@nb.njit(cache=True, inline="always")
+def _rank(bounded, in_c1, proven, is_safe, kept, c1):
+    """The badness of an action that does not pass, but for its tie (:func:`_tie`): first those whose end is
+    proven safe, then those the safe value keeps, then the rest; those that keep the budget before those that do
+    not; an action that leaves ``C1`` by how far. Ranks lie at least ``1e5`` apart, more than any tie."""
+    if not bounded:
+        return np.inf
+    if not in_c1:
+        return 5e6 + max(c1, 0.0)
+    return 0.9e6 if proven else (1e6 if is_safe else 3e6) + (0.0 if kept else 1e6)
+
+
+@nb.njit(cache=True, inline="always")
+def _tie(nxt, z_end):
+    """Within a rank, the lower next certificate first (mapped into ``(-0.5, 0.5)``), then the smaller overspend."""
+    return math.atan(1e12 if nxt == np.inf else nxt) / math.pi + 1e3 * max(-z_end, 0.0)
+
+
+@nb.njit(cache=True)
+def keeps(enclose, M, C, T, cands, t, z, ok, nxt, end_lo, end_hi, z_end, kept, work, work_box):
+    """:meth:`Lookahead.keeps` with landing cells: a row that passes keeps; one whose period keeps ``C1`` and the
+    budget keeps when some candidate passes from its whole end box (:meth:`Lookahead.keeps_certified`)."""
+    horizon = M[8]
+    dt = M[6][len(M[6]) - 1]
+    if ok:
+        return True
+    if not (kept and not t + dt >= horizon - 1e-9 * max(1.0, horizon) and nxt > -np.inf):
+        return False
+    e_lo, e_hi = work_box[0], work_box[1]
+    for j in range(cands.shape[0]):
+        ok, lands = judge(enclose, M, C, t + dt, end_lo, end_hi, max(z_end, 0.0), cands[j], e_lo, e_hi, work)[:2]
+        if ok or lands:
+            return True
+    return False
+
+
+#: below this score no candidate that fails can be chosen: its badness is at least its best rank, 0.9e6, less half
+#: (:func:`_rank`, :func:`_tie`)
+LOWEST_BAD = 0.9e6 - 1.0
+
+
+@nb.njit(cache=True)
+def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend, keeps_j,
+             contest, c_bad, c_score):
+    """The badness and score of every candidate that fails (:meth:`Lookahead.assess`), the table read only where
+    it can decide: a failing candidate is chosen only where ``contest`` (no other scores below
+    :data:`LOWEST_BAD`), and then from the lowest rank; the smooth rule's failing candidate that keeps
+    (``keeps_j``) is chosen, and its badness decides the safe plans. Every other failing one gets its rank alone,
+    at least ``1e5`` above the lowest rank's badness, so that the choice is the one the exact badness makes."""
+    J = len(c_ok)
+    if keeps_j >= 0 and not c_ok[keeps_j]:
+        k = keeps_j
+        is_safe = c_in[k] and _safe_end(T, t_next, end_lo[k], end_hi[k], work)
+        c_bad[k] = _rank(c_bounded[k], c_in[k], c_proven[k], is_safe, c_kept[k], c_c1[k])
+        if c_in[k]:
+            c_bad[k] += _tie(next_value(T, t_next, end_lo[k], end_hi[k], c_zend[k], z_hi, work), c_zend[k])
+    # a proven end ranks first: then no other's safe value can decide
+    proven = False
+    for k in range(J):
+        proven = proven or (not c_ok[k] and k != keeps_j and c_in[k] and c_proven[k])
+    lowest = np.inf
+    for k in range(J):
+        if c_ok[k] or k == keeps_j:
+            continue
+        is_safe = c_in[k] and (proven or not contest or _safe_end(T, t_next, end_lo[k], end_hi[k], work))
+        c_bad[k] = _rank(c_bounded[k], c_in[k], c_proven[k], is_safe, c_kept[k], c_c1[k])
+        lowest = min(lowest, c_bad[k])
+    for k in range(J):
+        if c_ok[k] or k == keeps_j:
+            continue
+        if contest and c_in[k] and c_bad[k] == lowest:
+            c_bad[k] += _tie(next_value(T, t_next, end_lo[k], end_hi[k], c_zend[k], z_hi, work), c_zend[k])
+        c_score[k] = c_bad[k]
