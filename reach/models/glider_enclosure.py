@@ -17,6 +17,12 @@ from ..intervals import HALF_PI, ROUND_ABS, ROUND_REL
 from ..model_kernels import held_boxes
 from .glider_params import GliderParams
 
+# numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
+# start of its sha256, so that a change there changes this file and numba compiles it afresh
+# (tests/test_numba_cache.py)
+COMPILED_IN = {"reach/intervals.py": "af47be164a359a9e", "reach/model_kernels.py": "7da879ea03b7ee80",
+               "reach/models/glider_params.py": "b1e61c00ba36d2ae"}
+
 #: inflation of a failed Picard candidate: relative to its width, and absolute (plus relative to |x|) so that a
 #: zero-width side still grows
 _INFLATE_REL, _INFLATE_ABS, _INFLATE_STATE = 0.1, 1e-9, 1e-6
