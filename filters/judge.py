@@ -98,7 +98,7 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     lands = False
     if not ok and bounded and in_time and meets:
         lands = _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, box_lo[:n], box_hi[:n])
-    return ok, lands, bounded, in_c1, kept, safe_end and kept and has_safe, c1, z_end, t_next
+    return ok, lands, bounded, in_c1, kept, safe_end and has_safe, c1, z_end, t_next
 
 
 @nb.njit(cache=True, inline="always")
