@@ -117,6 +117,45 @@ def test_without_diagnostics_the_same_decisions(pointmass_held_table, rule):
         fast.filter(t, x, z, a, diagnostics="no")
 
 
+def test_badness_where_it_decides_is_the_numpy_badness(pointmass_held_table):
+    """The compiled badness of failing candidates (:func:`softreach.filters.judge.badness`) against
+    :meth:`Lookahead.assess`, candidate by candidate, on rows where few states pass: the smooth rule's failing
+    candidate that keeps gets its whole badness (which decides whether the safe plans are consulted, a branch the
+    decision tests above seldom reach), whichever candidate that is; and the candidate chosen where none keeps is
+    the one the whole badness chooses."""
+    from softreach.filters.compiled import decision_space
+    from softreach.filters.judge import LOWEST_BAD, badness, judge
+
+    vf = ValueFilter(pointmass_held_table, 0.01, rule="smooth")
+    fast, la = vf.compiled, vf.lookahead
+    J = len(fast.cands)
+    work = decision_space(la.n, fast.cands.shape[1], J)[0]
+    t, x, z, _ = _draws(150, 3)
+    exact = ranked = 0
+    for r in range(len(x)):
+        passing, _, bad = la.assess(np.full(J, t[r]), np.repeat(x[r:r + 1], J, 0), np.full(J, z[r]), fast.cands)
+        end_lo, end_hi = np.empty((J, la.n)), np.empty((J, la.n))
+        ok, in_c1, bounded, proven, kept = (np.empty(J, bool) for _ in range(5))
+        c1, z_end = np.empty(J), np.empty(J)
+        for j in range(J):
+            a_ok, lands, bounded[j], in_c1[j], a_kept, proven[j], c1[j], z_end[j], t_next = judge(
+                fast.enclose, fast.M, fast.C, t[r], x[r], x[r], z[r], fast.cands[j], end_lo[j], end_hi[j], work)
+            ok[j], kept[j] = a_ok or lands, a_kept or lands
+        np.testing.assert_array_equal(ok, passing)
+        columns = (ok, in_c1, bounded, proven, kept, c1, z_end)
+        for k in np.nonzero(~ok)[0]:
+            got = np.full(J, np.nan)
+            badness(fast.T, t_next, end_lo, end_hi, z[r], work, *columns, k, True, got, np.full(J, np.nan))
+            assert got[k] == bad[k], (r, k)
+            exact += bool(in_c1[k])
+        if not ok.any():
+            got, score = np.full(J, np.nan), np.full(J, np.nan)
+            badness(fast.T, t_next, end_lo, end_hi, z[r], work, *columns, -1, True, got, score)
+            assert np.argmin(score) == np.argmin(bad) and score.min() >= LOWEST_BAD or bad.min() == np.inf, r
+            ranked += 1
+    assert exact > 100 and ranked > 20  # both kinds of rows, with next values that move the badness
+
+
 def test_blocks_cover_every_row_once_and_raise_a_blocks_error():
     from softreach.filters.blocks import PARALLEL_MIN_ROWS, run_in_blocks
 
