@@ -43,7 +43,7 @@ from .judge import LOWEST_BAD, badness, judge, keeps, next_value
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/blocks.py": "2b3dc14608793eb5", "filters/judge.py": "1ea8b01f65c141d4",
+COMPILED_IN = {"filters/blocks.py": "2b3dc14608793eb5", "filters/judge.py": "5ba411574fe4b617",
                "reach/borrowed.py": "8a1aa2defd267a3c", "reach/box_max.py": "b9d53e0e22521413",
                "reach/kernels.py": "7bb4dff8ae39a714", "reach/model_kernels.py": "7da879ea03b7ee80"}
 

@@ -43,10 +43,10 @@ def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
 
 @nb.njit(cache=True)
 def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
-    """:meth:`Lookahead._lands` of one row: at some check instant ``s`` every run is in the target inside ``C2``,
-    the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``. Not inlined into
-    :func:`judge`: asked only of actions that do not pass and whose motion meets the target, it would add to the
-    first compilation more than its call costs."""
+    """:func:`~softreach.reach.landing.lands_within` of one row: at some check instant ``s`` every run is in the
+    target inside ``C2``, the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``. Not
+    inlined into :func:`judge`: asked only of actions that do not pass and whose motion meets the target, it would
+    add to the first compilation more than its call costs."""
     params, set_params, sets = M[0], M[2], M[3]
     for j in range(check_edges.shape[0]):
         edges = check_edges[j]

@@ -49,6 +49,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .kernels import budget_floor_rows, cover_rows, plan_rows, step_rows
+from .landing import lands_within, meets_target
 
 
 class _LastPlans:
@@ -216,8 +217,8 @@ class CellCertificate:
                 pieces = model.held_tube_pieces_box(float(t[0]), lo, hi, acts, la.dt, la.pieces)
                 spend = spend + np.nan_to_num(la._budget_spent(t, pieces[0], pieces[1], la.dt), nan=np.inf)
             # landing needs only the budget spent until the landing instant, at most the plan's bound so far
-            rows = ok & ~lands & la._meets_target(np.nan_to_num(tube_lo), np.nan_to_num(tube_hi))
-            lands |= la._lands(t, lo, np.full(C, np.inf), acts, hi, rows)
+            rows = ok & ~lands & meets_target(la, np.nan_to_num(tube_lo), np.nan_to_num(tube_hi))
+            lands |= lands_within(la, t, lo, np.full(C, np.inf), acts, hi, rows)
             lo, hi = np.where(ok[:, None], end_lo, lo), np.where(ok[:, None], end_hi, hi)
             if p in holds:
                 first, last, on = self._cell_range(lo, hi)

@@ -327,3 +327,9 @@ def _bang(s: Any, when_positive: float, when_negative: float) -> Any:
     xp = B.namespace(s)
     ref = xp.zeros_like(s)
     return B.where(s > 0, ref + when_positive, B.where(s < 0, ref + when_negative, ref + mid))
+
+
+def row_time(t: np.ndarray) -> Any:
+    """The time argument of a model's methods for rows at times ``t``: one float where every row has the same time
+    (the models evaluate faster on a scalar), else the array."""
+    return float(t[0]) if len(t) and np.all(t == t[0]) else t

@@ -19,12 +19,8 @@ motion of the period and a box ``E`` holding its end point. The action is **admi
    interpolation allowance is needed: the certificate *is* the interpolant. ``margin`` (default 0) is an extra
    tightening a user may ask for.
 
-The episode also ends when the target is reached *inside* a period: the environments check ``C1`` and the
-target at ``target_checks`` equally spaced instants of each period (their integrator's sub-step ends), and the
-paper's game ends at the first instant in the target. So an action also passes when, for some check instant
-``s``, the box of the states at ``s`` lies in the target and inside ``C2`` (every corner, the target and ``c2``
-being convex or monotone along each axis on such boxes), the motion over ``[0, s]`` stays in ``C1``, and the
-budget spent until ``s`` is at most ``z``: every run then ends landed at ``s`` at the latest.
+The episode also ends when the target is reached *inside* a period, so an action also passes when every run
+surely lands at one of the environment's check instants (:mod:`softreach.reach.landing`).
 
 A budget-surface table (``softreach solve MODEL --held --budget-surface``) gives the same test with
 ``W~(t, x, z)`` replaced by ``Q~_min(t, x) - min(z, T - t)``: its maximum over ``E x [z', z]`` is
@@ -48,8 +44,10 @@ import numpy as np
 
 from .horizon import exact_before_horizon, in_window
 from .box_max import box_max, kernel_field
+from .dynamics import row_time
 from .interpolation import interpolate
 from .kernels import certificate_rows
+from .landing import lands_within, meets_target
 from .model_kernels import SET_INDEX, set_max_address, set_max_rows
 
 
@@ -174,7 +172,7 @@ class Lookahead:
 
     def _corner_max(self, fn, t: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         # a model whose set functions are not convex along each axis (an obstacle disc) bounds them itself
-        bound = self.model.set_box_max(fn.__name__, _time_arg(t), lo, hi)
+        bound = self.model.set_box_max(fn.__name__, row_time(t), lo, hi)
         if bound is not None:
             return np.asarray(bound, dtype=np.float64)
         if self.set_kernel is not None and fn.__name__ in SET_INDEX:
@@ -184,7 +182,7 @@ class Lookahead:
             return out
         N, C = len(lo), len(self.corners)
         pts = np.where(self.corners[None, :, :], hi[:, None, :], lo[:, None, :]).reshape(N * C, self.n)
-        t_arg = _time_arg(t)
+        t_arg = row_time(t)
         t_arg = t_arg if np.isscalar(t_arg) else np.repeat(t, C)
         vals = np.asarray(fn(t_arg, [pts[:, i] for i in range(self.n)]), dtype=np.float64)
         return np.broadcast_to(vals, (N * C,)).reshape(N, C).max(axis=1)
@@ -194,13 +192,13 @@ class Lookahead:
         charged at the largest ``h_eps`` over its box (at a corner: ``c2`` is convex)."""
         P, N = piece_lo.shape[0], piece_lo.shape[1]
         # every piece of every row in one evaluation
-        t_all = t if np.isscalar(_time_arg(t)) else np.tile(t, P)
+        t_all = t if np.isscalar(row_time(t)) else np.tile(t, P)
         c2 = self._corner_max(self.model.soft_constraint, t_all, np.reshape(piece_lo, (P * N, -1)),
                               np.reshape(piece_hi, (P * N, -1)))
         return (length / P) * np.clip(c2 / self.eps, 0.0, 1.0).reshape(P, N).sum(axis=0)
 
     def _enclose(self, t: np.ndarray, x: np.ndarray, a: np.ndarray, dt: float | None = None):
-        t0 = _time_arg(t)
+        t0 = row_time(t)
         dt = self.dt if dt is None else dt
         try:
             return self.model.held_enclosure(t0, x, a, dt), np.ones(len(x), bool)
@@ -251,7 +249,7 @@ class Lookahead:
         if x_hi is None:
             (tube_lo, tube_hi, end_lo, end_hi), bounded = self._enclose(t, x, a)
         else:
-            tube_lo, tube_hi, end_lo, end_hi = self.model.held_enclosure_box(_time_arg(t), x, x_hi, a, self.dt)
+            tube_lo, tube_hi, end_lo, end_hi = self.model.held_enclosure_box(row_time(t), x, x_hi, a, self.dt)
             bounded = np.isfinite(tube_lo).all(axis=1) & np.isfinite(tube_hi).all(axis=1)
         z_top = z if z_hi is None else z_hi
         c1 = self._corner_max(self.model.hard_constraint, t, tube_lo, tube_hi)
@@ -259,9 +257,9 @@ class Lookahead:
         # of that piece, so a short excursion out of C2 costs only its pieces, and never less than the
         # environment's exact integral of h_eps
         if bounded.all() and x_hi is None:
-            piece_lo, piece_hi = self.model.held_tube_pieces(_time_arg(t), x, a, self.dt, self.pieces)
+            piece_lo, piece_hi = self.model.held_tube_pieces(row_time(t), x, a, self.dt, self.pieces)
         elif bounded.all():
-            piece_lo, piece_hi = self.model.held_tube_pieces_box(_time_arg(t), x, x_hi, a, self.dt, self.pieces)
+            piece_lo, piece_hi = self.model.held_tube_pieces_box(row_time(t), x, x_hi, a, self.dt, self.pieces)
         else:
             piece_lo = np.broadcast_to(tube_lo, (self.pieces,) + tube_lo.shape)
             piece_hi = np.broadcast_to(tube_hi, (self.pieces,) + tube_hi.shape)
@@ -321,7 +319,8 @@ class Lookahead:
         # ranks, lower is better: passing, by next value (<= 0) < 1e6 safe, budget kept < 2e6 safe, overspent
         # < 3e6 budget kept < 4e6 overspent < 5e6 + how far C1 may be left < inf (not bounded); within a rank
         # the next value, then the overspend, breaks ties
-        lands = self._lands(t, x, z, a, x_hi, ~passing & bounded & in_time & self._meets_target(tube_lo, tube_hi))
+        near = meets_target(self, tube_lo, tube_hi)
+        lands = lands_within(self, t, x, z, a, x_hi, ~passing & bounded & in_time & near)
         passing |= lands
         ok |= lands
         nxt = np.where(lands, -np.inf, nxt)
@@ -335,51 +334,6 @@ class Lookahead:
         nxt = np.where(ok, nxt, np.inf)
         out = (passing, nxt, bad)
         return out + (end_lo, end_hi, z_end, kept | lands) if ends else out
-
-    def _meets_target(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        """Rows whose box ``[lo, hi]`` meets the model's :attr:`~softreach.reach.problem.Model.target_box`: a
-        period whose whole motion misses it cannot land (``True`` everywhere when the model gives no box)."""
-        if self.target_lo is None:
-            return np.ones(len(lo), bool)
-        return ((hi >= self.target_lo) & (lo <= self.target_hi)).all(axis=1)
-
-    def _lands(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray, x_hi: np.ndarray | None,
-               rows: np.ndarray) -> np.ndarray:
-        """Rows (among ``rows``) whose every run surely lands at one of the period's check instants (the module
-        docstring): staying in ``C1`` and within the budget until then."""
-        out = np.zeros(len(x), bool)
-        todo = np.nonzero(rows)[0]
-        model = self.model
-        for j in range(1, self.target_checks + 1):
-            # only rows whose motion over the period comes near the target can land; cheap rows first
-            if len(todo) == 0:
-                break
-            s = self.dt * j / self.target_checks
-            tr = t[todo]
-            lo = x[todo]
-            hi = lo if x_hi is None else x_hi[todo]
-            if x_hi is None:
-                (tube_lo, tube_hi, end_lo, end_hi), good = self._enclose(tr, lo, a[todo], s)
-            else:
-                tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure_box(_time_arg(tr), lo, hi, a[todo], s)
-                good = np.isfinite(tube_lo).all(axis=1) & np.isfinite(tube_hi).all(axis=1)
-            ts = tr + s
-            good &= self._corner_max(model.target, ts, end_lo, end_hi) <= 0
-            good &= self._corner_max(model.soft_constraint, ts, end_lo, end_hi) <= 0
-            good &= self._corner_max(model.hard_constraint, tr, tube_lo, tube_hi) <= 0
-            idx = np.nonzero(good)[0]
-            if len(idx):
-                if x_hi is None:
-                    piece_lo, piece_hi = model.held_tube_pieces(_time_arg(tr[idx]), lo[idx], a[todo][idx], s,
-                                                                self.pieces)
-                else:
-                    piece_lo, piece_hi = model.held_tube_pieces_box(_time_arg(tr[idx]), lo[idx], hi[idx],
-                                                                    a[todo][idx], s, self.pieces)
-                spent = self._budget_spent(tr[idx], piece_lo, piece_hi, s)
-                done = idx[z[todo][idx] - spent >= 0]
-                out[todo[done]] = True
-                todo = np.delete(todo, done)
-        return out
 
     def passes(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray):
         """What the filter asks of the policy's action. Where the model bounds boxes of starts: the period keeps
@@ -454,8 +408,3 @@ class Lookahead:
         """``(admissible, next_value, badness)``, each ``(N, J)``, of every candidate at every row."""
         N, J = len(x), len(self.candidates)
         return tuple(o.reshape(N, J) for o in self.assess(*self._each_candidate(t, x, z)))
-
-
-def _time_arg(t: np.ndarray) -> Any:
-    """One float where every row has the same time (the models evaluate faster on a scalar), else the array."""
-    return float(t[0]) if len(t) and np.all(t == t[0]) else t
