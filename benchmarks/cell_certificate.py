@@ -1,8 +1,9 @@
 """What the cell certificates cost and keep: build time, and the states they certify against the table's own
 one-period test and, for the point mass, the exact sets.
 
-    OMP_NUM_THREADS=1 python benchmarks/cell_certificate.py --table pointmass-held.srt [--shape 150 1440 | --cached]
-        [--states 20000] [--times 0 0.5 0.9] [--exact-pointmass] [--later 0.5 1 2]
+    OMP_NUM_THREADS=1 python benchmarks/cell_certificate.py --table pointmass-held.srt
+        [--shape 150 1440] [--holds 1 2 4 | --cached] [--states 20000] [--times 0 0.5 0.9] [--exact-pointmass]
+        [--later 0.5 1 2]
     python benchmarks/cell_certificate.py --table pointmass-held.srt --write-packaged [--checks 2]
 
 Certified means ``ValueFilter.certify``: with the cells (``landing_cells``, proven) and with the table alone
@@ -13,7 +14,7 @@ any controller can land from, and the cells' states outside them (unsound; 0 exp
 ``--write-packaged`` (re)writes the cells the package ships (``reach/cells/``, the model's ``cell_shape``, for the
 filter's default ``target_checks`` 1 and the environment's sub-steps, or those of ``--checks``) from the table's
 candidates and period. The package ships the point mass's for 1 and 10, the glider's for its environment's 2 only
-(``--checks 2``: its pair of games takes 6 min to build and 13 MB).
+(``--checks 2``: its pair of games takes about 9 min to build).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--table", required=True, help="a held table (softreach solve MODEL --held)")
     ap.add_argument("--shape", type=int, nargs="+", help="cells per state axis (default: the model's cell_shape)")
+    ap.add_argument("--holds", type=int, nargs="+", help="plan lengths in periods (default: the model's cell_holds)")
     ap.add_argument("--states", type=int, default=20000)
     ap.add_argument("--times", type=float, nargs="+", default=[0.0, 0.5, 0.9])
     ap.add_argument("--budgets", type=float, nargs="+", help="default: the model's default budgets")
@@ -55,17 +57,18 @@ def main(argv: list[str] | None = None) -> int:
     shape = tuple(args.shape) if args.shape else model.cell_shape
     if shape is None:
         ap.error(f"{model.name} declares no cell_shape; give --shape")
+    holds = tuple(args.holds) if args.holds else model.cell_holds
     if args.cached:
-        if args.shape:
-            ap.error("--cached uses the model's cell_shape; leave out --shape")
+        if args.shape or args.holds:
+            ap.error("--cached uses the model's cell_shape and cell_holds; leave out --shape and --holds")
         vf = ValueFilter(table, table.control_period, target_checks=model.substeps)
         built = {"safe": vf.safe_cells, "land": vf.landing_cells}
     else:
         built = {}
         for game in ("safe", "land"):
             t0 = time.perf_counter()
-            built[game] = CellCertificate.build(plain.lookahead, shape, game=game, holds=model.cell_holds)
-            print(f"{game} cells {shape}, plans of {list(model.cell_holds)} periods: built in "
+            built[game] = CellCertificate.build(plain.lookahead, shape, game=game, holds=holds)
+            print(f"{game} cells {shape}, plans of {list(holds)} periods: built in "
                   f"{time.perf_counter() - t0:.1f} s")
         vf = ValueFilter(table, table.control_period, target_checks=model.substeps, safe_cells=built["safe"],
                          landing_cells=built["land"])
