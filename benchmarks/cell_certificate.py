@@ -2,7 +2,7 @@
 one-period test and, for the point mass, the exact sets.
 
     OMP_NUM_THREADS=1 python benchmarks/cell_certificate.py --table pointmass-held.srt
-        [--shape 150 1440] [--holds 1 2 4 | --cached] [--states 20000] [--times 0 0.5 0.9] [--exact-pointmass]
+        [--shape 150 1440 --holds 1 2 4 | --cached] [--states 20000] [--times 0 0.5 0.9] [--exact-pointmass]
         [--later 0.5 1 2]
     python benchmarks/cell_certificate.py --table pointmass-held.srt --write-packaged [--checks 2]
 
