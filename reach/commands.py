@@ -44,8 +44,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--budget-surface", action="store_true",
                    help="solve the budget surface Q_min(t, x) on the state grid instead of W_eps on (x, z): "
                         "RA~_Q = {Q_min <= Q} for every Q at the cost of one state-grid solve")
-    p.add_argument("--held-levels", type=int, default=5, metavar="K",
-                   help="candidate held actions per control axis, corners and centre included (default 5)")
+    p.add_argument("--held-levels", type=int, default=None, metavar="K",
+                   help="candidate held actions per control axis, corners and centre included (default: the "
+                        "model's held_levels)")
     p.add_argument("--no-resume", action="store_true", help="ignore an unfinished .partial file and start over")
     p.add_argument("--budgets", type=float, nargs="+", default=None, help="budgets for the summary (default 0 0.06 0.3 0.6 for the point mass)")
     p.add_argument("--threads", type=int, default=None,

@@ -47,8 +47,8 @@ class SolveConfig:
     #: ``None``: the continuous-time game (the paper's). A period [s]: the sampled-data game, actions held for
     #: that long (:mod:`softreach.reach.held`); snapshots are then the sample times, ``snapshots`` is ignored
     control_period: float | None = None
-    #: candidate held actions per control axis (sampled-data game only)
-    held_levels: int = 5
+    #: candidate held actions per control axis (sampled-data game only); ``None``: the model's ``held_levels``
+    held_levels: int | None = None
     #: sampled-data game only: nodes with values in ``[-band, 0]`` are made consistent with the filter's
     #: one-period test (:func:`softreach.reach.held.make_consistent`); value units
     consistency_band: float = 0.1

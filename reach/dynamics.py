@@ -105,13 +105,18 @@ class Dynamics(ABC):
 
     #: extra actions worth holding for a control period (e.g. the point mass's hover thrust ``u = g``)
     trim_controls: tuple[tuple[float, ...], ...] = ()
+    #: evenly spaced values per control axis of the actions the sampled-data game and the filter hold for a period
+    #: (:meth:`held_candidates`' default; ``softreach solve --held`` takes it from here)
+    held_levels: int = 5
 
-    def held_candidates(self, levels: int = 5) -> list[tuple[float, ...]]:
+    def held_candidates(self, levels: int | None = None) -> list[tuple[float, ...]]:
         """Actions a sampled-data controller may hold for one period: ``levels`` evenly spaced values along each
         control axis (the box's corners and, for odd ``levels``, its centre among them) and :attr:`trim_controls`.
 
-        :param levels: values per control axis (>= 2)
+        :param levels: values per control axis (>= 2); ``None``: :attr:`held_levels`
         """
+        if levels is None:
+            levels = self.held_levels
         if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 2:
             raise ValueError(f"levels must be an integer >= 2, got {levels!r}")
         axes = [np.linspace(lo, hi, int(levels)) for lo, hi in zip(*self.control_bounds)]

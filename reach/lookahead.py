@@ -135,7 +135,7 @@ class Lookahead:
         if budget is None:
             raise ValueError(f"table {table.path} holds only the classical V; the filter needs W_eps or Q_min")
         held = table.header["fields"][budget].get("held_controls")
-        return cls(fields, model, dt, eps, held if held else model.held_candidates(5), margin,
+        return cls(fields, model, dt, eps, held if held else model.held_candidates(), margin,
                    target_checks=target_checks)
 
     # ---------------------------------------------------------------- the certificate

@@ -146,6 +146,23 @@ def test_softreach_solve_and_plot_dubins(tmp_path, capsys):
     assert png.stat().st_size > 20_000
 
 
+def test_a_held_solve_takes_its_candidate_actions_from_the_model(tmp_path):
+    """``held_levels`` lives on the model: the sampled-data solve (and so the filter, which takes its candidates from
+    the table) holds that many evenly spaced values of each control, the box's ends among them."""
+    from softreach.reach import SolveConfig, SolverSettings, load_table, solve_table
+
+    model = get_model("dubins")
+    model.held_levels = 3
+    lo, hi = (float(v[0]) for v in model.control_bounds)
+    cfg = SolveConfig(shape=(11, 11, 8), budget_points=8, control_period=0.1,
+                      settings=SolverSettings.from_accuracy("low", dtype="float32", compile=False))
+    solve_table(model, cfg, tmp_path / "d.srt", progress=False)
+    held = load_table(tmp_path / "d.srt").header["fields"]["W_eps"]["held_controls"]
+    assert sorted(a[0] for a in held) == pytest.approx([lo, 0.5 * (lo + hi), hi])
+    with pytest.raises(ValueError, match="levels must be an integer >= 2, got 1"):
+        model.held_candidates(1)
+
+
 # ------------------------------------------------------------------------------------------ filter, train, evaluate
 
 def test_safety_filter_on_the_generic_env_keeps_its_guarantee(dubins_held_table):
