@@ -14,7 +14,7 @@ any controller can land from, and the cells' states outside them (unsound; 0 exp
 ``--write-packaged`` (re)writes the cells the package ships (``reach/cells/``, the model's ``cell_shape``, for the
 filter's default ``target_checks`` 1 and the environment's sub-steps, or those of ``--checks``) from the table's
 candidates and period. The package ships the point mass's for 1 and 10, the glider's for its environment's 2 only
-(``--checks 2``: its pair of games takes about 9 min to build).
+(``--checks 2``: its pair of games took 16 min to build, beside another job).
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ from softreach.reach import cell_certificate
 from softreach.reach.cell_certificate import PACKAGED, CellCertificate, cell_key
 from softreach.reach.lookahead import Lookahead
 
-#: the point mass's files are rebuilt here (30 s each); the glider's take 9 min to build, and
+#: the point mass's files are rebuilt here (30 s each); the glider's take 16 min to build, and
 #: tests/test_glider_cells.py checks what they claim instead
 FILES = sorted(PACKAGED.glob("cells-pointmass-*.npz"))
 
