@@ -17,7 +17,7 @@ from ..problem import Model
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"reach/dynamics.py": "94d27039c0afeb34", "reach/model_kernels.py": "7da879ea03b7ee80",
+COMPILED_IN = {"reach/dynamics.py": "a3005ba09203d03b", "reach/model_kernels.py": "7da879ea03b7ee80",
                "reach/problem.py": "b1dc68ab25bba4b7", "reach/sets.py": "989c3e976e6eef70"}
 
 
