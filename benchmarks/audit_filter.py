@@ -210,12 +210,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         alone = ValueFilter(table, dt, target_checks=model.substeps, safe_cells=None, landing_cells=None)
         for r, a in zip(res["region"], certified_region(alone, table, budgets)):
             r["table_alone"] = a["certified"]
-    print(f"\n{'Q':>5s} {'certified':>10s} {'RA~_Q held':>11s} {'ratio':>6s}" + (
-        f" {'RA~_Q cont.':>11s} {'ratio':>6s}" if cont else "") + (f" {'table alone':>11s}" if args.table_alone else ""))
+    head = f"\n{'Q':>5s} {'certified':>10s} {'RA~_Q held':>11s} {'ratio':>6s}"
+    head += f" {'RA~_Q cont.':>11s} {'ratio':>6s}" if cont else ""
+    head += f" {'table alone':>11s}" if args.table_alone else ""
+    print(head)
     for r in res["region"]:
-        print(f"{r['Q']:5.2f} {r['certified']:10.2f} {r['set']:11.2f} {r['certified_over_set']:6.3f}" + (
-            f" {r['continuous_set']:11.2f} {r['certified_over_continuous']:6.3f}" if cont else "") + (
-            f" {r['table_alone']:11.2f}" if args.table_alone else ""))
+        line = f"{r['Q']:5.2f} {r['certified']:10.2f} {r['set']:11.2f} {r['certified_over_set']:6.3f}"
+        line += f" {r['continuous_set']:11.2f} {r['certified_over_continuous']:6.3f}" if cont else ""
+        line += f" {r['table_alone']:11.2f}" if args.table_alone else ""
+        print(line)
 
     res["timing"] = timings(vf, max(budgets), args.seed)
     tm = res["timing"]
