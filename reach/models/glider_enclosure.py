@@ -53,23 +53,29 @@ def _div_pos(a0, a1, b0, b1):
     return _mul(a0, a1, _dn(1.0 / b1), _up(1.0 / b0))
 
 
-@nb.njit(cache=True)
-def _field(P, c0, c1, lo, hi, out_lo, out_hi):
-    """Interval extension of :meth:`Glider.f` over the state box ``[lo, hi]``, the lift coefficients ``[c0, c1]``
-    and every wind in ``[-wind_max, wind_max]``, written into ``out_lo``, ``out_hi``: the formulas of ``f`` term by
-    term, each result rounded outwards (sin increasing and cos unimodal on ``(-pi/2, pi/2)``), so every value of
-    ``f`` over the box lies in it (inclusion property). ``P`` is :attr:`GliderHeldEnclosure.held_box_params`.
+# The state is always (h, V, gamma): the kernel keeps its boxes in 3-tuples, in registers, because the arrays it
+# would otherwise allocate at every call cost a third of the call, and the filter calls it hundreds of times a
+# decision.
 
-    :return: ``False`` where the box leaves the formulas' domain (``V <= 0`` or ``|gamma| >= pi/2``, or NaN)
+
+@nb.njit(cache=True, inline="always")
+def _field(P, c0, c1, V0, V1, g0, g1):
+    """Interval extension of :meth:`Glider.f` over the states with airspeed in ``[V0, V1]`` and flight-path angle
+    in ``[g0, g1]`` (the field does not depend on ``h``), the lift coefficients ``[c0, c1]`` and every wind in
+    ``[-wind_max, wind_max]``: the formulas of ``f`` term by term, each result rounded outwards (sin increasing and
+    cos unimodal on ``(-pi/2, pi/2)``), so every value of ``f`` over the box lies in it (inclusion property).
+    ``P`` is :attr:`GliderHeldEnclosure.held_box_params`.
+
+    :return: ``(ok, lo, hi)``, the box as two 3-tuples; ``ok`` is ``False`` where the box leaves the formulas'
+        domain (``V <= 0`` or ``|gamma| >= pi/2``, or NaN)
     """
     cd0, cd_k, mass, g, half_rho_s, wind_max = P[2], P[3], P[4], P[5], P[6], P[7]
-    V0, V1, g0, g1 = lo[1], hi[1], lo[2], hi[2]
     if not (V0 > 0.0 and g0 > -HALF_PI and g1 < HALF_PI):
-        return False
+        return False, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
     s0, s1 = _dn(math.sin(g0)), _up(math.sin(g1))
     k0, k1 = math.cos(g0), math.cos(g1)
     cg0, cg1 = _dn(min(k0, k1)), _up(1.0 if (g0 <= 0.0 and g1 >= 0.0) else max(k0, k1))
-    out_lo[0], out_hi[0] = _mul(V0, V1, s0, s1)
+    h0, h1 = _mul(V0, V1, s0, s1)
     cc0, cc1 = _mul(c0, c1, c0, c1)
     q0, q1 = _mul(cd_k, cd_k, cc0, cc1)
     dc0, dc1 = _dn(cd0 + q0), _up(cd0 + q1)
@@ -78,22 +84,34 @@ def _field(P, c0, c1, lo, hi, out_lo, out_hi):
     w0, w1 = _div_pos(-wind_max, wind_max, mass, mass)
     gs0, gs1 = _mul(g, g, s0, s1)
     a0, a1 = _dn(w0 - drag1), _up(w1 - drag0)
-    out_lo[1], out_hi[1] = _dn(a0 - gs1), _up(a1 - gs0)
+    v0, v1 = _dn(a0 - gs1), _up(a1 - gs0)
     l0, l1 = _mul(half_rho_s, half_rho_s, c0, c1)
     l0, l1 = _mul(l0, l1, V0, V1)
     l0, l1 = _div_pos(l0, l1, mass, mass)
     gc0, gc1 = _mul(g, g, cg0, cg1)
     r0, r1 = _div_pos(gc0, gc1, V0, V1)
-    out_lo[2], out_hi[2] = _dn(l0 - r1), _up(l1 - r0)
-    return True
+    return True, (h0, v0, _dn(l0 - r1)), (h1, v1, _up(l1 - r0))
 
 
 @nb.njit(cache=True, inline="always")
-def _hull_step(x_lo, x_hi, s, d_lo, d_hi, out_lo, out_hi):
-    """``[x_lo, x_hi] + [0, s] * [d_lo, d_hi]`` (``s >= 0``), rounded outwards."""
-    for i in range(len(x_lo)):
-        out_lo[i] = _dn(x_lo[i] + _dn(s * min(d_lo[i], 0.0)))
-        out_hi[i] = _up(x_hi[i] + _up(s * max(d_hi[i], 0.0)))
+def _field_over(P, c0, c1, lo, hi):
+    """:func:`_field` over the box ``[lo, hi]`` (3-tuples or arrays)."""
+    return _field(P, c0, c1, lo[1], hi[1], lo[2], hi[2])
+
+
+@nb.njit(cache=True, inline="always")
+def _hull_step(x_lo, x_hi, s, d_lo, d_hi):
+    """``[x_lo, x_hi] + [0, s] * [d_lo, d_hi]`` (``s >= 0``), rounded outwards, as two 3-tuples."""
+    return ((_dn(x_lo[0] + _dn(s * min(d_lo[0], 0.0))), _dn(x_lo[1] + _dn(s * min(d_lo[1], 0.0))),
+             _dn(x_lo[2] + _dn(s * min(d_lo[2], 0.0)))),
+            (_up(x_hi[0] + _up(s * max(d_hi[0], 0.0))), _up(x_hi[1] + _up(s * max(d_hi[1], 0.0))),
+             _up(x_hi[2] + _up(s * max(d_hi[2], 0.0)))))
+
+
+@nb.njit(cache=True, inline="always")
+def _pad(X_lo, X_hi, x_lo, x_hi, i):
+    """How far a failed Picard candidate grows along axis ``i``."""
+    return _INFLATE_REL * (X_hi[i] - X_lo[i]) + _INFLATE_ABS + _INFLATE_STATE * max(abs(x_lo[i]), abs(x_hi[i]))
 
 
 @nb.njit(cache=True)
@@ -119,33 +137,29 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
        ``s`` in ``[s0, s1]`` every ``x(s)`` is in ``[x_lo + min(s0 d_lo, s1 d_lo), x_hi + max(s0 d_hi, s1 d_hi)]``
        (``[d_lo, d_hi] = F(X)``), intersected with ``X``. With ``s0 = s1`` it is the end box at ``s1``.
     """
-    n = len(x_lo)
     P = params
     alpha = a[0]
     c0, c1 = _mul(P[1], P[1], alpha, alpha)
     c0, c1 = _dn(P[0] + c0), _up(P[0] + c1)
-    d_lo, d_hi = np.empty(n), np.empty(n)
-    X_lo, X_hi, Y_lo, Y_hi = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    for i in range(n):
+    for i in range(3):
         lo[i], hi[i] = np.nan, np.nan
-    if not _field(P, c0, c1, x_lo, x_hi, d_lo, d_hi):
+    xl, xh = (x_lo[0], x_lo[1], x_lo[2]), (x_hi[0], x_hi[1], x_hi[2])
+    ok, d_lo, d_hi = _field_over(P, c0, c1, xl, xh)
+    if not ok:
         return
-    _hull_step(x_lo, x_hi, s1, d_lo, d_hi, X_lo, X_hi)
+    X_lo, X_hi = _hull_step(xl, xh, s1, d_lo, d_hi)
     found = False
     for _ in range(_MAX_TRIES):
-        for i in range(n):
-            pad = (_INFLATE_REL * (X_hi[i] - X_lo[i]) + _INFLATE_ABS
-                   + _INFLATE_STATE * max(abs(x_lo[i]), abs(x_hi[i])))
-            X_lo[i], X_hi[i] = X_lo[i] - pad, X_hi[i] + pad
-        if not _field(P, c0, c1, X_lo, X_hi, d_lo, d_hi):
+        p0, p1, p2 = _pad(X_lo, X_hi, xl, xh, 0), _pad(X_lo, X_hi, xl, xh, 1), _pad(X_lo, X_hi, xl, xh, 2)
+        X_lo, X_hi = (X_lo[0] - p0, X_lo[1] - p1, X_lo[2] - p2), (X_hi[0] + p0, X_hi[1] + p1, X_hi[2] + p2)
+        ok, d_lo, d_hi = _field_over(P, c0, c1, X_lo, X_hi)
+        if not ok:
             return
-        _hull_step(x_lo, x_hi, s1, d_lo, d_hi, Y_lo, Y_hi)
+        Y_lo, Y_hi = _hull_step(xl, xh, s1, d_lo, d_hi)
         # strict containment: the exit-time argument needs Y inside the interior of X
-        inside = True
-        for i in range(n):
-            inside = inside and Y_lo[i] > X_lo[i] and Y_hi[i] < X_hi[i]
-        for i in range(n):
-            X_lo[i], X_hi[i] = Y_lo[i], Y_hi[i]
+        inside = (Y_lo[0] > X_lo[0] and Y_hi[0] < X_hi[0] and Y_lo[1] > X_lo[1] and Y_hi[1] < X_hi[1]
+                  and Y_lo[2] > X_lo[2] and Y_hi[2] < X_hi[2])
+        X_lo, X_hi = Y_lo, Y_hi
         if inside:
             found = True
             break
@@ -153,14 +167,14 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
         return
     for _ in range(_REFINE):
         # Y lies in X, which keeps the domain: the field is defined on every refined tube
-        _field(P, c0, c1, X_lo, X_hi, d_lo, d_hi)
-        _hull_step(x_lo, x_hi, s1, d_lo, d_hi, Y_lo, Y_hi)
-        for i in range(n):
-            X_lo[i], X_hi[i] = max(X_lo[i], Y_lo[i]), min(X_hi[i], Y_hi[i])
-    _field(P, c0, c1, X_lo, X_hi, d_lo, d_hi)
-    for i in range(n):
-        lo[i] = max(_dn(x_lo[i] + _dn(min(s0 * d_lo[i], s1 * d_lo[i]))), X_lo[i])
-        hi[i] = min(_up(x_hi[i] + _up(max(s0 * d_hi[i], s1 * d_hi[i]))), X_hi[i])
+        ok, d_lo, d_hi = _field_over(P, c0, c1, X_lo, X_hi)
+        Y_lo, Y_hi = _hull_step(xl, xh, s1, d_lo, d_hi)
+        X_lo = (max(X_lo[0], Y_lo[0]), max(X_lo[1], Y_lo[1]), max(X_lo[2], Y_lo[2]))
+        X_hi = (min(X_hi[0], Y_hi[0]), min(X_hi[1], Y_hi[1]), min(X_hi[2], Y_hi[2]))
+    ok, d_lo, d_hi = _field_over(P, c0, c1, X_lo, X_hi)
+    for i in range(3):
+        lo[i] = max(_dn(xl[i] + _dn(min(s0 * d_lo[i], s1 * d_lo[i]))), X_lo[i])
+        hi[i] = min(_up(xh[i] + _up(max(s0 * d_hi[i], s1 * d_hi[i]))), X_hi[i])
 
 
 class GliderHeldEnclosure:
