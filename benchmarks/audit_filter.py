@@ -6,7 +6,10 @@ Measures, for one table (``filters.core.ValueFilter`` at the table's control per
 2. the certified region at ``t = 0``: for each budget ``Q`` the state-grid nodes where ``vf.certify(0, x, Q)``
    holds, as a measure (nodes x cell volume), beside the table's own ``RA~_Q`` (``set_measure(0, Q)``) and, with
    ``--continuous``, the continuous-time table's ``RA~_Q``, with their ratios (and with ``--table-alone`` the
-   region of the same filter without its cells: what the table's interpolant certifies, without proof);
+   region of the same filter without its cells: what the table's interpolant certifies, without proof). A grid
+   reads ``RA~_Q`` at half a budget cell where ``Q`` lies below it (``RA~_0`` above all): the filter's region at
+   that same budget is printed below the table, and at ``Q = 0`` the classical set ``{V <= 0}`` of each table,
+   which ``RA~_0`` equals in the paper;
 3. latency: one decision (median of 200 calls, us) for a policy action that passes and for one the filter
    replaces, and a batch of 1,024 random states (median of 20 calls, ms), also on the numpy path where the
    decision is compiled (median of 5);
@@ -62,25 +65,56 @@ def _median_time(fn: Callable[[], Any], calls: int) -> float:
 
 def certified_region(vf: ValueFilter, table, budgets: list[float], continuous=None,
                      chunk: int = 20000) -> list[dict[str, Any]]:
-    """Certified measure per budget beside the table's (and the continuous table's) ``RA~_Q``."""
+    """Certified measure per budget beside the table's (and the continuous table's) ``RA~_Q``.
+
+    A grid reads ``RA~_Q`` at ``max(Q, r)``, ``r`` half a budget cell (:meth:`~softreach.reach.query.Table.set_mask`:
+    ``W_eps(t, x, 0) >= 0`` everywhere). Where that is above ``Q`` the row also gives the filter's region at that
+    same budget (``reference_budget``, ``certified_at_reference_budget``); at ``Q = 0`` it gives the classical set
+    ``{V <= 0}`` of each table with ``V`` (``classical_set``, ``continuous_classical_set``), which ``RA~_0`` equals
+    in the paper: two readings of one set, whose difference is the grid's."""
     field = "V" if "V" in table.header["fields"] else "W_eps"
     axes = table.state_axes(field)
     X = np.stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")], axis=1)
     cell = table.cell_volume(field)
+
+    def nodes(q: float) -> int:
+        return sum(int(np.count_nonzero(vf.certify(0.0, X[i:i + chunk], q)[0])) for i in range(0, len(X), chunk))
+
     out = []
     for q in budgets:
-        count = 0
-        for i in range(0, len(X), chunk):
-            ok, _, _ = vf.certify(0.0, X[i:i + chunk], q)
-            count += int(np.count_nonzero(ok))
+        count = nodes(q)
         r = {"Q": q, "nodes": len(X), "certified_nodes": count, "certified": count * cell,
              "set": table.set_measure(0.0, q)}
         r["certified_over_set"] = r["certified"] / r["set"] if r["set"] else math.nan
         if continuous is not None:
             r["continuous_set"] = continuous.set_measure(0.0, q)
             r["certified_over_continuous"] = r["certified"] / r["continuous_set"] if r["continuous_set"] else math.nan
+        ref = max(q, table.budget_resolution)
+        if ref > q:
+            r["reference_budget"] = ref
+            r["certified_at_reference_budget"] = nodes(ref) * cell
+        if q == 0:
+            for key, tb in (("classical_set", table), ("continuous_classical_set", continuous)):
+                if tb is not None and "V" in tb.header["fields"]:
+                    r[key] = tb.set_measure(0.0, None)
         out.append(r)
     return out
+
+
+def print_reference_notes(region: list[dict[str, Any]]) -> None:
+    """The region at the budget where the grid reads ``RA~_Q``, and ``Q = 0`` against the classical sets."""
+    for r in region:
+        if "reference_budget" in r:
+            c = r["certified_at_reference_budget"]
+            line = (f"Q = {r['Q']:g}: the held table reads RA~_Q at {r['reference_budget']:.4g} s (half a budget cell); at that "
+                    f"budget the filter certifies {c:.2f} ({c / r['set']:.3f} of the held RA~_Q")
+            line += f", {c / r['continuous_set']:.3f} of the continuous one)" if "continuous_set" in r else ")"
+            print(line)
+        parts = [f"{name} {r[key]:.2f} (certified at Q = 0: {r['certified'] / r[key]:.3f} of it)"
+                 for key, name in (("classical_set", "held"), ("continuous_classical_set", "continuous"))
+                 if r.get(key)]
+        if parts:
+            print("Q = 0 against the classical set {V <= 0}: " + ", ".join(parts))
 
 
 def timings(vf: ValueFilter, q: float, seed: int) -> dict[str, Any]:
@@ -219,6 +253,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         line += f" {r['continuous_set']:11.2f} {r['certified_over_continuous']:6.3f}" if cont else ""
         line += f" {r['table_alone']:11.2f}" if args.table_alone else ""
         print(line)
+    print_reference_notes(res["region"])
 
     res["timing"] = timings(vf, max(budgets), args.seed)
     tm = res["timing"]
