@@ -180,6 +180,44 @@ def test_reference_state_widths(model: Glider):
     assert end_w[0] < 0.01 and end_w[2] < 1e-4 and tube_w[2] < 1e-3
 
 
+def _trim_alpha(model: Glider, v: float, gamma: float) -> float:
+    """The angle of attack at which the airspeed holds still in calm air (bisection: drag grows with alpha)."""
+    (a_lo,), (a_hi,) = model.control_bounds
+    for _ in range(60):
+        mid = 0.5 * (a_lo + a_hi)
+        dv = model.f(0.0, [np.array([20.0]), np.array([v]), np.array([gamma])], [np.array([mid])], [np.zeros(1)])[1]
+        a_lo, a_hi = (mid, a_hi) if float(dv[0]) > 0 else (a_lo, mid)
+    return 0.5 * (a_lo + a_hi)
+
+
+@pytest.mark.parametrize("dt", [0.1, 0.01])
+def test_a_rate_of_one_sign_keeps_the_start_exactly(model: Glider, dt: float):
+    """Step 5 of the kernel: along an axis whose rate has one sign over the whole tube, the box keeps the start's
+    end exactly instead of rounding past it. At the soft airspeed limit, decelerating at full alpha, the tube
+    tops out at 78 m/s itself, so a budget of 0 is not charged; pitching down at gamma = 0 it stays at gamma <= 0,
+    inside C1. Where the wind can push the airspeed either way (trim), both ends move off the start."""
+    (a_lo,), (a_hi,) = model.control_bounds
+    # (the glider can hold its airspeed in calm air only slow and steep: elsewhere drag wins at every alpha)
+    trim = _trim_alpha(model, 62.0, -3 * DEG)
+    assert a_lo < trim < a_hi
+    x = np.array([[20.0, 78.0, -1 * DEG], [20.0, 66.0, 0.0], [20.0, 62.0, -3 * DEG]])
+    a = np.array([[a_hi], [a_lo], [trim]])
+    tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure(0.0, x, a, dt)
+    assert tube_hi[0, 1] == 78.0 and tube_hi[0, 0] == 20.0  # decelerating, and descending
+    assert tube_lo[0, 2] == x[0, 2]  # full lift pitches up
+    assert tube_hi[1, 2] == 0.0  # no lift to speak of: pitches down from level flight
+    assert tube_lo[2, 1] < 62.0 < tube_hi[2, 1]
+    # the paths bear the claims out, with no tolerance: each rate's sign holds at every substep
+    for name, winds in wind_signals(model, np.random.default_rng(3), 3).items():
+        path = rk4_path(model, x, a, winds, dt)
+        assert path[:, 0, 1].max() <= 78.0 and path[:, 0, 0].max() <= 20.0, name
+        assert path[:, 0, 2].min() >= x[0, 2] and path[:, 1, 2].max() <= 0.0, name
+        assert_inside(path, tube_lo[None], tube_hi[None], f"tube, wind {name}")
+    v_ends = [rk4_path(model, x, a, wind_signals(model, np.random.default_rng(3), 3)[w], dt)[-1, 2, 1]
+              for w in ("const+", "const-")]
+    assert v_ends[0] > 62.0 > v_ends[1]
+
+
 def test_empty_batch(model: Glider):
     out = model.held_enclosure(0.0, np.empty((0, 3)), np.empty((0, 1)), 0.1)
     assert all(o.shape == (0, 3) for o in out)

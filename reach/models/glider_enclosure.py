@@ -100,12 +100,22 @@ def _field_over(P, c0, c1, lo, hi):
 
 
 @nb.njit(cache=True, inline="always")
+def _hull_lo(x, s, d):
+    # a rate that cannot be negative adds nothing below the start: its end is exact, no rounding to widen it
+    return x if d >= 0.0 else _dn(x + _dn(s * d))
+
+
+@nb.njit(cache=True, inline="always")
+def _hull_hi(x, s, d):
+    return x if d <= 0.0 else _up(x + _up(s * d))
+
+
+@nb.njit(cache=True, inline="always")
 def _hull_step(x_lo, x_hi, s, d_lo, d_hi):
-    """``[x_lo, x_hi] + [0, s] * [d_lo, d_hi]`` (``s >= 0``), rounded outwards, as two 3-tuples."""
-    return ((_dn(x_lo[0] + _dn(s * min(d_lo[0], 0.0))), _dn(x_lo[1] + _dn(s * min(d_lo[1], 0.0))),
-             _dn(x_lo[2] + _dn(s * min(d_lo[2], 0.0)))),
-            (_up(x_hi[0] + _up(s * max(d_hi[0], 0.0))), _up(x_hi[1] + _up(s * max(d_hi[1], 0.0))),
-             _up(x_hi[2] + _up(s * max(d_hi[2], 0.0)))))
+    """``[x_lo, x_hi] + [0, s] * [d_lo, d_hi]`` (``s >= 0``), rounded outwards, as two 3-tuples. Along an axis
+    whose rate has one sign the start's end is kept exactly: the motion only leaves it the other way."""
+    return ((_hull_lo(x_lo[0], s, d_lo[0]), _hull_lo(x_lo[1], s, d_lo[1]), _hull_lo(x_lo[2], s, d_lo[2])),
+            (_hull_hi(x_hi[0], s, d_hi[0]), _hull_hi(x_hi[1], s, d_hi[1]), _hull_hi(x_hi[2], s, d_hi[2])))
 
 
 @nb.njit(cache=True, inline="always")
@@ -136,6 +146,11 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
     4. The box of ``[s0, s1]``: ``x(s) - x(0)`` lies in ``s F(X)``, whose ends are linear in ``s``, so over
        ``s`` in ``[s0, s1]`` every ``x(s)`` is in ``[x_lo + min(s0 d_lo, s1 d_lo), x_hi + max(s0 d_hi, s1 d_hi)]``
        (``[d_lo, d_hi] = F(X)``), intersected with ``X``. With ``s0 = s1`` it is the end box at ``s1``.
+    5. Signs: where ``d_lo[i] >= 0`` every ``x_i(s) = x_i(0) + (integral of f_i) >= x_lo[i]``, and where
+       ``d_hi[i] <= 0`` every ``x_i(s) <= x_hi[i]``: the box and every hull of 2 and 3 keep that end of the start
+       box exactly, with no outward rounding (a float bound needs none). A glider at the soft airspeed limit that
+       decelerates, or at ``gamma = 0`` pitching down, is then not charged the rounding's 1e-13 s of budget, nor
+       taken to leave ``C1`` by it.
     """
     P = params
     alpha = a[0]
@@ -175,6 +190,11 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
     for i in range(3):
         lo[i] = max(_dn(xl[i] + _dn(min(s0 * d_lo[i], s1 * d_lo[i]))), X_lo[i])
         hi[i] = min(_up(xh[i] + _up(max(s0 * d_hi[i], s1 * d_hi[i]))), X_hi[i])
+        # step 5: a rate of one sign over X moves the axis one way only, so the start's far end bounds it exactly
+        if d_lo[i] >= 0.0:
+            lo[i] = max(lo[i], xl[i])
+        if d_hi[i] <= 0.0:
+            hi[i] = min(hi[i], xh[i])
 
 
 class GliderHeldEnclosure:
