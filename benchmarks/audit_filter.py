@@ -9,7 +9,9 @@ Measures, for one table (``filters.core.ValueFilter`` at the table's control per
    region of the same filter without its cells: what the table's interpolant certifies, without proof). A grid
    reads ``RA~_Q`` at half a budget cell where ``Q`` lies below it (``RA~_0`` above all): the filter's region at
    that same budget is printed below the table, and at ``Q = 0`` the classical set ``{V <= 0}`` of each table,
-   which ``RA~_0`` equals in the paper;
+   which ``RA~_0`` equals in the paper. Grid nodes on a set's boundary (the soft airspeed limit, ``gamma = 0``)
+   count for whole cells, so the same comparison follows on 20,000 states drawn uniformly over ``C1``: the share
+   of the states in each table's set that the filter certifies;
 3. latency: one decision (median of 200 calls, us) for a policy action that passes and for one the filter
    replaces, and a batch of 1,024 random states (median of 20 calls, ms), also on the numpy path where the
    decision is compiled (median of 5);
@@ -115,6 +117,45 @@ def print_reference_notes(region: list[dict[str, Any]]) -> None:
                  if r.get(key)]
         if parts:
             print("Q = 0 against the classical set {V <= 0}: " + ", ".join(parts))
+
+
+def sampled_region(vf: ValueFilter, table, budgets: list[float], continuous=None, n: int = 20000,
+                   seed: int = 0) -> list[dict[str, Any]]:
+    """The region by states drawn uniformly over the hard-constraint box at ``t = 0``, where grid nodes (which
+    :func:`certified_region` counts, each for its whole cell) weigh the sets' boundaries as much as their inside:
+    the share of the states in each table's ``RA~_Q`` (its interpolant at ``max(Q, r)``, as
+    :meth:`~softreach.reach.query.Table.set_mask` reads nodes, and at ``Q = 0`` also its classical set
+    ``{V <= 0}``) that the filter certifies."""
+    lo, hi = (np.asarray(v, dtype=float) for v in vf.model.hard_box)
+    x = np.random.default_rng(seed).uniform(lo, hi, size=(n, len(lo)))
+    out = []
+    for q in budgets:
+        ok = vf.certify(0.0, x, q)[0]
+        r: dict[str, Any] = {"Q": q, "states": n, "certified": int(ok.sum())}
+        for name, tb in (("held", table), ("continuous", continuous)):
+            if tb is None:
+                continue
+            sets = {"": tb.value(0.0, x, np.full(n, max(q, tb.budget_resolution))) <= 0}
+            if q == 0 and "V" in tb.header["fields"]:
+                sets["_classical"] = tb.value(0.0, x) <= 0
+            for tag, inside in sets.items():
+                r[f"in_{name}{tag}"] = int(inside.sum())
+                r[f"certified_in_{name}{tag}"] = int((ok & inside).sum())
+        out.append(r)
+    return out
+
+
+def print_sampled(rows: list[dict[str, Any]]) -> None:
+    """One line per budget: certified states, and the share of each set's states that are certified."""
+    n = rows[0]["states"] if rows else 0
+    print(f"{n:,} states uniform over C1 at t = 0: certified, and certified / in each table's set")
+    for r in rows:
+        parts = [f"{label} {r['certified_in_' + key]} / {r['in_' + key]} "
+                 f"({r['certified_in_' + key] / r['in_' + key]:.3f})"
+                 for key, label in (("held", "held RA~_Q"), ("held_classical", "held {V <= 0}"),
+                                    ("continuous", "continuous RA~_Q"), ("continuous_classical", "continuous {V <= 0}"))
+                 if r.get("in_" + key)]
+        print(f"  Q = {r['Q']:g}: {r['certified']} certified; " + ", ".join(parts))
 
 
 def timings(vf: ValueFilter, q: float, seed: int) -> dict[str, Any]:
@@ -254,6 +295,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         line += f" {r['table_alone']:11.2f}" if args.table_alone else ""
         print(line)
     print_reference_notes(res["region"])
+    res["sampled_region"] = sampled_region(vf, table, budgets, cont, seed=args.seed)
+    print_sampled(res["sampled_region"])
 
     res["timing"] = timings(vf, max(budgets), args.seed)
     tm = res["timing"]
