@@ -245,9 +245,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--continuous", help="a continuous-time table of the same model: its RA~_Q for comparison")
     p.add_argument("--dt", type=float, help="control period [s] (default: the table's control_period)")
     p.add_argument("--budgets", type=float, nargs="+", help="budgets Q [s] (default: the model's default_budgets)")
-    p.add_argument("--kinds", nargs="+", default=["certified", "boundary", "outside"],
-                   choices=["certified", "boundary", "outside"], metavar="KIND",
-                   help="start classes: certified boundary outside (default all)")
+    p.add_argument("--kinds", nargs="+", default=["certified", "boundary", "edge", "outside"],
+                   choices=["certified", "boundary", "edge", "outside"], metavar="KIND",
+                   help="start classes: certified boundary edge outside (default all)")
     p.add_argument("--policies", nargs="+", default=list(POLICIES), choices=POLICIES, metavar="POLICY",
                    help=f"policies: {' '.join(POLICIES)} (default all)")
     p.add_argument("--winds", nargs="+", default=list(WINDS), choices=WINDS, metavar="WIND",

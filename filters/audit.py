@@ -228,12 +228,17 @@ def run_episode(vf: ValueFilter | None, ref: ValueFilter, x0: np.ndarray, budget
 def sample_starts(vf: ValueFilter, budget: float, kind: str, n: int, rng: np.random.Generator,
                   pool: int = 4000) -> np.ndarray:
     """``n`` starts at ``t = 0`` with this budget: ``"certified"``, ``"boundary"`` (certified, the shallowest
-    tenth of the certificate) or ``"outside"`` (not certified, certificate within 0.5 of the set's level)."""
+    tenth of the certificate), ``"edge"`` (certified, exactly on a face of the hard-constraint box: one coordinate
+    at its bound, where a rounded enclosure or a careless comparison decides) or ``"outside"`` (not certified,
+    certificate within 0.5 of the set's level)."""
     lo, hi = (np.asarray(v, dtype=float) for v in vf.model.hard_box)
     x = rng.uniform(lo, hi, size=(pool, len(lo)))
+    if kind == "edge":
+        axis = rng.integers(len(lo), size=pool)
+        x[np.arange(pool), axis] = np.where(rng.random(pool) < 0.5, lo[axis], hi[axis])
     ok, _, nxt = vf.certify(0.0, x, budget)
     val = vf.value(0.0, x, budget)
-    if kind == "certified":
+    if kind in ("certified", "edge"):
         pick = np.nonzero(ok)[0]
     elif kind == "boundary":
         idx = np.nonzero(ok)[0]

@@ -43,6 +43,16 @@ def test_audit_from_certified_starts_never_leaves_c1_nor_overspends(vf):
     assert sum(r.policy_steps for r in filtered) > 0.3 * sum(r.steps for r in filtered)
 
 
+def test_audit_from_starts_on_the_faces_of_c1(vf):
+    """Certified starts with one coordinate exactly at its hard bound, where rounding decides."""
+    rows = audit(vf, [0.0, 0.3], starts_per_row=2, kinds=("edge",), policies=("random", "always_min", "always_max"),
+                 winds=("worst_case", "switch_inside", "switch_on_filter"), pieces=4, seed=1, check_unneeded=False)
+    filtered = [r for r in rows if r.filtered]
+    assert sum(r.episodes for r in filtered) == 3 * 3 * 2 * 2
+    assert sum(r.hard_violations + r.overspends for r in filtered) == 0, [r.failures for r in filtered]
+    assert sum(r.landed for r in filtered) == sum(r.episodes for r in filtered)
+
+
 @pytest.mark.parametrize("case", range(4))
 def test_issue10_starts(vf, case):
     x0, q, pname, wname = ISSUE10[case]
@@ -76,8 +86,10 @@ def test_wrapper_reports_certification_and_keeps_it(vf, pointmass_held_table):
 def test_glider_audit_from_certified_starts(glider_held_table):
     vf = ValueFilter(glider_held_table, 0.1, target_checks=get_model("glider").substeps)
     assert vf.sampled
-    rows = audit(vf, [5.0, 10.0], starts_per_row=2, kinds=("certified",), policies=("random", "always_max"),
+    rows = audit(vf, [5.0, 10.0], starts_per_row=2, kinds=("certified", "edge"), policies=("random", "always_max"),
                  winds=("worst_case", "switch_inside", "switch_on_filter"), pieces=2, seed=0, check_unneeded=False)
     filtered = [r for r in rows if r.filtered]
-    assert sum(r.episodes for r in filtered) >= 12
+    # starts on the faces of C1's box too, one coordinate exactly at its bound
+    assert sum(r.episodes for r in filtered if r.starts == "certified") >= 12
+    assert sum(r.episodes for r in filtered if r.starts == "edge") >= 12
     assert sum(r.hard_violations + r.overspends for r in filtered) == 0, [r.failures for r in filtered]
