@@ -9,9 +9,9 @@ Measures, for one table (``filters.core.ValueFilter`` at the table's control per
    region of the same filter without its cells: what the table's interpolant certifies, without proof). A grid
    reads ``RA~_Q`` at half a budget cell where ``Q`` lies below it (``RA~_0`` above all): the filter's region at
    that same budget is printed below the table, and at ``Q = 0`` the classical set ``{V <= 0}`` of each table,
-   which ``RA~_0`` equals in the paper. Grid nodes on a set's boundary (the soft airspeed limit, ``gamma = 0``)
-   count for whole cells, so the same comparison follows on 20,000 states drawn uniformly over ``C1``: the share
-   of the states in each table's set that the filter certifies;
+   which ``RA~_0`` equals in the paper. Grid nodes on the sets' edges (the faces of ``C1`` among them) count for
+   whole cells, so the same comparison follows on 20,000 states drawn uniformly over ``C1``: the share of the
+   states in each table's set that the filter certifies;
 3. latency: one decision (median of 200 calls, us) for a policy action that passes and for one the filter
    replaces, and a batch of 1,024 random states (median of 20 calls, ms), also on the numpy path where the
    decision is compiled (median of 5);
@@ -123,9 +123,8 @@ def sampled_region(vf: ValueFilter, table, budgets: list[float], continuous=None
                    seed: int = 0) -> list[dict[str, Any]]:
     """The region by states drawn uniformly over the hard-constraint box at ``t = 0``, where grid nodes (which
     :func:`certified_region` counts, each for its whole cell) weigh the sets' boundaries as much as their inside:
-    the share of the states in each table's ``RA~_Q`` (its interpolant at ``max(Q, r)``, as
-    :meth:`~softreach.reach.query.Table.set_mask` reads nodes, and at ``Q = 0`` also its classical set
-    ``{V <= 0}``) that the filter certifies."""
+    the share of the states in each table's ``RA~_Q`` (:meth:`~softreach.reach.query.Table.contains`, the rule of
+    its ``set_mask`` at the states; at ``Q = 0`` also its classical set ``{V <= 0}``) that the filter certifies."""
     lo, hi = (np.asarray(v, dtype=float) for v in vf.model.hard_box)
     x = np.random.default_rng(seed).uniform(lo, hi, size=(n, len(lo)))
     out = []
@@ -135,9 +134,9 @@ def sampled_region(vf: ValueFilter, table, budgets: list[float], continuous=None
         for name, tb in (("held", table), ("continuous", continuous)):
             if tb is None:
                 continue
-            sets = {"": tb.value(0.0, x, np.full(n, max(q, tb.budget_resolution))) <= 0}
+            sets = {"": tb.contains(0.0, x, q)}
             if q == 0 and "V" in tb.header["fields"]:
-                sets["_classical"] = tb.value(0.0, x) <= 0
+                sets["_classical"] = tb.contains(0.0, x)
             for tag, inside in sets.items():
                 r[f"in_{name}{tag}"] = int(inside.sum())
                 r[f"certified_in_{name}{tag}"] = int((ok & inside).sum())
