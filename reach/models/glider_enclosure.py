@@ -95,7 +95,7 @@ def _field(P, c0, c1, V0, V1, g0, g1):
 
 @nb.njit(cache=True, inline="always")
 def _field_over(P, c0, c1, lo, hi):
-    """:func:`_field` over the box ``[lo, hi]`` (3-tuples or arrays)."""
+    """:func:`_field` over the box ``[lo, hi]`` (3-tuples)."""
     return _field(P, c0, c1, lo[1], hi[1], lo[2], hi[2])
 
 
