@@ -3,8 +3,8 @@
 Measures, for one table (``filters.core.ValueFilter`` at the table's control period unless ``--dt``):
 
 1. the filter's construction time;
-2. the certified region at ``t = 0``: for each budget ``Q`` the state-grid nodes where ``vf.certify(0, x, Q)``
-   holds, as a measure (nodes x cell volume), beside the table's own ``RA~_Q`` (``set_measure(0, Q)``) and, with
+2. the certified region at ``t = 0``: for each budget ``Q`` the state-grid nodes where ``vf.certify_start(0, x, Q)``
+   holds (a start certified by a period, its cell or a plan of its own), as a measure (nodes x cell volume), beside the table's own ``RA~_Q`` (``set_measure(0, Q)``) and, with
    ``--continuous``, the continuous-time table's ``RA~_Q``, with their ratios (and with ``--table-alone`` the
    region of the same filter without its cells: what the table's interpolant certifies, without proof). A grid
    reads ``RA~_Q`` at half a budget cell where ``Q`` lies below it (``RA~_0`` above all): the filter's region at
@@ -26,8 +26,8 @@ Commands (from the repository root; the tables are made with ``softreach solve p
     python benchmarks/audit_filter.py --table /tmp/pm41c.srt --continuous /tmp/pm41.srt --starts 1 \\
         --kinds certified --winds worst_case switch_inside --json /tmp/a.json        # a quick check (~25 s)
 
-The full default audit is 3 start classes x 6 policies x 7 winds x 4 budgets x 5 starts, with and without the
-filter (5,040 episodes): expect a quarter of an hour or more on one core; ``--no-unneeded`` saves most of the
+The full default audit is 5 start classes x 6 policies x 7 winds x 4 budgets x 5 starts, with and without the
+filter (8,400 episodes; fewer where a class has fewer starts): expect half an hour or more on one core; ``--no-unneeded`` saves most of the
 filtered rows' time. ``OMP_NUM_THREADS=1`` keeps the timings comparable on a shared machine.
 """
 
@@ -80,7 +80,8 @@ def certified_region(vf: ValueFilter, table, budgets: list[float], continuous=No
     cell = table.cell_volume(field)
 
     def nodes(q: float) -> int:
-        return sum(int(np.count_nonzero(vf.certify(0.0, X[i:i + chunk], q)[0])) for i in range(0, len(X), chunk))
+        return sum(int(np.count_nonzero(vf.certify_start(0.0, X[i:i + chunk], q)[0]))
+                   for i in range(0, len(X), chunk))
 
     out = []
     for q in budgets:
@@ -129,8 +130,9 @@ def sampled_region(vf: ValueFilter, table, budgets: list[float], continuous=None
     x = np.random.default_rng(seed).uniform(lo, hi, size=(n, len(lo)))
     out = []
     for q in budgets:
-        ok = vf.certify(0.0, x, q)[0]
-        r: dict[str, Any] = {"Q": q, "states": n, "certified": int(ok.sum())}
+        ok, _, _, plans = vf.certify_start(0.0, x, q)
+        r: dict[str, Any] = {"Q": q, "states": n, "certified": int(ok.sum()),
+                             "certified_by_start_plan": int((plans[:, 0] >= 0).sum())}
         for name, tb in (("held", table), ("continuous", continuous)):
             if tb is None:
                 continue
@@ -154,7 +156,8 @@ def print_sampled(rows: list[dict[str, Any]]) -> None:
                  for key, label in (("held", "held RA~_Q"), ("held_classical", "held {V <= 0}"),
                                     ("continuous", "continuous RA~_Q"), ("continuous_classical", "continuous {V <= 0}"))
                  if r.get("in_" + key)]
-        print(f"  Q = {r['Q']:g}: {r['certified']} certified; " + ", ".join(parts))
+        print(f"  Q = {r['Q']:g}: {r['certified']} certified ({r['certified_by_start_plan']} by a plan of their own); "
+              + ", ".join(parts))
 
 
 def timings(vf: ValueFilter, q: float, seed: int) -> dict[str, Any]:
@@ -211,7 +214,7 @@ def issue10(vf: ValueFilter, args) -> list[dict[str, Any]]:
     out = []
     for label, x0, q, pname, wname in ISSUE10:
         x0 = np.asarray(x0, dtype=float)
-        cert, reason, nxt = vf.certify(0.0, x0, q)
+        cert, reason, nxt, _ = vf.certify_start(0.0, x0, q)
         row = Row(pname, wname, f"issue10-{label}", True)
         pol = _policy(pname, vf, np.random.default_rng(rng.integers(1 << 31)))
         wind = _wind(wname, vf, np.random.default_rng(rng.integers(1 << 31)), args.pieces)
@@ -244,9 +247,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--continuous", help="a continuous-time table of the same model: its RA~_Q for comparison")
     p.add_argument("--dt", type=float, help="control period [s] (default: the table's control_period)")
     p.add_argument("--budgets", type=float, nargs="+", help="budgets Q [s] (default: the model's default_budgets)")
-    p.add_argument("--kinds", nargs="+", default=["certified", "boundary", "edge", "outside"],
-                   choices=["certified", "boundary", "edge", "outside"], metavar="KIND",
-                   help="start classes: certified boundary edge outside (default all)")
+    p.add_argument("--kinds", nargs="+", default=["certified", "boundary", "edge", "planned", "outside"],
+                   choices=["certified", "boundary", "edge", "planned", "outside"], metavar="KIND",
+                   help="start classes: certified boundary edge planned outside (default all)")
     p.add_argument("--policies", nargs="+", default=list(POLICIES), choices=POLICIES, metavar="POLICY",
                    help=f"policies: {' '.join(POLICIES)} (default all)")
     p.add_argument("--winds", nargs="+", default=list(WINDS), choices=WINDS, metavar="WIND",

@@ -172,7 +172,8 @@ def run_episode(vf: ValueFilter | None, ref: ValueFilter, x0: np.ndarray, budget
     was = False
     row.episodes += 1
     hard = landed = False
-    plan = None
+    # a start certified by a plan of its own is certified for the run that follows it (SafetyFilter.reset)
+    plan = vf.certify_start(0.0, x, z)[3] if vf is not None else None
     for k in range(int(round(T / dt))):
         pol = policy(k, t, x, z)
         if vf is not None:
@@ -227,19 +228,22 @@ def run_episode(vf: ValueFilter | None, ref: ValueFilter, x0: np.ndarray, budget
 
 def sample_starts(vf: ValueFilter, budget: float, kind: str, n: int, rng: np.random.Generator,
                   pool: int = 4000) -> np.ndarray:
-    """``n`` starts at ``t = 0`` with this budget: ``"certified"``, ``"boundary"`` (certified, the shallowest
-    tenth of the certificate), ``"edge"`` (certified, exactly on a face of the hard-constraint box: one coordinate
-    at its bound, where a rounded enclosure or a careless comparison decides) or ``"outside"`` (not certified,
-    certificate within 0.5 of the set's level)."""
+    """``n`` starts at ``t = 0`` with this budget: ``"certified"`` (:meth:`ValueFilter.certify_start`),
+    ``"boundary"`` (certified, the shallowest tenth of the certificate), ``"edge"`` (certified, exactly on a face of
+    the hard-constraint box: one coordinate at its bound, where a rounded enclosure or a careless comparison
+    decides), ``"planned"`` (certified only by a plan of its own: no single period or cell certifies it) or
+    ``"outside"`` (not certified, certificate within 0.5 of the set's level)."""
     lo, hi = (np.asarray(v, dtype=float) for v in vf.model.hard_box)
     x = rng.uniform(lo, hi, size=(pool, len(lo)))
     if kind == "edge":
         axis = rng.integers(len(lo), size=pool)
         x[np.arange(pool), axis] = np.where(rng.random(pool) < 0.5, lo[axis], hi[axis])
-    ok, _, nxt = vf.certify(0.0, x, budget)
+    ok, _, _, plans = vf.certify_start(0.0, x, budget)
     val = vf.value(0.0, x, budget)
     if kind in ("certified", "edge"):
         pick = np.nonzero(ok)[0]
+    elif kind == "planned":
+        pick = np.nonzero(plans[:, 0] >= 0)[0]
     elif kind == "boundary":
         idx = np.nonzero(ok)[0]
         pick = idx[np.argsort(-val[idx])][: max(1, len(idx) // 10)]

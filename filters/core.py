@@ -43,7 +43,7 @@ from softreach.reach.lookahead import Lookahead
 
 from .blocks import default_threads
 from .compiled import CompiledDecision
-from .plans import NO_PLAN, PLAN_LAND, PLAN_SAFE, check_plans, follow_plans, resolve_cells
+from .plans import NO_PLAN, PLAN_LAND, PLAN_SAFE, check_plans, follow_plans, resolve_cells, start_plans
 from .tensors import first_bad, to_numpy, to_torch
 
 __all__ = ["NO_PLAN", "PLAN_LAND", "PLAN_SAFE", "PASS", "BLEND", "OPTIMAL", "OUTSIDE", "AFTER_HORIZON", "NONFINITE",
@@ -92,12 +92,13 @@ class ValueFilter:
     :param target_checks: the equally spaced instants per period at which the environment checks for landing
         (its sub-step ends; :class:`SafetyFilter` passes the env's ``n_substeps``). An action that surely lands
         at one of them passes. The default 1 (the period's end) is right for any environment.
+    :param start_periods: the longest plan :meth:`certify_start` searches from a start state (0: none)
     """
 
     def __init__(self, table: Table, dt: float, *, margin: float | None = None, rule: str = "switch",
                  model: Any = None, fallback_action: Any = None, smooth_iterations: int = 8,
                  eps: float | None = None, target_checks: int = 1, safe_cells: Any = "auto",
-                 landing_cells: Any = "auto"):
+                 landing_cells: Any = "auto", start_periods: int = 32):
         if not isinstance(table, Table):
             raise TypeError(f"table must be a softreach.reach.Table (load_table(path)), got {type(table).__name__}")
         if rule not in RULES:
@@ -110,6 +111,9 @@ class ValueFilter:
             raise ValueError(f"margin must be None or a finite number >= 0, got {margin!r}")
         if not (isinstance(smooth_iterations, (int, np.integer)) and smooth_iterations >= 0):
             raise ValueError(f"smooth_iterations must be a non-negative integer, got {smooth_iterations!r}")
+        if not (isinstance(start_periods, (int, np.integer)) and not isinstance(start_periods, bool)
+                and start_periods >= 0):
+            raise ValueError(f"start_periods must be a non-negative integer, got {start_periods!r}")
         if not (table.has_budget or table.has_budget_surface):
             raise TableError(f"table {table.path} holds only the classical V; the filter needs W_eps or Q_min (solve "
                              f"it without --classical)")
@@ -123,6 +127,7 @@ class ValueFilter:
         self.dt = float(dt)
         self.rule = rule
         self.smooth_iterations = int(smooth_iterations)
+        self.start_periods = int(start_periods)
         self.eps = float(table.eps if eps is None else eps)
         self.constant_margin = None if margin is None else float(margin)
         self.n, self.m = self.model.state_dim, self.model.control_dim
@@ -252,6 +257,28 @@ class ValueFilter:
         if single:
             return certified[0], reasons[0], nxt[0]
         return certified, reasons, nxt
+
+    def certify_start(self, t: Any, x: Any, z: Any) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
+        """:meth:`certify` for the start of a run, which may also begin with a plan of its own: where no period
+        or cell certifies the state, one candidate held for up to :attr:`start_periods` periods whose boxes keep
+        ``C1`` and the budget and end in the landing cells (:func:`~softreach.filters.plans.start_plans`). Such a
+        start is certified only for a run whose first :meth:`filter` call gets that plan (:class:`SafetyFilter`
+        passes it at ``reset``).
+
+        :return: ``(certified, reasons, best next certificate, plans (N, 3))``; ``plans`` the first ``plan`` to
+            hand to :meth:`filter`, :data:`NO_PLAN` where none is needed or none was found
+        """
+        tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
+        certified, reasons, nxt = self.certify(tt, xs, zz)
+        rows = np.nonzero([r in ("not_in_set", "no_certified_action") for r in reasons])[0]
+        plans = np.tile(np.array(NO_PLAN, np.int64), (len(xs), 1))
+        plans[rows] = start_plans(self, tt[rows], xs[rows], zz[rows], self.start_periods)
+        planned = plans[:, 0] >= 0
+        certified = certified | planned
+        reasons = ["certified" if p else r for r, p in zip(reasons, planned)]
+        if single:
+            return certified[0], reasons[0], nxt[0], plans[0]
+        return certified, reasons, nxt, plans
 
     def optimal_action(self, t: Any, x: Any, z: Any) -> np.ndarray:
         """The certified candidate with the lowest worst-case next certificate, ``(N, m)`` physical."""

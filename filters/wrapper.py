@@ -49,7 +49,9 @@ class SafetyFilter(gym.Wrapper):
       table's safe set), ``budget_used`` and ``initial_budget``.
 
     ``reset`` adds ``value``, ``margin``, ``certified`` and ``certified_reason`` (one of
-    :data:`~softreach.filters.core.CERTIFY_REASONS`) of the start.
+    :data:`~softreach.filters.core.CERTIFY_REASONS`) of the start, and ``plan``: where no single period or cell
+    certifies the start but a candidate held for several periods does, that plan, which the first steps follow
+    (:meth:`~softreach.filters.ValueFilter.certify_start`; ``(-1, 0, 0)`` where none is needed or none exists).
 
     :param env: a softreach landing environment (possibly wrapped, e.g. by ``TimeLimit`` or ``Monitor``)
     :param table: a :class:`~softreach.reach.Table` with ``W_eps``, or the path of one
@@ -137,8 +139,8 @@ class SafetyFilter(gym.Wrapper):
                          applied, decision)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        """Reset the environment and the episode statistics; ``info`` adds ``value``, ``margin``, ``certified`` and
-        ``certified_reason`` of the start."""
+        """Reset the environment and the episode statistics; ``info`` adds ``value``, ``margin``, ``certified``,
+        ``certified_reason`` and ``plan`` of the start."""
         obs, info = self.env.reset(seed=seed, options=options)
         self._reset_stats()
         base = self.env.unwrapped
@@ -147,9 +149,12 @@ class SafetyFilter(gym.Wrapper):
         info = dict(info)
         info["value"] = float(vf.value(base.time, base.state, base.budget))
         info["margin"] = float(vf.margin(base.time, base.state, base.budget))
-        certified, why, _ = vf.certify(base.time, base.state, base.budget)
+        certified, why, _, plan = vf.certify_start(base.time, base.state, base.budget)
         info["certified"] = bool(certified)
         info["certified_reason"] = why
+        # a start certified by a plan of its own is certified for the run that follows it from the first step
+        self._plan = np.asarray(plan, np.int64)
+        info["plan"] = self._plan.copy()
         self._certified_start = bool(certified)
         return obs, info
 
