@@ -228,17 +228,22 @@ def run_episode(vf: ValueFilter | None, ref: ValueFilter, x0: np.ndarray, budget
 
 def sample_starts(vf: ValueFilter, budget: float, kind: str, n: int, rng: np.random.Generator,
                   pool: int = 4000) -> np.ndarray:
-    """``n`` starts at ``t = 0`` with this budget: ``"certified"`` (:meth:`ValueFilter.certify_start`),
-    ``"boundary"`` (certified, the shallowest tenth of the certificate), ``"edge"`` (certified, exactly on a face of
-    the hard-constraint box: one coordinate at its bound, where a rounded enclosure or a careless comparison
-    decides), ``"planned"`` (certified only by a plan of its own: no single period or cell certifies it) or
-    ``"outside"`` (not certified, certificate within 0.5 of the set's level)."""
+    """``n`` starts at ``t = 0`` with this budget: ``"certified"`` (by one period or a cell,
+    :meth:`ValueFilter.certify`), ``"boundary"`` (so certified, the shallowest tenth of the certificate), ``"edge"``
+    (so certified, exactly on a face of the hard-constraint box: one coordinate at its bound, where a rounded
+    enclosure or a careless comparison decides), ``"planned"`` (certified only by a plan of its own,
+    :meth:`ValueFilter.certify_start`) or ``"outside"`` (certified in neither way, certificate within 0.5 of the
+    set's level)."""
     lo, hi = (np.asarray(v, dtype=float) for v in vf.model.hard_box)
     x = rng.uniform(lo, hi, size=(pool, len(lo)))
     if kind == "edge":
         axis = rng.integers(len(lo), size=pool)
         x[np.arange(pool), axis] = np.where(rng.random(pool) < 0.5, lo[axis], hi[axis])
-    ok, _, _, plans = vf.certify_start(0.0, x, budget)
+    # the search for plans is the costly part: only the classes that depend on it run it
+    if kind in ("planned", "outside"):
+        ok, _, _, plans = vf.certify_start(0.0, x, budget)
+    else:
+        ok = vf.certify(0.0, x, budget)[0]
     val = vf.value(0.0, x, budget)
     if kind in ("certified", "edge"):
         pick = np.nonzero(ok)[0]

@@ -107,14 +107,14 @@ def follow_plans(vf: Any, plans: np.ndarray | None, new_plans: np.ndarray, rows:
 
 def start_plans(vf: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int) -> np.ndarray:
     """Plans from a start state itself, for starts that neither one period nor their own cell certifies: hold one
-    candidate for ``K = 2 .. periods`` periods, each period keeping ``C1`` and the budget from the box of every
-    state the periods before may have reached (:meth:`Lookahead.assess` from that box; the first period from the
-    state), the last one passing the one-period test, so that its end box lies in the landing cells (or every run
-    lands inside it). The cells' own plans start from a whole cell; these start from the state, and keep what
-    rounding the start out to its cell loses. A plan is valid only as the first ``plan`` of a run from this state.
+    candidate for ``K`` periods, each keeping ``C1`` and the budget from the box of every state the periods before
+    may have reached (:meth:`Lookahead.assess` from that box; the first period from the state), the last passing
+    the one-period test from its whole box: the run then ends in the landing cells (or has landed). The cells' own
+    plans start from a whole cell; these start from the state, and keep what rounding it out to its cell loses. A
+    plan is valid only as the first ``plan`` of a run from this state.
 
     :return: ``(N, 3)``: ``(candidate, K, PLAN_LAND)`` for the shortest plan (the first candidate among those of
-        that length), :data:`NO_PLAN` where none of up to ``periods`` periods is proven
+        that length), :data:`NO_PLAN` where none of ``2 .. periods`` periods is proven
     """
     la = vf.lookahead
     N, J = len(x), len(la.candidates)
@@ -124,18 +124,19 @@ def start_plans(vf: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: i
     row, j = np.repeat(np.arange(N), J), np.tile(np.arange(J), N)
     lo, hi, zz, tt = x[row], None, z[row], t[row]
     found = np.zeros(N, bool)
-    for K in range(1, periods + 1):
+    # after k periods held, does the candidate pass from the box they may have reached: a plan of k + 1 periods
+    for k in range(periods):
         passing, _, _, e_lo, e_hi, z_end, kept = la.assess(tt, lo, zz, la.candidates[j], x_hi=hi, ends=True)
-        if K == 1:
+        if k == 0:
             # a row some candidate passes from at once is certified by one period: it needs no plan
             found[row[passing]] = True
         elif passing.any():
             # rows are in candidate order, so the first winner of a row is its lowest candidate
             wr, first = np.unique(row[passing], return_index=True)
-            plans[wr] = np.stack([j[passing][first], np.full(len(wr), K), np.full(len(wr), PLAN_LAND)], axis=1)
+            plans[wr] = np.stack([j[passing][first], np.full(len(wr), k + 1), np.full(len(wr), PLAN_LAND)], axis=1)
             found[wr] = True
         keep = (kept & ~passing & ~found[row] & np.isfinite(e_lo).all(axis=1) & np.isfinite(e_hi).all(axis=1))
-        if not keep.any():
+        if k == periods - 1 or not keep.any():
             break
         row, j, lo, hi, zz, tt = row[keep], j[keep], e_lo[keep], e_hi[keep], z_end[keep], tt[keep] + la.dt
     return plans

@@ -13,6 +13,7 @@ import softreach.envs  # noqa: F401  (registers the environments)
 from softreach.filters import SafetyFilter, ValueFilter
 from softreach.filters.audit import POLICIES, Row, _policy, _wind, audit, run_episode
 from softreach.reach import get_model
+from softreach.reach.integrator import integrate_period
 
 DT = 0.01
 #: issue 10: starts where the earlier filter (pointwise a*, held) left C1 or overspent
@@ -83,13 +84,93 @@ def test_wrapper_reports_certification_and_keeps_it(vf, pointmass_held_table):
     assert not info["certified"] and info["certified_reason"] == "not_in_set"
 
 
+def _planned_starts(vf, q, n, seed):
+    """Starts that no single period or cell certifies but a plan of their own does, with their plans."""
+    lo, hi = (np.asarray(v, dtype=float) for v in vf.model.hard_box)
+    x = np.random.default_rng(seed).uniform(lo, hi, (3000, len(lo)))
+    ok, why, _, plans = vf.certify_start(0.0, x, q)
+    one = vf.certify(0.0, x, q)[0]
+    planned = plans[:, 0] >= 0
+    # a plan is searched only where nothing else certifies, and certifies where it is found
+    assert not (planned & one).any() and (ok == (one | planned)).all()
+    assert all(why[i] == "certified" for i in np.nonzero(planned)[0])
+    return x[planned][:n], plans[planned][:n]
+
+
+def test_a_start_plan_holds_what_it_claims(vf):
+    """Held for its periods against winds that switch at random instants (RK4, not the enclosures it was proven
+    with), a start's plan keeps C1 and the budget and ends in the landing cells (or lands)."""
+    model, dt, q = vf.model, vf.dt, 0.06
+    starts, plans = _planned_starts(vf, q, 8, seed=4)
+    assert len(starts) >= 4
+    rng = np.random.default_rng(5)
+    (b_lo,), (b_hi,) = model.disturbance_bounds
+    # landing is checked where the environment checks it, at its sub-step ends
+    checks = [dt * (i + 1) / vf.target_checks for i in range(vf.target_checks)]
+    for x0, (j, periods, _) in zip(starts, plans):
+        a = vf.lookahead.candidates[j]
+        for trial in range(6):
+            x, z, t, landed = list(map(float, x0)), q, 0.0, False
+            for _ in range(periods):
+                # the wind switches between its bounds at three random instants of every period
+                cuts = np.unique(np.r_[0.0, rng.uniform(0.0, dt, 3), checks])
+                for c0, c1 in zip(cuts[:-1], cuts[1:]):
+                    b = [b_lo if (trial + rng.integers(2)) % 2 else b_hi]
+                    x, cost, _, _ = integrate_period(model, t + c0, x, a, b, c1 - c0, 2, vf.eps, 1e-6)
+                    z -= cost
+                    assert float(model.hard_constraint(t + c1, x)) <= 0, (x0, j, periods, x)
+                    landed = c1 in checks and bool(model.landed(t + c1, x))
+                    if landed:
+                        break
+                t += dt
+                if landed:
+                    break
+            assert z >= -1e-9, (x0, j, periods, z)
+            assert landed or vf.landing_cells.contains(t, np.asarray(x)[None], z)[0], (x0, j, periods, x, z)
+
+
+def test_audit_from_starts_certified_only_by_a_plan_of_their_own(vf):
+    """The runs from such starts, the plan handed to the first step, never fail; without it they start
+    uncertified (so the plan is what certifies them)."""
+    rows = audit(vf, [0.06, 0.6], starts_per_row=2, kinds=("planned",), policies=("random", "always_min",
+                 "always_max", "anti_optimal"), winds=("worst_case", "switch_inside", "switch_on_filter"), pieces=4,
+                 seed=2, check_unneeded=False)
+    filtered = [r for r in rows if r.filtered]
+    assert sum(r.episodes for r in filtered) == 4 * 3 * 2 * 2
+    assert sum(r.hard_violations + r.overspends for r in filtered) == 0, [r.failures for r in filtered]
+    assert sum(r.landed for r in filtered) == sum(r.episodes for r in filtered)
+    assert sum(r.uncertified_steps for r in filtered) == 0
+    starts, _ = _planned_starts(vf, 0.6, 4, seed=6)
+    _, info = vf.filter(0.0, starts, 0.6, vf.lookahead.candidates[np.zeros(len(starts), int)])
+    assert not info["certified"].any()
+
+
+def test_wrapper_hands_a_start_its_plan(vf):
+    env = SafetyFilter(gym.make("softreach/PointMassLanding-v0", wind="random"), value_filter=vf)
+    starts, plans = _planned_starts(vf, 0.3, 4, seed=7)
+    assert len(starts)
+    for i, (x0, plan) in enumerate(zip(starts, plans)):
+        _, info = env.reset(seed=i, options={"state": x0.tolist(), "budget": 0.3})
+        assert info["certified"] and info["certified_reason"] == "certified"
+        assert np.array_equal(info["plan"], plan)
+        done = False
+        while not done:
+            _, _, terminated, truncated, info = env.step(env.action_space.sample())
+            done = terminated or truncated
+            assert info["certified"] and not info["hard_violation"] and info["budget_used"] <= 0.3 + 1e-9
+        assert info["landed"]
+
+
 def test_glider_audit_from_certified_starts(glider_held_table):
     vf = ValueFilter(glider_held_table, 0.1, target_checks=get_model("glider").substeps)
     assert vf.sampled
-    rows = audit(vf, [5.0, 10.0], starts_per_row=2, kinds=("certified", "edge"), policies=("random", "always_max"),
+    rows = audit(vf, [5.0, 10.0], starts_per_row=2, kinds=("certified", "edge", "planned"),
+                 policies=("random", "always_max"),
                  winds=("worst_case", "switch_inside", "switch_on_filter"), pieces=2, seed=0, check_unneeded=False)
     filtered = [r for r in rows if r.filtered]
     # starts on the faces of C1's box too, one coordinate exactly at its bound
     assert sum(r.episodes for r in filtered if r.starts == "certified") >= 12
     assert sum(r.episodes for r in filtered if r.starts == "edge") >= 12
+    # and starts that only a plan of their own certifies
+    assert sum(r.episodes for r in filtered if r.starts == "planned") >= 12
     assert sum(r.hard_violations + r.overspends for r in filtered) == 0, [r.failures for r in filtered]
