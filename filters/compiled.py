@@ -213,6 +213,51 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
             reason[r] = _OUTSIDE
 
 
+@nb.njit(cache=True, nogil=True)
+def start_plan_rows(enclose, M, C, cands, periods, t, x, z, out, space):
+    """:func:`~softreach.filters.plans.start_plans` row by row, the one-period test of each held period by
+    :func:`judge` (which reads no table): per row ``(candidate, periods, PLAN_LAND)`` of the shortest plan, the
+    first candidate among those of that length, or ``(-1, 0, 0)``."""
+    # borrowed as in decide_rows: the arguments are the caller's until the call returns
+    M, C, cands, t, x, z, out, space = borrowed((M, C, cands, t, x, z, out, space))
+    work = space[0]
+    N, n = x.shape
+    J = cands.shape[0]
+    dt = M[6][len(M[6]) - 1]
+    lo, hi, e_lo, e_hi = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    for r in range(N):
+        out[r, 0], out[r, 1], out[r, 2] = -1, 0, 0
+        best, best_j, one_period = periods + 1, -1, False
+        for j in range(J):
+            for i in range(n):
+                lo[i], hi[i] = x[r, i], x[r, i]
+            zz, tt = z[r], t[r]
+            # after k periods held, does the candidate pass from the box they may have reached: a plan of k + 1
+            # periods, searched only while shorter than the best so far
+            for k in range(min(periods, best - 1)):
+                ok, lands, _, _, kept, _, _, z_end, _ = judge(enclose, M, C, tt, lo, hi, zz, cands[j], e_lo, e_hi,
+                                                              work)
+                if ok or lands:
+                    if k == 0:
+                        one_period = True
+                    else:
+                        best, best_j = k + 1, j
+                    break
+                finite = kept
+                for i in range(n):
+                    finite = finite and math.isfinite(e_lo[i]) and math.isfinite(e_hi[i])
+                if not finite:
+                    break
+                zz = z_end
+                for i in range(n):
+                    lo[i], hi[i] = e_lo[i], e_hi[i]
+                tt = tt + dt
+            if one_period:
+                break
+        if best_j >= 0 and not one_period:
+            out[r, 0], out[r, 1], out[r, 2] = best_j, best, _PLAN_LAND
+
+
 @nb.njit(cache=True, inline="always")
 def _on_table(W, t, x, z, point, work):
     """:meth:`Table.inside` of a ``W_eps`` table: the interpolant of ``W_eps`` is finite at ``(t, x, z)`` (a budget
@@ -291,6 +336,13 @@ class CompiledDecision:
         # each thread in its own work space (decide_rows releases the GIL)
         run_in_blocks(run, N, vf.threads)
         return outs
+
+    def start_plans(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int) -> np.ndarray:
+        """:func:`start_plan_rows` for ``N`` rows: the ``(N, 3)`` plans."""
+        out = np.empty((len(x), 3), np.int64)
+        t, x, z = (np.ascontiguousarray(v, dtype=np.float64) for v in (t, x, z))
+        start_plan_rows(self.enclose, self.M, self.C, self.cands, int(periods), t, x, z, out, self._space())
+        return out
 
     def __getstate__(self) -> dict:
         # a thread's work space stays with the thread (and threading.local does not pickle)

@@ -121,6 +121,9 @@ def start_plans(vf: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: i
     plans = np.tile(np.array(NO_PLAN, np.int64), (N, 1))
     if vf.landing_cells is None or not la.box_support or periods < 2 or N == 0:
         return plans
+    if vf.compiled is not None:
+        # the same search, compiled (tests/test_compiled_filter.py compares the two)
+        return vf.compiled.start_plans(t, x, z, periods)
     row, j = np.repeat(np.arange(N), J), np.tile(np.arange(J), N)
     lo, hi, zz, tt = x[row], None, z[row], t[row]
     found = np.zeros(N, bool)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from softreach.filters import ValueFilter
+from softreach.filters.plans import start_plans
 from softreach.reach import get_model, sets
 from softreach.reach.model_kernels import SET_INDEX, set_max_address, set_max_rows
 from softreach.reach.registry import model_names
@@ -284,6 +285,29 @@ def test_compiled_glider_filter_decides_as_the_numpy_filter(glider_held_table, r
         one, one_info = fast.filter(t[i], x[i], z[i], a[i])
         np.testing.assert_array_equal(one, applied[i])
         _same(one_info, {k: v[i] for k, v in info.items()})
+
+
+@pytest.mark.parametrize("which", ["pointmass", "glider"])
+def test_start_plans_compiled_as_in_numpy(which, pointmass_held_table, glider_held_table):
+    """The search for a start's own plan (:func:`~softreach.filters.plans.start_plans`) finds the same plans
+    compiled as on the numpy path, which judges every period by :meth:`Lookahead.assess`: states over ``C1``, at
+    the start and later, with budgets from none to the largest default."""
+    table, dt = (pointmass_held_table, 0.01) if which == "pointmass" else (glider_held_table, 0.1)
+    vf = ValueFilter(table, dt, target_checks=table.model.substeps)
+    assert vf.compiled is not None
+    rng = np.random.default_rng(11)
+    lo, hi = (np.asarray(b, dtype=float) for b in vf.model.hard_box)
+    x = rng.uniform(lo, hi, (1200, len(lo)))
+    t = np.round(rng.choice([0.0, 0.3 * vf.lookahead.horizon], len(x)), 2)
+    z = rng.uniform(0.0, max(vf.model.default_budgets), len(x))
+    fast = start_plans(vf, t, x, z, 16)
+    compiled, vf.compiled = vf.compiled, None
+    try:
+        slow = start_plans(vf, t, x, z, 16)
+    finally:
+        vf.compiled = compiled
+    np.testing.assert_array_equal(fast, slow)
+    assert (fast[:, 0] >= 0).sum() >= 5 and len(np.unique(fast[fast[:, 0] >= 0, 1])) >= 3
 
 
 def test_models_without_a_compiled_enclosure_keep_the_numpy_test(dubins_held_table):
