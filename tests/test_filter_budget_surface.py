@@ -83,3 +83,16 @@ def test_continuous_budget_surface_table_is_filtered_but_not_certified(tmp_path_
     applied, info = vf.filter(0.0, x, 0.3, np.full((len(x), 1), -60.0))
     assert 0 < info["active"].sum() < len(x)
     assert np.isfinite(applied).all()
+
+
+def test_starts_certified_by_a_plan_of_their_own(vf):
+    """The numpy search for a start's own plan (this filter has no compiled decision): runs from such starts, the
+    plan handed to the first step, keep every promise under adversarial winds."""
+    assert vf.compiled is None
+    rows = audit(vf, [0.06, 0.3], starts_per_row=2, kinds=("planned",), policies=("random", "always_max"),
+                 winds=("worst_case", "switch_on_filter"), pieces=4, seed=3, check_unneeded=False)
+    filtered = [r for r in rows if r.filtered]
+    assert sum(r.episodes for r in filtered) == 2 * 2 * 2 * 2
+    assert sum(r.hard_violations + r.overspends for r in filtered) == 0, [r.failures for r in filtered]
+    assert sum(r.landed for r in filtered) == sum(r.episodes for r in filtered)
+    assert sum(r.uncertified_steps for r in filtered) == 0
