@@ -58,7 +58,7 @@ class SafetyFilter(gym.Wrapper):
     :param margin: ``None`` (0) or an extra tightening ``>= 0`` of the next-state test (value units)
     :param rule: ``"switch"`` (least restrictive; the default) or ``"smooth"``
     :param filter_kwargs: passed to :class:`~softreach.filters.ValueFilter` (``fallback_action``,
-        ``smooth_iterations``, ``eps``, ``safe_cells``, ``landing_cells``)
+        ``smooth_iterations``, ``eps``, ``safe_cells``, ``landing_cells``, ``start_periods``)
     :param value_filter: an existing :class:`~softreach.filters.ValueFilter` to share (one core,
         computed once per table; many environments can use one). Its rule and margin apply; ``table`` may then be
         ``None``, and ``margin``, ``rule`` and ``filter_kwargs`` must be left out or agree with it
