@@ -253,7 +253,7 @@ class ValueFilter:
                 reasons.append("not_in_set")
             else:
                 reasons.append("no_certified_action")
-        certified = np.array([r == "certified" for r in reasons])
+        certified = np.array([r == "certified" for r in reasons], dtype=bool)
         if single:
             return certified[0], reasons[0], nxt[0]
         return certified, reasons, nxt

@@ -245,6 +245,23 @@ def test_outside_after_horizon_and_negative_budget_are_not_certified(vfilter):
     assert why[1:4] == ["outside_table", "outside_table", "after_horizon"]
 
 
+def test_certify_start_adds_only_starts_plans_to_certify(vfilter, pointmass_held_table):
+    """``certify_start`` certifies what ``certify`` does, and more only where it found a plan; without plans
+    (``start_periods=0``) it is ``certify``; no states, no plans."""
+    x = np.random.default_rng(8).uniform([-15, 0], [15, 18], (3000, 2))
+    ok, why, nxt = vfilter.certify(0.0, x, 0.06)
+    ok2, why2, nxt2, plans = vfilter.certify_start(0.0, x, 0.06)
+    planned = plans[:, 0] >= 0
+    assert planned.any() and (ok2 == (ok | planned)).all() and not (ok & planned).any()
+    assert [w for w, p in zip(why2, planned) if not p] == [w for w, p in zip(why, planned) if not p]
+    np.testing.assert_array_equal(nxt, nxt2)
+    none = ValueFilter(pointmass_held_table, DT, start_periods=0)
+    ok3, why3, _, plans3 = none.certify_start(0.0, x, 0.06)
+    assert (ok3 == ok).all() and why3 == why and (plans3[:, 0] < 0).all()
+    empty = vfilter.certify_start(0.0, np.zeros((0, 2)), 0.06)
+    assert empty[0].shape == (0,) and empty[0].dtype == bool and empty[3].shape == (0, 3)
+
+
 def test_a_continuous_table_filters_but_certifies_nothing(pointmass_table):
     vf = ValueFilter(pointmass_table, DT)
     ok, why, _ = vf.certify(0.0, [[0.0, 3.0]], 0.3)
@@ -299,6 +316,9 @@ def test_construction_errors(pointmass_held_table):
         ValueFilter(pointmass_held_table, 0.0)
     with pytest.raises(ValueError, match="fallback_action"):
         ValueFilter(pointmass_held_table, DT, fallback_action=[1.0, 2.0])
+    for bad in (-1, 2.5, True):
+        with pytest.raises(ValueError, match=f"start_periods .*got {bad!r}"):
+            ValueFilter(pointmass_held_table, DT, start_periods=bad)
     # another period than the table's: it filters, but certifies nothing
     assert not ValueFilter(pointmass_held_table, 0.02).sampled
 
