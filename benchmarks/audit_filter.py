@@ -132,7 +132,8 @@ def sampled_region(vf: ValueFilter, table, budgets: list[float], continuous=None
     for q in budgets:
         ok, _, _, plans = vf.certify_start(0.0, x, q)
         r: dict[str, Any] = {"Q": q, "states": n, "certified": int(ok.sum()),
-                             "certified_by_start_plan": int((plans[:, 0] >= 0).sum())}
+                             "certified_by_start_plan": int((plans[:, 0, 0] >= 0).sum()),
+                             "certified_by_two_segments": int((plans[:, 1, 0] >= 0).sum())}
         for name, tb in (("held", table), ("continuous", continuous)):
             if tb is None:
                 continue
@@ -156,7 +157,8 @@ def print_sampled(rows: list[dict[str, Any]]) -> None:
                  for key, label in (("held", "held RA~_Q"), ("held_classical", "held {V <= 0}"),
                                     ("continuous", "continuous RA~_Q"), ("continuous_classical", "continuous {V <= 0}"))
                  if r.get("in_" + key)]
-        print(f"  Q = {r['Q']:g}: {r['certified']} certified ({r['certified_by_start_plan']} by a plan of their own); "
+        print(f"  Q = {r['Q']:g}: {r['certified']} certified ({r['certified_by_start_plan']} by a plan of their own, "
+              f"{r['certified_by_two_segments']} of them of two segments); "
               + ", ".join(parts))
 
 

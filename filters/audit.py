@@ -21,6 +21,7 @@ import numpy as np
 from softreach.envs.integrator import integrate_period
 
 from .core import PASS, ValueFilter
+from .plans import advance_plan
 
 POLICIES = ("always_min", "always_max", "bang_bang", "random", "anti_optimal", "budget_burner")
 WINDS = ("worst_case", "constant_min", "constant_max", "random_step", "switch_inside", "switch_on_filter",
@@ -164,21 +165,25 @@ def exact_pass(vf: ValueFilter, t: float, x: np.ndarray, z: float, a: np.ndarray
 
 
 def run_episode(vf: ValueFilter | None, ref: ValueFilter, x0: np.ndarray, budget: float, policy, wind,
-                pieces: int, substeps: int, row: Row, check_unneeded: bool) -> dict[str, Any]:
+                pieces: int, substeps: int, row: Row, check_unneeded: bool,
+                start_plan: np.ndarray | None = None) -> dict[str, Any]:
     """One episode from ``(0, x0, budget)``; adds its counts to ``row`` and returns its outcome
-    (``hard``, ``budget_used``, ``landed``)."""
+    (``hard``, ``budget_used``, ``landed``). ``start_plan``: the start's own plan to follow (by default
+    :meth:`ValueFilter.certify_start`'s)."""
     model, dt, T = ref.model, ref.dt, ref.lookahead.horizon
     x, z, t = np.asarray(x0, dtype=float), float(budget), 0.0
     was = False
     row.episodes += 1
     hard = landed = False
     # a start certified by a plan of its own is certified for the run that follows it (SafetyFilter.reset)
-    plan = vf.certify_start(0.0, x, z)[3] if vf is not None else None
+    if start_plan is None and vf is not None:
+        start_plan = vf.certify_start(0.0, x, z)[3]
+    plan, queued = start_plan if vf is not None else (None, None)
     for k in range(int(round(T / dt))):
         pol = policy(k, t, x, z)
         if vf is not None:
             app, info = vf.filter(t, x, z, pol, plan=plan)
-            plan = info["plan"]
+            plan, queued = advance_plan(info["plan"], queued)
             act = int(info["reason"]) != PASS
             row.steps += 1
             row.policy_steps += int(not act)
@@ -248,7 +253,7 @@ def sample_starts(vf: ValueFilter, budget: float, kind: str, n: int, rng: np.ran
     if kind in ("certified", "edge"):
         pick = np.nonzero(ok)[0]
     elif kind == "planned":
-        pick = np.nonzero(plans[:, 0] >= 0)[0]
+        pick = np.nonzero(plans[:, 0, 0] >= 0)[0]
     elif kind == "boundary":
         idx = np.nonzero(ok)[0]
         pick = idx[np.argsort(-val[idx])][: max(1, len(idx) // 10)]

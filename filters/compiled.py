@@ -43,9 +43,9 @@ from .judge import LOWEST_BAD, badness, judge, keeps, next_value
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/blocks.py": "2b3dc14608793eb5", "filters/judge.py": "5ba411574fe4b617",
+COMPILED_IN = {"filters/blocks.py": "2b3dc14608793eb5", "filters/judge.py": "c5e65cd66ec36708",
                "reach/borrowed.py": "8a1aa2defd267a3c", "reach/box_max.py": "b9d53e0e22521413",
-               "reach/kernels.py": "7bb4dff8ae39a714", "reach/model_kernels.py": "7da879ea03b7ee80"}
+               "reach/kernels.py": "78a9f41e4d767ed5", "reach/model_kernels.py": "7da879ea03b7ee80"}
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7
@@ -213,49 +213,93 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
             reason[r] = _OUTSIDE
 
 
+@nb.njit(cache=True, inline="always")
+def _kept_box(kept, e_lo, e_hi):
+    """The period kept ``C1`` and the budget, and its end box is finite."""
+    for i in range(len(e_lo)):
+        kept = kept and math.isfinite(e_lo[i]) and math.isfinite(e_hi[i])
+    return kept
+
+
+@nb.njit(cache=True)
+def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, hi, e_lo, e_hi, work):
+    """:func:`~softreach.filters.plans._segment` of one row, each period by :func:`judge` (which reads no table):
+    ``(candidate, periods, once)``, candidate ``-1`` where none."""
+    n = len(lo0)
+    dt = M[6][len(M[6]) - 1]
+    best, best_j, once = periods + 1, -1, False
+    for j in range(cands.shape[0]):
+        for i in range(n):
+            lo[i], hi[i] = lo0[i], hi0[i]
+        zz, tt = z, t
+        # after k periods held, does the candidate pass from the box they may have reached: a run of k + 1
+        # periods, searched only while shorter than the best so far
+        for k in range(min(periods, best - 1)):
+            ok, lands, _, _, kept, _, _, z_end, _ = judge(enclose, M, C, tt, lo, hi, zz, cands[j], e_lo, e_hi, work)
+            if ok or lands:
+                if k == 0 and from_state:
+                    once = True
+                else:
+                    best, best_j = k + 1, j
+                break
+            if not _kept_box(kept, e_lo, e_hi):
+                break
+            zz = z_end
+            for i in range(n):
+                lo[i], hi[i] = e_lo[i], e_hi[i]
+            tt = tt + dt
+        if once:
+            break
+    return best_j, best, once
+
+
 @nb.njit(cache=True, nogil=True)
-def start_plan_rows(enclose, M, C, cands, periods, t, x, z, out, space):
-    """:func:`~softreach.filters.plans.start_plans` row by row, the one-period test of each held period by
-    :func:`judge` (which reads no table): per row ``(candidate, periods, PLAN_LAND)`` of the shortest plan, the
-    first candidate among those of that length, or ``(-1, 0, 0)``."""
+def start_plan_rows(enclose, M, C, cands, periods, t, x, z, second, out, space):
+    """:func:`~softreach.filters.plans.start_plans` row by row, the same searches in the same order: per row
+    ``out[r]`` its ``(START_SEGMENTS, 3)`` segments."""
     # borrowed as in decide_rows: the arguments are the caller's until the call returns
-    M, C, cands, t, x, z, out, space = borrowed((M, C, cands, t, x, z, out, space))
+    M, C, cands, t, x, z, second, out, space = borrowed((M, C, cands, t, x, z, second, out, space))
     work = space[0]
     N, n = x.shape
     J = cands.shape[0]
     dt = M[6][len(M[6]) - 1]
     lo, hi, e_lo, e_hi = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    c_lo, c_hi, c_elo, c_ehi = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     for r in range(N):
-        out[r, 0], out[r, 1], out[r, 2] = -1, 0, 0
-        best, best_j, one_period = periods + 1, -1, False
+        for g in range(out.shape[1]):
+            out[r, g, 0], out[r, g, 1], out[r, g, 2] = -1, 0, 0
+        j1, k1, once = _segment_row(enclose, M, C, cands, periods, t[r], x[r], x[r], z[r], True, lo, hi, e_lo, e_hi,
+                                    work)
+        # a row some candidate passes from at once is certified by one period: it needs no plan
+        if once:
+            continue
+        if j1 >= 0:
+            out[r, 0, 0], out[r, 0, 1], out[r, 0, 2] = j1, k1, _PLAN_LAND
+            continue
+        if not second[r]:
+            continue
+        # two segments: the shortest first one whose box a second one leaves from, the first candidate among those
+        best1 = periods
         for j in range(J):
             for i in range(n):
-                lo[i], hi[i] = x[r, i], x[r, i]
+                c_lo[i], c_hi[i] = x[r, i], x[r, i]
             zz, tt = z[r], t[r]
-            # after k periods held, does the candidate pass from the box they may have reached: a plan of k + 1
-            # periods, searched only while shorter than the best so far
-            for k in range(min(periods, best - 1)):
-                ok, lands, _, _, kept, _, _, z_end, _ = judge(enclose, M, C, tt, lo, hi, zz, cands[j], e_lo, e_hi,
-                                                              work)
-                if ok or lands:
-                    if k == 0:
-                        one_period = True
-                    else:
-                        best, best_j = k + 1, j
-                    break
-                finite = kept
-                for i in range(n):
-                    finite = finite and math.isfinite(e_lo[i]) and math.isfinite(e_hi[i])
-                if not finite:
+            for k in range(1, min(periods, best1)):
+                _, _, _, _, kept, _, _, z_end, _ = judge(enclose, M, C, tt, c_lo, c_hi, zz, cands[j], c_elo, c_ehi,
+                                                         work)
+                if not _kept_box(kept, c_elo, c_ehi):
                     break
                 zz = z_end
                 for i in range(n):
-                    lo[i], hi[i] = e_lo[i], e_hi[i]
+                    c_lo[i], c_hi[i] = c_elo[i], c_ehi[i]
                 tt = tt + dt
-            if one_period:
-                break
-        if best_j >= 0 and not one_period:
-            out[r, 0], out[r, 1], out[r, 2] = best_j, best, _PLAN_LAND
+                j2, k2, _ = _segment_row(enclose, M, C, cands, periods - k, tt, c_lo, c_hi, zz, False, lo, hi, e_lo,
+                                         e_hi, work)
+                if j2 >= 0:
+                    best1 = k
+                    out[r, 0, 0], out[r, 0, 1], out[r, 0, 2] = j, k, _PLAN_LAND
+                    out[r, 1, 0], out[r, 1, 1], out[r, 1, 2] = j2, k2, _PLAN_LAND
+                    break
 
 
 @nb.njit(cache=True, inline="always")
@@ -337,11 +381,13 @@ class CompiledDecision:
         run_in_blocks(run, N, vf.threads)
         return outs
 
-    def start_plans(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int) -> np.ndarray:
-        """:func:`start_plan_rows` for ``N`` rows: the ``(N, 3)`` plans."""
-        out = np.empty((len(x), 3), np.int64)
+    def start_plans(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int, second: np.ndarray,
+                    segments: int) -> np.ndarray:
+        """:func:`start_plan_rows` for ``N`` rows: the ``(N, segments, 3)`` plans."""
+        out = np.empty((len(x), segments, 3), np.int64)
         t, x, z = (np.ascontiguousarray(v, dtype=np.float64) for v in (t, x, z))
-        start_plan_rows(self.enclose, self.M, self.C, self.cands, int(periods), t, x, z, out, self._space())
+        start_plan_rows(self.enclose, self.M, self.C, self.cands, int(periods), t, x, z,
+                        np.ascontiguousarray(second, dtype=np.bool_), out, self._space())
         return out
 
     def __getstate__(self) -> dict:

@@ -43,7 +43,8 @@ from softreach.reach.lookahead import Lookahead
 
 from .blocks import default_threads
 from .compiled import CompiledDecision
-from .plans import NO_PLAN, PLAN_LAND, PLAN_SAFE, check_plans, follow_plans, resolve_cells, start_plans
+from .plans import (NO_PLAN, PLAN_LAND, PLAN_SAFE, START_SEGMENTS, check_plans, follow_plans, resolve_cells,
+                    start_plans)
 from .tensors import first_bad, to_numpy, to_torch
 
 __all__ = ["NO_PLAN", "PLAN_LAND", "PLAN_SAFE", "PASS", "BLEND", "OPTIMAL", "OUTSIDE", "AFTER_HORIZON", "NONFINITE",
@@ -261,19 +262,24 @@ class ValueFilter:
     def certify_start(self, t: Any, x: Any, z: Any) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
         """:meth:`certify` for the start of a run, which may also begin with a plan of its own: where no period
         or cell certifies the state, one candidate held for up to :attr:`start_periods` periods whose boxes keep
-        ``C1`` and the budget and end in the landing cells (:func:`~softreach.filters.plans.start_plans`). Such a
-        start is certified only for a run whose first :meth:`filter` call gets that plan (:class:`SafetyFilter`
-        passes it at ``reset``).
+        ``C1`` and the budget and end in the landing cells, or, where the model allows two
+        (:attr:`~softreach.reach.problem.Model.start_segments`) and the table puts the state in its set (reason
+        ``"no_certified_action"``), two in sequence (:func:`~softreach.filters.plans.start_plans`). Such a
+        start is certified only for a run whose :meth:`filter` calls get that plan: the first segment at the first
+        step, the second as the first ends (:func:`~softreach.filters.plans.advance_plan`; :class:`SafetyFilter`
+        does both).
 
-        :return: ``(certified, reasons, best next certificate, plans (N, 3))``; ``plans`` the first ``plan`` to
-            hand to :meth:`filter`, :data:`NO_PLAN` where none is needed or none was found
+        :return: ``(certified, reasons, best next certificate, plans (N, START_SEGMENTS, 3))``; each row's
+            segments, :data:`NO_PLAN` where none is needed or none was found
         """
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
         certified, reasons, nxt = self.certify(tt, xs, zz)
         rows = np.nonzero([r in ("not_in_set", "no_certified_action") for r in reasons])[0]
-        plans = np.tile(np.array(NO_PLAN, np.int64), (len(xs), 1))
-        plans[rows] = start_plans(self, tt[rows], xs[rows], zz[rows], self.start_periods)
-        planned = plans[:, 0] >= 0
+        plans = np.tile(np.array(NO_PLAN, np.int64), (len(xs), START_SEGMENTS, 1))
+        second = np.array([self.model.start_segments > 1 and reasons[r] == "no_certified_action" for r in rows],
+                          dtype=bool)
+        plans[rows] = start_plans(self, tt[rows], xs[rows], zz[rows], self.start_periods, second)
+        planned = plans[:, 0, 0] >= 0
         certified = certified | planned
         reasons = ["certified" if p else r for r, p in zip(reasons, planned)]
         if single:

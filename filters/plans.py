@@ -105,33 +105,31 @@ def follow_plans(vf: Any, plans: np.ndarray | None, new_plans: np.ndarray, rows:
     return any_ok
 
 
-def start_plans(vf: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int) -> np.ndarray:
-    """Plans from a start state itself, for starts that neither one period nor their own cell certifies: hold one
-    candidate for ``K`` periods, each keeping ``C1`` and the budget from the box of every state the periods before
-    may have reached (:meth:`Lookahead.assess` from that box; the first period from the state), the last passing
-    the one-period test from its whole box: the run then ends in the landing cells (or has landed). The cells' own
-    plans start from a whole cell; these start from the state, and keep what rounding it out to its cell loses. A
-    plan is valid only as the first ``plan`` of a run from this state.
+#: a start's own plan holds one candidate, or two in sequence (:func:`start_plans`)
+START_SEGMENTS = 2
 
-    :return: ``(N, 3)``: ``(candidate, K, PLAN_LAND)`` for the shortest plan (the first candidate among those of
-        that length), :data:`NO_PLAN` where none of ``2 .. periods`` periods is proven
+
+def _segment(vf: Any, t: np.ndarray, lo: np.ndarray, hi: np.ndarray | None, z: np.ndarray,
+             periods: int) -> tuple[np.ndarray, np.ndarray]:
+    """The shortest run of one held candidate from each row's state (``hi`` ``None``) or box ``[lo, hi]``, up to
+    ``periods`` periods, each keeping ``C1`` and the budget from the box of every state the periods before may have
+    reached (:meth:`Lookahead.assess` from that box), the last passing the one-period test from its whole box.
+
+    :return: ``(plans (N, 3), once (N,))``: ``(candidate, K, PLAN_LAND)``, the first candidate among the shortest,
+        or :data:`NO_PLAN`; ``once``: from a state, some candidate passes at once (one period certifies it: no plan)
     """
     la = vf.lookahead
-    N, J = len(x), len(la.candidates)
+    N, J = len(lo), len(la.candidates)
     plans = np.tile(np.array(NO_PLAN, np.int64), (N, 1))
-    if vf.landing_cells is None or not la.box_support or periods < 2 or N == 0:
-        return plans
-    if vf.compiled is not None:
-        # the same search, compiled (tests/test_compiled_filter.py compares the two)
-        return vf.compiled.start_plans(t, x, z, periods)
+    once = np.zeros(N, bool)
     row, j = np.repeat(np.arange(N), J), np.tile(np.arange(J), N)
-    lo, hi, zz, tt = x[row], None, z[row], t[row]
+    b_lo, b_hi, zz, tt = lo[row], None if hi is None else hi[row], z[row], t[row]
     found = np.zeros(N, bool)
-    # after k periods held, does the candidate pass from the box they may have reached: a plan of k + 1 periods
+    # after k periods held, does the candidate pass from the box they may have reached: a run of k + 1 periods
     for k in range(periods):
-        passing, _, _, e_lo, e_hi, z_end, kept = la.assess(tt, lo, zz, la.candidates[j], x_hi=hi, ends=True)
-        if k == 0:
-            # a row some candidate passes from at once is certified by one period: it needs no plan
+        passing, _, _, e_lo, e_hi, z_end, kept = la.assess(tt, b_lo, zz, la.candidates[j], x_hi=b_hi, ends=True)
+        if k == 0 and hi is None:
+            once[row[passing]] = True
             found[row[passing]] = True
         elif passing.any():
             # rows are in candidate order, so the first winner of a row is its lowest candidate
@@ -141,5 +139,65 @@ def start_plans(vf: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: i
         keep = (kept & ~passing & ~found[row] & np.isfinite(e_lo).all(axis=1) & np.isfinite(e_hi).all(axis=1))
         if k == periods - 1 or not keep.any():
             break
-        row, j, lo, hi, zz, tt = row[keep], j[keep], e_lo[keep], e_hi[keep], z_end[keep], tt[keep] + la.dt
+        row, j, b_lo, b_hi, zz, tt = row[keep], j[keep], e_lo[keep], e_hi[keep], z_end[keep], tt[keep] + la.dt
+    return plans, once
+
+
+def start_plans(vf: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int,
+                second: np.ndarray | None = None) -> np.ndarray:
+    """Plans from a start state itself, for starts that neither one period nor their own cell certifies: one
+    candidate held for ``K = 2 .. periods`` periods (:func:`_segment` from the state), so that the run ends in the
+    landing cells (or has landed); where there is none and ``second`` asks for it, two in sequence, at most
+    ``periods`` in all: the first held ``K1`` periods that keep ``C1`` and the budget, the second a run of
+    :func:`_segment` from the box of every state the first may have reached. The cells' own plans start from a
+    whole cell; these start from the state, and keep what rounding it out to its cell loses. A plan is valid only
+    as the first ``plan`` of a run from this state, its second segment handed over as the first ends
+    (:func:`advance_plan`).
+
+    :param second: per row, whether to search two segments where one does not do (default: no row)
+    :return: ``(N, START_SEGMENTS, 3)``, each segment ``(candidate, periods, PLAN_LAND)`` or :data:`NO_PLAN`: the
+        shortest one-segment plan; else the two-segment plan of the shortest first segment, the first candidate among
+        those, and the shortest second segment from its box
+    """
+    la = vf.lookahead
+    N, J = len(x), len(la.candidates)
+    plans = np.tile(np.array(NO_PLAN, np.int64), (N, START_SEGMENTS, 1))
+    second = np.zeros(N, bool) if second is None else np.asarray(second, bool)
+    if vf.landing_cells is None or not la.box_support or periods < 2 or N == 0:
+        return plans
+    if vf.compiled is not None:
+        # the same search, compiled (tests/test_compiled_filter.py compares the two)
+        return vf.compiled.start_plans(t, x, z, periods, second, START_SEGMENTS)
+    plans[:, 0], once = _segment(vf, t, x, None, z, periods)
+    row = np.nonzero((plans[:, 0, 0] < 0) & ~once & second)[0]
+    row, j = np.repeat(row, J), np.tile(np.arange(J), len(row))
+    b_lo, b_hi, zz, tt = x[row], None, z[row], t[row]
+    for k1 in range(1, periods):
+        # the first segment's k1-th period, from the box of its k1 - 1 before
+        _, _, _, e_lo, e_hi, z_end, kept = la.assess(tt, b_lo, zz, la.candidates[j], x_hi=b_hi, ends=True)
+        keep = kept & np.isfinite(e_lo).all(axis=1) & np.isfinite(e_hi).all(axis=1)
+        row, j, b_lo, b_hi, zz, tt = row[keep], j[keep], e_lo[keep], e_hi[keep], z_end[keep], tt[keep] + la.dt
+        if not len(row):
+            break
+        seg, _ = _segment(vf, tt, b_lo, b_hi, zz, periods - k1)
+        win = seg[:, 0] >= 0
+        if win.any():
+            wr, first = np.unique(row[win], return_index=True)
+            plans[wr, 0] = np.stack([j[win][first], np.full(len(wr), k1), np.full(len(wr), PLAN_LAND)], axis=1)
+            plans[wr, 1] = seg[win][first]
+            left = ~np.isin(row, wr)
+            row, j, b_lo, b_hi, zz, tt = row[left], j[left], b_lo[left], b_hi[left], zz[left], tt[left]
     return plans
+
+
+def advance_plan(plan: np.ndarray, queued: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The plan to hand to the next step, and what stays queued, from the plan a step returned (``info["plan"]``)
+    and the start plan's segment still queued: a first segment that ran its course (its periods left 0) hands
+    over to the queued one; a plan the filter dropped (an action passed, :data:`NO_PLAN`) drops it too."""
+    plan, queued = np.asarray(plan, np.int64).reshape(3), np.asarray(queued, np.int64).reshape(3)
+    no = np.array(NO_PLAN, np.int64)
+    if plan[0] < 0:
+        return plan, no
+    if plan[1] == 0 and queued[0] >= 0:
+        return queued, no
+    return plan, queued

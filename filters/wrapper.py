@@ -14,6 +14,7 @@ import gymnasium as gym
 from softreach.reach import Table, TableError, load_table
 
 from .core import NO_PLAN, REASONS, ValueFilter
+from .plans import advance_plan
 
 #: what the wrapper reads from ``env.unwrapped`` (the softreach landing environments provide all of it)
 REQUIRED_ATTRIBUTES = ("model", "dt", "eps", "state", "time", "budget")
@@ -49,9 +50,10 @@ class SafetyFilter(gym.Wrapper):
       table's safe set), ``budget_used`` and ``initial_budget``.
 
     ``reset`` adds ``value``, ``margin``, ``certified`` and ``certified_reason`` (one of
-    :data:`~softreach.filters.core.CERTIFY_REASONS`) of the start, and ``plan``: where no single period or cell
-    certifies the start but a candidate held for several periods does, that plan, which the first steps follow
-    (:meth:`~softreach.filters.ValueFilter.certify_start`; ``(-1, 0, 0)`` where none is needed or none exists).
+    :data:`~softreach.filters.core.CERTIFY_REASONS`) of the start, and ``start_plan``: where no single period or
+    cell certifies the start but a candidate held for several periods does (or two in sequence), that plan, which
+    the first steps follow (:meth:`~softreach.filters.ValueFilter.certify_start`: two segments, each ``(candidate,
+    periods, owner)``, ``(-1, 0, 0)`` where none).
 
     :param env: a softreach landing environment (possibly wrapped, e.g. by ``TimeLimit`` or ``Monitor``)
     :param table: a :class:`~softreach.reach.Table` with ``W_eps``, or the path of one
@@ -127,8 +129,9 @@ class SafetyFilter(gym.Wrapper):
         self._initial_budget = math.nan
         self._certified_start = False
         self._pending: tuple | None = None
-        #: the cells' plan the filter follows (``ValueFilter.filter``'s ``plan``)
+        #: the plan the filter follows (``ValueFilter.filter``'s ``plan``), and a start plan's second segment
         self._plan = np.array(NO_PLAN, np.int64)
+        self._queued = np.array(NO_PLAN, np.int64)
 
     def expect(self, action: Any, applied: np.ndarray, decision: dict[str, Any]) -> None:
         """Hand over the decision for ``action`` at the current state, made in a batch with other environments
@@ -140,7 +143,7 @@ class SafetyFilter(gym.Wrapper):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Reset the environment and the episode statistics; ``info`` adds ``value``, ``margin``, ``certified``,
-        ``certified_reason`` and ``plan`` of the start."""
+        ``certified_reason`` and ``start_plan`` of the start."""
         obs, info = self.env.reset(seed=seed, options=options)
         self._reset_stats()
         base = self.env.unwrapped
@@ -153,8 +156,8 @@ class SafetyFilter(gym.Wrapper):
         info["certified"] = bool(certified)
         info["certified_reason"] = why
         # a start certified by a plan of its own is certified for the run that follows it from the first step
-        self._plan = np.asarray(plan, np.int64)
-        info["plan"] = self._plan.copy()
+        self._plan, self._queued = np.array(plan[0], np.int64), np.array(plan[1], np.int64)
+        info["start_plan"] = np.array(plan, np.int64)
         self._certified_start = bool(certified)
         return obs, info
 
@@ -174,7 +177,7 @@ class SafetyFilter(gym.Wrapper):
         else:
             applied, f = self.value_filter.filter(base.time, x, base.budget, np.asarray(action), normalized=True,
                                                   plan=self._plan)
-        self._plan = np.asarray(f["plan"], np.int64)
+        self._plan, self._queued = advance_plan(f["plan"], self._queued)
         active = bool(f["active"])
         dtype = self.action_space.dtype if self.action_space.dtype is not None else np.float32
         # the policy's own object passes untouched where the filter does not act (no float round trip)

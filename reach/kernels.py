@@ -341,7 +341,8 @@ def cover_row(cells, t, lo, hi, z):
     if not on or not t <= horizon + 1e-9 * dt:
         return False
     k = step_index(t, dt, steps, safe)
-    need = -1
+    floor = budget_floor(z, dz, top)
+    # the first cell that needs more budget decides: a wide box need not read the rest
     for p in range(P):
         rest = p
         off = 0
@@ -350,8 +351,9 @@ def cover_row(cells, t, lo, hi, z):
             off += (first[a] + rest % span[a]) * stride
             rest //= span[a]
             stride *= shape[a]
-        need = max(need, int(m[k, off]))
-    return budget_floor(z, dz, top) >= need
+        if int(m[k, off]) > floor:
+            return False
+    return True
 
 
 @nb.njit(cache=True, inline="always")

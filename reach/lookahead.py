@@ -245,7 +245,8 @@ class Lookahead:
         """
         if len(x) == 0:
             empty = (np.zeros(0, bool), np.zeros(0), np.zeros(0))
-            return empty + (np.zeros((0, self.n)), np.zeros((0, self.n)), np.zeros(0)) if ends else empty
+            return (empty + (np.zeros((0, self.n)), np.zeros((0, self.n)), np.zeros(0), np.zeros(0, bool)) if ends
+                    else empty)
         if x_hi is None:
             (tube_lo, tube_hi, end_lo, end_hi), bounded = self._enclose(t, x, a)
         else:

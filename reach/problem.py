@@ -70,6 +70,8 @@ class Model(Dynamics):
     #: lengths [periods] of the landing game's cells
     cell_shape: tuple[int, ...] | None = None
     cell_holds: tuple[int, ...] = (1,)
+    #: candidates a start's own plan may hold in sequence, 1 or 2 (:func:`softreach.filters.plans.start_plans`)
+    start_segments: int = 1
     #: ``f``, the sets and the target do not depend on ``t`` (the solver then evaluates the sets once)
     time_invariant: bool = True
     #: per state axis, whether it is periodic (an angle): its period is the ``domain`` along it, ``[lo, hi)``.

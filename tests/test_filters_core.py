@@ -251,15 +251,17 @@ def test_certify_start_adds_only_starts_plans_to_certify(vfilter, pointmass_held
     x = np.random.default_rng(8).uniform([-15, 0], [15, 18], (3000, 2))
     ok, why, nxt = vfilter.certify(0.0, x, 0.06)
     ok2, why2, nxt2, plans = vfilter.certify_start(0.0, x, 0.06)
-    planned = plans[:, 0] >= 0
+    planned = plans[:, 0, 0] >= 0
     assert planned.any() and (ok2 == (ok | planned)).all() and not (ok & planned).any()
+    # the point mass holds one candidate only (Model.start_segments)
+    assert (plans[:, 1, 0] < 0).all()
     assert [w for w, p in zip(why2, planned) if not p] == [w for w, p in zip(why, planned) if not p]
     np.testing.assert_array_equal(nxt, nxt2)
     none = ValueFilter(pointmass_held_table, DT, start_periods=0)
     ok3, why3, _, plans3 = none.certify_start(0.0, x, 0.06)
-    assert (ok3 == ok).all() and why3 == why and (plans3[:, 0] < 0).all()
+    assert (ok3 == ok).all() and why3 == why and (plans3[:, :, 0] < 0).all()
     empty = vfilter.certify_start(0.0, np.zeros((0, 2)), 0.06)
-    assert empty[0].shape == (0,) and empty[0].dtype == bool and empty[3].shape == (0, 3)
+    assert empty[0].shape == (0,) and empty[0].dtype == bool and empty[3].shape == (0, 2, 3)
 
 
 def test_a_continuous_table_filters_but_certifies_nothing(pointmass_table):

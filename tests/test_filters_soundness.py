@@ -12,6 +12,7 @@ import gymnasium as gym
 import softreach.envs  # noqa: F401  (registers the environments)
 from softreach.filters import SafetyFilter, ValueFilter
 from softreach.filters.audit import POLICIES, Row, _policy, _wind, audit, run_episode
+from softreach.filters.plans import NO_PLAN, PLAN_LAND, advance_plan, start_plans
 from softreach.reach import get_model
 from softreach.reach.integrator import integrate_period
 
@@ -84,49 +85,68 @@ def test_wrapper_reports_certification_and_keeps_it(vf, pointmass_held_table):
     assert not info["certified"] and info["certified_reason"] == "not_in_set"
 
 
-def _planned_starts(vf, q, n, seed):
-    """Starts that no single period or cell certifies but a plan of their own does, with their plans."""
+def _planned_starts(vf, q, n, seed, segments=1):
+    """Starts that no single period or cell certifies but a plan of their own does (of ``segments`` held
+    candidates), with their plans."""
     lo, hi = (np.asarray(v, dtype=float) for v in vf.model.hard_box)
     x = np.random.default_rng(seed).uniform(lo, hi, (3000, len(lo)))
     ok, why, _, plans = vf.certify_start(0.0, x, q)
     one = vf.certify(0.0, x, q)[0]
-    planned = plans[:, 0] >= 0
+    planned = plans[:, 0, 0] >= 0
     # a plan is searched only where nothing else certifies, and certifies where it is found
     assert not (planned & one).any() and (ok == (one | planned)).all()
     assert all(why[i] == "certified" for i in np.nonzero(planned)[0])
-    return x[planned][:n], plans[planned][:n]
+    pick = planned & ((plans[:, 1, 0] >= 0) == (segments == 2))
+    return x[pick][:n], plans[pick][:n]
 
 
-def test_a_start_plan_holds_what_it_claims(vf):
-    """Held for its periods against winds that switch at random instants (RK4, not the enclosures it was proven
-    with), a start's plan keeps C1 and the budget and ends in the landing cells (or lands)."""
-    model, dt, q = vf.model, vf.dt, 0.06
-    starts, plans = _planned_starts(vf, q, 8, seed=4)
-    assert len(starts) >= 4
-    rng = np.random.default_rng(5)
+def _fly_start_plan(vf, x0, plan, q, rng, trials):
+    """Hold a start plan's segments in turn against winds that switch between their bounds at three random
+    instants of every period (RK4, not the enclosures it was proven with): every run keeps C1 and the budget and
+    ends in the landing cells or lands."""
+    model, dt = vf.model, vf.dt
     (b_lo,), (b_hi,) = model.disturbance_bounds
     # landing is checked where the environment checks it, at its sub-step ends
     checks = [dt * (i + 1) / vf.target_checks for i in range(vf.target_checks)]
-    for x0, (j, periods, _) in zip(starts, plans):
-        a = vf.lookahead.candidates[j]
-        for trial in range(6):
-            x, z, t, landed = list(map(float, x0)), q, 0.0, False
-            for _ in range(periods):
-                # the wind switches between its bounds at three random instants of every period
-                cuts = np.unique(np.r_[0.0, rng.uniform(0.0, dt, 3), checks])
-                for c0, c1 in zip(cuts[:-1], cuts[1:]):
-                    b = [b_lo if (trial + rng.integers(2)) % 2 else b_hi]
-                    x, cost, _, _ = integrate_period(model, t + c0, x, a, b, c1 - c0, 2, vf.eps, 1e-6)
-                    z -= cost
-                    assert float(model.hard_constraint(t + c1, x)) <= 0, (x0, j, periods, x)
-                    landed = c1 in checks and bool(model.landed(t + c1, x))
-                    if landed:
-                        break
-                t += dt
+    held = [vf.lookahead.candidates[j] for j, periods, _ in plan if j >= 0 for _ in range(periods)]
+    for trial in range(trials):
+        x, z, t, landed = list(map(float, x0)), q, 0.0, False
+        for a in held:
+            cuts = np.unique(np.r_[0.0, rng.uniform(0.0, dt, 3), checks])
+            for c0, c1 in zip(cuts[:-1], cuts[1:]):
+                b = [b_lo if (trial + rng.integers(2)) % 2 else b_hi]
+                x, cost, _, _ = integrate_period(model, t + c0, x, a, b, c1 - c0, 2, vf.eps, 1e-6)
+                z -= cost
+                assert float(model.hard_constraint(t + c1, x)) <= 0, (x0, plan, x)
+                landed = c1 in checks and bool(model.landed(t + c1, x))
                 if landed:
                     break
-            assert z >= -1e-9, (x0, j, periods, z)
-            assert landed or vf.landing_cells.contains(t, np.asarray(x)[None], z)[0], (x0, j, periods, x, z)
+            t += dt
+            if landed:
+                break
+        assert z >= -1e-9, (x0, plan, z)
+        assert landed or vf.landing_cells.contains(t, np.asarray(x)[None], z)[0], (x0, plan, x, z)
+
+
+def test_a_start_plan_holds_what_it_claims(vf):
+    """A start's plan of one held candidate: a plan one period shorter fails this (the run is not yet in the
+    cells)."""
+    q = 0.06
+    starts, plans = _planned_starts(vf, q, 8, seed=4)
+    assert len(starts) >= 4
+    rng = np.random.default_rng(5)
+    for x0, plan in zip(starts, plans):
+        _fly_start_plan(vf, x0, plan, q, rng, 6)
+
+
+def test_advance_plan_hands_over_the_second_segment_only_when_the_first_ran_its_course():
+    no = np.array(NO_PLAN)
+    following, done, second = np.array([3, 2, PLAN_LAND]), np.array([3, 0, PLAN_LAND]), np.array([1, 4, PLAN_LAND])
+    assert [list(v) for v in advance_plan(following, second)] == [list(following), list(second)]
+    assert [list(v) for v in advance_plan(done, second)] == [list(second), list(no)]
+    # an action passed: the filter dropped the plan, and the queued segment goes with it
+    assert [list(v) for v in advance_plan(no, second)] == [list(no), list(no)]
+    assert [list(v) for v in advance_plan(done, no)] == [list(done), list(no)]
 
 
 def test_audit_from_starts_certified_only_by_a_plan_of_their_own(vf):
@@ -152,7 +172,7 @@ def test_wrapper_hands_a_start_its_plan(vf):
     for i, (x0, plan) in enumerate(zip(starts, plans)):
         _, info = env.reset(seed=i, options={"state": x0.tolist(), "budget": 0.3})
         assert info["certified"] and info["certified_reason"] == "certified"
-        assert np.array_equal(info["plan"], plan)
+        assert np.array_equal(info["start_plan"], plan)
         done = False
         while not done:
             _, _, terminated, truncated, info = env.step(env.action_space.sample())
@@ -174,3 +194,42 @@ def test_glider_audit_from_certified_starts(glider_held_table):
     # and starts that only a plan of their own certifies
     assert sum(r.episodes for r in filtered if r.starts == "planned") >= 12
     assert sum(r.hard_violations + r.overspends for r in filtered) == 0, [r.failures for r in filtered]
+
+
+#: glider states that no single held angle from the state certifies at Q = 5 but two in sequence do (by the
+#: packaged cells; found by start_plans with every row searched for two segments)
+TWO_ANGLE_STARTS = [[9.292976274617553, 81.54197091844232, -0.045972736491441055],
+                    [27.12854258832444, 79.83644448574776, -0.023251856266032694],
+                    [2.149084544166346, 80.64672689737063, -0.037083543663666604],
+                    [1.7119242801694132, 80.85957148337502, -0.0029189124023140736]]
+
+
+def test_glider_start_plans_of_two_angles_in_sequence(glider_held_table):
+    """A plan may hold two angles in turn: flown against switching winds each keeps C1 and the budget and ends in
+    the landing cells, and filtered runs from such starts, the second segment handed over as the first ends, never
+    fail under adversarial winds."""
+    vf = ValueFilter(glider_held_table, 0.1, target_checks=get_model("glider").substeps)
+    q = 5.0
+    x = np.asarray(TWO_ANGLE_STARTS)
+    assert not vf.certify(0.0, x, q)[0].any()
+    plans = start_plans(vf, np.zeros(len(x)), x, np.full(len(x), q), vf.start_periods, np.ones(len(x), bool))
+    two = plans[:, 1, 0] >= 0
+    assert two.sum() >= 3, plans
+    # the numpy search finds the same plans
+    compiled, vf.compiled = vf.compiled, None
+    try:
+        np.testing.assert_array_equal(start_plans(vf, np.zeros(len(x)), x, np.full(len(x), q), vf.start_periods,
+                                                  np.ones(len(x), bool)), plans)
+    finally:
+        vf.compiled = compiled
+    rng = np.random.default_rng(10)
+    for x0, plan in zip(x[two], plans[two]):
+        assert plan[0, 1] >= 1 and plan[1, 1] >= 1
+        _fly_start_plan(vf, x0, plan, q, rng, 4)
+        for pname, wname in (("random", "switch_on_filter"), ("always_max", "worst_case"),
+                             ("anti_optimal", "switch_inside")):
+            row = Row(pname, wname, "planned", True)
+            out = run_episode(vf, vf, x0, q, _policy(pname, vf, rng), _wind(wname, vf, rng, 2), 2, 2, row, False,
+                              start_plan=plan)
+            assert not out["hard"] and out["budget_used"] <= q + 1e-9 and out["landed"], (x0, plan, pname, wname)
+            assert row.uncertified_steps == 0, (x0, plan, pname, wname)

@@ -18,7 +18,7 @@ from ..problem import Model
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
 COMPILED_IN = {"reach/dynamics.py": "a3005ba09203d03b", "reach/model_kernels.py": "7da879ea03b7ee80",
-               "reach/problem.py": "b1dc68ab25bba4b7", "reach/sets.py": "989c3e976e6eef70"}
+               "reach/problem.py": "bf0873d8c7c825b9", "reach/sets.py": "989c3e976e6eef70"}
 
 
 @dataclass(frozen=True)
