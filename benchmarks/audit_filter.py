@@ -14,7 +14,8 @@ Measures, for one table (``filters.core.ValueFilter`` at the table's control per
    states in each table's set that the filter certifies;
 3. latency: one decision (median of 200 calls, us) for a policy action that passes and for one the filter
    replaces, and a batch of 1,024 random states (median of 20 calls, ms), also on the numpy path where the
-   decision is compiled (median of 5);
+   decision is compiled (median of 5); and a reset's search for a start's own plan (``certify_start`` of one
+   start no period or cell certifies, median of up to 50);
 4. the audit (``filters.audit.audit``): start classes x policies x winds, with and without the filter, one line
    per row and totals per (start class, filtered);
 5. point mass only: the four starts of issue 10, each certified or not (and why) and run once.
@@ -184,6 +185,16 @@ def timings(vf: ValueFilter, q: float, seed: int) -> dict[str, Any]:
         out.update(state=xi.tolist(), pass_action=a_pass.tolist(), replaced_action=a_rep.tolist(),
                    single_pass_us=_median_time(lambda: vf.filter(0.0, xi, q, a_pass), 200) * 1e6,
                    single_replaced_us=_median_time(lambda: vf.filter(0.0, xi, q, a_rep), 200) * 1e6)
+    # a reset's search for a start's own plan, from starts that no period or cell certifies: all of them, and those
+    # the table puts in its set (where a model with two segments also searches two); one start a call
+    _, why, _ = vf.certify(0.0, x, q)
+    why = np.array(why)
+    for key, reasons in (("start_plan_search_ms", ("not_in_set", "no_certified_action")),
+                         ("start_plan_search_in_set_ms", ("no_certified_action",))):
+        pool = x[np.isin(why, reasons)][:51]
+        if len(pool) > 1:
+            starts = iter(pool)
+            out[key] = _median_time(lambda: vf.certify_start(0.0, next(starts), q), len(pool) - 1) * 1e3
     xb, ab = x[:1024], rng.uniform(vf.a_lo, vf.a_hi, size=(1024, vf.m))
     out["batch1024_ms"] = _median_time(lambda: vf.filter(0.0, xb, q, ab), 20) * 1e3
     if vf.compiled is not None:
@@ -308,6 +319,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                                         f"{tm['single_replaced_us']:.0f} us, " if "single_pass_us" in tm else "")
           + f"batch of 1024 {tm['batch1024_ms']:.2f} ms"
           + (f" (numpy path {tm['batch1024_numpy_ms']:.2f} ms)" if "batch1024_numpy_ms" in tm else ""))
+    if "start_plan_search_ms" in tm:
+        print(f"a reset from a start no period or cell certifies (certify_start, median of up to 50): "
+              f"{tm['start_plan_search_ms']:.1f} ms"
+              + (f", {tm['start_plan_search_in_set_ms']:.1f} ms from those in the table's set"
+                 if "start_plan_search_in_set_ms" in tm else ""))
 
     t0 = time.perf_counter()
     rows = audit(vf, budgets, starts_per_row=args.starts, kinds=args.kinds, policies=args.policies, winds=args.winds,
