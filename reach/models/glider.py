@@ -159,9 +159,9 @@ class Glider(GliderGame, GliderHeldEnclosure, Model):
         # cells gave 3-6 points for twice the memory (docs/filters.md, "The glider on cells")
         self.cell_shape = (164, 176, 36)
         self.cell_holds = (1, 2, 3, 4, 5, 6, 7, 8)
-        # a start's own plan may hold two angles in sequence: of 20,000 states uniform over C1 at Q = 5, 74 more are
-        # certified (1.2 % of the held table's set), for about 50 ms a reset from a start the table puts in its set
-        # and no single angle certifies; the point mass gains 1 state for 87 ms, and keeps one (docs/filters.md)
+        # a start's own plan may hold two angles in sequence: of 20,000 states uniform over C1 at Q = 5, 96 more are
+        # certified (1.5 % of the held table's set), for tens of milliseconds a reset from a start the table puts in
+        # its set and no single angle certifies; the point mass gains 1 state, and keeps one (docs/filters.md)
         self.start_segments = 2
         # nine angles of attack (1.625 deg apart) held for a period, not five: the cells then certify 5-6 % more
         # states at t = 0 (80 / 85 / 77 % of the continuous-time RA~_Q at Q = 0 / 5 / 10, against 76 / 80 / 73 %),
