@@ -213,12 +213,18 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
             reason[r] = _OUTSIDE
 
 
-@nb.njit(cache=True, inline="always")
-def _kept_box(kept, e_lo, e_hi):
-    """The period kept ``C1`` and the budget, and its end box is finite."""
+@nb.njit(cache=True)
+def _hold_period(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work):
+    """One period of ``a`` held from the box ``[lo, hi]`` at budget ``z``, by :func:`judge`: ``(passes, goes on,
+    z_end)``: whether it passes (or surely lands), and whether it kept ``C1`` and the budget with a finite end box,
+    which then replaces ``[lo, hi]``. Not inlined: the start-plan searches call it from two loops."""
+    ok, lands, _, _, kept, _, _, z_end, _ = judge(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work)
     for i in range(len(e_lo)):
         kept = kept and math.isfinite(e_lo[i]) and math.isfinite(e_hi[i])
-    return kept
+    if kept:
+        for i in range(len(e_lo)):
+            lo[i], hi[i] = e_lo[i], e_hi[i]
+    return ok or lands, kept, z_end
 
 
 @nb.njit(cache=True)
@@ -235,18 +241,15 @@ def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, 
         # after k periods held, does the candidate pass from the box they may have reached: a run of k + 1
         # periods, searched only while shorter than the best so far
         for k in range(min(periods, best - 1)):
-            ok, lands, _, _, kept, _, _, z_end, _ = judge(enclose, M, C, tt, lo, hi, zz, cands[j], e_lo, e_hi, work)
-            if ok or lands:
+            passes, goes, zz = _hold_period(enclose, M, C, tt, lo, hi, zz, cands[j], e_lo, e_hi, work)
+            if passes:
                 if k == 0 and from_state:
                     once = True
                 else:
                     best, best_j = k + 1, j
                 break
-            if not _kept_box(kept, e_lo, e_hi):
+            if not goes:
                 break
-            zz = z_end
-            for i in range(n):
-                lo[i], hi[i] = e_lo[i], e_hi[i]
             tt = tt + dt
         if once:
             break
@@ -285,13 +288,9 @@ def start_plan_rows(enclose, M, C, cands, periods, t, x, z, second, out, space):
                 c_lo[i], c_hi[i] = x[r, i], x[r, i]
             zz, tt = z[r], t[r]
             for k in range(1, min(periods, best1)):
-                _, _, _, _, kept, _, _, z_end, _ = judge(enclose, M, C, tt, c_lo, c_hi, zz, cands[j], c_elo, c_ehi,
-                                                         work)
-                if not _kept_box(kept, c_elo, c_ehi):
+                _, goes, zz = _hold_period(enclose, M, C, tt, c_lo, c_hi, zz, cands[j], c_elo, c_ehi, work)
+                if not goes:
                     break
-                zz = z_end
-                for i in range(n):
-                    c_lo[i], c_hi[i] = c_elo[i], c_ehi[i]
                 tt = tt + dt
                 j2, k2, _ = _segment_row(enclose, M, C, cands, periods - k, tt, c_lo, c_hi, zz, False, lo, hi, e_lo,
                                          e_hi, work)
