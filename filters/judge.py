@@ -6,6 +6,12 @@ for one row, in parts that :mod:`softreach.filters.compiled` calls only where th
 * :func:`_rank` and :func:`_tie` make the badness of an action that does not pass, by which the filter chooses
   where none does; :func:`badness` reads the table for it only where the choice can depend on it.
 
+A value over a box is read only where a cheaper bound cannot settle the choice: the interpolant at the box's lower
+corner, a point of the box maximum's own lattice computed by the same arithmetic (:func:`~softreach.reach.kernels.
+point_value`), is at most the maximum. A safe end whose corner is above 0 is not safe; a candidate whose least
+possible next value (or badness) lies above another's exact one is not the least (:func:`least_next`). The choice
+is the one of reading every value.
+
 Each mirrors the numpy method it names, with the same arithmetic in the same order.
 """
 
@@ -16,7 +22,7 @@ import math
 import numba as nb
 import numpy as np
 
-from softreach.reach.kernels import MAX_NODES, box_max_row, cover_row
+from softreach.reach.kernels import MAX_NODES, box_max_row, cover_row, point_value
 from softreach.reach.model_kernels import SET_INDEX, call_held_box, call_set_max
 
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
@@ -125,7 +131,64 @@ def next_value(T, t_next, end_lo, end_hi, z_end, z_hi, work):
 def _safe_end(T, t_next, end_lo, end_hi, work):
     """Whether the safe value ``V_safe`` (where the table has it) is at most 0 over a period's end box."""
     S, has_S = T[5], T[6]
-    return (not has_S) or box_max_row(S, t_next, end_lo, end_hi, MAX_NODES, work[7]) <= 0
+    if not has_S:
+        return True
+    # the value at the box's corner is at most the box's maximum (up to rounding, which the tolerance covers)
+    corner = point_value(S, t_next, end_lo, work[7][2], work[7][8])
+    if corner > _ROUNDING * max(1.0, abs(corner)):
+        return False
+    return box_max_row(S, t_next, end_lo, end_hi, MAX_NODES, work[7]) <= 0
+
+
+@nb.njit(cache=True, inline="always")
+def next_floor(T, t_next, end_lo, z_end, work):
+    """A lower bound of :func:`next_value` over the box from ``end_lo`` (``-inf`` where it has none): the
+    certificate at the box's lower corner and lowest budget, which the box maximum's lattice holds."""
+    W, z_floor, V, has_V = T[0], T[2], T[3], T[4]
+    point = work[4]
+    n = len(end_lo)
+    for i in range(n):
+        point[i] = end_lo[i]
+    point[n] = max(z_end, z_floor)
+    low = point_value(W, t_next, point, work[6][2], work[6][8])
+    if has_V and z_end >= 0:
+        low = min(low, point_value(V, t_next, end_lo, work[7][2], work[7][8]))
+    return -np.inf if math.isnan(low) else low
+
+
+#: relative tolerance of a bound that settles a choice: far above the rounding of the interpolation, far below any
+#: difference between values that decides
+_ROUNDING = 1e-9
+
+
+@nb.njit(cache=True)
+def least_next(T, t_next, end_lo, end_hi, z_hi, work, pick, c_next, c_zend, c_low):
+    """:func:`next_value` of the candidates ``pick`` (whose ``c_next`` is ``+inf``) where it can be the least of
+    theirs: in the order of their lower bounds (:func:`next_floor`), each read until the next bound lies above the
+    least read so far, while that least is below ``1e5``, where it wins any score (:mod:`softreach.filters.
+    compiled`). Each one not read gets its bound, above the least: the least, and which candidate has it, are those
+    of reading them all."""
+    J = len(pick)
+    # the least so far: of those not picked (one that surely lands has -inf)
+    least = np.inf
+    for k in range(J):
+        c_low[k] = next_floor(T, t_next, end_lo[k], c_zend[k], work) if pick[k] else np.inf
+        if not pick[k]:
+            least = min(least, c_next[k])
+    while True:
+        k = np.argmin(c_low)
+        # a bound of +inf: off the grid, where the value is +inf too, as c_next holds
+        if c_low[k] == np.inf:
+            return
+        bar = least + _ROUNDING * max(1.0, abs(least)) if least > -np.inf else -np.inf
+        if least < 1e5 and c_low[k] > bar:
+            for j in range(J):
+                if c_low[j] < np.inf:
+                    c_next[j] = c_low[j]
+            return
+        c_next[k] = next_value(T, t_next, end_lo[k], end_hi[k], c_zend[k], z_hi, work)
+        least = min(least, c_next[k])
+        c_low[k] = np.inf
 
 
 @nb.njit(cache=True, inline="always")
@@ -157,11 +220,32 @@ def keeps(enclose, M, C, T, cands, t, z, ok, nxt, end_lo, end_hi, z_end, kept, w
     if not (kept and not t + dt >= horizon - 1e-9 * max(1.0, horizon) and nxt > -np.inf):
         return False
     e_lo, e_hi = work_box[0], work_box[1]
+    z = max(z_end, 0.0)
     for j in range(cands.shape[0]):
-        ok, lands = judge(enclose, M, C, t + dt, end_lo, end_hi, max(z_end, 0.0), cands[j], e_lo, e_hi, work)[:2]
+        if not _may_pass(enclose, M, C, t + dt, end_lo, end_hi, z, cands[j], e_lo, e_hi, work):
+            continue
+        ok, lands = judge(enclose, M, C, t + dt, end_lo, end_hi, z, cands[j], e_lo, e_hi, work)[:2]
         if ok or lands:
             return True
     return False
+
+
+@nb.njit(cache=True, inline="always")
+def _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
+    """Whether :func:`judge` can find that ``a`` passes or surely lands, asked first as it costs a third of it:
+    it passes only where the landing cells cover its end box at the budget left, at most ``z`` (a cell that covers
+    at some budget covers at more), and it lands only where its motion meets the target."""
+    params, target_lo, target_hi, edges, horizon = M[0], M[4], M[5], M[6], M[8]
+    tube_lo, tube_hi = work[0], work[1]
+    dt = edges[len(edges) - 1]
+    call_held_box(enclose, params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
+    if cover_row(C[2], min(t + dt, horizon), end_lo, end_hi, z):
+        return True
+    call_held_box(enclose, params, x_lo, x_hi, a, edges[0], dt, tube_lo, tube_hi)
+    meets = True
+    for i in range(len(x_lo)):
+        meets = meets and tube_hi[i] >= target_lo[i] and tube_lo[i] <= target_hi[i]
+    return meets
 
 
 #: below this score no candidate that fails can be chosen: its badness is at least its best rank, 0.9e6, less half
@@ -171,12 +255,13 @@ LOWEST_BAD = 0.9e6 - 1.0
 
 @nb.njit(cache=True)
 def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend, keeps_j,
-             contest, c_bad, c_score):
+             contest, c_bad, c_score, c_low):
     """The badness and score of every candidate that fails (:meth:`Lookahead.assess`), the table read only where
     it can decide: a failing candidate is chosen only where ``contest`` (no other scores below
     :data:`LOWEST_BAD`), and then from the lowest rank; the smooth rule's failing candidate that keeps
     (``keeps_j``) is chosen, and its badness decides the safe plans. Every other failing one gets its rank alone,
-    at least ``1e5`` above the lowest rank's badness, so that the choice is the one the exact badness makes."""
+    at least ``1e5`` above the lowest rank's badness, so that the choice is the one the exact badness makes.
+    ``c_low``: work space of one float a candidate."""
     J = len(c_ok)
     if keeps_j >= 0 and not c_ok[keeps_j]:
         k = keeps_j
@@ -195,9 +280,25 @@ def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_prov
         is_safe = c_in[k] and (proven or not contest or _safe_end(T, t_next, end_lo[k], end_hi[k], work))
         c_bad[k] = _rank(c_bounded[k], c_in[k], c_proven[k], is_safe, c_kept[k], c_c1[k])
         lowest = min(lowest, c_bad[k])
+    # the lowest rank's ties, in the order of their lower bounds (next_floor), each read until the next bound lies
+    # above the least tie read: a tie not read gets its bound, above the least
     for k in range(J):
-        if c_ok[k] or k == keeps_j:
-            continue
-        if contest and c_in[k] and c_bad[k] == lowest:
-            c_bad[k] += _tie(next_value(T, t_next, end_lo[k], end_hi[k], c_zend[k], z_hi, work), c_zend[k])
-        c_score[k] = c_bad[k]
+        eligible = contest and not c_ok[k] and k != keeps_j and c_in[k] and c_bad[k] == lowest
+        c_low[k] = _tie(next_floor(T, t_next, end_lo[k], c_zend[k], work), c_zend[k]) if eligible else np.inf
+    least = np.inf
+    while True:
+        k = np.argmin(c_low)
+        if c_low[k] == np.inf:
+            break
+        if c_low[k] > least + _ROUNDING * max(1.0, abs(least)):
+            for j in range(J):
+                if c_low[j] < np.inf:
+                    c_bad[j] += c_low[j]
+            break
+        tie = _tie(next_value(T, t_next, end_lo[k], end_hi[k], c_zend[k], z_hi, work), c_zend[k])
+        c_bad[k] += tie
+        least = min(least, tie)
+        c_low[k] = np.inf
+    for k in range(J):
+        if not (c_ok[k] or k == keeps_j):
+            c_score[k] = c_bad[k]
