@@ -23,6 +23,9 @@ use). Each latency is the mean time per call over many calls, on fixed random in
   alone (``one_thread_*``: ``ValueFilter.threads = 1``) beside the default threads, at 256, 512 and 1,024 rows,
   where a batch is cut into blocks for them; and, for scale, the ``Table`` API calls the filter replaces
   (``Table.value`` + ``Table.optimal_control``).
+* **a row by what the decision finds** (``one_thread_row_*``, in one thread, per row): the rows of both batches of
+  1,024 where the policy's action passes, where a certified action replaces it, and where nothing is certified,
+  each kind decided as one batch.
 
 Then one ``step`` of ``PointMassLanding-v0``, bare and in ``SafetyFilter``: what the filter adds to a training step.
 
@@ -154,6 +157,20 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
         "table_api_batch1024_us": _per_call(lambda: (table.value(t, x, z), table.optimal_control(t, x, z)),
                                             20, repeats),
     }
+    # what a row costs by what the decision finds there, in one thread: the rows of the random and the certified
+    # batch where the policy's action passes, where it is replaced by a certified one, and where nothing is
+    # certified (per row: the time of the batch of those rows over their number)
+    kinds = {"passing": [], "replaced_certified": [], "uncertified": []}
+    for bt, bx, bz, ba in ((t, x, z, a), cert_batch):
+        _, info = one_thread.filter(bt, bx, bz, ba)
+        for kind, rows_k in (("passing", ~info["active"]), ("replaced_certified", info["active"] & info["certified"]),
+                             ("uncertified", ~info["certified"])):
+            kinds[kind].append(tuple(v[rows_k] for v in (bt, bx, bz, ba)))
+    for kind, parts in kinds.items():
+        rows_k = tuple(np.concatenate(v) for v in zip(*parts))
+        if len(rows_k[0]):
+            per = _per_call(lambda r=rows_k: one_thread.filter(*r), 5, repeats)
+            out[f"one_thread_row_{kind}_us"] = {k: v / len(rows_k[0]) for k, v in per.items()}
     try:
         import torch
 
