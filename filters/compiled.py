@@ -43,7 +43,7 @@ from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/blocks.py": "2b3dc14608793eb5", "filters/judge.py": "e06e06486c610670",
+COMPILED_IN = {"filters/blocks.py": "2b3dc14608793eb5", "filters/judge.py": "1b3fd3cbbdae12d0",
                "reach/borrowed.py": "8a1aa2defd267a3c", "reach/box_max.py": "b9d53e0e22521413",
                "reach/kernels.py": "78a9f41e4d767ed5", "reach/model_kernels.py": "7da879ea03b7ee80"}
 
@@ -59,7 +59,7 @@ def decision_space(n: int, m: int, J: int) -> tuple:
     return (work, (np.empty(n), np.empty(n)), np.empty((J + 1, n)), np.empty((J + 1, n)), np.empty(J, np.bool_),
             np.empty(J), np.empty(J), np.empty(J), np.empty(J, np.bool_), np.empty(J), np.empty(J), np.empty(J),
             np.empty(m), np.empty(n + 1), np.empty(J, np.bool_), np.empty(J, np.bool_), np.empty(J, np.bool_),
-            np.empty(J), np.empty(J, np.bool_), np.empty(J))
+            np.empty(J), np.empty(J, np.bool_), np.empty(J), np.empty(J))
 
 
 @nb.njit(cache=True, nogil=True)
@@ -80,7 +80,7 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
     safe, has_safe, land, safe_plan, land_plan = C[0], C[1], C[2], C[3], C[4]
     W, z_top, z_floor, V, has_V, S, has_S = T
     (work, work_box, end_lo, end_hi, c_ok, c_next, c_bad, c_zend, c_kept, c_score, c_dist, c_pref, act, point, c_in,
-     c_bounded, c_proven, c_c1, c_pick, c_low) = space
+     c_bounded, c_proven, c_c1, c_pick, c_low, c_tie) = space
     for r in range(N):
         tr, xr, zr = t[r], x[r], z[r]
         value[r] = (certificate_row(W, z_top, z_floor, V, has_V, tr, xr, zr, point, work[6], work[7]) if diagnostics
@@ -174,7 +174,7 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
                     continue
                 floor = min(floor, c_score[k])
             badness(T, t_next, end_lo, end_hi, zr, work, c_ok, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend,
-                     keeps_j, floor >= LOWEST_BAD, c_bad, c_score, c_low)
+                     keeps_j, floor >= LOWEST_BAD, c_bad, c_score, c_low, c_tie)
             best = np.argmin(c_score)
             best_next, best_bad = c_next[best], c_bad[best]
         if passed:

@@ -9,7 +9,7 @@ for one row, in parts that :mod:`softreach.filters.compiled` calls only where th
 A value over a box is read only where a cheaper bound cannot settle the choice: the interpolant at the box's lower
 corner, a point of the box maximum's own lattice computed by the same arithmetic (:func:`~softreach.reach.kernels.
 point_value`), is at most the maximum. A safe end whose corner is above 0 is not safe; a candidate whose least
-possible next value (or badness) lies above another's exact one is not the least (:func:`least_next`). The choice
+possible next value (or badness) lies above another's exact one is not the least (:func:`read_least`). The choice
 is the one of reading every value.
 
 Each mirrors the numpy method it names, with the same arithmetic in the same order.
@@ -162,33 +162,42 @@ _ROUNDING = 1e-9
 
 
 @nb.njit(cache=True)
-def least_next(T, t_next, end_lo, end_hi, z_hi, work, pick, c_next, c_zend, c_low):
-    """:func:`next_value` of the candidates ``pick`` (whose ``c_next`` is ``+inf``) where it can be the least of
-    theirs: in the order of their lower bounds (:func:`next_floor`), each read until the next bound lies above the
-    least read so far, while that least is below ``1e5``, where it wins any score (:mod:`softreach.filters.
-    compiled`). Each one not read gets its bound, above the least: the least, and which candidate has it, are those
-    of reading them all."""
-    J = len(pick)
-    # the least so far: of those not picked (one that surely lands has -inf)
-    least = np.inf
-    for k in range(J):
-        c_low[k] = next_floor(T, t_next, end_lo[k], c_zend[k], work) if pick[k] else np.inf
-        if not pick[k]:
-            least = min(least, c_next[k])
+def read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, below, ties, out):
+    """The candidates' next values (their ties, :func:`_tie`, where ``ties``) where only the least can decide: each
+    candidate with a finite lower bound ``c_low`` (``+inf``: none to read) is read in the order of the bounds, until
+    the next bound lies above the least so far (from ``least``), while that least is below ``below``. ``out`` gets
+    the value read, or the bound of one not read, which lies above the least: the least, and which candidate has
+    it, are those of reading them all. Leaves ``c_low`` at ``+inf``."""
+    J = len(c_low)
     while True:
         k = np.argmin(c_low)
-        # a bound of +inf: off the grid, where the value is +inf too, as c_next holds
         if c_low[k] == np.inf:
             return
         bar = least + _ROUNDING * max(1.0, abs(least)) if least > -np.inf else -np.inf
-        if least < 1e5 and c_low[k] > bar:
+        if least < below and c_low[k] > bar:
             for j in range(J):
                 if c_low[j] < np.inf:
-                    c_next[j] = c_low[j]
+                    out[j], c_low[j] = c_low[j], np.inf
             return
-        c_next[k] = next_value(T, t_next, end_lo[k], end_hi[k], c_zend[k], z_hi, work)
-        least = min(least, c_next[k])
+        value = next_value(T, t_next, end_lo[k], end_hi[k], c_zend[k], z_hi, work)
+        out[k] = _tie(value, c_zend[k]) if ties else value
+        least = min(least, out[k])
         c_low[k] = np.inf
+
+
+@nb.njit(cache=True)
+def least_next(T, t_next, end_lo, end_hi, z_hi, work, pick, c_next, c_zend, c_low):
+    """:func:`next_value` of the candidates ``pick`` (whose ``c_next`` is ``+inf``) where it can be the least of
+    theirs (:func:`read_least`), while the least is below ``1e5``, where it wins any score
+    (:mod:`softreach.filters.compiled`); each not read gets its lower bound, above the least. A candidate whose
+    bound is ``+inf`` is off the grid, where its value is ``+inf`` too, as ``c_next`` holds."""
+    # the least so far: of those not picked (one that surely lands has -inf)
+    least = np.inf
+    for k in range(len(pick)):
+        c_low[k] = next_floor(T, t_next, end_lo[k], c_zend[k], work) if pick[k] else np.inf
+        if not pick[k]:
+            least = min(least, c_next[k])
+    read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, 1e5, False, c_next)
 
 
 @nb.njit(cache=True, inline="always")
@@ -255,13 +264,13 @@ LOWEST_BAD = 0.9e6 - 1.0
 
 @nb.njit(cache=True)
 def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend, keeps_j,
-             contest, c_bad, c_score, c_low):
+             contest, c_bad, c_score, c_low, c_tie):
     """The badness and score of every candidate that fails (:meth:`Lookahead.assess`), the table read only where
     it can decide: a failing candidate is chosen only where ``contest`` (no other scores below
     :data:`LOWEST_BAD`), and then from the lowest rank; the smooth rule's failing candidate that keeps
     (``keeps_j``) is chosen, and its badness decides the safe plans. Every other failing one gets its rank alone,
     at least ``1e5`` above the lowest rank's badness, so that the choice is the one the exact badness makes.
-    ``c_low``: work space of one float a candidate."""
+    ``c_low``, ``c_tie``: work space of one float a candidate."""
     J = len(c_ok)
     if keeps_j >= 0 and not c_ok[keeps_j]:
         k = keeps_j
@@ -280,25 +289,14 @@ def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_prov
         is_safe = c_in[k] and (proven or not contest or _safe_end(T, t_next, end_lo[k], end_hi[k], work))
         c_bad[k] = _rank(c_bounded[k], c_in[k], c_proven[k], is_safe, c_kept[k], c_c1[k])
         lowest = min(lowest, c_bad[k])
-    # the lowest rank's ties, in the order of their lower bounds (next_floor), each read until the next bound lies
-    # above the least tie read: a tie not read gets its bound, above the least
+    # the lowest rank's ties, each read where it can be the least (read_least): a tie not read gets its lower
+    # bound, above the least
     for k in range(J):
         eligible = contest and not c_ok[k] and k != keeps_j and c_in[k] and c_bad[k] == lowest
         c_low[k] = _tie(next_floor(T, t_next, end_lo[k], c_zend[k], work), c_zend[k]) if eligible else np.inf
-    least = np.inf
-    while True:
-        k = np.argmin(c_low)
-        if c_low[k] == np.inf:
-            break
-        if c_low[k] > least + _ROUNDING * max(1.0, abs(least)):
-            for j in range(J):
-                if c_low[j] < np.inf:
-                    c_bad[j] += c_low[j]
-            break
-        tie = _tie(next_value(T, t_next, end_lo[k], end_hi[k], c_zend[k], z_hi, work), c_zend[k])
-        c_bad[k] += tie
-        least = min(least, tie)
-        c_low[k] = np.inf
+        c_tie[k] = 0.0
+    read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, np.inf, np.inf, True, c_tie)
     for k in range(J):
         if not (c_ok[k] or k == keeps_j):
+            c_bad[k] += c_tie[k]
             c_score[k] = c_bad[k]

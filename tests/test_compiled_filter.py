@@ -147,12 +147,13 @@ def test_badness_where_it_decides_is_the_numpy_badness(pointmass_held_table):
         for k in np.nonzero(~ok)[0]:
             got = np.full(J, np.nan)
             badness(fast.T, t_next, end_lo, end_hi, z[r], work, *columns, k, True, got, np.full(J, np.nan),
-                    np.empty(J))
+                    np.empty(J), np.empty(J))
             assert got[k] == bad[k], (r, k)
             exact += bool(in_c1[k])
         if not ok.any():
             got, score = np.full(J, np.nan), np.full(J, np.nan)
-            badness(fast.T, t_next, end_lo, end_hi, z[r], work, *columns, -1, True, got, score, np.empty(J))
+            badness(fast.T, t_next, end_lo, end_hi, z[r], work, *columns, -1, True, got, score, np.empty(J),
+                    np.empty(J))
             assert np.argmin(score) == np.argmin(bad) and score.min() >= LOWEST_BAD or bad.min() == np.inf, r
             # the chosen one's badness is exact, though others' ties may be left at their lower bounds
             assert score.min() == bad.min() or bad.min() == np.inf, r
