@@ -43,7 +43,7 @@ from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/blocks.py": "2b3dc14608793eb5", "filters/judge.py": "1b3fd3cbbdae12d0",
+COMPILED_IN = {"filters/blocks.py": "2b3dc14608793eb5", "filters/judge.py": "79b4994a280089cb",
                "reach/borrowed.py": "8a1aa2defd267a3c", "reach/box_max.py": "b9d53e0e22521413",
                "reach/kernels.py": "78a9f41e4d767ed5", "reach/model_kernels.py": "7da879ea03b7ee80"}
 

@@ -90,7 +90,9 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     for i in range(n):
         bounded = bounded and math.isfinite(tube_lo[i]) and math.isfinite(tube_hi[i])
     c1 = call_set_max(sets, set_params, _HARD, tube_lo, tube_hi)
-    z_end = z - _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi)
+    # a period whose whole box lies in C2 spends nothing: its pieces are charged only where it may leave C2
+    spends = not call_set_max(sets, set_params, _SOFT, tube_lo, tube_hi) <= 0
+    z_end = z - _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi) if spends else z
     t_next = t + dt
     in_time = t_next <= horizon + 1e-9 * max(1.0, horizon)
     t_next = min(t_next, horizon)

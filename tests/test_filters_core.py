@@ -62,6 +62,37 @@ def test_pointmass_pieces_cover_the_period():
     assert lo[0, 0, 0] < -10 and lo[-1, 0, 0] > -10
 
 
+def test_a_period_spends_budget_only_where_its_box_may_leave_c2(vfilter):
+    """The one-period test charges a period's pieces only where its whole box may leave ``C2``: inside, the budget
+    is kept to the bit; where it may leave, the pieces' charge. Both paths, on states on both sides of the soft
+    limit ``v = -10`` and far from it, at the budgets the decision uses."""
+    la = vfilter.lookahead
+    rng = np.random.default_rng(3)
+    x = np.c_[np.r_[rng.uniform(-10.8, -9.2, 300), rng.uniform(-14, 14, 300)], rng.uniform(1, 17, 600)]
+    a = rng.uniform(-60, 60, (600, 1))
+    z = rng.uniform(0.0, 0.6, 600)
+    t = np.zeros(600)
+    _, _, _, _, _, z_end, _ = la.assess(t, x, z, a, ends=True)
+    tube_lo, tube_hi, _, _ = la.model.held_enclosure(0.0, x, a, DT)
+    inside = la._corner_max(la.model.soft_constraint, t, tube_lo, tube_hi) <= 0
+    pieces = la.model.held_tube_pieces(t, x, a, DT, la.pieces)
+    charged = z - la._budget_spent(t, *pieces, DT)
+    assert inside.sum() > 200 and (~inside).sum() > 100 and (charged[~inside] < z[~inside]).sum() > 50
+    np.testing.assert_array_equal(z_end[inside], z[inside])
+    np.testing.assert_array_equal(z_end[~inside], charged[~inside])
+    # the point mass's pieces lie in its period's box, so inside it they are charged nothing either
+    np.testing.assert_array_equal(charged[inside], z[inside])
+    # and the compiled test keeps the same budget
+    from softreach.filters.compiled import decision_space
+    from softreach.filters.judge import judge
+
+    fast = vfilter.compiled
+    work = decision_space(la.n, 1, len(fast.cands))[0]
+    lo, hi = np.empty(la.n), np.empty(la.n)
+    got = [judge(fast.enclose, fast.M, fast.C, 0.0, x[r], x[r], z[r], a[r], lo, hi, work)[7] for r in range(600)]
+    np.testing.assert_array_equal(got, z_end)
+
+
 # ------------------------------------------------------------------------------------------ the box maximum
 def test_box_max_is_the_exact_maximum_of_the_interpolant(pointmass_held_table):
     table = pointmass_held_table
