@@ -43,9 +43,9 @@ from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/blocks.py": "2b3dc14608793eb5", "filters/judge.py": "8f0a1164687bdd50",
+COMPILED_IN = {"filters/blocks.py": "2b3dc14608793eb5", "filters/judge.py": "5627a96ad13f6189",
                "reach/borrowed.py": "8a1aa2defd267a3c", "reach/box_max.py": "b9d53e0e22521413",
-               "reach/kernels.py": "78a9f41e4d767ed5", "reach/model_kernels.py": "7da879ea03b7ee80"}
+               "reach/kernels.py": "7e7f2f0a12175aa7", "reach/model_kernels.py": "7da879ea03b7ee80"}
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7
@@ -78,7 +78,7 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
     N, n = x.shape
     J, m = cands.shape
     safe, has_safe, land, safe_plan, land_plan = C[0], C[1], C[2], C[3], C[4]
-    W, z_top, z_floor, V, has_V, S, has_S, _ = T
+    W, z_top, z_floor, V, has_V, S, has_S = T
     (work, work_box, end_lo, end_hi, c_ok, c_next, c_bad, c_zend, c_kept, c_score, c_dist, c_pref, act, point, c_in,
      c_bounded, c_proven, c_c1, c_pick, c_low, c_tie) = space
     for r in range(N):
@@ -342,9 +342,7 @@ class CompiledDecision:
         self.C = (some.kernel_args, safe is not None, land.kernel_args, some.plan_args, land.plan_args)
         W_args = la.table_args
         has_S = "V_safe" in la.fields
-        # whether V has a number at every node: then its corner bounds its maximum (judge.next_value)
-        v_finite = bool(W_args[4] and np.isfinite(W_args[3][0]).all())
-        self.T = W_args + ((kernel_field(*la.fields["V_safe"]) if has_S else W_args[3]), has_S, v_finite)
+        self.T = W_args + ((kernel_field(*la.fields["V_safe"]) if has_S else W_args[3]), has_S)
         self.cands = np.ascontiguousarray(la.candidates)
         self.fallback = np.asarray(vf.fallback_action, dtype=np.float64)
         self.no_plans = np.zeros((1, 3), np.int64)

@@ -28,14 +28,10 @@ from softreach.reach.model_kernels import SET_INDEX, call_held_box, call_set_max
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"reach/kernels.py": "78a9f41e4d767ed5", "reach/model_kernels.py": "7da879ea03b7ee80"}
+COMPILED_IN = {"reach/kernels.py": "7e7f2f0a12175aa7", "reach/model_kernels.py": "7da879ea03b7ee80"}
 
 # the sets' indices in the model's set-maximum kernel
 _TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_INDEX["soft_constraint"]
-
-#: relative tolerance of a bound that settles a choice: far above the rounding of the interpolation, far below any
-#: difference between values that decides
-_ROUNDING = 1e-9
 
 
 @nb.njit(cache=True, inline="always")
@@ -116,11 +112,8 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
 @nb.njit(cache=True, inline="always")
 def next_value(T, t_next, end_lo, end_hi, z_end, z_hi, work):
     """The worst certificate over a period's end box, the budget between ``z_end`` and ``z_hi`` (``+inf`` where
-    the table has no number): :meth:`Lookahead.assess`'s next value of an action whose motion keeps ``C1``.
-    ``min(W_eps, V)``: ``V`` over the box is read only where its value at the box's corner, at most its maximum,
-    does not already lie above ``W_eps``'s (where ``V`` has a number at every node, ``T[7]``), and not at all
-    where ``V`` cannot count (a negative budget) or ``W_eps`` has no number."""
-    W, z_top, z_floor, V, has_V, V_finite = T[0], T[1], T[2], T[3], T[4], T[7]
+    the table has no number): :meth:`Lookahead.assess`'s next value of an action whose motion keeps ``C1``."""
+    W, z_top, z_floor, V, has_V = T[0], T[1], T[2], T[3], T[4]
     box_lo, box_hi, scratch_W, scratch_V = work[4], work[5], work[6], work[7]
     n = len(end_lo)
     z_lo = max(z_end, z_floor)
@@ -128,11 +121,11 @@ def next_value(T, t_next, end_lo, end_hi, z_end, z_hi, work):
         box_lo[i], box_hi[i] = end_lo[i], end_hi[i]
     box_lo[n], box_hi[n] = z_lo, max(min(z_hi, z_top), z_lo)
     best = box_max_row(W, t_next, box_lo, box_hi, MAX_NODES, scratch_W)
-    if has_V and z_end >= 0 and not math.isnan(best):
-        corner = point_value(V, t_next, end_lo, scratch_V[2], scratch_V[8]) if V_finite else -np.inf
-        if not corner > best + _ROUNDING * max(1.0, abs(best)):
-            v = box_max_row(V, t_next, end_lo, end_hi, MAX_NODES, scratch_V)
-            best = np.nan if math.isnan(v) else min(best, v)
+    if has_V:
+        v = box_max_row(V, t_next, end_lo, end_hi, MAX_NODES, scratch_V)
+        if not z_end >= 0:
+            v = np.inf
+        best = np.nan if (math.isnan(v) or math.isnan(best)) else min(best, v)
     return np.inf if math.isnan(best) else best
 
 
@@ -163,6 +156,11 @@ def next_floor(T, t_next, end_lo, z_end, work):
     if has_V and z_end >= 0:
         low = min(low, point_value(V, t_next, end_lo, work[7][2], work[7][8]))
     return -np.inf if math.isnan(low) else low
+
+
+#: relative tolerance of a bound that settles a choice: far above the rounding of the interpolation, far below any
+#: difference between values that decides
+_ROUNDING = 1e-9
 
 
 @nb.njit(cache=True)

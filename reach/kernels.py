@@ -6,8 +6,8 @@ functions and the compiled decision (:mod:`softreach.filters.compiled`) call the
 box (:func:`softreach.reach.box_max.box_max`; the certificate at a state is the same with a box of no width), the
 cells' cover test and plans (:class:`~softreach.reach.cell_certificate.CellCertificate`); a model's own compiled
 functions are called through :mod:`softreach.reach.model_kernels`. Compiled code is cached on disk (numba's
-``cache=True``): the first process on a machine compiles it (about 26 s with the decision, docs/filters.md
-"Speed"), later ones load it. Small functions that are handed the filter's large tuples of arrays are inlined
+``cache=True``): the first process on a machine compiles it (with the decision; docs/filters.md
+"Speed" gives the time), later ones load it. Small functions that are handed the filter's large tuples of arrays are inlined
 (``inline="always"``): such a call costs more than their work. The box maximum's lattice is inlined into the box
 maximum, which halves the certificate's cost at a point; the box maximum itself is not inlined into its callers,
 which would triple the first compilation (57 s against 20 s)."""
