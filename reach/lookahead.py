@@ -265,8 +265,11 @@ class Lookahead:
             piece_lo = np.broadcast_to(tube_lo, (self.pieces,) + tube_lo.shape)
             piece_hi = np.broadcast_to(tube_hi, (self.pieces,) + tube_hi.shape)
         # a period whose whole box lies in C2 spends nothing: its pieces are charged only where it may leave C2
-        spends = ~(self._corner_max(self.model.soft_constraint, t, tube_lo, tube_hi) <= 0)
-        z_end = np.where(spends, z - self._budget_spent(t, piece_lo, piece_hi, self.dt), z)
+        spends = np.nonzero(~(self._corner_max(self.model.soft_constraint, t, tube_lo, tube_hi) <= 0))[0]
+        z_end = np.array(np.broadcast_to(z, (len(x),)), dtype=np.float64)
+        if len(spends):
+            t_s = t[spends] if np.ndim(t) else t
+            z_end[spends] -= self._budget_spent(t_s, piece_lo[:, spends], piece_hi[:, spends], self.dt)
         t_next = t + self.dt
         in_time = t_next <= self.horizon + 1e-9 * max(1.0, self.horizon)
         t_next = np.minimum(t_next, self.horizon)
