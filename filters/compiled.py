@@ -34,7 +34,8 @@ import numpy as np
 
 from softreach.reach.borrowed import borrowed
 from softreach.reach.box_max import kernel_field
-from softreach.reach.kernels import MAX_NODES, box_max_row, box_scratch, certificate_row, cover_row, plan_row
+from softreach.reach.kernels import (MAX_NODES, box_max_row, box_scratch, certificate_row, cover_row, frozen,
+                                    plan_row)
 from softreach.reach.model_kernels import held_box_address
 
 from .blocks import run_in_blocks
@@ -43,9 +44,9 @@ from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/blocks.py": "2b3dc14608793eb5", "filters/judge.py": "5627a96ad13f6189",
-               "reach/borrowed.py": "8a1aa2defd267a3c", "reach/box_max.py": "b9d53e0e22521413",
-               "reach/kernels.py": "7e7f2f0a12175aa7", "reach/model_kernels.py": "7da879ea03b7ee80"}
+COMPILED_IN = {"filters/blocks.py": "2b3dc14608793eb5", "filters/judge.py": "b4347329b2311521",
+               "reach/borrowed.py": "8a1aa2defd267a3c", "reach/box_max.py": "f112484a99c7d8c7",
+               "reach/kernels.py": "8de576e707f942df", "reach/model_kernels.py": "7da879ea03b7ee80"}
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7
@@ -343,9 +344,9 @@ class CompiledDecision:
         W_args = la.table_args
         has_S = "V_safe" in la.fields
         self.T = W_args + ((kernel_field(*la.fields["V_safe"]) if has_S else W_args[3]), has_S)
-        self.cands = np.ascontiguousarray(la.candidates)
-        self.fallback = np.asarray(vf.fallback_action, dtype=np.float64)
-        self.no_plans = np.zeros((1, 3), np.int64)
+        self.cands = frozen(np.ascontiguousarray(la.candidates, dtype=np.float64))
+        self.fallback = frozen(np.asarray(vf.fallback_action, dtype=np.float64))
+        self.no_plans = frozen(np.zeros((1, 3), np.int64))
         # one work space per thread: decide_rows writes into it
         self._local = threading.local()
 
@@ -368,8 +369,9 @@ class CompiledDecision:
         applied, chosen = np.empty((N, m)), np.empty((N, m))
         reason, new_plans = np.empty(N, np.int64), np.empty((N, 3), np.int64)
         value, nxt, certified, blend = np.empty(N), np.empty(N), np.empty(N, bool), np.empty(N)
-        # the enclosure reads rows by address: contiguous rows
-        t, x, z, pol = (np.ascontiguousarray(v, dtype=np.float64) for v in (t, x, z, pol))
+        # the enclosure reads rows by address: contiguous rows; read-only, whatever the caller's, for one signature
+        t, x, z, pol = (frozen(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z, pol))
+        plans = None if plans is None else frozen(np.ascontiguousarray(plans, dtype=np.int64))
         vf = self.filter
         outs = (applied, reason, value, nxt, certified, chosen, blend, new_plans)
         rows = (t, x, z, pol, self.no_plans if plans is None else plans) + outs
@@ -389,9 +391,9 @@ class CompiledDecision:
                     segments: int) -> np.ndarray:
         """:func:`start_plan_rows` for ``N`` rows: the ``(N, segments, 3)`` plans."""
         out = np.empty((len(x), segments, 3), np.int64)
-        t, x, z = (np.ascontiguousarray(v, dtype=np.float64) for v in (t, x, z))
+        t, x, z = (frozen(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z))
         start_plan_rows(self.enclose, self.M, self.C, self.cands, int(periods), t, x, z,
-                        np.ascontiguousarray(second, dtype=np.bool_), out, self._space())
+                        frozen(np.ascontiguousarray(second, dtype=np.bool_)), out, self._space())
         return out
 
     def __getstate__(self) -> dict:

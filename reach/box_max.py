@@ -9,7 +9,7 @@ import numpy as np
 
 from .grid import Grid
 from .interpolation import geometry
-from .kernels import box_max_rows
+from .kernels import box_max_rows, frozen
 
 
 def box_max(values: np.ndarray, times: np.ndarray, grid: Grid, t: np.ndarray, lo: np.ndarray,
@@ -41,5 +41,5 @@ def kernel_field(values: Any, times: Any, grid: Grid) -> tuple:
     """A field as the compiled loops read it (:mod:`softreach.reach.kernels`): its values ``(n_times, size)`` (a
     memory map stays mapped), its snapshot times and its grid."""
     g = geometry(grid)
-    return (np.asarray(values).reshape(len(times), -1), np.asarray(times, dtype=np.float64), g.shape, g.lo, g.hi,
-            g.h, g.inv_h, g.periodic)
+    return tuple(frozen(v) for v in (np.asarray(values).reshape(len(times), -1), np.asarray(times, dtype=np.float64),
+                                     g.shape, g.lo, g.hi, g.h, g.inv_h, g.periodic))

@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from .kernels import budget_floor_rows, cover_rows, plan_rows, step_rows
+from .kernels import budget_floor_rows, cover_rows, frozen, plan_rows, step_rows
 from .landing import lands_within, meets_target
 
 
@@ -112,12 +112,13 @@ class CellCertificate:
         self.key = dict(key)
         #: what the compiled cover test (:func:`softreach.reach.kernels.cover_row`) reads: one row of cells per
         #: sample time (a memory map stays mapped), the grid, and the game's clock and budget cells
-        self.kernel_args = (np.asarray(self.m).reshape(self.steps + 1, -1), np.asarray(self.shape, dtype=np.int64),
-                            self.lo, self.hi, self.width, self.dt, self.dz, self.top, self.steps, self.horizon,
+        self.kernel_args = (frozen(np.asarray(self.m).reshape(self.steps + 1, -1)),
+                            frozen(np.asarray(self.shape, dtype=np.int64)), frozen(self.lo), frozen(self.hi),
+                            frozen(self.width), self.dt, self.dz, self.top, self.steps, self.horizon,
                             self.game == "safe")
         #: the plans, one row of cells per sample time, as :func:`softreach.reach.kernels.plan_row` reads them
-        self.plan_args = (np.asarray(self.action).reshape(self.steps + 1, -1),
-                          np.asarray(self.hold).reshape(self.steps + 1, -1))
+        self.plan_args = (frozen(np.asarray(self.action).reshape(self.steps + 1, -1)),
+                          frozen(np.asarray(self.hold).reshape(self.steps + 1, -1)))
 
     # ---------------------------------------------------------------- building
     @classmethod

@@ -26,6 +26,15 @@ TOL = 1e-9
 MAX_NODES = 3
 
 
+def frozen(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a``. numba types an array by whether it is writable, and compiles a loop once per
+    type: the tables and cells reach the loops read-only, whether loaded (a read-only memory map) or made in this
+    process, so that each loop compiles once, not once per origin."""
+    view = np.asarray(a).view()
+    view.flags.writeable = False
+    return view
+
+
 @nb.njit(cache=True, inline="always")
 def snapshot(times, t):
     """``(k, wt)``: the snapshot interval ``[times[k], times[k + 1]]`` of ``t`` and the later snapshot's weight,

@@ -339,3 +339,31 @@ def test_borrowed_arrays_are_the_same_arrays():
     # a becomes (0, 7, 2); b's even entries 10 + 12 + 14; c.T[1, 0] is c[0, 1]
     assert use(a, (b, (c, 0.5))) == 9.0 + 36.0 - 1.0 + 0.5
     assert a[1] == 7.0 and c[0, 1] == -1.0
+
+
+def test_tables_and_inputs_made_in_this_process_reuse_the_compiled_decision(pointmass_held_table):
+    """numba compiles a loop once per argument type, and an array's type says whether it is writable: a loaded
+    table is a read-only memory map, one made in this process is writable, and so may be a caller's states. The
+    decision of a writable table, cells and inputs must not be a second compilation (tens of seconds) of the
+    same loop."""
+    from softreach.filters.compiled import decide_rows
+    from softreach.reach import load_table
+    from softreach.reach.cell_certificate import CellCertificate
+
+    t, x, z, a = _draws(50, 3)
+    loaded = ValueFilter(pointmass_held_table, pointmass_held_table.control_period)
+    expect, _ = loaded.filter(t, x, z, a)
+    compiled = len(decide_rows.signatures)
+    table = load_table(pointmass_held_table.path)
+    for name in ("W_eps", "V"):
+        table._arrays[name] = np.array(table.values(name))
+        assert table.values(name).flags.writeable
+    cells = loaded.landing_cells
+    land = CellCertificate(cells.lo, cells.hi, np.array(cells.m), np.array(cells.action), np.array(cells.hold),
+                           cells.candidates, cells.dt, cells.dz, cells.horizon, cells.game, cells.key)
+    made = ValueFilter(table, table.control_period, landing_cells=land, safe_cells=loaded.safe_cells)
+    frozen_x = x.copy()
+    frozen_x.flags.writeable = False
+    applied, _ = made.filter(t, frozen_x, z, a)
+    np.testing.assert_array_equal(applied, expect)
+    assert len(decide_rows.signatures) == compiled
