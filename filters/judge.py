@@ -199,7 +199,8 @@ def least_next(T, t_next, end_lo, end_hi, z_hi, work, pick, c_next, c_zend, c_lo
         c_low[k] = next_floor(T, t_next, end_lo[k], c_zend[k], work) if pick[k] else np.inf
         if not pick[k]:
             least = min(least, c_next[k])
-    read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, 1e5, False, c_next)
+    # np.bool_: a bare False is a literal type, and read_least would be compiled once for each literal
+    read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, 1e5, np.bool_(False), c_next)
 
 
 @nb.njit(cache=True, inline="always")
@@ -297,7 +298,7 @@ def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_prov
         eligible = contest and not c_ok[k] and k != keeps_j and c_in[k] and c_bad[k] == lowest
         c_low[k] = _tie(next_floor(T, t_next, end_lo[k], c_zend[k], work), c_zend[k]) if eligible else np.inf
         c_tie[k] = 0.0
-    read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, np.inf, np.inf, True, c_tie)
+    read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, np.inf, np.inf, np.bool_(True), c_tie)
     for k in range(J):
         if not (c_ok[k] or k == keeps_j):
             c_bad[k] += c_tie[k]
