@@ -46,33 +46,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
 
+from . import cell_game
 from .kernels import budget_floor_rows, cover_rows, frozen, plan_rows, step_rows
-from .landing import lands_within, meets_target
 
-
-class _LastPlans:
-    """The plans' geometry of the last build, for the other game on the same cells (it is the same: only ``T``
-    differs). One entry, handed out once: it is large."""
-
-    def __init__(self):
-        self._key, self._plans = None, None
-
-    @staticmethod
-    def _norm(key: dict[str, Any]) -> str:
-        return json.dumps({k: v for k, v in key.items() if k != "game"}, sort_keys=True)
-
-    def get(self, key: dict[str, Any]):
-        plans = self._plans if self._key == self._norm(key) else None
-        self._key, self._plans = None, None
-        return plans
-
-    def put(self, key: dict[str, Any], plans: Any) -> None:
-        self._key, self._plans = self._norm(key), plans
-
-
-_SHARED = _LastPlans()
 
 #: file format of :meth:`CellCertificate.save`
 FORMAT = "softreach-cell-certificate-1"
@@ -124,7 +101,8 @@ class CellCertificate:
     @classmethod
     def build(cls, lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe",
               holds: Any = (1,), span_cap: int = 32) -> "CellCertificate":
-        """Solve the cell game backwards from ``T`` for the look-ahead's model, period, ``h_eps`` and candidates.
+        """Solve the cell game backwards from ``T`` for the look-ahead's model, period, ``h_eps`` and candidates
+        (:func:`softreach.reach.cell_game.solve`).
 
         :param lookahead: a :class:`~softreach.reach.lookahead.Lookahead` (its enclosures and budget bound)
         :param shape: cells per state axis over the model's ``hard_box``
@@ -149,103 +127,7 @@ class CellCertificate:
         N = int(round(T / dt))
         if not math.isclose(N * dt, T, rel_tol=1e-9):
             raise ValueError(f"the horizon {T} s is not a whole number of periods {dt} s")
-        lo, hi = (np.asarray(b, dtype=np.float64) for b in model.hard_box)
-        idx = np.stack(np.meshgrid(*[np.arange(s) for s in shape], indexing="ij"), axis=-1).reshape(-1, len(shape))
-        width = (hi - lo) / np.asarray(shape)
-        cell_lo, cell_hi = lo + idx * width, lo + (idx + 1) * width
-        blank = np.zeros((1,) + shape, np.int8)
-        cells = cls(lo, hi, blank.astype(np.int16), blank, blank, la.candidates, dt, dz, T, game, {})
-        never, C = cells.never, len(idx)
-        m = np.empty((N + 1, C), np.int16)
-        action = np.full((N + 1, C), -1, np.int8)
-        hold = np.zeros((N + 1, C), np.int8)
-        inside = la._corner_max(model.hard_constraint, np.full(C, T), cell_lo, cell_hi) <= 0
-        m[N] = np.where(inside & (game == "safe"), 0, never)
-        plans = None
-        K_max = max(holds)
-        # minutes for a fine 3-d grid (the glider's): a bar on a terminal, nothing in logs (disable=None)
-        bar = tqdm(total=N + len(la.candidates), desc=f"{model.name} {game} cells", unit="step", disable=None,
-                   leave=False)
-        for k in range(N - 1, -1, -1):
-            if model.time_invariant and k + K_max + 1 <= N and all(
-                    np.array_equal(m[k + 1], m[k + 1 + d]) for d in range(1, K_max + 1)):
-                # the recursion reads the next K_max columns; they agree, so every earlier one is the same
-                m[:k + 1], action[:k + 1], hold[:k + 1] = m[k + 1], action[k + 1], hold[k + 1]
-                break
-            if plans is None or not model.time_invariant:
-                plans = _SHARED.get(key) if model.time_invariant else None
-                if plans is None:
-                    plans = []
-                    for j, a in enumerate(la.candidates):
-                        plans += [(j, K, g) for K, g in cells._plan_steps(la, k * dt, cell_lo, cell_hi, a, holds,
-                                                                          span_cap)]
-                        bar.update(1)
-                    if model.time_invariant:
-                        _SHARED.put(key, plans)
-            bar.update(1)
-            best = np.full(C, never, np.int64)
-            for j, K, (rows, spend, cols, starts, land_rows, land_need) in plans:
-                if k + K > N:
-                    continue
-                # landing inside the plan needs no later cell: its budget index does not change with k
-                for r, need in ((land_rows, land_need),
-                                (rows, cells._budget_index(spend, np.maximum.reduceat(m[k + K][cols], starts)
-                                                           if len(rows) else np.zeros(0, np.int64)))):
-                    better = need < best[r]
-                    r = r[better]
-                    best[r], action[k, r], hold[k, r] = need[better], j, K
-            m[k] = np.minimum(best, never)
-            action[k] = np.where(m[k] < never, action[k], -1)
-        bar.close()
-        return cls(lo, hi, m.reshape((N + 1,) + shape), action.reshape((N + 1,) + shape),
-                   hold.reshape((N + 1,) + shape), la.candidates, dt, dz, T, game, key)
-
-    def _plan_steps(self, la: Any, t0: float, lo: np.ndarray, hi: np.ndarray, a: np.ndarray, holds: tuple,
-                    span_cap: int):
-        """One candidate held from every cell for ``max(holds)`` periods, the boxes chained: per plan length
-        ``K`` in ``holds``, whether every period so far keeps ``C1``, the budget bound, the cells the end box
-        touches (and whether they are few enough to use), and whether every run surely lands by then."""
-        model, C = la.model, len(lo)
-        acts = np.broadcast_to(a, (C, len(a)))
-        ok, spend, lands = np.ones(C, bool), np.zeros(C), np.zeros(C, bool)
-        out = []
-        for p in range(1, max(holds) + 1):
-            t = np.full(C, t0 + (p - 1) * la.dt)
-            tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure_box(float(t[0]), lo, hi, acts, la.dt)
-            ok &= np.isfinite(tube_lo).all(axis=1) & np.isfinite(tube_hi).all(axis=1)
-            with np.errstate(invalid="ignore"):
-                ok &= la._corner_max(model.hard_constraint, t, tube_lo, tube_hi) <= 0
-                pieces = model.held_tube_pieces_box(float(t[0]), lo, hi, acts, la.dt, la.pieces)
-                spend = spend + np.nan_to_num(la._budget_spent(t, pieces[0], pieces[1], la.dt), nan=np.inf)
-            # landing needs only the budget spent until the landing instant, at most the plan's bound so far
-            rows = ok & ~lands & meets_target(la, np.nan_to_num(tube_lo), np.nan_to_num(tube_hi))
-            lands |= lands_within(la, t, lo, np.full(C, np.inf), acts, hi, rows)
-            lo, hi = np.where(ok[:, None], end_lo, lo), np.where(ok[:, None], end_hi, hi)
-            if p in holds:
-                first, last, on = self._cell_range(lo, hi)
-                rows = np.nonzero(ok & on & ((last - first + 1).prod(axis=1) <= span_cap))[0]
-                cols, starts = self._touched(first[rows], last[rows])
-                land_rows = np.nonzero(ok & lands)[0]
-                out.append((p, (rows, spend[rows], cols, starts, land_rows,
-                                self._budget_index(spend[land_rows], 0))))
-        return out
-
-    def _touched(self, first: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The flat indices of the cells ``first..last`` of every row, concatenated, and where each row's start:
-        ``np.maximum.reduceat(field.ravel()[cols], starts)`` is then every row's largest value."""
-        if len(first) == 0:
-            return np.zeros(0, np.int32), np.zeros(0, np.int64)
-        span = last - first + 1
-        count = span.prod(axis=1)
-        starts = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
-        row = np.repeat(np.arange(len(first)), count)
-        local = np.arange(int(count.sum())) - np.repeat(starts, count)
-        flat = np.zeros(len(local), np.int64)
-        for d in range(len(self.shape)):
-            # mixed radix over the row's own spans, the last axis fastest
-            stride = span[:, d + 1:].prod(axis=1)[row]
-            flat = flat * self.shape[d] + first[row, d] + (local // stride) % span[row, d]
-        return flat.astype(np.int32), starts
+        return cell_game.solve(cls, la, key)
 
     # ---------------------------------------------------------------- cell arithmetic
     def _cell_range(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
