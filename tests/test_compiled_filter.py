@@ -367,3 +367,26 @@ def test_tables_and_inputs_made_in_this_process_reuse_the_compiled_decision(poin
     applied, _ = made.filter(t, frozen_x, z, a)
     np.testing.assert_array_equal(applied, expect)
     assert len(decide_rows.signatures) == compiled
+
+
+def test_softreach_compile_leaves_the_decision_in_numbas_cache(pointmass_held_table, dubins_held_table, capsys,
+                                                               monkeypatch):
+    """``softreach compile TABLE`` runs both compiled entry points (a decision, a start-plan search), and what they
+    run is in numba's on-disk cache, where the next process finds it (``load_overload`` reads the cache files, not
+    this process's code); a model without a compiled enclosure says that it has nothing to compile."""
+    from softreach.cli import main
+    from softreach.filters.compiled import CompiledDecision, decide_rows, start_plan_rows
+
+    calls = []
+    for name in ("__call__", "start_plans"):
+        real = getattr(CompiledDecision, name)
+        monkeypatch.setattr(CompiledDecision, name,
+                            lambda self, *a, _real=real, _name=name, **k: calls.append(_name) or _real(self, *a, **k))
+    assert main(["compile", str(pointmass_held_table.path), str(dubins_held_table.path)]) == 0
+    assert sorted(set(calls)) == ["__call__", "start_plans"]
+    out = capsys.readouterr().out.splitlines()
+    assert "pointmass's filter" in out[0] and str(decide_rows.stats.cache_path) in out[0]
+    assert "dubins's filter decides in numpy" in out[1]
+    for kernel in (decide_rows, start_plan_rows):
+        assert kernel.signatures
+        assert all(kernel._cache.load_overload(sig, kernel.targetctx) is not None for sig in kernel.signatures)

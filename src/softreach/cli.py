@@ -1,5 +1,5 @@
-"""The ``softreach`` command line: ``solve``, ``plot``, ``study`` (and ``train``, ``evaluate``, ``demo`` where
-installed)."""
+"""The ``softreach`` command line: ``solve``, ``plot``, ``study``, ``compile`` (and ``train``, ``evaluate``,
+``demo`` where installed)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,9 @@ def build_parser() -> argparse.ArgumentParser:
     from softreach.reach.commands import add_commands
 
     add_commands(sub)
+    from softreach.filters.precompile import add_commands as add_filter_commands
+
+    add_filter_commands(sub)
     try:  # the RL commands live with the agents package
         from softreach.agents.commands import add_commands as add_agent_commands
     except ImportError:

@@ -1,0 +1,85 @@
+"""The filter's compiled decision, compiled ahead of its first use: ``softreach compile TABLE``.
+
+The first decision a machine makes compiles :mod:`softreach.filters.compiled` (about 40 s, docs/filters.md
+"Speed") into numba's on-disk cache, which every later process loads in a fraction of a second. Made on purpose,
+that first decision does not stall an episode, and environment processes started together (a vector of
+environments, an SB3 ``SubprocVecEnv``) do not each compile it at once. One table of each model and period is
+enough: every table of the same value type (``float32`` or ``float64``) shares the compiled decision, and each
+model adds its own enclosure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any
+
+import numpy as np
+
+
+def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
+    """Make one decision and one start-plan search of the filter the environment wraps around ``table``.
+
+    :param table: a :class:`~softreach.reach.table.Table` (or its path)
+    :param period: the control period [s] (default: the table's)
+    :return: ``model``, ``compiled`` (whether the model's filter has a compiled decision at all), ``seconds``,
+        ``source`` (``"compiled"`` now, loaded from the ``"cache"``, or already in this ``"process"``) and
+        ``cache`` (numba's cache folder)
+    """
+    from softreach.reach import load_table
+
+    from . import ValueFilter
+    from .compiled import decide_rows, start_plan_rows
+    from .plans import START_SEGMENTS
+
+    if not hasattr(table, "model"):
+        table = load_table(table)
+    model = table.model
+    dt = float(period if period is not None else table.control_period)
+    hits, misses = (sum(c.values()) for c in (decide_rows.stats.cache_hits, decide_rows.stats.cache_misses))
+    t0 = time.perf_counter()
+    # the landing checks SafetyFilter asks for: the same compiled code as any other count, and cells it ships
+    vf = ValueFilter(table, dt, target_checks=getattr(model, "substeps", 1))
+    out: dict[str, Any] = {"model": model.name, "compiled": vf.compiled is not None, "seconds": 0.0,
+                           "source": None, "cache": None}
+    if vf.compiled is None:
+        return out
+    # a state in the middle of the table's grid; what the decision finds there does not matter
+    grid = table.grid("W_eps")
+    x = 0.5 * (np.asarray(grid.lo[:model.state_dim]) + np.asarray(grid.hi[:model.state_dim]))
+    vf.filter(0.0, x, 0.0, vf.fallback_action)
+    vf.compiled.start_plans(np.zeros(1), x[None], np.zeros(1), 1, np.ones(1, bool), START_SEGMENTS)
+    out["seconds"] = time.perf_counter() - t0  # the filter's construction with its first decision
+    # compiled now, loaded from the cache, or already in this process
+    out["source"] = ("compiled" if sum(decide_rows.stats.cache_misses.values()) > misses else
+                     "cache" if sum(decide_rows.stats.cache_hits.values()) > hits else "process")
+    out["cache"] = decide_rows.stats.cache_path
+    if not (decide_rows.signatures and start_plan_rows.signatures):
+        raise RuntimeError(f"{model.name}: the filter made a decision without its compiled code")
+    return out
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """Register ``compile`` on the ``softreach`` parser's subparsers."""
+    p = sub.add_parser("compile", help="compile the safety filter's decision ahead of its first use",
+                       description="Compile the safety filter's decision into numba's on-disk cache (about 40 s "
+                                   "once per machine), so that no later process compiles it at its first decision: "
+                                   "before an episode, a vector of environments or an SB3 SubprocVecEnv starts. One "
+                                   "table of each model is enough.")
+    p.add_argument("tables", nargs="+", metavar="TABLE", help="table files (one per model and period is enough)")
+    p.add_argument("--period", type=float, default=None, help="control period [s] (default: each table's)")
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    for path in args.tables:
+        r = precompile(path, args.period)
+        if not r["compiled"]:
+            print(f"{path}: {r['model']}'s filter decides in numpy (the model has no compiled enclosure): "
+                  f"nothing to compile")
+        elif r["source"] == "compiled":
+            print(f"{path}: {r['model']}'s filter compiled in {r['seconds']:.1f} s, cached in {r['cache']}")
+        else:
+            print(f"{path}: {r['model']}'s filter was already compiled (numba's cache: {r['cache']}); its first "
+                  f"decision took {r['seconds']:.1f} s")
+    return 0
