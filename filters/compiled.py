@@ -321,6 +321,14 @@ def _on_table(W, t, x, z, point, work):
     return math.isfinite(box_max_row(W, t, point, point, MAX_NODES, work[6]))
 
 
+def _writable(v: np.ndarray) -> np.ndarray:
+    """``v``, or a copy where it is read-only. numba types an array by whether it is writable and compiles a loop
+    once per type: the caller's rows reach the loops writable (tables and cells read-only,
+    :func:`~softreach.reach.kernels.frozen`), for one compilation. A copy costs only the rare read-only input; a
+    read-only view of every input would cost every call."""
+    return v if v.flags.writeable else v.copy()
+
+
 class CompiledDecision:
     """:func:`decide_rows` bound to one filter (build it with :meth:`for_filter`)."""
 
@@ -346,7 +354,7 @@ class CompiledDecision:
         self.T = W_args + ((kernel_field(*la.fields["V_safe"]) if has_S else W_args[3]), has_S)
         self.cands = frozen(np.ascontiguousarray(la.candidates, dtype=np.float64))
         self.fallback = frozen(np.asarray(vf.fallback_action, dtype=np.float64))
-        self.no_plans = frozen(np.zeros((1, 3), np.int64))
+        self.no_plans = np.zeros((1, 3), np.int64)
         # one work space per thread: decide_rows writes into it
         self._local = threading.local()
 
@@ -369,9 +377,9 @@ class CompiledDecision:
         applied, chosen = np.empty((N, m)), np.empty((N, m))
         reason, new_plans = np.empty(N, np.int64), np.empty((N, 3), np.int64)
         value, nxt, certified, blend = np.empty(N), np.empty(N), np.empty(N, bool), np.empty(N)
-        # the enclosure reads rows by address: contiguous rows; read-only, whatever the caller's, for one signature
-        t, x, z, pol = (frozen(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z, pol))
-        plans = None if plans is None else frozen(np.ascontiguousarray(plans, dtype=np.int64))
+        # the enclosure reads rows by address: contiguous rows
+        t, x, z, pol = (_writable(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z, pol))
+        plans = None if plans is None else _writable(np.ascontiguousarray(plans, dtype=np.int64))
         vf = self.filter
         outs = (applied, reason, value, nxt, certified, chosen, blend, new_plans)
         rows = (t, x, z, pol, self.no_plans if plans is None else plans) + outs
@@ -391,9 +399,9 @@ class CompiledDecision:
                     segments: int) -> np.ndarray:
         """:func:`start_plan_rows` for ``N`` rows: the ``(N, segments, 3)`` plans."""
         out = np.empty((len(x), segments, 3), np.int64)
-        t, x, z = (frozen(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z))
+        t, x, z = (_writable(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z))
         start_plan_rows(self.enclose, self.M, self.C, self.cands, int(periods), t, x, z,
-                        frozen(np.ascontiguousarray(second, dtype=np.bool_)), out, self._space())
+                        _writable(np.ascontiguousarray(second, dtype=np.bool_)), out, self._space())
         return out
 
     def __getstate__(self) -> dict:
