@@ -45,7 +45,7 @@ from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
 COMPILED_IN = {"filters/blocks.py": "2b3dc14608793eb5", "filters/judge.py": "c053ebd483767245",
-               "reach/borrowed.py": "8a1aa2defd267a3c", "reach/box_max.py": "f112484a99c7d8c7",
+               "reach/borrowed.py": "8a1aa2defd267a3c", "reach/box_max.py": "f058385850b25249",
                "reach/kernels.py": "8de576e707f942df", "reach/model_kernels.py": "7da879ea03b7ee80"}
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)

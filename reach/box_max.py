@@ -41,5 +41,6 @@ def kernel_field(values: Any, times: Any, grid: Grid) -> tuple:
     """A field as the compiled loops read it (:mod:`softreach.reach.kernels`): its values ``(n_times, size)`` (a
     memory map stays mapped), its snapshot times and its grid."""
     g = geometry(grid)
-    return tuple(frozen(v) for v in (np.asarray(values).reshape(len(times), -1), np.asarray(times, dtype=np.float64),
-                                     g.shape, g.lo, g.hi, g.h, g.inv_h, g.periodic))
+    # values and times come loaded (read-only) or made here (writable): read-only views, for one compilation
+    return (frozen(np.asarray(values).reshape(len(times), -1)), frozen(np.asarray(times, dtype=np.float64)), g.shape,
+            g.lo, g.hi, g.h, g.inv_h, g.periodic)
