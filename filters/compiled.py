@@ -32,21 +32,21 @@ from typing import Any
 import numba as nb
 import numpy as np
 
+from softreach.reach.blocks import run_in_blocks
 from softreach.reach.borrowed import borrowed
 from softreach.reach.box_max import kernel_field
 from softreach.reach.kernels import (MAX_NODES, box_max_row, box_scratch, certificate_row, cover_row, frozen,
                                     plan_row)
 from softreach.reach.model_kernels import held_box_address
 
-from .blocks import run_in_blocks
 from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value
 
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/blocks.py": "2b3dc14608793eb5", "filters/judge.py": "c053ebd483767245",
+COMPILED_IN = {"filters/judge.py": "7a8a8919d9470456", "reach/blocks.py": "8331d57ef575b91a",
                "reach/borrowed.py": "8a1aa2defd267a3c", "reach/box_max.py": "f058385850b25249",
-               "reach/kernels.py": "8de576e707f942df", "reach/model_kernels.py": "7da879ea03b7ee80"}
+               "reach/kernels.py": "8de576e707f942df", "reach/model_kernels.py": "dfbe9a4c3bb327f4"}
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7

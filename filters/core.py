@@ -38,10 +38,9 @@ from typing import Any
 import numpy as np
 
 from softreach.reach import Table, TableError
-
+from softreach.reach.blocks import default_threads
 from softreach.reach.lookahead import Lookahead
 
-from .blocks import default_threads
 from .compiled import CompiledDecision
 from .plans import (NO_PLAN, PLAN_LAND, PLAN_SAFE, START_SEGMENTS, check_plans, follow_plans, resolve_cells,
                     start_plans)

@@ -18,7 +18,16 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
+from .blocks import default_threads, run_in_blocks
+
+# numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
+# start of its sha256, so that a change there changes this file and numba compiles it afresh
+# (tests/test_numba_cache.py)
+COMPILED_IN = {"reach/blocks.py": "8331d57ef575b91a"}
+
 _P = types.CPointer(types.float64)
+#: the fewest rows an enclosure thread takes: a row costs 0.1 to 0.5 us, handing a block to a thread about 50 us
+ENCLOSE_MIN_ROWS = 4096
 #: the C signature of :func:`held_box_address`'s callbacks: ``(params, x_lo, x_hi, a, s0, s1, lo, hi)``
 HELD_BOX_SIGNATURE = types.void(_P, _P, _P, _P, types.float64, types.float64, _P, _P)
 _CALLBACKS: dict[Any, Any] = {}
@@ -62,7 +71,7 @@ def call_held_box(typingctx, address, params, x_lo, x_hi, a, s0, s1, lo, hi):
     return types.void(address, params, x_lo, x_hi, a, s0, s1, lo, hi), _call_by_address(None)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def held_box_rows(address, params, x_lo, x_hi, a, s0, s1, lo, hi):
     """:func:`call_held_box` for every row (2-d C-contiguous arrays, and ``s0``, ``s1`` one time per row)."""
     for r in range(x_lo.shape[0]):
@@ -86,9 +95,12 @@ def held_boxes(model: Any, x_lo: Any, x_hi: Any, a: Any, s0: Any, s1: Any) -> tu
 
     size = int(np.prod(shape))
     lo, hi = np.empty((size, n)), np.empty((size, n))
-    held_box_rows(held_box_address(model), np.ascontiguousarray(model.held_box_params, dtype=np.float64),
-                  rows(x_lo, n), rows(x_hi, n), rows(a, m), rows(np.asarray(s0, dtype=np.float64)[..., None], 1)[:, 0],
-                  rows(np.asarray(s1, dtype=np.float64)[..., None], 1)[:, 0], lo, hi)
+    address, params = held_box_address(model), np.ascontiguousarray(model.held_box_params, dtype=np.float64)
+    args = (rows(x_lo, n), rows(x_hi, n), rows(a, m), rows(np.asarray(s0, dtype=np.float64)[..., None], 1)[:, 0],
+            rows(np.asarray(s1, dtype=np.float64)[..., None], 1)[:, 0], lo, hi)
+    # the rows are independent and the loop releases the GIL: a large batch (a cell solve's) in blocks, one a thread
+    run_in_blocks(lambda i, j: held_box_rows(address, params, *(v[i:j] for v in args)), size, default_threads(),
+                  ENCLOSE_MIN_ROWS)
     return lo.reshape(shape + (n,)), hi.reshape(shape + (n,))
 
 

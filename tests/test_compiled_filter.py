@@ -162,7 +162,7 @@ def test_badness_where_it_decides_is_the_numpy_badness(pointmass_held_table):
 
 
 def test_blocks_cover_every_row_once_and_raise_a_blocks_error():
-    from softreach.filters.blocks import PARALLEL_MIN_ROWS, run_in_blocks
+    from softreach.reach.blocks import PARALLEL_MIN_ROWS, run_in_blocks
 
     for rows, threads, blocks in ((10, 4, 1), (2 * PARALLEL_MIN_ROWS - 1, 4, 1), (5 * PARALLEL_MIN_ROWS, 3, 3)):
         seen = []
@@ -185,7 +185,7 @@ def test_blocks_cover_every_row_once_and_raise_a_blocks_error():
 def test_threads_decide_as_one_thread(pointmass_held_table):
     """A batch cut into blocks for several threads (uneven block sizes, plans fed back, with and without the
     diagnostics) gives every row exactly what one thread gives it."""
-    from softreach.filters.blocks import PARALLEL_MIN_ROWS
+    from softreach.reach.blocks import PARALLEL_MIN_ROWS
 
     one, many = ValueFilter(pointmass_held_table, 0.01), ValueFilter(pointmass_held_table, 0.01)
     one.threads, many.threads = 1, 3

@@ -218,6 +218,30 @@ def test_a_rate_of_one_sign_keeps_the_start_exactly(model: Glider, dt: float):
     assert trim_end["const+"] > 62.0 > trim_end["const-"]
 
 
+def test_a_large_batch_in_threads_is_the_batch_row_by_row(model: Glider, monkeypatch):
+    """A batch of more than :data:`~softreach.reach.model_kernels.ENCLOSE_MIN_ROWS` rows per thread is enclosed in
+    blocks, one a thread (``held_boxes``): every row's box is the one a single loop over the rows gives, bit for
+    bit, and a row whose enclosure fails is NaN in both."""
+    from softreach.reach import model_kernels
+
+    rng = np.random.default_rng(3)
+    x, a = random_inputs(model, rng, 2 * model_kernels.ENCLOSE_MIN_ROWS + 7)
+    hi = x + 0.01
+    x[5, 1] = 2.0  # from 2 m/s up: the period's motion reaches V <= 0, no enclosure
+    real, calls = model_kernels.held_box_rows, []
+    monkeypatch.setattr(model_kernels, "held_box_rows", lambda *args: calls.append(len(args[2])) or real(*args))
+    monkeypatch.setattr(model_kernels, "default_threads", lambda: 2)
+    threaded = model.held_enclosure_box(0.0, x, hi, a, 0.1)
+    assert sorted(calls[:2]) == [len(x) // 2, len(x) - len(x) // 2]
+    monkeypatch.setattr(model_kernels, "default_threads", lambda: 1)
+    calls.clear()
+    single = model.held_enclosure_box(0.0, x, hi, a, 0.1)
+    assert calls[0] == len(x)
+    for got, expect in zip(threaded, single):
+        np.testing.assert_array_equal(got, expect)
+    assert np.isnan(single[0][5]).all() and np.isfinite(np.delete(single[0], 5, axis=0)).all()
+
+
 def test_empty_batch(model: Glider):
     out = model.held_enclosure(0.0, np.empty((0, 3)), np.empty((0, 1)), 0.1)
     assert all(o.shape == (0, 3) for o in out)

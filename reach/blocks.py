@@ -1,7 +1,8 @@
-"""Rows decided in blocks, one per thread.
+"""Rows computed in blocks, one per thread.
 
-The filter decides every row of a batch independently, and its compiled decision releases the GIL
-(:mod:`softreach.filters.compiled`), so a large batch can be cut into blocks of rows that threads decide at once.
+The filter decides every row of a batch independently, and so does a model's enclosure of each row; their compiled
+loops release the GIL (:mod:`softreach.filters.compiled`, :func:`softreach.reach.model_kernels.held_boxes`), so a
+large batch can be cut into blocks of rows that threads compute at once.
 """
 
 from __future__ import annotations
@@ -33,9 +34,10 @@ def _pool(workers: int) -> ThreadPoolExecutor:
     return pool
 
 
-def run_in_blocks(run: Callable[[int, int], None], rows: int, threads: int) -> None:
+def run_in_blocks(run: Callable[[int, int], None], rows: int, threads: int, min_rows: int = PARALLEL_MIN_ROWS
+                  ) -> None:
     """Call ``run(lo, hi)`` on consecutive blocks covering ``range(rows)``: one block per thread, as many threads as
-    ``threads`` allows with at least :data:`PARALLEL_MIN_ROWS` rows each; the calling thread takes the first block.
+    ``threads`` allows with at least ``min_rows`` rows each; the calling thread takes the first block.
     An exception of any block is raised here, once every block has ended.
 
     :param run: decides the rows ``lo`` to ``hi - 1``; it must release the GIL for the blocks to overlap
@@ -45,7 +47,7 @@ def run_in_blocks(run: Callable[[int, int], None], rows: int, threads: int) -> N
     """
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
         raise ValueError(f"threads must be a whole number of at least 1, got {threads!r}")
-    k = max(1, min(int(threads), rows // PARALLEL_MIN_ROWS))
+    k = max(1, min(int(threads), rows // min_rows))
     cuts = [rows * i // k for i in range(k + 1)]
     others = [_pool(k - 1).submit(run, cuts[i], cuts[i + 1]) for i in range(1, k)]
     try:
