@@ -137,11 +137,13 @@ def recheck(cells: Any, lookahead: Any, flat: Any) -> tuple[np.ndarray, np.ndarr
 
     :raises ValueError: the look-ahead is not the one the certificate was built for
     """
-    from .cell_certificate import cell_key
+    from .cell_certificate import cell_key  # (that module imports this one)
 
     key = cells.key
-    if cell_key(lookahead, key["shape"], key["dz"], key["game"], key["holds"], key["span_cap"]) != key:
-        raise ValueError("the look-ahead's model, period, candidates or budget bound are not the certificate's")
+    asked = cell_key(lookahead, key["shape"], key["dz"], key["game"], key["holds"], key["span_cap"])
+    if asked != key:
+        differ = {k: (asked.get(k), key.get(k)) for k in sorted(set(asked) | set(key)) if asked.get(k) != key.get(k)}
+        raise ValueError(f"the look-ahead is not the one the cells were built for: (look-ahead, cells) {differ}")
     la, flat = lookahead, np.asarray(flat, dtype=np.int64)
     N, C = cells.steps, len(flat)
     m_all = np.asarray(cells.m).reshape(N + 1, -1)

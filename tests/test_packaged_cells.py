@@ -58,6 +58,9 @@ def test_packaged_cells_are_what_the_recursion_gives(path, pointmass_held_table)
     for name, got in (("m", m), ("action", action), ("hold", hold)):
         np.testing.assert_array_equal(got, np.asarray(getattr(stored, name)).reshape(steps, -1)[:, flat],
                                       err_msg=name)
+    with pytest.raises(ValueError, match=r"'target_checks': \(3, "):
+        cell_game.recheck(stored, Lookahead.from_table(table, table.model, table.control_period, table.eps,
+                                                       target_checks=3), flat[:10])
     # the sample holds good cells and bad ones, and plans of every length
     assert 0.2 < (m[0] < stored.never).mean() < 0.95
     assert set(np.unique(hold[0][m[0] < stored.never])) == set(stored.key["holds"])
