@@ -161,7 +161,7 @@ class ValueFilter:
         #: ``benchmarks/bench_filter.py`` times (1,024 rows: ``compiled_*`` against ``numpy_*``)
         self.compiled_max_rows = 10 ** 9
         #: threads that share a large batch of the compiled decision (blocks of at least
-        #: :data:`~softreach.filters.blocks.PARALLEL_MIN_ROWS` rows); 1: the calling thread alone. By default two
+        #: :data:`~softreach.reach.blocks.PARALLEL_MIN_ROWS` rows); 1: the calling thread alone. By default two
         #: where the machine has them: ``benchmarks/bench_filter.py`` times 1,024 rows both ways
         self.threads = default_threads()
         #: up to this many rows, :meth:`filter` judges the policy's action and the candidates in one batch. 0: the
