@@ -35,8 +35,8 @@ import numpy as np
 from softreach.reach.blocks import run_in_blocks
 from softreach.reach.borrowed import borrowed
 from softreach.reach.box_max import kernel_field
-from softreach.reach.kernels import (MAX_NODES, box_max_row, box_scratch, certificate_row, cover_row, frozen,
-                                    plan_row)
+from softreach.reach.kernels import (MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row,
+                                    point_value)
 from softreach.reach.model_kernels import held_box_address
 
 from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value
@@ -44,7 +44,7 @@ from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/judge.py": "7a8a8919d9470456", "reach/blocks.py": "8331d57ef575b91a",
+COMPILED_IN = {"filters/judge.py": "d3d4e2e6b4d5ebdb", "reach/blocks.py": "8331d57ef575b91a",
                "reach/borrowed.py": "8a1aa2defd267a3c", "reach/box_max.py": "f058385850b25249",
                "reach/kernels.py": "8de576e707f942df", "reach/model_kernels.py": "dfbe9a4c3bb327f4"}
 
@@ -318,7 +318,8 @@ def _on_table(W, t, x, z, point, work):
     for a in range(n):
         point[a] = x[a]
     point[n] = min(z, W[4][n])
-    return math.isfinite(box_max_row(W, t, point, point, MAX_NODES, work[6]))
+    # the interpolant at a point is the box maximum of a box of no width, by the same arithmetic
+    return math.isfinite(point_value(W, t, point, work[6][2], work[6][8]))
 
 
 def _writable(v: np.ndarray) -> np.ndarray:

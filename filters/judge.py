@@ -121,11 +121,14 @@ def next_value(T, t_next, end_lo, end_hi, z_end, z_hi, work):
         box_lo[i], box_hi[i] = end_lo[i], end_hi[i]
     box_lo[n], box_hi[n] = z_lo, max(min(z_hi, z_top), z_lo)
     best = box_max_row(W, t_next, box_lo, box_hi, MAX_NODES, scratch_W)
-    if has_V:
-        v = box_max_row(V, t_next, end_lo, end_hi, MAX_NODES, scratch_V)
-        if not z_end >= 0:
-            v = np.inf
-        best = np.nan if (math.isnan(v) or math.isnan(best)) else min(best, v)
+    if has_V and z_end >= 0 and not math.isnan(best):
+        # V's maximum over the box is at least its value at the box's corner (up to rounding): where that lies
+        # above W's maximum, the minimum is W's, and V's box need not be read (its NaN, which a table cannot hold,
+        # aside: table.py refuses non-finite snapshots)
+        corner = point_value(V, t_next, end_lo, scratch_V[2], scratch_V[8])
+        if not corner - _ROUNDING * max(1.0, abs(corner)) >= best:
+            v = box_max_row(V, t_next, end_lo, end_hi, MAX_NODES, scratch_V)
+            best = np.nan if math.isnan(v) else min(best, v)
     return np.inf if math.isnan(best) else best
 
 
