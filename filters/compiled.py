@@ -44,9 +44,9 @@ from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/judge.py": "d3d4e2e6b4d5ebdb", "reach/blocks.py": "8331d57ef575b91a",
+COMPILED_IN = {"filters/judge.py": "a386fd21b818d32a", "reach/blocks.py": "8331d57ef575b91a",
                "reach/borrowed.py": "8a1aa2defd267a3c", "reach/box_max.py": "f058385850b25249",
-               "reach/kernels.py": "8de576e707f942df", "reach/model_kernels.py": "dfbe9a4c3bb327f4"}
+               "reach/kernels.py": "3a6644d48d1151a1", "reach/model_kernels.py": "dfbe9a4c3bb327f4"}
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7

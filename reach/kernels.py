@@ -42,8 +42,18 @@ def snapshot(times, t):
     n_t = len(times)
     if n_t == 1:
         return 0, 0.0
-    k = np.searchsorted(times, t, side="right") - 1
-    k = min(max(k, 0), n_t - 2)
+    t_first, t_last = times[0], times[n_t - 1]
+    if t_first <= t < t_last:
+        # the last snapshot at or before t (searchsorted's), found from where evenly spaced snapshots put it: a
+        # table's are, and the walk makes it exact for any others
+        k = min(int((t - t_first) / (t_last - t_first) * (n_t - 1)), n_t - 2)
+        while times[k] > t:
+            k -= 1
+        while times[k + 1] <= t:
+            k += 1
+    else:
+        k = np.searchsorted(times, t, side="right") - 1
+        k = min(max(k, 0), n_t - 2)
     t0 = times[k]
     wt = min(max((t - t0) / (times[k + 1] - t0), 0.0), 1.0)
     return k, wt

@@ -173,3 +173,23 @@ def test_a_query_gives_the_same_bits_alone_and_in_a_batch(table):
         assert v1[0] == val[i] or (np.isnan(v1[0]) and np.isnan(val[i]))
         np.testing.assert_array_equal(g1[0], grad[i])
         assert table.value(t[i], X[i, :-1], X[i, -1])[0] == raw[i]
+
+
+@pytest.mark.parametrize("times", [np.linspace(0.0, 1.0, 101), np.array([0.0, 0.05, 0.3, 0.31, 0.9, 2.0])],
+                         ids=["even", "uneven"])
+def test_the_compiled_snapshot_is_the_searchsorted_one(times):
+    """The compiled decision's snapshot interval and weight (``kernels.snapshot``, which guesses the interval from
+    evenly spaced snapshots before it walks) are those of ``np.searchsorted``, at every snapshot time, between them,
+    around them by a rounding, and outside the span."""
+    from softreach.reach.kernels import snapshot
+
+    rng = np.random.default_rng(3)
+    t = np.concatenate([times, np.nextafter(times, -np.inf), np.nextafter(times, np.inf),
+                        rng.uniform(times[0] - 0.5, times[-1] + 0.5, 500), [np.nan, -np.inf, np.inf]])
+    for ti in t:
+        k = min(max(int(np.searchsorted(times, ti, side="right")) - 1, 0), len(times) - 2)
+        wt = min(max((ti - times[k]) / (times[k + 1] - times[k]), 0.0), 1.0) if math.isfinite(ti) else None
+        got_k, got_wt = snapshot(times, ti)
+        assert got_k == k, ti
+        if wt is not None:
+            assert got_wt == wt, ti
