@@ -33,7 +33,6 @@ import numba as nb
 import numpy as np
 
 from softreach.reach.blocks import run_in_blocks
-from softreach.reach.borrowed import borrowed
 from softreach.reach.box_max import kernel_field
 from softreach.reach.kernels import (MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row,
                                     point_value)
@@ -44,9 +43,9 @@ from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/judge.py": "a386fd21b818d32a", "reach/blocks.py": "8331d57ef575b91a",
-               "reach/borrowed.py": "8a1aa2defd267a3c", "reach/box_max.py": "f058385850b25249",
-               "reach/kernels.py": "3a6644d48d1151a1", "reach/model_kernels.py": "dfbe9a4c3bb327f4"}
+COMPILED_IN = {"filters/judge.py": "ef4a376b8c5e1339", "reach/blocks.py": "8331d57ef575b91a",
+               "reach/box_max.py": "f058385850b25249", "reach/kernels.py": "07734d6562028e3a",
+               "reach/model_kernels.py": "dfbe9a4c3bb327f4"}
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7
@@ -54,34 +53,50 @@ _PLAN_LAND, _PLAN_SAFE = 1, 2
 
 
 def decision_space(n: int, m: int, J: int) -> tuple:
-    """The work space of :func:`decide_rows` for ``n`` states, ``m`` controls and ``J`` candidates."""
+    """The work space of :func:`decide_rows` (and its last entry, eight boxes, of :func:`start_plan_rows`) for ``n``
+    states, ``m`` controls and ``J`` candidates: the compiled loops allocate nothing."""
     work = (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n + 1), np.empty(n + 1),
             box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES))
     return (work, (np.empty(n), np.empty(n)), np.empty((J + 1, n)), np.empty((J + 1, n)), np.empty(J, np.bool_),
             np.empty(J), np.empty(J), np.empty(J), np.empty(J, np.bool_), np.empty(J), np.empty(J), np.empty(J),
             np.empty(m), np.empty(n + 1), np.empty(J, np.bool_), np.empty(J, np.bool_), np.empty(J, np.bool_),
-            np.empty(J), np.empty(J, np.bool_), np.empty(J), np.empty(J))
+            np.empty(J), np.empty(J, np.bool_), np.empty(J), np.empty(J), np.empty(J, np.int64), np.empty((8, n)))
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, inline="always")
+def _stable_order(keys, order):
+    """``order`` = ``np.argsort(keys, kind="stable")`` (NaN last), without allocating: by insertion, which moves
+    an index only past strictly greater keys."""
+    for i in range(len(keys)):
+        j = i
+        while j > 0 and _after(keys[order[j - 1]], keys[i]):
+            order[j] = order[j - 1]
+            j -= 1
+        order[j] = i
+
+
+@nb.njit(cache=True, inline="always")
+def _after(a, b):
+    """Whether ``a`` sorts after ``b`` (NaN after every number, as numpy sorts)."""
+    return a > b or (math.isnan(a) and not math.isnan(b))
+
+
+# numba's reference counting (_nrt) is off in the decision and its kernels: they allocate nothing (the caller's
+# work space, decision_space), and with it on every array a call or an unpacking binds costs two calls, most of a
+# certified row's time
+@nb.njit(cache=True, nogil=True, _nrt=False)
 def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t, x, z, pol, plans, has_plans,
                 diagnostics, applied, reason, value, nxt, certified, chosen, blend, new_plans, space):
     """The decision for every row (:meth:`ValueFilter.filter`) by the ``"switch"`` rule, or with ``smooth`` by the
     ``"smooth"`` rule with ``iterations`` bisection steps, in the work space ``space`` (:func:`decision_space`); see
     the module docstring. Without ``diagnostics`` the certificate at the state and the next one of a passing
     policy action, which decide nothing, are not read: both are NaN."""
-    # every array here is an argument, held by the caller until the call returns: borrowed, they are bound and
-    # unpacked without reference counting (softreach.reach.borrowed), a third of a row's time
-    M, C, T, cands, fallback, a_half, t, x, z, pol, plans = borrowed((M, C, T, cands, fallback, a_half, t, x, z, pol,
-                                                                      plans))
-    applied, reason, value, nxt, certified, chosen, blend, new_plans, space = borrowed(
-        (applied, reason, value, nxt, certified, chosen, blend, new_plans, space))
     N, n = x.shape
     J, m = cands.shape
     safe, has_safe, land, safe_plan, land_plan = C[0], C[1], C[2], C[3], C[4]
     W, z_top, z_floor, V, has_V, S, has_S = T
     (work, work_box, end_lo, end_hi, c_ok, c_next, c_bad, c_zend, c_kept, c_score, c_dist, c_pref, act, point, c_in,
-     c_bounded, c_proven, c_c1, c_pick, c_low, c_tie) = space
+     c_bounded, c_proven, c_c1, c_pick, c_low, c_tie, c_order, _) = space
     for r in range(N):
         tr, xr, zr = t[r], x[r], z[r]
         value[r] = (certificate_row(W, z_top, z_floor, V, has_V, tr, xr, zr, point, work[6], work[7]) if diagnostics
@@ -116,7 +131,8 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
             if s == 0:
                 if a_ok or keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J], end_hi[J], a_zend, a_kept,
                                   work, work_box):
-                    applied[r] = pol[r]
+                    for i in range(m):
+                        applied[r, i] = pol[r, i]
                     reason[r], nxt[r], certified[r], blend[r] = _PASS, a_next if diagnostics else np.nan, True, 1.0
                     chosen[r] = np.nan
                     passed = True
@@ -158,7 +174,8 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
             # whether it keeps is asked in the rule's order of preference (lowest next certificate, or nearest the
             # policy's action) up to the first that does
             keeps_j = -1
-            for k in np.argsort(c_pref, kind="mergesort"):
+            _stable_order(c_pref, c_order)
+            for k in c_order:
                 if not (c_ok[k] or (smooth and c_kept[k])):
                     break
                 if c_ok[k] or keeps(enclose, M, C, T, cands, tr, zr, c_ok[k], c_next[k], end_lo[k], end_hi[k],
@@ -205,21 +222,23 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
                     continue
                 jj, left = cj, ck - 1
             best, best_next = jj, c_next[jj]
-            act[:] = cands[jj]
+            for i in range(m):
+                act[i] = cands[jj, i]
             best_bad = -1.0 if game == _PLAN_LAND else 0.9e6
             new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = jj, left, game
             if game == _PLAN_LAND:
                 any_ok = True
         bounded = best_bad < np.inf
-        applied[r] = act if bounded else fallback
-        chosen[r] = cands[best]
+        for i in range(m):
+            applied[r, i] = act[i] if bounded else fallback[i]
+            chosen[r, i] = cands[best, i]
         nxt[r], certified[r], blend[r] = best_next, any_ok, lam
         reason[r] = ((_BLEND if lam > 0 else _OPTIMAL) if any_ok else _UNCERTIFIED) if bounded else _FALLBACK
         if not _on_table(W, tr, xr, max(zr, 0.0), point, work):
             reason[r] = _OUTSIDE
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, _nrt=False)
 def _hold_period(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work):
     """One period of ``a`` held from the box ``[lo, hi]`` at budget ``z``, by :func:`judge`: ``(passes, goes on,
     z_end)``: whether it passes (or surely lands), and whether it kept ``C1`` and the budget with a finite end box,
@@ -233,7 +252,7 @@ def _hold_period(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work):
     return ok or lands, kept, z_end
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, _nrt=False)
 def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, hi, e_lo, e_hi, work):
     """:func:`~softreach.filters.plans._segment` of one row, each period by :func:`judge` (which reads no table):
     ``(candidate, periods, once)``, candidate ``-1`` where none."""
@@ -262,18 +281,16 @@ def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, 
     return best_j, best, once
 
 
-@nb.njit(cache=True, nogil=True)
-def start_plan_rows(enclose, M, C, cands, periods, t, x, z, second, out, space):
+@nb.njit(cache=True, nogil=True, _nrt=False)
+def start_plan_rows(enclose, M, C, cands, periods, t, x, z, second, out, work, boxes):
     """:func:`~softreach.filters.plans.start_plans` row by row, the same searches in the same order: per row
-    ``out[r]`` its ``(START_SEGMENTS, 3)`` segments."""
-    # borrowed as in decide_rows: the arguments are the caller's until the call returns
-    M, C, cands, t, x, z, second, out, space = borrowed((M, C, cands, t, x, z, second, out, space))
-    work = space[0]
+    ``out[r]`` its ``(START_SEGMENTS, 3)`` segments, in the work space ``work`` and ``boxes`` (:func:`decision_space`'s
+    first and last entries)."""
     N, n = x.shape
     J = cands.shape[0]
     dt = M[6][len(M[6]) - 1]
-    lo, hi, e_lo, e_hi = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    c_lo, c_hi, c_elo, c_ehi = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    lo, hi, e_lo, e_hi, c_lo, c_hi, c_elo, c_ehi = (boxes[0], boxes[1], boxes[2], boxes[3], boxes[4], boxes[5],
+                                                    boxes[6], boxes[7])
     for r in range(N):
         for g in range(out.shape[1]):
             out[r, g, 0], out[r, g, 1], out[r, g, 2] = -1, 0, 0
@@ -401,8 +418,9 @@ class CompiledDecision:
         """:func:`start_plan_rows` for ``N`` rows: the ``(N, segments, 3)`` plans."""
         out = np.empty((len(x), segments, 3), np.int64)
         t, x, z = (_writable(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z))
+        space = self._space()
         start_plan_rows(self.enclose, self.M, self.C, self.cands, int(periods), t, x, z,
-                        _writable(np.ascontiguousarray(second, dtype=np.bool_)), out, self._space())
+                        _writable(np.ascontiguousarray(second, dtype=np.bool_)), out, space[0], space[-1])
         return out
 
     def __getstate__(self) -> dict:

@@ -28,7 +28,7 @@ from softreach.reach.model_kernels import SET_INDEX, call_held_box, call_set_max
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"reach/kernels.py": "3a6644d48d1151a1", "reach/model_kernels.py": "dfbe9a4c3bb327f4"}
+COMPILED_IN = {"reach/kernels.py": "07734d6562028e3a", "reach/model_kernels.py": "dfbe9a4c3bb327f4"}
 
 # the sets' indices in the model's set-maximum kernel
 _TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_INDEX["soft_constraint"]
@@ -47,7 +47,7 @@ def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, _nrt=False)
 def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
     """:func:`~softreach.reach.landing.lands_within` of one row: at some check instant ``s`` every run is in the
     target inside ``C2``, the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``. Not
@@ -166,7 +166,7 @@ def next_floor(T, t_next, end_lo, z_end, work):
 _ROUNDING = 1e-9
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, _nrt=False)
 def read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, below, ties, out):
     """The candidates' next values (their ties, :func:`_tie`, where ``ties``) where only the least can decide: each
     candidate with a finite lower bound ``c_low`` (``+inf``: none to read) is read in the order of the bounds, until
@@ -190,7 +190,7 @@ def read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, belo
         c_low[k] = np.inf
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, _nrt=False)
 def least_next(T, t_next, end_lo, end_hi, z_hi, work, pick, c_next, c_zend, c_low):
     """:func:`next_value` of the candidates ``pick`` (whose ``c_next`` is ``+inf``) where it can be the least of
     theirs (:func:`read_least`), while the least is below ``1e5``, where it wins any score
@@ -224,7 +224,7 @@ def _tie(nxt, z_end):
     return math.atan(1e12 if nxt == np.inf else nxt) / math.pi + 1e3 * max(-z_end, 0.0)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, _nrt=False)
 def keeps(enclose, M, C, T, cands, t, z, ok, nxt, end_lo, end_hi, z_end, kept, work, work_box):
     """:meth:`Lookahead.keeps` with landing cells: a row that passes keeps; one whose period keeps ``C1`` and the
     budget keeps when some candidate passes from its whole end box (:meth:`Lookahead.keeps_certified`)."""
@@ -268,7 +268,7 @@ def _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
 LOWEST_BAD = 0.9e6 - 1.0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, _nrt=False)
 def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend, keeps_j,
              contest, c_bad, c_score, c_low, c_tie):
     """The badness and score of every candidate that fails (:meth:`Lookahead.assess`), the table read only where

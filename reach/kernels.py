@@ -10,7 +10,8 @@ functions are called through :mod:`softreach.reach.model_kernels`. Compiled code
 "Speed" gives the time), later ones load it. Small functions that are handed the filter's large tuples of arrays are inlined
 (``inline="always"``): such a call costs more than their work. The box maximum's lattice is inlined into the box
 maximum, which halves the certificate's cost at a point; the box maximum itself is not inlined into its callers,
-which would triple the first compilation (57 s against 20 s)."""
+which would triple the first compilation (57 s against 20 s). It and the cover test allocate nothing, so that the
+filter's decision runs them without numba's reference counting (``_nrt=False``, :mod:`softreach.filters.compiled`)."""
 
 from __future__ import annotations
 
@@ -174,7 +175,7 @@ def box_scratch(D, max_nodes):
             np.empty((4, D), np.int64), np.empty((D, max_nodes + 3), np.int64), np.empty(1 << D, np.int64))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, _nrt=False)
 def box_max_row(field, t, lo, hi, max_nodes, scratch):
     """The interpolant's maximum over the box ``[lo, hi]`` at time ``t``: exact where the box holds at most
     ``max_nodes`` nodes along every axis, else the largest node value of the cells it touches at both snapshots
@@ -332,31 +333,37 @@ def budget_floor(z, dz, top):
 
 
 @nb.njit(cache=True, inline="always")
+def _cell_span(lo, hi, clo, chi, width, n):
+    """The cells ``[first, last]`` that ``[lo, hi]`` touches along one axis of ``n`` cells (clamped to the grid),
+    and whether it lies on the grid along it."""
+    f = math.floor((lo - clo) / width)
+    g = math.floor((hi - clo) / width)
+    if hi == chi:
+        g = n - 1.0
+    on = math.isfinite(f) and math.isfinite(g) and f >= 0 and g <= n - 1
+    fi = int(min(max(f, 0.0), n - 1.0)) if math.isfinite(f) else 0
+    gi = int(min(max(g, 0.0), n - 1.0)) if math.isfinite(g) else 0
+    return fi, max(fi, gi), on
+
+
+@nb.njit(cache=True, inline="always")
 def cover_row(cells, t, lo, hi, z):
     """Whether every cell the box ``[lo, hi]`` touches (closed cells; a box reaching the grid's upper end exactly
     touches the last cell only) is good at sample time ``t`` with budget ``z``: on the grid, ``t`` not past the
-    horizon, and ``z``'s budget cell at least the largest lowest good budget index ``m`` of those cells.
+    horizon, and ``z``'s budget cell at least the largest lowest good budget index ``m`` of those cells. Allocates
+    nothing, so that the filter's kernels run without numba's reference counting (``_nrt=False``): each cell's
+    index is decoded from the per-axis spans, computed again (a box touches a few cells).
 
     :param cells: :attr:`~softreach.reach.cell_certificate.CellCertificate.kernel_args`
     """
     m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
     D = len(shape)
     on = True
-    first = np.empty(D, np.int64)
-    span = np.empty(D, np.int64)
     P = 1
     for a in range(D):
-        f = math.floor((lo[a] - clo[a]) / width[a])
-        g = math.floor((hi[a] - clo[a]) / width[a])
-        if hi[a] == chi[a]:
-            g = shape[a] - 1.0
-        if not (math.isfinite(f) and math.isfinite(g) and f >= 0 and g <= shape[a] - 1):
-            on = False
-        fi = int(min(max(f, 0.0), shape[a] - 1.0)) if math.isfinite(f) else 0
-        gi = int(min(max(g, 0.0), shape[a] - 1.0)) if math.isfinite(g) else 0
-        first[a] = fi
-        span[a] = max(fi, gi) - fi + 1
-        P *= span[a]
+        fi, gi, on_a = _cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a])
+        on = on and on_a
+        P *= gi - fi + 1
     if not on or not t <= horizon + 1e-9 * dt:
         return False
     k = step_index(t, dt, steps, safe)
@@ -367,8 +374,10 @@ def cover_row(cells, t, lo, hi, z):
         off = 0
         stride = 1
         for a in range(D - 1, -1, -1):
-            off += (first[a] + rest % span[a]) * stride
-            rest //= span[a]
+            fi, gi, _ = _cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a])
+            span = gi - fi + 1
+            off += (fi + rest % span) * stride
+            rest //= span
             stride *= shape[a]
         if int(m[k, off]) > floor:
             return False

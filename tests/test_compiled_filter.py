@@ -320,25 +320,25 @@ def test_models_without_a_compiled_enclosure_keep_the_numpy_test(dubins_held_tab
     assert ValueFilter(dubins_held_table, 0.1, safe_cells=None, landing_cells=None).compiled is None
 
 
-def test_borrowed_arrays_are_the_same_arrays():
-    """``borrowed`` hands over the caller's arrays themselves (same data, shape, strides; nested tuples kept in
-    order): reads see the arguments, writes land in them."""
+def test_the_decisions_order_of_candidates_is_numpys_stable_argsort():
+    """The decision orders candidates by preference without allocating (``_stable_order``, an insertion sort): the
+    order of ``np.argsort(kind="stable")``, ties in index order and NaN last, on keys with ties, infinities and
+    NaN."""
     import numba as nb
 
-    from softreach.reach.borrowed import borrowed
+    from softreach.filters.compiled import _stable_order
 
     @nb.njit
-    def use(a, nested):
-        a, nested = borrowed((a, nested))
-        b, (c, k) = nested
-        a[1] = 7.0
-        c[0, 1] = -1.0
-        return a.sum() + b[::2].sum() + c.T[1, 0] + k
+    def order(keys):
+        out = np.empty(len(keys), np.int64)
+        _stable_order(keys, out)
+        return out
 
-    a, b, c = np.arange(3.0), np.arange(10.0, 16.0), np.zeros((2, 2))
-    # a becomes (0, 7, 2); b's even entries 10 + 12 + 14; c.T[1, 0] is c[0, 1]
-    assert use(a, (b, (c, 0.5))) == 9.0 + 36.0 - 1.0 + 0.5
-    assert a[1] == 7.0 and c[0, 1] == -1.0
+    rng = np.random.default_rng(5)
+    for J in (1, 2, 6, 13):
+        for _ in range(200):
+            keys = rng.choice([0.0, 1.0, 2.5, -3.0, np.inf, -np.inf, np.nan], J) + (rng.random(J) < 0.3) * rng.random(J)
+            assert np.array_equal(order(keys), np.argsort(keys, kind="stable")), keys
 
 
 def test_tables_and_inputs_made_in_this_process_reuse_the_compiled_decision(pointmass_held_table):
