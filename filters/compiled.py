@@ -81,9 +81,9 @@ def _after(a, b):
     return a > b or (math.isnan(a) and not math.isnan(b))
 
 
-# numba's reference counting (_nrt) is off in the decision and its kernels: they allocate nothing (the caller's
-# work space, decision_space), and with it on every array a call or an unpacking binds costs two calls, most of a
-# certified row's time
+# numba's reference counting (_nrt) is off in the decision and the kernels it calls: they allocate nothing (their
+# work space is the caller's, decision_space), and with it on, every array that a call or an unpacking binds costs
+# two calls (a fifth of the box maximum's time: docs/filters.md, "How")
 @nb.njit(cache=True, nogil=True, _nrt=False)
 def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t, x, z, pol, plans, has_plans,
                 diagnostics, applied, reason, value, nxt, certified, chosen, blend, new_plans, space):
