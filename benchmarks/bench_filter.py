@@ -25,7 +25,9 @@ use). Each latency is the mean time per call over many calls, on fixed random in
   (``Table.value`` + ``Table.optimal_control``).
 * **a row by what the decision finds** (``one_thread_row_*``, in one thread, per row): the rows of both batches of
   1,024 where the policy's action passes, where a certified action replaces it, and where nothing is certified,
-  each kind decided as one batch.
+  each kind decided as one batch; and for the last, the one-period tests alone of the policy's action and of every
+  candidate (``one_thread_row_uncertified_tests_only_us``), the least such a row costs while the filter searches
+  for the least bad action there.
 
 Then one ``step`` of ``PointMassLanding-v0``, bare and in ``SafetyFilter``: what the filter adds to a training step.
 
@@ -171,6 +173,12 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
         if len(rows_k[0]):
             per = _per_call(lambda r=rows_k: one_thread.filter(*r), 5, repeats)
             out[f"one_thread_row_{kind}_us"] = {k: v / len(rows_k[0]) for k, v in per.items()}
+            if kind == "uncertified" and one_thread.compiled is not None:
+                # the least such a row can cost while the decision asks what it does there: the one-period
+                # tests of the policy's action and of every candidate, and nothing else
+                tests = _one_period_tests(one_thread.compiled, *rows_k)
+                per = _per_call(tests, 5, repeats)
+                out["one_thread_row_uncertified_tests_only_us"] = {k: v / len(rows_k[0]) for k, v in per.items()}
     try:
         import torch
 
@@ -180,6 +188,33 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
     except ImportError:  # pragma: no cover
         pass
     return {k: {kind: v * 1e6 for kind, v in d.items()} for k, d in out.items()}
+
+
+def _one_period_tests(decision, t, x, z, pol):
+    """A call that runs, row by row in one thread, only the one-period tests (``filters.judge.judge``, no table
+    read) that the compiled decision ``decision`` makes of the policy's action and of every candidate at each row:
+    a lower bound of a row's cost where neither passes."""
+    import numba as nb
+
+    from softreach.filters.compiled import decision_space
+    from softreach.filters.judge import judge
+
+    @nb.njit(_nrt=False)
+    def run(enclose, M, C, cands, t, x, z, pol, work, end_lo, end_hi, act):
+        passed = 0
+        for r in range(x.shape[0]):
+            for s in range(cands.shape[0] + 1):
+                for i in range(act.shape[0]):
+                    act[i] = pol[r, i] if s == 0 else cands[s - 1, i]
+                passed += judge(enclose, M, C, t[r], x[r], x[r], z[r], act, end_lo[s], end_hi[s], work)[0]
+        return passed
+
+    J, m = decision.cands.shape
+    space = decision_space(x.shape[1], m, J)
+    args = (decision.enclose, decision.M, decision.C, decision.cands,
+            *(np.ascontiguousarray(v, dtype=np.float64) for v in (t, x, z, pol)), space[0], space[2], space[3],
+            space[12])
+    return lambda: run(*args)
 
 
 def env_steps(table, repeats: int, steps: int = 3000) -> dict[str, float]:
