@@ -351,36 +351,42 @@ def cover_row(cells, t, lo, hi, z):
     """Whether every cell the box ``[lo, hi]`` touches (closed cells; a box reaching the grid's upper end exactly
     touches the last cell only) is good at sample time ``t`` with budget ``z``: on the grid, ``t`` not past the
     horizon, and ``z``'s budget cell at least the largest lowest good budget index ``m`` of those cells. Allocates
-    nothing, so that the filter's kernels run without numba's reference counting (``_nrt=False``): each cell's
-    index is decoded from the per-axis spans, computed again (a box touches a few cells).
+    nothing, so that the filter's kernels run without numba's reference counting (``_nrt=False``): the cells are
+    read as runs along the last axis (contiguous in ``m``), each run's start decoded from the other axes' spans,
+    computed again (a box touches a few runs).
 
     :param cells: :attr:`~softreach.reach.cell_certificate.CellCertificate.kernel_args`
     """
     m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
     D = len(shape)
     on = True
-    P = 1
+    runs = 1
+    run_lo, run_hi = 0, 0
     for a in range(D):
         fi, gi, on_a = _cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a])
         on = on and on_a
-        P *= gi - fi + 1
+        if a == D - 1:
+            run_lo, run_hi = fi, gi
+        else:
+            runs *= gi - fi + 1
     if not on or not t <= horizon + 1e-9 * dt:
         return False
     k = step_index(t, dt, steps, safe)
     floor = budget_floor(z, dz, top)
     # the first cell that needs more budget decides: a wide box need not read the rest
-    for p in range(P):
+    for p in range(runs):
         rest = p
         off = 0
-        stride = 1
-        for a in range(D - 1, -1, -1):
+        stride = shape[D - 1]
+        for a in range(D - 2, -1, -1):
             fi, gi, _ = _cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a])
             span = gi - fi + 1
             off += (fi + rest % span) * stride
             rest //= span
             stride *= shape[a]
-        if int(m[k, off]) > floor:
-            return False
+        for c in range(off + run_lo, off + run_hi + 1):
+            if int(m[k, c]) > floor:
+                return False
     return True
 
 

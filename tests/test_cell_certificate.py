@@ -170,3 +170,37 @@ def test_multi_period_plans_are_followed_to_their_end(vf, monkeypatch):
                               vf.model.substeps, row, False)
             assert out["landed"] and not out["hard"] and out["budget_used"] <= 0.3 + 1e-9
     assert seen["started"] > 0 and seen["followed"] > 0, seen
+
+
+def test_the_cover_test_is_every_touched_cell_good_at_the_budget(vf):
+    """``CellCertificate.covered`` (the compiled cover test both filter paths use) against the definition written
+    out cell by cell: every cell a box touches (closed cells; a box reaching the grid's top exactly touches the last
+    cell only) is good at the step's budget index; off the grid, past ``T`` or at a negative budget it is not. Boxes
+    of one cell, of runs along either axis and of blocks, on and past the grid's edges, with budgets at, below and
+    above the cells' own."""
+    rng = np.random.default_rng(11)
+    for cells in (vf.landing_cells, vf.safe_cells):
+        n = 3000
+        lo = rng.uniform(cells.lo - 0.05 * (cells.hi - cells.lo), cells.hi, (n, 2))
+        hi = lo + rng.uniform(0, 6, (n, 2)) * cells.width * (rng.random((n, 2)) < 0.8)
+        # boxes reaching the grid's top exactly along one axis, from at most two cells below it
+        top = np.arange(0, n, 10)
+        axis = rng.integers(0, 2, len(top))
+        hi[top, axis] = cells.hi[axis]
+        lo[top, axis] = cells.hi[axis] - rng.uniform(0, 2, len(top)) * cells.width[axis]
+        t = rng.choice(np.arange(cells.steps + 2) * cells.dt, n) + rng.choice([0.0, 0.3 * cells.dt], n)
+        k = cells.step_index(t)
+        z = rng.uniform(-0.01, 1.2 * cells.top * cells.dz, n)
+        got = cells.covered(t, lo, hi, z)
+        for r in range(n):
+            first = np.floor((lo[r] - cells.lo) / cells.width)
+            last = np.where(hi[r] == cells.hi, np.asarray(cells.shape) - 1, np.floor((hi[r] - cells.lo) / cells.width))
+            on = (first >= 0).all() and (last <= np.asarray(cells.shape) - 1).all()
+            if not on or t[r] > cells.horizon + 1e-9 * cells.dt or z[r] < 0:
+                assert not got[r], r
+                continue
+            block = cells.m[k[r]][tuple(slice(int(f), int(g) + 1) for f, g in zip(first, last))]
+            index = int(np.floor(min(z[r], cells.top * cells.dz) / cells.dz + 1e-12))
+            index -= index * cells.dz > z[r]
+            assert got[r] == bool((block <= index).all()), r
+        assert 0.05 < got.mean() < 0.95 and got[top].any()  # both answers are asked, at the top too
