@@ -350,10 +350,10 @@ def _cell_span(lo, hi, clo, chi, width, n):
 def cover_row(cells, t, lo, hi, z):
     """Whether every cell the box ``[lo, hi]`` touches (closed cells; a box reaching the grid's upper end exactly
     touches the last cell only) is good at sample time ``t`` with budget ``z``: on the grid, ``t`` not past the
-    horizon, and ``z``'s budget cell at least the largest lowest good budget index ``m`` of those cells. Allocates
-    nothing, so that the filter's kernels run without numba's reference counting (``_nrt=False``): the cells are
-    read as runs along the last axis (contiguous in ``m``), each run's start decoded from the other axes' spans,
-    computed again (a box touches a few runs).
+    horizon, and ``z``'s budget cell at least the largest lowest good budget index ``m`` of those cells. It
+    allocates nothing, so that the filter's kernels run without numba's reference counting (``_nrt=False``). The
+    cells are read as runs along the last axis (contiguous in ``m``), each run's start decoded from the other axes'
+    spans, which are computed again for each run (a box touches a few runs).
 
     :param cells: :attr:`~softreach.reach.cell_certificate.CellCertificate.kernel_args`
     """
