@@ -43,8 +43,8 @@ from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/judge.py": "d5e2275b5dbee7cf", "reach/blocks.py": "8331d57ef575b91a",
-               "reach/box_max.py": "f058385850b25249", "reach/kernels.py": "baa72614c71a73d6",
+COMPILED_IN = {"filters/judge.py": "340ae46be7c8e970", "reach/blocks.py": "8331d57ef575b91a",
+               "reach/box_max.py": "f058385850b25249", "reach/kernels.py": "6c8cbb4d476565f9",
                "reach/model_kernels.py": "dfbe9a4c3bb327f4"}
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)

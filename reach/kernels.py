@@ -398,11 +398,10 @@ def plan_row(cells, action, hold, t, x):
     m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
     off, stride = 0, 1
     for a in range(len(shape) - 1, -1, -1):
-        f = math.floor((x[a] - clo[a]) / width[a])
-        g = shape[a] - 1.0 if x[a] == chi[a] else f
-        if not (math.isfinite(f) and f >= 0 and g <= shape[a] - 1):
+        fi, _, on = _cell_span(x[a], x[a], clo[a], chi[a], width[a], shape[a])
+        if not on:
             return -1, 0
-        off += int(min(f, shape[a] - 1.0)) * stride
+        off += fi * stride
         stride *= shape[a]
     k = step_index(t, dt, steps, safe)
     j = int(action[k, off])
