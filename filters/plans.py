@@ -61,6 +61,9 @@ def check_plans(plan: Any, N: int) -> np.ndarray | None:
     """
     if plan is None:
         return None
+    if isinstance(plan, np.ndarray) and plan.dtype == np.int64 and plan.size == 3 * N:
+        # what the previous step returned: read, never written
+        return plan.reshape(N, 3)
     arr = np.asarray(plan.detach().cpu().numpy() if torch is not None and isinstance(plan, torch.Tensor) else plan)
     arr = arr.reshape(N, 3) if arr.size == 3 * N else arr
     if arr.shape != (N, 3) or not np.issubdtype(arr.dtype, np.integer):

@@ -3,6 +3,7 @@ and the message naming a non-finite input."""
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -18,6 +19,14 @@ def to_numpy(v: Any) -> tuple[np.ndarray, Any]:
     if torch is not None and isinstance(v, torch.Tensor):
         return v.detach().to("cpu", torch.float64).numpy(), v
     return np.asarray(v, dtype=np.float64), None
+
+
+def finite(arr: np.ndarray) -> bool:
+    """Whether every entry of ``arr`` (float) is finite. The few numbers of one step are checked in Python:
+    ``np.isfinite(arr).all()`` costs about a microsecond whatever the size, a tenth of a step's input checks."""
+    if arr.size <= 8:
+        return all(map(math.isfinite, arr.ravel().tolist()))
+    return bool(np.isfinite(arr).all())
 
 
 def first_bad(arr: np.ndarray) -> str:

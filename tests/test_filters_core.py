@@ -336,6 +336,18 @@ def test_bad_inputs_raise(vfilter, bad, match):
         vfilter.filter(**args)
 
 
+@pytest.mark.parametrize("rows", [1, 4, 20])
+@pytest.mark.parametrize("name, bad", [("x", -np.inf), ("t", np.nan), ("z", np.inf), ("action", np.nan)])
+def test_a_non_finite_entry_is_named_in_a_batch_of_any_size(vfilter, rows, name, bad):
+    # a step's few numbers and a batch's many are checked by different code (filters/tensors.finite)
+    args = dict(t=np.full(rows, 0.1), x=np.tile([0.0, 5.0], (rows, 1)), z=np.full(rows, 0.3),
+                action=np.ones((rows, 1)))
+    args[name] = args[name].copy()
+    args[name][rows - 1] = bad
+    with pytest.raises(ValueError, match=f"{name} must be finite, got .*(nan|inf).* at (row|index) {rows - 1}"):
+        vfilter.filter(**args)
+
+
 def test_construction_errors(pointmass_held_table):
     with pytest.raises(TableError, match="d_max"):
         ValueFilter(pointmass_held_table, DT, model=get_model("pointmass", d_max=5.0))
