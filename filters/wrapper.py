@@ -15,15 +15,10 @@ from softreach.reach import Table, TableError, load_table
 
 from .core import NO_PLAN, REASONS, ValueFilter
 from .plans import advance_plan
+from .tensors import clip_unit
 
 #: what the wrapper reads from ``env.unwrapped`` (the softreach landing environments provide all of it)
 REQUIRED_ATTRIBUTES = ("model", "dt", "eps", "state", "time", "budget")
-
-
-def _unit(a: np.ndarray) -> np.ndarray:
-    """``a`` clipped to ``[-1, 1]``, in its own dtype (``np.clip``'s Python wrapper costs twice as much on a step's
-    one action)."""
-    return np.minimum(np.maximum(a, a.dtype.type(-1.0)), a.dtype.type(1.0))
 
 
 class SafetyFilter(gym.Wrapper):
@@ -189,7 +184,7 @@ class SafetyFilter(gym.Wrapper):
         space = self.action_space
         dtype, shape = space.dtype if space.dtype is not None else np.float32, space.shape
         # the policy's own object passes untouched where the filter does not act (no float round trip)
-        to_env = _unit(applied).astype(dtype) if active else action
+        to_env = clip_unit(applied).astype(dtype) if active else action
         obs, reward, terminated, truncated, info = self.env.step(to_env)
 
         value = float(f["value"])
@@ -201,7 +196,7 @@ class SafetyFilter(gym.Wrapper):
         info["filter_active"] = active
         info["policy_action"] = np.array(action, dtype=dtype, copy=True).reshape(shape)
         # what the environment applies: it clips a finite out-of-range action to [-1, 1]
-        info["applied_action"] = _unit(np.array(to_env, dtype=dtype, copy=True)).reshape(shape)
+        info["applied_action"] = clip_unit(np.array(to_env, dtype=dtype, copy=True)).reshape(shape)
         info["value"] = value
         info["margin"] = float(f["margin"])
         info["optimal_action"] = np.asarray(f["optimal_action"], dtype=dtype).reshape(shape)
