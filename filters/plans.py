@@ -61,14 +61,12 @@ def check_plans(plan: Any, N: int) -> np.ndarray | None:
     """
     if plan is None:
         return None
-    if isinstance(plan, np.ndarray) and plan.dtype == np.int64 and plan.size == 3 * N:
-        # what the previous step returned: read, never written
-        return plan.reshape(N, 3)
     arr = np.asarray(plan.detach().cpu().numpy() if torch is not None and isinstance(plan, torch.Tensor) else plan)
     arr = arr.reshape(N, 3) if arr.size == 3 * N else arr
     if arr.shape != (N, 3) or not np.issubdtype(arr.dtype, np.integer):
         raise ValueError(f"plan must be the integer (N, 3) info['plan'] of the previous step, got {plan!r}")
-    return arr.astype(np.int64)
+    # the filter only reads it: a previous step's int64 plan is not copied
+    return arr.astype(np.int64, copy=False)
 
 
 def follow_plans(vf: Any, plans: np.ndarray | None, new_plans: np.ndarray, rows: np.ndarray, t: np.ndarray,
