@@ -398,20 +398,43 @@ class CompiledDecision:
         # the enclosure reads rows by address: contiguous rows
         t, x, z, pol = (_writable(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z, pol))
         plans = None if plans is None else _writable(np.ascontiguousarray(plans, dtype=np.int64))
-        vf = self.filter
         outs = (applied, reason, value, nxt, certified, chosen, blend, new_plans)
         rows = (t, x, z, pol, self.no_plans if plans is None else plans) + outs
 
         def run(lo: int, hi: int) -> None:
             # a block of rows; the whole batch, where one thread decides it, goes as it is (slicing thirteen arrays
             # costs about as much as deciding one row)
-            r = rows if hi - lo == N else tuple(v if v is self.no_plans else v[lo:hi] for v in rows)
-            decide_rows(self.enclose, self.M, self.C, self.T, self.cands, self.fallback, vf.rule == "smooth",
-                        vf.smooth_iterations, vf.a_half, *r[:5], plans is not None, diagnostics, *r[5:], self._space())
+            self._decide(rows if hi - lo == N else tuple(v if v is self.no_plans else v[lo:hi] for v in rows),
+                         plans is not None, diagnostics)
 
         # each thread in its own work space (decide_rows releases the GIL)
-        run_in_blocks(run, N, vf.threads)
+        run_in_blocks(run, N, self.filter.threads)
         return outs
+
+    def one(self, t: float, x: list[float], z: float, pol: list[float], plan: np.ndarray | None,
+            diagnostics: bool) -> tuple:
+        """:meth:`__call__` of one row given as Python numbers (``plan`` a ``(3,)`` int array or ``None``), in the
+        calling thread, into this thread's one-row outputs: valid until its next call, copy what is kept."""
+        rows = getattr(self._local, "one", None)
+        if rows is None:
+            n, m = len(x), self.cands.shape[1]
+            rows = self._local.one = (np.empty(1), np.empty((1, n)), np.empty(1), np.empty((1, m)),
+                                      np.empty((1, 3), np.int64), np.empty((1, m)), np.empty(1, np.int64),
+                                      np.empty(1), np.empty(1), np.empty(1, bool), np.empty((1, m)), np.empty(1),
+                                      np.empty((1, 3), np.int64))
+        rows[0][0], rows[1][0], rows[2][0], rows[3][0] = t, x, z, pol
+        if plan is not None:
+            rows[4][0] = plan
+        self._decide(rows if plan is not None else rows[:4] + (self.no_plans,) + rows[5:], plan is not None,
+                     diagnostics)
+        return rows[5:]
+
+    def _decide(self, rows: tuple, has_plans: bool, diagnostics: bool) -> None:
+        """:func:`decide_rows` of ``rows`` (``t, x, z, pol, plans`` and the eight outputs) in this thread's work
+        space."""
+        vf = self.filter
+        decide_rows(self.enclose, self.M, self.C, self.T, self.cands, self.fallback, vf.rule == "smooth",
+                    vf.smooth_iterations, vf.a_half, *rows[:5], has_plans, diagnostics, *rows[5:], self._space())
 
     def start_plans(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int, second: np.ndarray,
                     segments: int) -> np.ndarray:

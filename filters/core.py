@@ -44,32 +44,14 @@ from softreach.reach.lookahead import Lookahead
 from .compiled import CompiledDecision
 from .plans import (NO_PLAN, PLAN_LAND, PLAN_SAFE, START_SEGMENTS, check_plans, follow_plans, resolve_cells,
                     start_plans)
+from .reasons import (AFTER_HORIZON, BLEND, FALLBACK, NONFINITE, OPTIMAL, OUTSIDE, PASS, REASONS,
+                      UNCERTIFIED)
+from .single import filter_one
 from .tensors import clip_unit, finite, first_bad, to_numpy, to_torch
 
 __all__ = ["NO_PLAN", "PLAN_LAND", "PLAN_SAFE", "PASS", "BLEND", "OPTIMAL", "OUTSIDE", "AFTER_HORIZON", "NONFINITE",
            "FALLBACK", "UNCERTIFIED", "REASONS", "RULES", "CERTIFY_REASONS", "ValueFilter"]
 
-#: the policy's action passed the one-period test and was applied unchanged
-PASS = 0
-#: smooth rule: a point between the policy's action and a certified candidate was applied
-BLEND = 1
-#: the certified candidate with the lowest worst-case next certificate was applied
-OPTIMAL = 2
-#: the state lies outside the table's grid: the least-bad candidate was applied, nothing is guaranteed
-OUTSIDE = 3
-#: the time is at or after the table's horizon
-AFTER_HORIZON = 4
-#: kept for scripts that test for it; this filter reads a non-finite table value as unsafe (``+inf``) and reports
-#: the state as ``UNCERTIFIED`` or ``OUTSIDE``
-NONFINITE = 5
-#: no candidate could even be bounded (the model's enclosure failed): the fallback action was applied
-FALLBACK = 6
-#: inside the table, but no held action passes the test: the least-bad candidate was applied
-UNCERTIFIED = 7
-#: reason code -> name, as reported by the wrapper's ``info["filter_reason"]``
-REASONS = {PASS: "pass", BLEND: "blend", OPTIMAL: "optimal", OUTSIDE: "outside_domain",
-           AFTER_HORIZON: "after_horizon", NONFINITE: "nonfinite_value", FALLBACK: "fallback",
-           UNCERTIFIED: "uncertified"}
 RULES = ("switch", "smooth")
 #: why a state is or is not certified (:meth:`ValueFilter.certify`)
 CERTIFY_REASONS = ("certified", "table_not_sampled", "outside_table", "after_horizon", "not_in_set",
@@ -327,6 +309,10 @@ class ValueFilter:
         """
         if not isinstance(diagnostics, (bool, np.bool_)):
             raise TypeError(f"diagnostics must be True or False, got {diagnostics!r}")
+        # an environment's step: one plain row, decided without numpy's fixed costs
+        one = filter_one(self, t, x, z, action, normalized, plan, diagnostics)
+        if one is not None:
+            return one
         tt, xs, zz, act, single, ref = self._inputs(t, x, z, action)
         N = len(xs)
         plans = check_plans(plan, N)

@@ -195,10 +195,15 @@ def advance_plan(plan: np.ndarray, queued: np.ndarray) -> tuple[np.ndarray, np.n
     """The plan to hand to the next step, and what stays queued, from the plan a step returned (``info["plan"]``)
     and the start plan's segment still queued: a first segment that ran its course (its periods left 0) hands
     over to the queued one; a plan the filter dropped (an action passed, :data:`NO_PLAN`) drops it too."""
-    plan, queued = np.asarray(plan, np.int64).reshape(3), np.asarray(queued, np.int64).reshape(3)
-    no = np.array(NO_PLAN, np.int64)
+    plan = np.asarray(plan, np.int64).reshape(3)
     if plan[0] < 0:
-        return plan, no
+        return plan, _NO_PLAN
+    queued = np.asarray(queued, np.int64).reshape(3)
     if plan[1] == 0 and queued[0] >= 0:
-        return queued, no
+        return queued, _NO_PLAN
     return plan, queued
+
+
+# what advance_plan returns for no plan: one read-only array, not one made at each step
+_NO_PLAN = np.array(NO_PLAN, np.int64)
+_NO_PLAN.flags.writeable = False

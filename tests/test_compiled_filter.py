@@ -378,12 +378,13 @@ def test_softreach_compile_leaves_the_decision_in_numbas_cache(pointmass_held_ta
     from softreach.filters.compiled import CompiledDecision, decide_rows, start_plan_rows
 
     calls = []
-    for name in ("__call__", "start_plans"):
+    # _decide: the decision of a batch and of one row alike
+    for name in ("_decide", "start_plans"):
         real = getattr(CompiledDecision, name)
         monkeypatch.setattr(CompiledDecision, name,
                             lambda self, *a, _real=real, _name=name, **k: calls.append(_name) or _real(self, *a, **k))
     assert main(["compile", str(pointmass_held_table.path), str(dubins_held_table.path)]) == 0
-    assert sorted(set(calls)) == ["__call__", "start_plans"]
+    assert sorted(set(calls)) == ["_decide", "start_plans"]
     out = capsys.readouterr().out.splitlines()
     assert "pointmass's filter" in out[0] and str(decide_rows.stats.cache_path) in out[0]
     assert "dubins's filter decides in numpy" in out[1]

@@ -1,0 +1,27 @@
+"""The filter's reason codes: why each decision of :meth:`~softreach.filters.ValueFilter.filter` is what it is
+(``info["reason"]``; the wrapper reports their names as ``info["filter_reason"]``). The compiled decision writes
+the same numbers (:mod:`softreach.filters.compiled`)."""
+
+from __future__ import annotations
+
+#: the policy's action passed the one-period test and was applied unchanged
+PASS = 0
+#: smooth rule: a point between the policy's action and a certified candidate was applied
+BLEND = 1
+#: the certified candidate with the lowest worst-case next certificate was applied
+OPTIMAL = 2
+#: the state lies outside the table's grid: the least-bad candidate was applied, nothing is guaranteed
+OUTSIDE = 3
+#: the time is at or after the table's horizon
+AFTER_HORIZON = 4
+#: kept for scripts that test for it; this filter reads a non-finite table value as unsafe (``+inf``) and reports
+#: the state as ``UNCERTIFIED`` or ``OUTSIDE``
+NONFINITE = 5
+#: no candidate could even be bounded (the model's enclosure failed): the fallback action was applied
+FALLBACK = 6
+#: inside the table, but no held action passes the test: the least-bad candidate was applied
+UNCERTIFIED = 7
+#: reason code -> name, as reported by the wrapper's ``info["filter_reason"]``
+REASONS = {PASS: "pass", BLEND: "blend", OPTIMAL: "optimal", OUTSIDE: "outside_domain",
+           AFTER_HORIZON: "after_horizon", NONFINITE: "nonfinite_value", FALLBACK: "fallback",
+           UNCERTIFIED: "uncertified"}

@@ -1,0 +1,71 @@
+"""One row of :meth:`~softreach.filters.ValueFilter.filter` without numpy's fixed costs: an environment's step.
+
+A step decides one state, and the compiled decision of one row takes a few microseconds; around it the batched
+path spends about thirty more on numpy calls that each cost a microsecond whatever their size (conversions, checks,
+the outputs' reasons and normalisation). Here the same is done on Python numbers, into one-row buffers that the
+compiled decision reuses (:meth:`~softreach.filters.compiled.CompiledDecision.one`). The outputs are those of the
+batched path, bit for bit and of the same types (``tests/test_filters_single.py`` compares them row by row).
+
+Only plain inputs take this way: a numpy float state and action of one row, real scalar ``t`` and ``z``, and no
+plan or a ``(3,)`` integer one. Anything else (tensors, batches, other shapes or types, a non-finite number, whose
+message the batched path words, a filter without the compiled decision) goes the batched way.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from .reasons import AFTER_HORIZON, PASS
+from .tensors import clip_unit
+
+_SCALARS = (float, int, np.floating, np.integer)
+
+
+def _plain(vf: Any, t: Any, x: Any, z: Any, action: Any, plan: Any) -> bool:
+    """Whether the inputs are of the kind this module decides (the module docstring)."""
+    threads = vf.threads
+    return (vf.compiled is not None and vf.compiled_max_rows >= 1
+            and type(x) is np.ndarray and x.shape == (vf.n,) and x.dtype.kind == "f"
+            and type(action) is np.ndarray and action.shape == (vf.m,) and action.dtype.kind == "f"
+            and isinstance(t, _SCALARS) and isinstance(z, _SCALARS)
+            and (plan is None or (type(plan) is np.ndarray and plan.shape == (3,) and plan.dtype.kind in "iu"))
+            # threads are not used for one row, but an invalid number is refused (run_in_blocks) all the same
+            and isinstance(threads, (int, np.integer)) and not isinstance(threads, bool) and threads >= 1)
+
+
+def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, plan: Any,
+               diagnostics: bool) -> tuple[np.ndarray, dict[str, Any]] | None:
+    """``vf.filter(t, x, z, action, normalized=normalized, plan=plan, diagnostics=diagnostics)`` of one plain row
+    (the module docstring), or ``None`` where the inputs are of another kind: then the batched path decides.
+
+    :param vf: the :class:`~softreach.filters.ValueFilter`
+    """
+    if not _plain(vf, t, x, z, action, plan):
+        return None
+    t, z = float(t), float(z)
+    xs, act = x.tolist(), action.tolist()
+    if not (math.isfinite(t) and math.isfinite(z) and all(map(math.isfinite, xs))
+            and all(map(math.isfinite, act))):
+        return None
+    # the policy's physical action: ValueFilter.physical, or the clip to the control box, in the same arithmetic
+    if normalized:
+        pol = [mid + half * min(max(a, -1.0), 1.0) for a, mid, half in zip(act, vf.a_mid.tolist(),
+                                                                         vf.a_half.tolist())]
+    else:
+        pol = [min(max(a, lo), hi) for a, lo, hi in zip(act, vf.a_lo.tolist(), vf.a_hi.tolist())]
+    applied, reason, value, nxt, ok, chosen, blend, new_plans = vf.compiled.one(t, xs, z, pol, plan, diagnostics)
+    after = t >= vf.lookahead.horizon - 1e-9
+    code = AFTER_HORIZON if after else int(reason[0])
+    active = code != PASS
+    if normalized:
+        out = clip_unit(vf.normalized(applied[0])) if active else np.array(act, dtype=np.float64)
+        chosen_out = vf.normalized(chosen[0])
+    else:
+        out, chosen_out = applied[0].copy(), chosen[0].copy()
+    info = {"value": value[0], "margin": np.float64(vf.constant_margin or 0.0), "active": np.bool_(active),
+            "reason": np.int64(code), "optimal_action": chosen_out, "blend": blend[0], "lookahead": nxt[0],
+            "certified": np.bool_(bool(ok[0]) and not after), "plan": new_plans[0].copy()}
+    return out, info
