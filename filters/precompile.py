@@ -29,7 +29,8 @@ def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
     from softreach.reach import load_table
 
     from . import ValueFilter
-    from .compiled import decide_rows, start_plan_rows
+    from .compiled import decide_rows
+    from .compiled_starts import start_plan_rows
     from .plans import START_SEGMENTS
 
     if not hasattr(table, "model"):

@@ -375,7 +375,8 @@ def test_softreach_compile_leaves_the_decision_in_numbas_cache(pointmass_held_ta
     run is in numba's on-disk cache, where the next process finds it (``load_overload`` reads the cache files, not
     this process's code); a model without a compiled enclosure says that it has nothing to compile."""
     from softreach.cli import main
-    from softreach.filters.compiled import CompiledDecision, decide_rows, start_plan_rows
+    from softreach.filters.compiled import CompiledDecision, decide_rows
+    from softreach.filters.compiled_starts import start_plan_rows
 
     calls = []
     # _decide: the decision of a batch and of one row alike

@@ -1,0 +1,107 @@
+"""The start-plan search of :func:`~softreach.filters.plans.start_plans`, compiled: where no period or cell
+certifies a start, one candidate held for several periods, or two in sequence, whose boxes keep ``C1`` and the
+budget and end in the landing cells. Each period is :func:`~softreach.filters.judge.judge`, which reads no table;
+the searches are those of the numpy code, in the same order (``tests/test_compiled_filter.py`` compares them).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+
+from .judge import judge
+
+# numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
+# start of its sha256, so that a change there changes this file and numba compiles it afresh
+# (tests/test_numba_cache.py)
+COMPILED_IN = {"filters/judge.py": "340ae46be7c8e970"}
+
+# the owner of a plan that ends in the landing cells (:data:`~softreach.filters.plans.PLAN_LAND`)
+_PLAN_LAND = 1
+
+
+@nb.njit(cache=True, _nrt=False)
+def _hold_period(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work):
+    """One period of ``a`` held from the box ``[lo, hi]`` at budget ``z``, by :func:`judge`: ``(passes, goes on,
+    z_end)``: whether it passes (or surely lands), and whether it kept ``C1`` and the budget with a finite end box,
+    which then replaces ``[lo, hi]``. Not inlined: the start-plan searches call it from two loops."""
+    ok, lands, _, _, kept, _, _, z_end, _ = judge(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work)
+    for i in range(len(e_lo)):
+        kept = kept and math.isfinite(e_lo[i]) and math.isfinite(e_hi[i])
+    if kept:
+        for i in range(len(e_lo)):
+            lo[i], hi[i] = e_lo[i], e_hi[i]
+    return ok or lands, kept, z_end
+
+
+@nb.njit(cache=True, _nrt=False)
+def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, hi, e_lo, e_hi, work):
+    """:func:`~softreach.filters.plans._segment` of one row, each period by :func:`judge` (which reads no table):
+    ``(candidate, periods, once)``, candidate ``-1`` where none."""
+    n = len(lo0)
+    dt = M[6][len(M[6]) - 1]
+    best, best_j, once = periods + 1, -1, False
+    for j in range(cands.shape[0]):
+        for i in range(n):
+            lo[i], hi[i] = lo0[i], hi0[i]
+        zz, tt = z, t
+        # after k periods held, does the candidate pass from the box they may have reached: a run of k + 1
+        # periods, searched only while shorter than the best so far
+        for k in range(min(periods, best - 1)):
+            passes, goes, zz = _hold_period(enclose, M, C, tt, lo, hi, zz, cands[j], e_lo, e_hi, work)
+            if passes:
+                if k == 0 and from_state:
+                    once = True
+                else:
+                    best, best_j = k + 1, j
+                break
+            if not goes:
+                break
+            tt = tt + dt
+        if once:
+            break
+    return best_j, best, once
+
+
+@nb.njit(cache=True, nogil=True, _nrt=False)
+def start_plan_rows(enclose, M, C, cands, periods, t, x, z, second, out, work, boxes):
+    """:func:`~softreach.filters.plans.start_plans` row by row, the same searches in the same order: per row
+    ``out[r]`` its ``(START_SEGMENTS, 3)`` segments, in the work space ``work`` and ``boxes`` (:func:`~softreach.filters.compiled.
+    decision_space`'s first and last entries)."""
+    N, n = x.shape
+    J = cands.shape[0]
+    dt = M[6][len(M[6]) - 1]
+    lo, hi, e_lo, e_hi, c_lo, c_hi, c_elo, c_ehi = (boxes[0], boxes[1], boxes[2], boxes[3], boxes[4], boxes[5],
+                                                    boxes[6], boxes[7])
+    for r in range(N):
+        for g in range(out.shape[1]):
+            out[r, g, 0], out[r, g, 1], out[r, g, 2] = -1, 0, 0
+        j1, k1, once = _segment_row(enclose, M, C, cands, periods, t[r], x[r], x[r], z[r], True, lo, hi, e_lo, e_hi,
+                                    work)
+        # a row some candidate passes from at once is certified by one period: it needs no plan
+        if once:
+            continue
+        if j1 >= 0:
+            out[r, 0, 0], out[r, 0, 1], out[r, 0, 2] = j1, k1, _PLAN_LAND
+            continue
+        if not second[r]:
+            continue
+        # two segments: the shortest first one whose box a second one leaves from, the first candidate among those
+        best1 = periods
+        for j in range(J):
+            for i in range(n):
+                c_lo[i], c_hi[i] = x[r, i], x[r, i]
+            zz, tt = z[r], t[r]
+            for k in range(1, min(periods, best1)):
+                _, goes, zz = _hold_period(enclose, M, C, tt, c_lo, c_hi, zz, cands[j], c_elo, c_ehi, work)
+                if not goes:
+                    break
+                tt = tt + dt
+                j2, k2, _ = _segment_row(enclose, M, C, cands, periods - k, tt, c_lo, c_hi, zz, False, lo, hi, e_lo,
+                                         e_hi, work)
+                if j2 >= 0:
+                    best1 = k
+                    out[r, 0, 0], out[r, 0, 1], out[r, 0, 2] = j, k, _PLAN_LAND
+                    out[r, 1, 0], out[r, 1, 1], out[r, 1, 2] = j2, k2, _PLAN_LAND
+                    break
