@@ -47,7 +47,7 @@ from .plans import (NO_PLAN, PLAN_LAND, PLAN_SAFE, START_SEGMENTS, check_plans, 
 from .reasons import (AFTER_HORIZON, BLEND, FALLBACK, NONFINITE, OPTIMAL, OUTSIDE, PASS, REASONS,
                       UNCERTIFIED)
 from .single import filter_one
-from .tensors import clip_unit, finite, first_bad, to_numpy, to_torch
+from .tensors import batch_inputs, clip_unit, to_torch
 
 __all__ = ["NO_PLAN", "PLAN_LAND", "PLAN_SAFE", "PASS", "BLEND", "OPTIMAL", "OUTSIDE", "AFTER_HORIZON", "NONFINITE",
            "FALLBACK", "UNCERTIFIED", "REASONS", "RULES", "CERTIFY_REASONS", "ValueFilter"]
@@ -161,39 +161,7 @@ class ValueFilter:
         return (np.asarray(physical, dtype=np.float64) - self.a_mid) / self.a_half
 
     def _inputs(self, t: Any, x: Any, z: Any, action: Any | None):
-        xs, x_tensor = to_numpy(x)
-        single = xs.ndim == 1
-        if single:
-            xs = xs[None, :]
-        if xs.ndim != 2 or xs.shape[1] != self.n:
-            raise ValueError(f"x must have shape (N, {self.n}) or ({self.n},) (states {self.model.state_names}), "
-                             f"got {tuple(np.shape(x))}")
-        N = len(xs)
-        cols = []
-        for name, v in (("t", t), ("z", z)):
-            arr, _ = to_numpy(v)
-            arr = arr.reshape(-1)
-            if arr.size == 1:
-                arr = np.full(N, float(arr[0]))
-            if arr.shape != (N,):
-                raise ValueError(f"{name} must be a scalar or have shape ({N},), got {tuple(np.shape(v))}")
-            cols.append(arr)
-        tt, zz = cols
-        for name, arr in (("x", xs), ("t", tt), ("z", zz)):
-            if not finite(arr):
-                raise ValueError(f"{name} must be finite, got {first_bad(arr)}")
-        act = tensor = None
-        if action is not None:
-            act, tensor = to_numpy(action)
-            if act.ndim == 1 and single:
-                act = act[None, :]
-            if act.ndim != 2 or act.shape != (N, self.m):
-                raise ValueError(f"action must have shape ({N}, {self.m})" + (f" or ({self.m},)" if single else "")
-                                 + f" to match x, got {tuple(np.shape(action))}")
-            if not finite(act):
-                raise ValueError(f"action must be finite, got {first_bad(act)}")
-        ref = tensor if tensor is not None else x_tensor
-        return tt, xs, zz, act, single, ref
+        return batch_inputs(t, x, z, action, self.n, self.m, self.model.state_names)
 
     # ---------------------------------------------------------------- queries
     def value(self, t: Any, x: Any, z: Any) -> np.ndarray:

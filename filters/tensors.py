@@ -1,5 +1,5 @@
 """numpy in, numpy out; torch in, torch out: the conversions around :meth:`~softreach.filters.ValueFilter.filter`,
-and the message naming a non-finite input."""
+the checks of its inputs and the messages naming a bad one."""
 
 from __future__ import annotations
 
@@ -66,3 +66,43 @@ def to_torch(applied: np.ndarray, info: dict[str, Any], ref: Any, action: Any):
         else:
             out[key] = torch.as_tensor(np.asarray(v), dtype=dtype, device=dev)
     return torch.as_tensor(np.asarray(applied), dtype=dtype_a, device=dev), out
+
+
+def batch_inputs(t: Any, x: Any, z: Any, action: Any | None, n: int, m: int, state_names: Any):
+    """The filter's inputs as a batch: ``(t (N,), x (N, n), z (N,), action (N, m) or None, single, ref)``, float64
+    numpy; ``single``: ``x`` was one state; ``ref``: the tensor the outputs follow (``None``: numpy).
+
+    :raises ValueError: a wrong shape or a non-finite entry, named
+    """
+    xs, x_tensor = to_numpy(x)
+    single = xs.ndim == 1
+    if single:
+        xs = xs[None, :]
+    if xs.ndim != 2 or xs.shape[1] != n:
+        raise ValueError(f"x must have shape (N, {n}) or ({n},) (states {state_names}), got {tuple(np.shape(x))}")
+    N = len(xs)
+    cols = []
+    for name, v in (("t", t), ("z", z)):
+        arr, _ = to_numpy(v)
+        arr = arr.reshape(-1)
+        if arr.size == 1:
+            arr = np.full(N, float(arr[0]))
+        if arr.shape != (N,):
+            raise ValueError(f"{name} must be a scalar or have shape ({N},), got {tuple(np.shape(v))}")
+        cols.append(arr)
+    tt, zz = cols
+    for name, arr in (("x", xs), ("t", tt), ("z", zz)):
+        if not finite(arr):
+            raise ValueError(f"{name} must be finite, got {first_bad(arr)}")
+    act = tensor = None
+    if action is not None:
+        act, tensor = to_numpy(action)
+        if act.ndim == 1 and single:
+            act = act[None, :]
+        if act.ndim != 2 or act.shape != (N, m):
+            raise ValueError(f"action must have shape ({N}, {m})" + (f" or ({m},)" if single else "")
+                             + f" to match x, got {tuple(np.shape(action))}")
+        if not finite(act):
+            raise ValueError(f"action must be finite, got {first_bad(act)}")
+    ref = tensor if tensor is not None else x_tensor
+    return tt, xs, zz, act, single, ref
