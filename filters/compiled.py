@@ -34,19 +34,20 @@ import numpy as np
 
 from softreach.reach.blocks import run_in_blocks
 from softreach.reach.box_max import kernel_field
-from softreach.reach.kernels import (MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row,
-                                    point_value)
+from softreach.reach.kernels import MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row
 from softreach.reach.model_kernels import held_box_address
 
+from .compiled_certify import certify_rows
 from .compiled_starts import start_plan_rows
-from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value
+from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value, on_table
 
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/compiled_starts.py": "4ecd2dce29244d8a", "filters/judge.py": "340ae46be7c8e970",
-               "reach/blocks.py": "8331d57ef575b91a", "reach/box_max.py": "f058385850b25249",
-               "reach/kernels.py": "6c8cbb4d476565f9", "reach/model_kernels.py": "dfbe9a4c3bb327f4"}
+COMPILED_IN = {"filters/compiled_certify.py": "2df7df69aad88f30", "filters/compiled_starts.py": "9ace7795ec9194c5",
+               "filters/judge.py": "be9501cfc25b631f", "reach/blocks.py": "8331d57ef575b91a",
+               "reach/box_max.py": "f058385850b25249", "reach/kernels.py": "6c8cbb4d476565f9",
+               "reach/model_kernels.py": "dfbe9a4c3bb327f4"}
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7
@@ -236,23 +237,8 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
             chosen[r, i] = cands[best, i]
         nxt[r], certified[r], blend[r] = best_next, any_ok, lam
         reason[r] = ((_BLEND if lam > 0 else _OPTIMAL) if any_ok else _UNCERTIFIED) if bounded else _FALLBACK
-        if not _on_table(W, tr, xr, max(zr, 0.0), point, work):
+        if not on_table(W, tr, xr, max(zr, 0.0), point, work):
             reason[r] = _OUTSIDE
-
-
-@nb.njit(cache=True, inline="always")
-def _on_table(W, t, x, z, point, work):
-    """:meth:`Table.inside` of a ``W_eps`` table: the interpolant of ``W_eps`` is finite at ``(t, x, z)`` (a budget
-    above the grid is read at its top)."""
-    times, glo = W[1], W[3]
-    n = len(x)
-    if not (t >= times[0] - 1e-9 and t <= times[-1] + 1e-9) or not z >= glo[n]:
-        return False
-    for a in range(n):
-        point[a] = x[a]
-    point[n] = min(z, W[4][n])
-    # the interpolant at a point is the box maximum of a box of no width, by the same arithmetic
-    return math.isfinite(point_value(W, t, point, work[6][2], work[6][8]))
 
 
 def _writable(v: np.ndarray) -> np.ndarray:
@@ -351,6 +337,21 @@ class CompiledDecision:
         vf = self.filter
         decide_rows(self.enclose, self.M, self.C, self.T, self.cands, self.fallback, vf.rule == "smooth",
                     vf.smooth_iterations, vf.a_half, *rows[:5], has_plans, diagnostics, *rows[5:], self._space())
+
+    def certify(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple:
+        """:func:`~softreach.filters.compiled_certify.certify_rows` for ``N`` rows: ``(ok, next_value, value,
+        inside, in_cells)``."""
+        N = len(x)
+        ok, inside, in_cells = np.empty(N, bool), np.empty(N, bool), np.empty(N, bool)
+        nxt, value = np.empty(N), np.empty(N)
+        t, x, z = (_writable(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z))
+
+        def run(lo: int, hi: int) -> None:
+            certify_rows(self.enclose, self.M, self.C, self.T, self.cands, t[lo:hi], x[lo:hi], z[lo:hi], ok[lo:hi],
+                         nxt[lo:hi], value[lo:hi], inside[lo:hi], in_cells[lo:hi], self._space())
+
+        run_in_blocks(run, N, self.filter.threads)
+        return ok, nxt, value, inside, in_cells
 
     def start_plans(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int, second: np.ndarray,
                     segments: int) -> np.ndarray:

@@ -10,12 +10,12 @@ import math
 
 import numba as nb
 
-from .judge import judge
+from .judge import judge_once
 
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/judge.py": "340ae46be7c8e970"}
+COMPILED_IN = {"filters/judge.py": "be9501cfc25b631f"}
 
 # the owner of a plan that ends in the landing cells (:data:`~softreach.filters.plans.PLAN_LAND`)
 _PLAN_LAND = 1
@@ -26,7 +26,7 @@ def _hold_period(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work):
     """One period of ``a`` held from the box ``[lo, hi]`` at budget ``z``, by :func:`judge`: ``(passes, goes on,
     z_end)``: whether it passes (or surely lands), and whether it kept ``C1`` and the budget with a finite end box,
     which then replaces ``[lo, hi]``. Not inlined: the start-plan searches call it from two loops."""
-    ok, lands, _, _, kept, _, _, z_end, _ = judge(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work)
+    ok, lands, _, _, kept, _, _, z_end, _ = judge_once(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work)
     for i in range(len(e_lo)):
         kept = kept and math.isfinite(e_lo[i]) and math.isfinite(e_hi[i])
     if kept:

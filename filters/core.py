@@ -182,12 +182,16 @@ class ValueFilter:
         :return: ``(certified (N,), reasons, best next certificate (N,))``; reasons from :data:`CERTIFY_REASONS`
         """
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
-        value = self.lookahead.certificate(tt, xs, zz)
-        _, ok, nxt = self.lookahead.best_candidate(tt, xs, zz)
-        if self.landing_cells is not None:
-            # a state in a landing cell has its cell's plan even where no single period ends in the cells
-            ok = ok | self.landing_cells.contains(tt, xs, zz)
-        inside = self.table.inside(tt, xs, np.maximum(zz, 0.0))
+        if self.compiled is not None and len(xs) <= self.compiled_max_rows:
+            ok, nxt, value, inside, in_cells = self.compiled.certify(tt, xs, zz)
+        else:
+            value = self.lookahead.certificate(tt, xs, zz)
+            _, ok, nxt = self.lookahead.best_candidate(tt, xs, zz)
+            inside = self.table.inside(tt, xs, np.maximum(zz, 0.0))
+            in_cells = (self.landing_cells.contains(tt, xs, zz) if self.landing_cells is not None
+                        else np.zeros(len(xs), bool))
+        # a state in a landing cell has its cell's plan even where no single period ends in the cells
+        ok = ok | in_cells
         after = tt >= self.lookahead.horizon - 1e-9
         reasons = []
         for i in range(len(xs)):

@@ -3,6 +3,7 @@ for one row, in parts that :mod:`softreach.filters.compiled` calls only where th
 
 * :func:`judge` reads no table: the enclosures, ``C1``, the budget, the cells, whether the period surely lands;
 * :func:`next_value` and :func:`_safe_end` read the table over the period's end box;
+* :func:`on_table`: whether the state itself lies on the table;
 * :func:`_rank` and :func:`_tie` make the badness of an action that does not pass, by which the filter chooses
   where none does; :func:`badness` reads the table for it only where the choice can depend on it.
 
@@ -107,6 +108,13 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     if not ok and bounded and in_time and meets:
         lands = _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, box_lo[:n], box_hi[:n])
     return ok, lands, bounded, in_c1, kept, safe_end and has_safe, c1, z_end, t_next
+
+
+@nb.njit(cache=True, _nrt=False)
+def judge_once(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
+    """:func:`judge`, not inlined: for the searches outside the decision (a state's certificate, the start plans),
+    each of whose inlined copies would add seconds to the first compilation."""
+    return judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work)
 
 
 @nb.njit(cache=True, inline="always")
@@ -306,3 +314,18 @@ def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_prov
         if not (c_ok[k] or k == keeps_j):
             c_bad[k] += c_tie[k]
             c_score[k] = c_bad[k]
+
+
+@nb.njit(cache=True, inline="always")
+def on_table(W, t, x, z, point, work):
+    """:meth:`Table.inside` of a ``W_eps`` table: the interpolant of ``W_eps`` is finite at ``(t, x, z)`` (a budget
+    above the grid is read at its top)."""
+    times, glo = W[1], W[3]
+    n = len(x)
+    if not (t >= times[0] - 1e-9 and t <= times[-1] + 1e-9) or not z >= glo[n]:
+        return False
+    for a in range(n):
+        point[a] = x[a]
+    point[n] = min(z, W[4][n])
+    # the interpolant at a point is the box maximum of a box of no width, by the same arithmetic
+    return math.isfinite(point_value(W, t, point, work[6][2], work[6][8]))

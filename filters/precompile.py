@@ -18,7 +18,8 @@ import numpy as np
 
 
 def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
-    """Make one decision and one start-plan search of the filter the environment wraps around ``table``.
+    """Make one decision, one certificate of a state and one start-plan search of the filter the environment
+    wraps around ``table``.
 
     :param table: a :class:`~softreach.reach.table.Table` (or its path)
     :param period: the control period [s] (default: the table's)
@@ -30,6 +31,7 @@ def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
 
     from . import ValueFilter
     from .compiled import decide_rows
+    from .compiled_certify import certify_rows
     from .compiled_starts import start_plan_rows
     from .plans import START_SEGMENTS
 
@@ -49,13 +51,14 @@ def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
     grid = table.grid("W_eps")
     x = 0.5 * (np.asarray(grid.lo[:model.state_dim]) + np.asarray(grid.hi[:model.state_dim]))
     vf.filter(0.0, x, 0.0, vf.fallback_action)
+    vf.certify(0.0, x, 0.0)
     vf.compiled.start_plans(np.zeros(1), x[None], np.zeros(1), 1, np.ones(1, bool), START_SEGMENTS)
     out["seconds"] = time.perf_counter() - t0  # the filter's construction with its first decision
     # compiled now, loaded from the cache, or already in this process
     out["source"] = ("compiled" if sum(decide_rows.stats.cache_misses.values()) > misses else
                      "cache" if sum(decide_rows.stats.cache_hits.values()) > hits else "process")
     out["cache"] = decide_rows.stats.cache_path
-    if not (decide_rows.signatures and start_plan_rows.signatures):
+    if not (decide_rows.signatures and certify_rows.signatures and start_plan_rows.signatures):
         raise RuntimeError(f"{model.name}: the filter made a decision without its compiled code")
     return out
 

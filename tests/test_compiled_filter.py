@@ -315,6 +315,44 @@ def test_start_plans_compiled_as_in_numpy(which, pointmass_held_table, glider_he
     assert found.sum() >= 5 and len(np.unique(fast[found, 0, 1])) >= 3
 
 
+@pytest.mark.parametrize("which", ["pointmass", "glider"])
+def test_certify_compiled_as_in_numpy(which, pointmass_held_table, glider_held_table):
+    """:meth:`ValueFilter.certify` (what a reset and the audit ask of states) gives the same answers, reasons and
+    best next certificates, to the bit, compiled as on the numpy path (:meth:`Lookahead.best_candidate`, the
+    table's and the cells' own queries): states across and beyond the domain, budgets negative to above the
+    table's, times to past ``T``, and states in the landing cells; one row at a time too."""
+    if which == "pointmass":
+        fast = ValueFilter(pointmass_held_table, 0.01)
+        t, x, z, _ = _draws(2000, 13)
+    else:
+        fast = ValueFilter(glider_held_table, 0.1, target_checks=glider_held_table.model.substeps)
+        t, x, z, _ = _glider_draws(fast.model, 600, 13)
+    _, xc, zc, _ = _draws(6000, 14) if which == "pointmass" else _glider_draws(fast.model, 6000, 14)
+    zc = np.abs(zc)
+    cells = fast.landing_cells.contains(np.zeros(len(xc)), xc, zc)
+    k = int(cells.sum()) // 2
+    t[:k], x[:k], z[:k] = 0.0, xc[cells][:k], zc[cells][:k]
+    if which == "pointmass":
+        x[k::13, 1] = 21.0  # above the grid
+    fast.compiled_max_rows = 10 ** 9
+    assert fast.compiled is not None
+    got = fast.certify(t, x, z)
+    compiled, fast.compiled = fast.compiled, None
+    try:
+        expect = fast.certify(t, x, z)
+    finally:
+        fast.compiled = compiled
+    np.testing.assert_array_equal(got[0], expect[0])
+    assert got[1] == expect[1]
+    assert got[2].tobytes() == expect[2].tobytes()
+    # every reason, certified states by one period and by their cell alone, and next values that decide
+    assert {"certified", "not_in_set", "outside_table", "after_horizon"} <= set(got[1]), set(got[1])
+    assert np.isfinite(got[2]).sum() > 50 and k > 50
+    for i in range(0, len(x), 97):
+        one = fast.certify(t[i], x[i], z[i])
+        assert (one[0], one[1], one[2].tobytes()) == (got[0][i], got[1][i], got[2][i:i + 1].tobytes())
+
+
 def test_models_without_a_compiled_enclosure_keep_the_numpy_test(dubins_held_table):
     assert get_model("dubins").held_box_kernel is None
     assert ValueFilter(dubins_held_table, 0.1, safe_cells=None, landing_cells=None).compiled is None
@@ -371,24 +409,25 @@ def test_tables_and_inputs_made_in_this_process_reuse_the_compiled_decision(poin
 
 def test_softreach_compile_leaves_the_decision_in_numbas_cache(pointmass_held_table, dubins_held_table, capsys,
                                                                monkeypatch):
-    """``softreach compile TABLE`` runs both compiled entry points (a decision, a start-plan search), and what they
-    run is in numba's on-disk cache, where the next process finds it (``load_overload`` reads the cache files, not
+    """``softreach compile TABLE`` runs the compiled entry points (a decision, a state's certificate, a start-plan
+    search), and what they run is in numba's on-disk cache, where the next process finds it (``load_overload`` reads the cache files, not
     this process's code); a model without a compiled enclosure says that it has nothing to compile."""
     from softreach.cli import main
     from softreach.filters.compiled import CompiledDecision, decide_rows
+    from softreach.filters.compiled_certify import certify_rows
     from softreach.filters.compiled_starts import start_plan_rows
 
     calls = []
     # _decide: the decision of a batch and of one row alike
-    for name in ("_decide", "start_plans"):
+    for name in ("_decide", "certify", "start_plans"):
         real = getattr(CompiledDecision, name)
         monkeypatch.setattr(CompiledDecision, name,
                             lambda self, *a, _real=real, _name=name, **k: calls.append(_name) or _real(self, *a, **k))
     assert main(["compile", str(pointmass_held_table.path), str(dubins_held_table.path)]) == 0
-    assert sorted(set(calls)) == ["_decide", "start_plans"]
+    assert sorted(set(calls)) == ["_decide", "certify", "start_plans"]
     out = capsys.readouterr().out.splitlines()
     assert "pointmass's filter" in out[0] and str(decide_rows.stats.cache_path) in out[0]
     assert "dubins's filter decides in numpy" in out[1]
-    for kernel in (decide_rows, start_plan_rows):
+    for kernel in (decide_rows, certify_rows, start_plan_rows):
         assert kernel.signatures
         assert all(kernel._cache.load_overload(sig, kernel.targetctx) is not None for sig in kernel.signatures)
