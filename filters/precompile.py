@@ -1,9 +1,10 @@
 """The filter's compiled decision, compiled ahead of its first use: ``softreach compile TABLE``.
 
 The first decision a machine makes compiles :mod:`softreach.filters.compiled` (about 40 s, docs/filters.md
-"Speed") into numba's on-disk cache, which every later process loads in a fraction of a second. Made on purpose,
-that first decision does not stall an episode, and environment processes started together (a vector of
-environments, an SB3 ``SubprocVecEnv``) do not each compile it at once. One table of each model and period is
+"Speed"), and the first reset the start's certificate (:mod:`softreach.filters.compiled_certify`, about 15 s
+more), into numba's on-disk cache, which every later process loads in a fraction of a second. Made on purpose,
+that compilation does not stall an episode, and environment processes started together (a vector of
+environments, an SB3 ``SubprocVecEnv``) do not each compile at once. One table of each model and period is
 enough: every table of the same value type (``float32`` or ``float64``) shares the compiled decision, and each
 model adds its own enclosure.
 """
@@ -66,10 +67,10 @@ def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Register ``compile`` on the ``softreach`` parser's subparsers."""
     p = sub.add_parser("compile", help="compile the safety filter's decision ahead of its first use",
-                       description="Compile the safety filter's decision into numba's on-disk cache (about 40 s "
-                                   "once per machine), so that no later process compiles it at its first decision: "
-                                   "before an episode, a vector of environments or an SB3 SubprocVecEnv starts. One "
-                                   "table of each model is enough.")
+                       description="Compile the safety filter's decision and a start's certificate into numba's "
+                                   "on-disk cache (about a minute once per machine), so that no later process "
+                                   "compiles them at its first decision or reset: before an episode, a vector of "
+                                   "environments or an SB3 SubprocVecEnv starts. One table of each model is enough.")
     p.add_argument("tables", nargs="+", metavar="TABLE", help="table files (one per model and period is enough)")
     p.add_argument("--period", type=float, default=None, help="control period [s] (default: each table's)")
     p.set_defaults(func=_run)
