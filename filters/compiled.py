@@ -44,10 +44,10 @@ from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value, on
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/compiled_certify.py": "2df7df69aad88f30", "filters/compiled_starts.py": "9ace7795ec9194c5",
-               "filters/judge.py": "be9501cfc25b631f", "reach/blocks.py": "8331d57ef575b91a",
+COMPILED_IN = {"filters/compiled_certify.py": "4f51a5a80ca1618e", "filters/compiled_starts.py": "812b6a436bb1fc8c",
+               "filters/judge.py": "edba6ff16944545a", "reach/blocks.py": "80c7dd5d0eb21b9c",
                "reach/box_max.py": "f058385850b25249", "reach/kernels.py": "6c8cbb4d476565f9",
-               "reach/model_kernels.py": "dfbe9a4c3bb327f4"}
+               "reach/model_kernels.py": "f9012b6cc1f8669e"}
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7

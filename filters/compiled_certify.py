@@ -21,7 +21,7 @@ from .judge import LOWEST_BAD, badness, judge_once, next_value, on_table
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/judge.py": "be9501cfc25b631f", "reach/kernels.py": "6c8cbb4d476565f9"}
+COMPILED_IN = {"filters/judge.py": "edba6ff16944545a", "reach/kernels.py": "6c8cbb4d476565f9"}
 
 
 @nb.njit(cache=True, nogil=True, _nrt=False)

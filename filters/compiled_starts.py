@@ -15,7 +15,7 @@ from .judge import judge_once
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/judge.py": "be9501cfc25b631f"}
+COMPILED_IN = {"filters/judge.py": "edba6ff16944545a"}
 
 # the owner of a plan that ends in the landing cells (:data:`~softreach.filters.plans.PLAN_LAND`)
 _PLAN_LAND = 1

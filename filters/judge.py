@@ -29,7 +29,7 @@ from softreach.reach.model_kernels import SET_INDEX, call_held_box, call_set_max
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"reach/kernels.py": "6c8cbb4d476565f9", "reach/model_kernels.py": "dfbe9a4c3bb327f4"}
+COMPILED_IN = {"reach/kernels.py": "6c8cbb4d476565f9", "reach/model_kernels.py": "f9012b6cc1f8669e"}
 
 # the sets' indices in the model's set-maximum kernel
 _TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_INDEX["soft_constraint"]

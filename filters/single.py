@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from softreach.reach.blocks import check_threads
+
 from .reasons import AFTER_HORIZON, PASS
 from .tensors import clip_unit
 
@@ -26,14 +28,11 @@ _SCALARS = (float, int, np.floating, np.integer)
 
 def _plain(vf: Any, t: Any, x: Any, z: Any, action: Any, plan: Any) -> bool:
     """Whether the inputs are of the kind this module decides (the module docstring)."""
-    threads = vf.threads
     return (vf.compiled is not None and vf.compiled_max_rows >= 1
             and type(x) is np.ndarray and x.shape == (vf.n,) and x.dtype.kind == "f"
             and type(action) is np.ndarray and action.shape == (vf.m,) and action.dtype.kind == "f"
             and isinstance(t, _SCALARS) and isinstance(z, _SCALARS)
-            and (plan is None or (type(plan) is np.ndarray and plan.shape == (3,) and plan.dtype.kind in "iu"))
-            # threads are not used for one row, but an invalid number is refused (run_in_blocks) all the same
-            and isinstance(threads, (int, np.integer)) and not isinstance(threads, bool) and threads >= 1)
+            and (plan is None or (type(plan) is np.ndarray and plan.shape == (3,) and plan.dtype.kind in "iu")))
 
 
 def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, plan: Any,
@@ -42,6 +41,7 @@ def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, p
     (the module docstring), or ``None`` where the inputs are of another kind: then the batched path decides.
 
     :param vf: the :class:`~softreach.filters.ValueFilter`
+    :raises ValueError: :attr:`~softreach.filters.ValueFilter.threads` below 1
     """
     if not _plain(vf, t, x, z, action, plan):
         return None
@@ -50,6 +50,8 @@ def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, p
     if not (math.isfinite(t) and math.isfinite(z) and all(map(math.isfinite, xs))
             and all(map(math.isfinite, act))):
         return None
+    # one row uses no other thread, but an invalid number is refused as for a batch (after the inputs, as there)
+    check_threads(vf.threads)
     # the policy's physical action: ValueFilter.physical, or the clip to the control box, in the same arithmetic
     if normalized:
         pol = [mid + half * min(max(a, -1.0), 1.0) for a, mid, half in zip(act, vf.a_mid.tolist(),

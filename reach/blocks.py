@@ -34,6 +34,16 @@ def _pool(workers: int) -> ThreadPoolExecutor:
     return pool
 
 
+def check_threads(threads: Any) -> int:
+    """``threads`` as an ``int``.
+
+    :raises ValueError: ``threads`` is not a whole number of at least 1
+    """
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+        raise ValueError(f"threads must be a whole number of at least 1, got {threads!r}")
+    return int(threads)
+
+
 def run_in_blocks(run: Callable[[int, int], None], rows: int, threads: int, min_rows: int = PARALLEL_MIN_ROWS
                   ) -> None:
     """Call ``run(lo, hi)`` on consecutive blocks covering ``range(rows)``: one block per thread, as many threads as
@@ -45,9 +55,7 @@ def run_in_blocks(run: Callable[[int, int], None], rows: int, threads: int, min_
     :param threads: the most threads to use (1: the calling thread alone)
     :raises ValueError: ``threads`` is not a whole number of at least 1
     """
-    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
-        raise ValueError(f"threads must be a whole number of at least 1, got {threads!r}")
-    k = max(1, min(int(threads), rows // min_rows))
+    k = max(1, min(check_threads(threads), rows // min_rows))
     cuts = [rows * i // k for i in range(k + 1)]
     others = [_pool(k - 1).submit(run, cuts[i], cuts[i + 1]) for i in range(1, k)]
     try:

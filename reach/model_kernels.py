@@ -23,7 +23,7 @@ from .blocks import default_threads, run_in_blocks
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"reach/blocks.py": "8331d57ef575b91a"}
+COMPILED_IN = {"reach/blocks.py": "80c7dd5d0eb21b9c"}
 
 _P = types.CPointer(types.float64)
 #: the fewest rows an enclosure thread takes: a row costs 0.1 to 0.5 us, handing a block to a thread about 50 us

@@ -41,9 +41,11 @@ from .glider_params import (DEGREES_SUSPECT, GliderParams, _as_numpy, _check_rad
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
 COMPILED_IN = {"reach/backend.py": "a7d96dcea5f1a6a8", "reach/dynamics.py": "a3005ba09203d03b",
-               "reach/model_kernels.py": "dfbe9a4c3bb327f4", "reach/models/glider_enclosure.py": "3913d3267d22fd07",
-               "reach/models/glider_game.py": "45fdd8a4c8cb3f2e", "reach/models/glider_params.py": "b1e61c00ba36d2ae",
-               "reach/problem.py": "bf0873d8c7c825b9", "reach/sets.py": "989c3e976e6eef70"}
+               "reach/model_kernels.py": "f9012b6cc1f8669e",
+               "reach/models/glider_enclosure.py": "5e709816dff144f3",
+               "reach/models/glider_game.py": "45fdd8a4c8cb3f2e",
+               "reach/models/glider_params.py": "b1e61c00ba36d2ae", "reach/problem.py": "bf0873d8c7c825b9",
+               "reach/sets.py": "989c3e976e6eef70"}
 
 Array = B.Array
 

@@ -20,7 +20,7 @@ from .glider_params import GliderParams
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"reach/intervals.py": "af47be164a359a9e", "reach/model_kernels.py": "dfbe9a4c3bb327f4",
+COMPILED_IN = {"reach/intervals.py": "af47be164a359a9e", "reach/model_kernels.py": "f9012b6cc1f8669e",
                "reach/models/glider_params.py": "b1e61c00ba36d2ae"}
 
 #: inflation of a failed Picard candidate: relative to its width, and absolute (plus relative to |x|) so that a

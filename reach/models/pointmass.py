@@ -17,7 +17,7 @@ from ..problem import Model
 # numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
 # start of its sha256, so that a change there changes this file and numba compiles it afresh
 # (tests/test_numba_cache.py)
-COMPILED_IN = {"reach/dynamics.py": "a3005ba09203d03b", "reach/model_kernels.py": "dfbe9a4c3bb327f4",
+COMPILED_IN = {"reach/dynamics.py": "a3005ba09203d03b", "reach/model_kernels.py": "f9012b6cc1f8669e",
                "reach/problem.py": "bf0873d8c7c825b9", "reach/sets.py": "989c3e976e6eef70"}
 
 
