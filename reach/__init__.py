@@ -12,13 +12,43 @@ See :mod:`softreach.reach.problem` for the names (``target``, ``hard_constraint`
 ``W_eps``) used throughout.
 """
 
-from .compute import SolveConfig, solve_table
-from .grid import Grid, budget_axis
-from .models import get_model
-from .problem import Model, ReachAvoidProblem, classical_problem, soft_problem
-from .query import Table, load_table
-from .solver import SolverSettings, solve
-from .table import TableError
+from __future__ import annotations
 
-__all__ = ["Grid", "Model", "ReachAvoidProblem", "SolveConfig", "SolverSettings", "Table", "TableError", "budget_axis",
-           "classical_problem", "get_model", "load_table", "soft_problem", "solve", "solve_table"]
+import importlib
+from typing import TYPE_CHECKING, Any
+
+#: public name -> the submodule that defines it; each loads on first use (PEP 562), so that importing one
+#: submodule (``softreach.reach.problem`` for the envs) does not import the solver and torch with it
+_EXPORTS = {
+    "SolveConfig": "compute", "solve_table": "compute",
+    "Grid": "grid", "budget_axis": "grid",
+    "get_model": "models",
+    "Model": "problem", "ReachAvoidProblem": "problem", "classical_problem": "problem", "soft_problem": "problem",
+    "Table": "query", "load_table": "query",
+    "SolverSettings": "solver", "solve": "solver",
+    "TableError": "table",
+}
+
+__all__ = sorted(_EXPORTS)
+
+if TYPE_CHECKING:  # static readers see the names without the lazy indirection
+    from .compute import SolveConfig, solve_table
+    from .grid import Grid, budget_axis
+    from .models import get_model
+    from .problem import Model, ReachAvoidProblem, classical_problem, soft_problem
+    from .query import Table, load_table
+    from .solver import SolverSettings, solve
+    from .table import TableError
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

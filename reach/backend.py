@@ -7,16 +7,27 @@ stay backend-agnostic and a torch tensor on a GPU never makes a round trip throu
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 import numpy as np
 
-try:  # torch is a base dependency, but keep numpy-only use possible (e.g. a minimal env install).
-    import torch
-except ImportError:  # pragma: no cover - exercised only without torch
-    torch = None  # type: ignore[assignment]
-
 Array = Any
+
+
+def _loaded_torch():
+    """torch if some module has imported it, else ``None``: no tensor exists before torch is imported, so the
+    numpy-only users (the envs) never pay torch's import."""
+    return sys.modules.get("torch")
+
+
+def _import_torch():
+    """torch, imported now if needed; a clear error where it is not installed."""
+    try:
+        import torch
+    except ImportError as err:  # pragma: no cover - exercised only without torch
+        raise ImportError("backend='torch' needs PyTorch; install softreach with its base dependencies") from err
+    return torch
 
 _ndarray = np.ndarray
 #: numpy's ``clip`` ufunc: ``np.clip`` of a float array with two bounds ends in it after a few Python-level
@@ -26,6 +37,7 @@ _clip_ufunc = getattr(getattr(getattr(np, "_core", None), "umath", None), "clip"
 
 def is_torch(x: Any) -> bool:
     """:return: whether ``x`` is a torch tensor."""
+    torch = sys.modules.get("torch")
     return torch is not None and isinstance(x, torch.Tensor)
 
 
@@ -33,7 +45,7 @@ def namespace(*xs: Any):
     """The array module (``numpy`` or ``torch``) that the first array argument belongs to."""
     for x in xs:
         if is_torch(x):
-            return torch
+            return _loaded_torch()
     return np
 
 
@@ -42,6 +54,7 @@ def maximum(a: Array, b: Array | float) -> Array:
     if type(a) is _ndarray and (type(b) is _ndarray or type(b) is float):  # the common numpy case, checked first
         return np.maximum(a, b)
     if is_torch(a) or is_torch(b):
+        torch = _loaded_torch()
         if not is_torch(a):
             a, b = b, a
         if not is_torch(b):
@@ -55,6 +68,7 @@ def minimum(a: Array, b: Array | float) -> Array:
     if type(a) is _ndarray and (type(b) is _ndarray or type(b) is float):
         return np.minimum(a, b)
     if is_torch(a) or is_torch(b):
+        torch = _loaded_torch()
         if not is_torch(a):
             a, b = b, a
         if not is_torch(b):
@@ -69,13 +83,14 @@ def clip(a: Array, lo: float, hi: float) -> Array:
             and hi is not None):
         return _clip_ufunc(a, lo, hi)  # what np.clip calls for a float array and two bounds, without the detour
     if is_torch(a):
-        return torch.clamp(a, min=lo, max=hi)
+        return _loaded_torch().clamp(a, min=lo, max=hi)
     return np.clip(a, lo, hi)
 
 
 def where(cond: Array, a: Array | float, b: Array | float) -> Array:
     """``where`` that accepts Python scalars for either branch under both backends."""
     if is_torch(cond):
+        torch = _loaded_torch()
         if not is_torch(a):
             a = torch.as_tensor(a, dtype=_float_dtype(b, cond), device=cond.device)
         if not is_torch(b):
@@ -87,13 +102,13 @@ def where(cond: Array, a: Array | float, b: Array | float) -> Array:
 def _float_dtype(other: Any, cond: Any):
     if is_torch(other):
         return other.dtype
-    return torch.get_default_dtype()
+    return _loaded_torch().get_default_dtype()
 
 
 def concatenate(arrays: list[Array], axis: int) -> Array:
     """Concatenate along ``axis``."""
     if is_torch(arrays[0]):
-        return torch.cat(arrays, dim=axis)
+        return _loaded_torch().cat(arrays, dim=axis)
     return np.concatenate(arrays, axis=axis)
 
 
@@ -118,9 +133,7 @@ def resolve_dtype(backend: str, dtype: str):
     if dtype not in ("float32", "float64"):
         raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
     if backend == "torch":
-        if torch is None:
-            raise ImportError("backend='torch' needs PyTorch; install softreach with its base dependencies")
-        return getattr(torch, dtype)
+        return getattr(_import_torch(), dtype)
     if backend == "numpy":
         return np.dtype(dtype)
     raise ValueError(f"backend must be 'numpy' or 'torch', got {backend!r}")
@@ -130,9 +143,17 @@ def asarray(x: Any, backend: str, dtype: str = "float64", device: str = "cpu") -
     """Convert ``x`` to an array of the chosen backend, dtype and device."""
     dt = resolve_dtype(backend, dtype)
     if backend == "torch":
+        torch = _import_torch()
         if device.startswith("cuda") and not torch.cuda.is_available():
             raise RuntimeError(f"device={device!r} was requested but torch sees no CUDA device")
         return torch.as_tensor(np.asarray(x) if not is_torch(x) else x, dtype=dt, device=device)
     if device != "cpu":
         raise ValueError(f"the numpy backend runs on the CPU only; got device={device!r} (use backend='torch')")
     return np.asarray(x, dtype=dt)
+
+
+def __getattr__(name: str) -> Any:
+    """``backend.torch``: the torch module, imported on first use (the solver's torch paths read it)."""
+    if name == "torch":
+        return _import_torch()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
