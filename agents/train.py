@@ -204,8 +204,12 @@ def _mixed_envs_quiet():
         yield
 
 
-def train(spec: TrainSpec) -> TrainResult:
-    """Train a policy as ``spec`` says and save it (see the module docstring for the outputs)."""
+def train(spec: TrainSpec, *, model_class: Any = None, wrap_env: Any = None, callbacks: Any = ()) -> TrainResult:
+    """Train a policy as ``spec`` says and save it (see the module docstring for the outputs).
+
+    The hooks of the constrained-RL baselines (:mod:`.safe_rl`): ``model_class`` replaces SB3's ``PPO``,
+    ``wrap_env(env, learner)`` wraps every environment made (``learner``: a training one), ``callbacks`` are
+    added to the training's."""
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
     from stable_baselines3.common.logger import configure
@@ -242,7 +246,7 @@ def train(spec: TrainSpec) -> TrainResult:
                             reward_scale=run.reward_scale if learner else 1.0,
                             intervention_penalty=run.intervention_penalty if (learner and use is not None) else 0.0,
                             certified_starts=deployed)
-        return thunk
+        return (lambda: wrap_env(thunk(), learner)) if wrap_env is not None else thunk
 
     def training_envs(filtered: bool):
         v = DummyVecEnv([env_fn(i, True, filtered) for i in range(run.n_envs)])
@@ -259,7 +263,7 @@ def train(spec: TrainSpec) -> TrainResult:
     venv = training_envs(filtered=not pretrain)
     kwargs = algo_kwargs(algo_cfg)
     if spec.algo == "ppo":
-        model = PPO("MlpPolicy", venv, seed=spec.seed, verbose=0, device="cpu", **kwargs)
+        model = (model_class or PPO)("MlpPolicy", venv, seed=spec.seed, verbose=0, device="cpu", **kwargs)
     else:
         model = _sac_class(algo_cfg.action_label)("MlpPolicy", venv, seed=spec.seed, verbose=0, device="cpu",
                                                   **kwargs)
@@ -272,7 +276,7 @@ def train(spec: TrainSpec) -> TrainResult:
     logger = configure(str(out), ["csv"])
     model.set_logger(logger)
 
-    callbacks = []
+    callbacks = list(callbacks)
     eval_env = deployed_env = None
     if run.eval_freq > 0:
         from softreach.filters import VecSafetyFilter
