@@ -35,16 +35,23 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                                    "softreach.agents.config.")
     p.add_argument("model", type=model_argument, metavar=model_metavar(),
                    help="a registered model or the module:Class path of your own Model subclass")
-    p.add_argument("--algo", choices=ALGOS, default="ppo")
-    p.add_argument("--filter", metavar="TABLE", default=None, help="W_eps table of the safety filter (default: no filter)")
-    p.add_argument("--rule", choices=RULE_CHOICES, default="switch", help="filter rule (default switch)")
+    p.add_argument("--algo", choices=ALGOS, default="ppo",
+                   help="learning algorithm: ppo (Proximal Policy Optimisation, on-policy; default, tuned) or sac "
+                        "(Soft Actor-Critic, off-policy; wired up, not tuned)")
+    p.add_argument("--filter", metavar="TABLE", default=None,
+                   help="W_eps table of the safety filter, solved with --held (default: no filter)")
+    p.add_argument("--rule", choices=RULE_CHOICES, default="switch",
+                   help="filter rule where the policy's action fails the filter's test: switch (the best held "
+                        "candidate; default) or smooth (the closest point to the policy's action towards it)")
     p.add_argument("--budget", type=_budget, default=None, metavar="Q|LO:HI",
                    help="budget Q of every episode, or a range (default: the environment's, point mass 0:0.6)")
     p.add_argument("--wind", choices=WIND_CHOICES, default=None, help="training wind (default random)")
     p.add_argument("--table", metavar="TABLE", default=None, help="table of the adversarial wind (default: --filter's)")
     p.add_argument("--timesteps", type=int, default=None, help="environment steps (default: the model's, see config)")
     p.add_argument("--n-envs", type=int, default=None, help="environments stepped together (default 8 for PPO)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the network's initial weights, the environments' starts and gusts and the "
+                        "periodic evaluations (default 0)")
     p.add_argument("--intervention-penalty", type=float, default=None,
                    help="reward subtracted per step in which the filter acted (default: the model's, see "
                         "softreach.agents.config; 1.0 for the point mass)")
@@ -59,7 +66,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         "(eval/interventions.npz); best_model.zip is still chosen by the policy's own evaluations")
     p.add_argument("--init", metavar="POLICY", default=None,
                    help="start from this saved policy's weights (same model and algorithm), e.g. one trained "
-                        "without the filter")
+                        "without the filter; a new run counts its steps from 0")
+    p.add_argument("--resume", metavar="POLICY", default=None,
+                   help="continue an interrupted run from the model.zip it saved (or its run directory): the same "
+                        "weights, optimiser state and step count, up to --timesteps in all; give the interrupted "
+                        "command's other options again")
     p.add_argument("--out", metavar="DIR", default=None,
                    help="output directory (default runs/train/<model>-<algo>-<filtered|unfiltered>-s<seed>)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -73,18 +84,26 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--policy", required=True, metavar="PATH|optimal|random",
                    help="a saved policy (model.zip or its run directory), 'optimal' (the table's a*) or 'random'")
     p.add_argument("--filter", metavar="TABLE", default=None, help="apply the safety filter of this table")
-    p.add_argument("--rule", choices=RULE_CHOICES, default="switch")
+    p.add_argument("--rule", choices=RULE_CHOICES, default="switch",
+                   help="filter rule where the policy's action fails the filter's one-period test: switch (apply "
+                        "the held candidate action whose worst next certificate is lowest; default) or smooth (the "
+                        "point closest to the policy's action on the segment to such a candidate)")
     p.add_argument("--budget", type=float, default=None, metavar="Q",
                    help="budget Q of every episode (default: drawn from the environment's range)")
-    p.add_argument("--wind", choices=WIND_CHOICES, default="adversarial")
+    p.add_argument("--wind", choices=WIND_CHOICES, default="adversarial",
+                   help="wind during the episodes: adversarial (the table's worst case b*; default, needs a table), "
+                        "random (the environment's gusts) or none")
     p.add_argument("--table", metavar="TABLE", default=None,
                    help="table for 'optimal', the adversarial wind and inside/paper starts (default: --filter's)")
-    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--episodes", type=int, default=100, help="number of episodes (default 100)")
     p.add_argument("--starts", choices=START_CHOICES, default="inside",
                    help="certified by the filter (inside RA~_Q and a held action passes: the starts of the guarantee; needs a "
                         "--held table), inside RA~_Q (sampled from the table), the paper's representative points, uniform over C1 "
                         "(outside the guarantee too), or the environment's own reset distribution")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the starts, the budgets, the gusts and the random policy; episode i resets with "
+                        "seed + i, so policies evaluated with the same seed are compared on the same episodes "
+                        "(default 0)")
     p.add_argument("--json", dest="json_path", metavar="PATH", default=None, help="write aggregates and episodes here")
     p.add_argument("--plots", metavar="DIR", default=None, help="write the plots into this directory")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -96,15 +115,24 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                                    "with and without the filter and the table-optimal controller from the starts the "
                                    "filter certifies, under adversarial and random wind, and write report.md with the "
                                    "plots.")
-    p.add_argument("--out", metavar="DIR", default="runs/demo")
+    p.add_argument("--out", metavar="DIR", default="runs/demo",
+                   help="directory of the table, the training run, report.md and the plots (default runs/demo)")
     p.add_argument("--table", metavar="TABLE", default=None, help="use this table instead of solving the demo's")
     p.add_argument("--policy", metavar="PATH", default=None, help="evaluate this policy instead of training one")
     p.add_argument("--timesteps", type=int, default=None, help="training steps (default 200000)")
-    p.add_argument("--n-envs", type=int, default=None)
+    p.add_argument("--n-envs", type=int, default=None,
+                   help="environments stepped together in training (default 8, PPO's rollout is n_steps x n_envs)")
     p.add_argument("--episodes", type=int, default=30, help="episodes per row of the report (default 30)")
-    p.add_argument("--budgets", type=float, nargs="+", default=[0.0, 0.3, 0.6])
-    p.add_argument("--winds", choices=("random", "adversarial", "none"), nargs="+", default=["adversarial", "random"])
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--budgets", type=float, nargs="+", default=[0.0, 0.3, 0.6], metavar="Q",
+                   help="budgets Q [s] evaluated, one row each (default 0 0.3 0.6)")
+    p.add_argument("--winds", choices=("random", "adversarial", "none"), nargs="+", default=["adversarial", "random"],
+                   help="winds evaluated, one block of rows each (default adversarial random)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="training seed; also the evaluation seed (the episodes' starts and gusts) unless --eval-seed "
+                        "is given (default 0)")
+    p.add_argument("--eval-seed", type=int, default=None,
+                   help="evaluation seed: the starts and gusts of every row (default: --seed); fix it to compare "
+                        "training seeds on the same episodes")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run_demo)
 

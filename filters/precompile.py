@@ -39,6 +39,12 @@ def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
     if not hasattr(table, "model"):
         table = load_table(table)
     model = table.model
+    if not (table.has_budget or table.has_budget_surface):
+        raise ValueError(f"softreach compile needs a W_eps table (softreach solve {model.name} --held); "
+                         f"{table.path} holds only the classical V")
+    if period is None and table.control_period is None:
+        raise ValueError(f"softreach compile needs a table of the sampled-data game (softreach solve {model.name} "
+                         f"--held) or --period SECONDS; {table.path} was solved in continuous time")
     dt = float(period if period is not None else table.control_period)
     hits, misses = (sum(c.values()) for c in (decide_rows.stats.cache_hits, decide_rows.stats.cache_misses))
     t0 = time.perf_counter()

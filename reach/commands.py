@@ -25,10 +25,17 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--budget-scale", type=float, help="kappa in l = max(c2, -kappa z, g) (default: the model's)")
     p.add_argument("--accuracy", choices=["low", "medium", "high", "very_high"], default="very_high",
                    help="scheme: low first order/RK1, medium ENO2/RK2, high WENO3/RK3, very_high WENO5/RK3 (default)")
-    p.add_argument("--device", default="cpu", help="cpu or cuda[:k] (torch backend)")
-    p.add_argument("--backend", choices=["torch", "numpy"], default="torch")
-    p.add_argument("--dtype", choices=["float32", "float64"], default="float32")
-    p.add_argument("--compile", choices=["auto", "yes", "no"], default="auto", help="fuse steps with torch.compile")
+    p.add_argument("--device", default="cpu", help="cpu or cuda[:k] (torch backend; default cpu)")
+    p.add_argument("--backend", choices=["torch", "numpy"], default="torch",
+                   help="array library of the solver: torch (default; --device, --threads and torch.compile apply) "
+                        "or numpy (single-threaded reference, no compilation)")
+    p.add_argument("--dtype", choices=["float32", "float64"], default="float32",
+                   help="floating-point type of the computation (default float32: half the memory, faster; float64 "
+                        "for convergence studies); the table stores float32 either way")
+    p.add_argument("--compile", choices=["auto", "yes", "no"], default="auto",
+                   help="fuse steps with torch.compile: auto compiles grids of 90,000 nodes or more (default), yes "
+                        "always, no never; the first compile on a machine takes a minute or more, later ones load "
+                        "it from the on-disk cache")
     p.add_argument("--dissipation", choices=["auto", "godunov", "local", "global"], default="local",
                    help="numerical Hamiltonian: local/global Lax-Friedrichs, Godunov's (separable Hamiltonians), "
                         "or auto: Godunov where separable (default local)")
@@ -55,10 +62,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_solve)
 
     p = sub.add_parser("plot", help="draw the sets of a table (Fig. 1 style)")
-    p.add_argument("table")
+    p.add_argument("table", help="a table file written by softreach solve (.srt)")
     p.add_argument("--budgets", type=float, nargs="+", default=None,
                    help="budgets Q [s] whose sets RA~_Q are drawn (default: the model's)")
-    p.add_argument("--t", type=float, default=0.0, help="time of the sets")
+    p.add_argument("--t", type=float, default=0.0, metavar="SECONDS",
+                   help="time t of the sets, in seconds from the start of the horizon [0, T] (default 0: the sets "
+                        "of starts with the whole horizon ahead)")
     p.add_argument("--from", dest="starts", action="append", default=[], metavar="X1,X2,...[:Q]",
                    help="simulate the W-derived policy under worst-case disturbance from this state with budget Q (repeatable; write --from=-12,4:0.3 when the state starts with a minus sign)")
     p.add_argument("--paper-starts", action="store_true",
@@ -206,7 +215,8 @@ def _format_summary(s: dict[str, Any]) -> str:
         lines.append(f"Q=0 vs classical: symmetric difference {d['symmetric_difference']:.4f} ({100 * d['relative']:.2f}% of RA)")
     if s.get("control_period") is not None:
         lines.append(f"sampled-data game: actions held for {s['control_period']:g} s, wind free at every instant")
-    lines.append("wall time: " + ", ".join(f"{k} {v:.1f}s" for k, v in s.get("wall_time_s", {}).items()))
+    lines.append("wall time: " + ", ".join(f"{k} {v:.1f}s" for k, v in s.get("wall_time_s", {}).items())
+                 + (" (resumed: the interrupted run's solver time included)" if s.get("resumed") else ""))
     return "\n".join(lines)
 
 
@@ -222,13 +232,36 @@ def _parse_start(text: str, n: int) -> tuple[tuple[float, ...], float]:
     return x, budget
 
 
+def _check_start(start: tuple[tuple[float, ...], float], text: str, table) -> tuple[tuple[float, ...], float]:
+    """Refuse, naming the values, a ``--from`` start outside the table's grid (where it has no value: the model's
+    domain unless the table was solved on a smaller box) or a budget outside ``[0, T]``."""
+    import math
+
+    x, q = start
+    model = table.model
+    grid = table.grid("V")
+    units = getattr(model, "state_units", ("",) * model.state_dim)
+    bad = [f"{name}={v:g} not in [{lo:g}, {hi:g}] {unit}".rstrip()
+           for name, unit, v, lo, hi, per in zip(model.state_names, units, x, grid.lo, grid.hi, grid.periodic)
+           if not (math.isfinite(v) and (per or lo <= v <= hi))]
+    if bad:
+        raise ValueError(f"--from={text}: the start lies outside the table's grid (the {model.name} domain it was "
+                         f"solved on): " + "; ".join(bad))
+    if not (math.isfinite(q) and 0.0 <= q <= model.horizon):
+        raise ValueError(f"--from={text}: budget Q={q:g} must lie in [0, T] = [0, {model.horizon:g}] s")
+    model.validate_state(list(x))
+    return start
+
+
 def run_plot(args: argparse.Namespace) -> int:
     from .query import load_table
 
     table = load_table(args.table)
     model = table.model
     budgets = args.budgets if args.budgets is not None else list(model.default_budgets)
-    starts = [_parse_start(s, model.state_dim) for s in args.starts]
+    if not 0.0 <= args.t <= model.horizon:
+        raise ValueError(f"--t {args.t:g} must lie in [0, T] = [0, {model.horizon:g}] s")
+    starts = [_check_start(_parse_start(s, model.state_dim), s, table) for s in args.starts]
     if args.paper_starts and table.has_budget:
         from .plotting import representative_starts
 

@@ -185,6 +185,7 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
         problems["W_eps"] = (sp, aug)
     header = {"model": model.metadata(), "fields": fields}
     writer = TableWriter(out, header, resume=resume)
+    resumed = _announce_resume(writer, problems)
     walls: dict[str, float] = {}
     try:
         for name, (problem, grid) in problems.items():
@@ -254,7 +255,22 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
     summary["eps"] = cfg.eps if aug is not None or cfg.budget_surface else None
     summary["budget_scale"] = kappa if aug is not None else None
     summary["control_period"] = cfg.control_period
+    summary["resumed"] = resumed
     return summary
+
+
+def _announce_resume(writer: TableWriter, problems: dict[str, Any]) -> bool:
+    """Say on stderr (progress bar or not) that the solve continues an interrupted one, and how far that got;
+    return whether it does."""
+    import sys
+
+    done = {name: writer.header["fields"][name]["done"] for name in problems}
+    if not any(any(d) for d in done.values()):
+        return False
+    parts = ", ".join(f"{name} {sum(d)}/{len(d)}" for name, d in done.items())
+    print(f"softreach: resuming the interrupted solve in {writer.partial} (snapshots already solved: {parts}); "
+          f"--no-resume starts over", file=sys.stderr)
+    return True
 
 
 def summarize(table, budgets: Sequence[float] = DEFAULT_BUDGETS, t: float = 0.0) -> dict[str, Any]:

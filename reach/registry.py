@@ -102,9 +102,10 @@ def model_class(spec: str) -> type:
         raise ValueError(f"unknown model {spec!r}; choose from {model_names()} or give 'module:Class'")
     module_name, class_name = _split(entry.target if entry else spec)
     try:
-        module = importlib.import_module(module_name)
+        module = _import(module_name, user=entry is None)
     except ImportError as exc:
-        raise ValueError(f"model {spec!r}: cannot import module {module_name!r} ({exc})") from None
+        where = " (searched the Python path and the current directory)" if entry is None else ""
+        raise ValueError(f"model {spec!r}: cannot import module {module_name!r}{where} ({exc})") from None
     cls: Any = module
     for part in class_name.split("."):
         cls = getattr(cls, part, None)
@@ -177,6 +178,30 @@ def model_argument(text: str) -> str:
 def model_metavar() -> str:
     """``{pointmass,glider,...}|module:Class``: what a model argument accepts, for ``--help``."""
     return "{" + ",".join(model_names()) + "}|module:Class"
+
+
+def _import(module_name: str, user: bool):
+    """Import ``module_name``; for a user's class path (``user``) the current directory is searched too, after
+    the Python path: the ``softreach`` console script, unlike ``python -m``, does not put it on ``sys.path``, and
+    a table that records ``"acc:ACC"`` must be usable from the folder holding ``acc.py`` without ``PYTHONPATH``."""
+    import os
+    import sys
+
+    try:
+        return importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        top = module_name.partition(".")[0]
+        cwd = os.getcwd()
+        # only a missing top-level module is looked for in the current directory, not an import error inside it
+        if not user or exc.name != top or any(p in ("", cwd) or os.path.abspath(p) == cwd for p in sys.path):
+            raise
+        sys.path.append(cwd)
+        importlib.invalidate_caches()
+        try:
+            return importlib.import_module(module_name)
+        except ModuleNotFoundError as again:
+            sys.path.remove(cwd)
+            raise again from None
 
 
 def _split(target: str) -> tuple[str, str]:

@@ -8,7 +8,11 @@ import sys
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from softreach import __version__
+
     parser = argparse.ArgumentParser(prog="softreach", description="Hamilton-Jacobi reachability with soft constraints.")
+    parser.add_argument("--version", action="version", version=f"softreach {__version__}",
+                        help="print the installed version and exit")
     sub = parser.add_subparsers(dest="command", required=True)
     from softreach.reach.commands import add_commands
 
