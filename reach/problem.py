@@ -26,10 +26,48 @@ import math
 import numpy as np
 
 from . import backend as B
-from .dynamics import Components, Dynamics
+from .dynamics import Components, Dynamics, _owner, box_check
 from .model_kernels import box_params, boxes_set_max
 
 Array = B.Array
+
+
+def _check_horizon(obj: Any, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not (
+            math.isfinite(value) and value > 0):
+        raise ValueError(f"{_owner(obj)}: horizon must be a finite number of seconds > 0, got {value!r}")
+
+
+def _check_start_budget(obj: Any, value: Any) -> None:
+    ends = tuple(value) if isinstance(value, (tuple, list)) else (value,)
+    ok = len(ends) in (1, 2) and all(not isinstance(v, bool) and isinstance(v, (int, float, np.integer, np.floating))
+                                     and math.isfinite(v) and v >= 0 for v in ends)
+    if not ok or ends[0] > ends[-1]:
+        raise ValueError(f"{_owner(obj)}: start_budget must be a budget [s] >= 0 or a (low, high) range with "
+                         f"0 <= low <= high, got {value!r}")
+
+
+@dataclass(frozen=True)
+class TaskWords:
+    """How plots and reports name a model's task, so that a cruise controller is not said to "land".
+
+    :param target: the target set's name in legends
+    :param reached: what an episode that reaches the target did, in a sentence ("reached the target", "landed")
+    :param success: the rate of such episodes ("success rate", "landing rate")
+    :param duration: the time an episode took to reach the target ("time to target", "time to land")
+    :param arrival_speed: the speed :meth:`Model.sink_rate` reports on arrival, ``None`` for a model without one
+    """
+
+    target: str = "target"
+    reached: str = "reached the target"
+    success: str = "success rate"
+    duration: str = "time to target"
+    arrival_speed: str | None = None
+
+
+#: the words of the landing tasks (point mass, glider)
+LANDING_WORDS = TaskWords(target="target (landing zone)", reached="landed", success="landing rate",
+                          duration="time to land", arrival_speed="touchdown sink rate")
 
 
 class Model(Dynamics):
@@ -45,6 +83,8 @@ class Model(Dynamics):
     """
 
     horizon: float = 1.0
+    #: how plots and reports name the task (:class:`TaskWords`)
+    words: TaskWords = TaskWords()
     #: default grid box ``(lo, hi)`` over the physical state
     domain: tuple[tuple[float, ...], tuple[float, ...]] = ((), ())
     #: bounding box of the hard-constraint set ``C1``; a grid must contain it (``None``: unbounded, unchecked)
@@ -95,6 +135,19 @@ class Model(Dynamics):
     #: (``tests/test_compiled_filter.py`` checks it). It gives the default :attr:`set_max_kernel`; ``None``: not
     #: declared
     set_boxes: dict[str, tuple[tuple[float, ...], ...]] | None = None
+
+    #: the declared boxes and ranges, checked where they are set (:class:`~softreach.reach.dynamics.Dynamics`):
+    #: a grid spans ``domain`` and cells tile ``hard_box``, so both need width on every axis; ``target_box`` may
+    #: be unbounded; the empty ``domain`` ``((), ())`` means none declared
+    _CHECKS = {
+        **Dynamics._CHECKS,
+        "domain": box_check("domain", states=True, strict=True),
+        "hard_box": box_check("hard_box", states=True, strict=True, optional=True),
+        "start_box": box_check("start_box", states=True, optional=True),
+        "target_box": box_check("target_box", states=True, optional=True, unbounded=True),
+        "start_budget": _check_start_budget,
+        "horizon": _check_horizon,
+    }
 
     @property
     def set_max_kernel(self) -> Any:
