@@ -29,25 +29,17 @@ import math
 import threading
 from typing import Any
 
-import numba as nb
 import numpy as np
 
 from softreach.reach.blocks import run_in_blocks
 from softreach.reach.box_max import kernel_field
+from softreach.reach.jit import njit
 from softreach.reach.kernels import MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row
 from softreach.reach.model_kernels import held_box_address
 
 from .compiled_certify import certify_rows
 from .compiled_starts import start_plan_rows
 from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value, on_table
-
-# numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
-# start of its sha256, so that a change there changes this file and numba compiles it afresh
-# (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/compiled_certify.py": "4f51a5a80ca1618e", "filters/compiled_starts.py": "812b6a436bb1fc8c",
-               "filters/judge.py": "edba6ff16944545a", "reach/blocks.py": "80c7dd5d0eb21b9c",
-               "reach/box_max.py": "f058385850b25249", "reach/kernels.py": "6c8cbb4d476565f9",
-               "reach/model_kernels.py": "f9012b6cc1f8669e"}
 
 # reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
 _PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7
@@ -66,7 +58,7 @@ def decision_space(n: int, m: int, J: int) -> tuple:
             np.empty(J), np.empty(J, np.bool_), np.empty(J), np.empty(J), np.empty(J, np.int64), np.empty((8, n)))
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _stable_order(keys, order):
     """``order`` = ``np.argsort(keys, kind="stable")`` (NaN last), without allocating: by insertion, which moves
     an index only past strictly greater keys."""
@@ -78,7 +70,7 @@ def _stable_order(keys, order):
         order[j] = i
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _after(a, b):
     """Whether ``a`` sorts after ``b`` (NaN after every number, as numpy sorts)."""
     return a > b or (math.isnan(a) and not math.isnan(b))
@@ -87,7 +79,7 @@ def _after(a, b):
 # numba's reference counting (_nrt) is off in the decision and the kernels it calls: they allocate nothing (their
 # work space is the caller's, decision_space), and with it on, every array that a call or an unpacking binds costs
 # two calls (a fifth of the box maximum's time: docs/filters.md, "How")
-@nb.njit(cache=True, nogil=True, _nrt=False)
+@njit(nogil=True, _nrt=False)
 def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t, x, z, pol, plans, has_plans,
                 diagnostics, applied, reason, value, nxt, certified, chosen, blend, new_plans, space):
     """The decision for every row (:meth:`ValueFilter.filter`) by the ``"switch"`` rule, or with ``smooth`` by the

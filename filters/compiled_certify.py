@@ -11,20 +11,15 @@ each row, by the decision's own parts (:mod:`softreach.filters.judge`) in the sa
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
+from softreach.reach.jit import njit
 from softreach.reach.kernels import certificate_row, cover_row
 
 from .judge import LOWEST_BAD, badness, judge_once, next_value, on_table
 
-# numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
-# start of its sha256, so that a change there changes this file and numba compiles it afresh
-# (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/judge.py": "edba6ff16944545a", "reach/kernels.py": "6c8cbb4d476565f9"}
 
-
-@nb.njit(cache=True, nogil=True, _nrt=False)
+@njit(nogil=True, _nrt=False)
 def certify_rows(enclose, M, C, T, cands, t, x, z, ok, nxt, value, inside, in_cells, space):
     """Per row: ``ok`` and ``nxt`` of the best candidate, ``value`` the certificate at the state, ``inside`` on the
     table (at the budget ``max(z, 0)``), ``in_cells`` in a landing cell; in the work space ``space``

@@ -8,20 +8,15 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
+from softreach.reach.jit import njit
 
 from .judge import judge_once
-
-# numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
-# start of its sha256, so that a change there changes this file and numba compiles it afresh
-# (tests/test_numba_cache.py)
-COMPILED_IN = {"filters/judge.py": "edba6ff16944545a"}
 
 # the owner of a plan that ends in the landing cells (:data:`~softreach.filters.plans.PLAN_LAND`)
 _PLAN_LAND = 1
 
 
-@nb.njit(cache=True, _nrt=False)
+@njit(_nrt=False)
 def _hold_period(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work):
     """One period of ``a`` held from the box ``[lo, hi]`` at budget ``z``, by :func:`judge`: ``(passes, goes on,
     z_end)``: whether it passes (or surely lands), and whether it kept ``C1`` and the budget with a finite end box,
@@ -35,7 +30,7 @@ def _hold_period(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work):
     return ok or lands, kept, z_end
 
 
-@nb.njit(cache=True, _nrt=False)
+@njit(_nrt=False)
 def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, hi, e_lo, e_hi, work):
     """:func:`~softreach.filters.plans._segment` of one row, each period by :func:`judge` (which reads no table):
     ``(candidate, periods, once)``, candidate ``-1`` where none."""
@@ -64,7 +59,7 @@ def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, 
     return best_j, best, once
 
 
-@nb.njit(cache=True, nogil=True, _nrt=False)
+@njit(nogil=True, _nrt=False)
 def start_plan_rows(enclose, M, C, cands, periods, t, x, z, second, out, work, boxes):
     """:func:`~softreach.filters.plans.start_plans` row by row, the same searches in the same order: per row
     ``out[r]`` its ``(START_SEGMENTS, 3)`` segments, in the work space ``work`` and ``boxes`` (:func:`~softreach.filters.compiled.

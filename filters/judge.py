@@ -20,22 +20,17 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
 import numpy as np
 
+from softreach.reach.jit import njit
 from softreach.reach.kernels import MAX_NODES, box_max_row, cover_row, point_value
 from softreach.reach.model_kernels import SET_INDEX, call_held_box, call_set_max
-
-# numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
-# start of its sha256, so that a change there changes this file and numba compiles it afresh
-# (tests/test_numba_cache.py)
-COMPILED_IN = {"reach/kernels.py": "6c8cbb4d476565f9", "reach/model_kernels.py": "f9012b6cc1f8669e"}
 
 # the sets' indices in the model's set-maximum kernel
 _TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_INDEX["soft_constraint"]
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
     """:meth:`Lookahead._budget_spent` over the pieces ``[edges[j], edges[j + 1]]`` of a held action's motion."""
     params, eps, set_params, sets = M[0], M[1], M[2], M[3]
@@ -48,7 +43,7 @@ def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
     return out
 
 
-@nb.njit(cache=True, _nrt=False)
+@njit(_nrt=False)
 def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
     """:func:`~softreach.reach.landing.lands_within` of one row: at some check instant ``s`` every run is in the
     target inside ``C2``, the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``. Not
@@ -72,7 +67,7 @@ def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
     return False
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     """What :meth:`Lookahead.assess` decides without the table, for one row: ``(ok, lands, bounded, in_c1, kept,
     proven, c1, z_end, t_next)``; writes the end box into ``end_lo``, ``end_hi``. ``ok``: the action passes by the
@@ -110,14 +105,14 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     return ok, lands, bounded, in_c1, kept, safe_end and has_safe, c1, z_end, t_next
 
 
-@nb.njit(cache=True, _nrt=False)
+@njit(_nrt=False)
 def judge_once(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     """:func:`judge`, not inlined: for the searches outside the decision (a state's certificate, the start plans),
     each of whose inlined copies would add seconds to the first compilation."""
     return judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work)
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def next_value(T, t_next, end_lo, end_hi, z_end, z_hi, work):
     """The worst certificate over a period's end box, the budget between ``z_end`` and ``z_hi`` (``+inf`` where
     the table has no number): :meth:`Lookahead.assess`'s next value of an action whose motion keeps ``C1``."""
@@ -140,7 +135,7 @@ def next_value(T, t_next, end_lo, end_hi, z_end, z_hi, work):
     return np.inf if math.isnan(best) else best
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _safe_end(T, t_next, end_lo, end_hi, work):
     """Whether the safe value ``V_safe`` (where the table has it) is at most 0 over a period's end box."""
     S, has_S = T[5], T[6]
@@ -153,7 +148,7 @@ def _safe_end(T, t_next, end_lo, end_hi, work):
     return box_max_row(S, t_next, end_lo, end_hi, MAX_NODES, work[7]) <= 0
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def next_floor(T, t_next, end_lo, z_end, work):
     """A lower bound of :func:`next_value` over the box from ``end_lo`` (``-inf`` where it has none): the
     certificate at the box's lower corner and lowest budget, which the box maximum's lattice holds."""
@@ -174,7 +169,7 @@ def next_floor(T, t_next, end_lo, z_end, work):
 _ROUNDING = 1e-9
 
 
-@nb.njit(cache=True, _nrt=False)
+@njit(_nrt=False)
 def read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, below, ties, out):
     """The candidates' next values (their ties, :func:`_tie`, where ``ties``) where only the least can decide: each
     candidate with a finite lower bound ``c_low`` (``+inf``: none to read) is read in the order of the bounds, until
@@ -198,7 +193,7 @@ def read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, belo
         c_low[k] = np.inf
 
 
-@nb.njit(cache=True, _nrt=False)
+@njit(_nrt=False)
 def least_next(T, t_next, end_lo, end_hi, z_hi, work, pick, c_next, c_zend, c_low):
     """:func:`next_value` of the candidates ``pick`` (whose ``c_next`` is ``+inf``) where it can be the least of
     theirs (:func:`read_least`), while the least is below ``1e5``, where it wins any score
@@ -214,7 +209,7 @@ def least_next(T, t_next, end_lo, end_hi, z_hi, work, pick, c_next, c_zend, c_lo
     read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, 1e5, np.bool_(False), c_next)
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _rank(bounded, in_c1, proven, is_safe, kept, c1):
     """The badness of an action that does not pass, but for its tie (:func:`_tie`): first those whose end is
     proven safe, then those the safe value keeps, then the rest; those that keep the budget before those that do
@@ -226,13 +221,13 @@ def _rank(bounded, in_c1, proven, is_safe, kept, c1):
     return 0.9e6 if proven else (1e6 if is_safe else 3e6) + (0.0 if kept else 1e6)
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _tie(nxt, z_end):
     """Within a rank, the lower next certificate first (mapped into ``(-0.5, 0.5)``), then the smaller overspend."""
     return math.atan(1e12 if nxt == np.inf else nxt) / math.pi + 1e3 * max(-z_end, 0.0)
 
 
-@nb.njit(cache=True, _nrt=False)
+@njit(_nrt=False)
 def keeps(enclose, M, C, T, cands, t, z, ok, nxt, end_lo, end_hi, z_end, kept, work, work_box):
     """:meth:`Lookahead.keeps` with landing cells: a row that passes keeps; one whose period keeps ``C1`` and the
     budget keeps when some candidate passes from its whole end box (:meth:`Lookahead.keeps_certified`)."""
@@ -253,7 +248,7 @@ def keeps(enclose, M, C, T, cands, t, z, ok, nxt, end_lo, end_hi, z_end, kept, w
     return False
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     """Whether :func:`judge` can find that ``a`` passes or surely lands, asked first as it costs a third of it:
     it passes only where the landing cells cover its end box at the budget left, at most ``z`` (a cell that covers
@@ -276,7 +271,7 @@ def _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
 LOWEST_BAD = 0.9e6 - 1.0
 
 
-@nb.njit(cache=True, _nrt=False)
+@njit(_nrt=False)
 def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend, keeps_j,
              contest, c_bad, c_score, c_low, c_tie):
     """The badness and score of every candidate that fails (:meth:`Lookahead.assess`), the table read only where
@@ -316,7 +311,7 @@ def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_prov
             c_score[k] = c_bad[k]
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def on_table(W, t, x, z, point, work):
     """:meth:`Table.inside` of a ``W_eps`` table: the interpolant of ``W_eps`` is finite at ``(t, x, z)`` (a budget
     above the grid is read at its top)."""

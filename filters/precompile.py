@@ -2,11 +2,12 @@
 
 The first decision a machine makes compiles :mod:`softreach.filters.compiled` (about 40 s, docs/filters.md
 "Speed"), and the first reset the start's certificate (:mod:`softreach.filters.compiled_certify`, about 15 s
-more), into numba's on-disk cache, which every later process loads in a fraction of a second. Made on purpose,
-that compilation does not stall an episode, and environment processes started together (a vector of
-environments, an SB3 ``SubprocVecEnv``) do not each compile at once. One table of each model and period is
-enough: every table of the same value type (``float32`` or ``float64``) shares the compiled decision, and each
-model adds its own enclosure.
+more), into the package's compiled-code cache (:mod:`softreach.reach.jit`: ``$NUMBA_CACHE_DIR``, else ``numba/``
+in ``$SOFTREACH_CACHE`` or ``~/.cache/softreach``), which every later process loads in a fraction of a second.
+Made on purpose, that compilation does not stall an episode, and environment processes started together (a
+vector of environments, an SB3 ``SubprocVecEnv``) do not each compile at once. One table of each model and
+period is enough: every table of the same value type (``float32`` or ``float64``) shares the compiled decision,
+and each model adds its own enclosure.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
     :param period: the control period [s] (default: the table's)
     :return: ``model``, ``compiled`` (whether the model's filter has a compiled decision at all), ``seconds``,
         ``source`` (``"compiled"`` now, loaded from the ``"cache"``, or already in this ``"process"``) and
-        ``cache`` (numba's cache folder)
+        ``cache`` (the folder of the compiled code, :func:`softreach.reach.jit.compiled_cache_dir`)
     """
     from softreach.reach import load_table
 
@@ -73,8 +74,9 @@ def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Register ``compile`` on the ``softreach`` parser's subparsers."""
     p = sub.add_parser("compile", help="compile the safety filter's decision ahead of its first use",
-                       description="Compile the safety filter's decision and a start's certificate into numba's "
-                                   "on-disk cache (about a minute once per machine), so that no later process "
+                       description="Compile the safety filter's decision and a start's certificate into the "
+                                   "compiled-code cache ($NUMBA_CACHE_DIR, else numba/ in $SOFTREACH_CACHE or "
+                                   "~/.cache/softreach; about a minute once per machine), so that no later process "
                                    "compiles them at its first decision or reset: before an episode, a vector of "
                                    "environments or an SB3 SubprocVecEnv starts. One table of each model is enough.")
     p.add_argument("tables", nargs="+", metavar="TABLE", help="table files (one per model and period is enough)")
@@ -91,6 +93,6 @@ def _run(args: argparse.Namespace) -> int:
         elif r["source"] == "compiled":
             print(f"{path}: {r['model']}'s filter compiled in {r['seconds']:.1f} s, cached in {r['cache']}")
         else:
-            print(f"{path}: {r['model']}'s filter was already compiled (numba's cache: {r['cache']}); its first "
+            print(f"{path}: {r['model']}'s filter was already compiled (cached in {r['cache']}); its first "
                   f"decision took {r['seconds']:.1f} s")
     return 0

@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from . import cell_game
+from .jit import cache_root
 from .kernels import budget_floor_rows, cover_rows, frozen, plan_rows, step_rows
 
 
@@ -258,8 +259,9 @@ def cell_key(lookahead: Any, shape: Any, dz: float | None = None, game: str = "s
 
 
 def cache_dir() -> Path:
-    """Where built cells are kept: ``$SOFTREACH_CACHE`` or ``~/.cache/softreach``."""
-    return Path(os.environ.get("SOFTREACH_CACHE") or Path.home() / ".cache" / "softreach")
+    """Where built cells are kept: the package's cache folder (:func:`softreach.reach.jit.cache_root`:
+    ``$SOFTREACH_CACHE`` or ``~/.cache/softreach``)."""
+    return cache_root()
 
 
 #: cells shipped with the package for the default configurations, so that the first filter on a machine need not

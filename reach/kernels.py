@@ -5,8 +5,8 @@ calls whose fixed cost dwarfs the arithmetic, so they are compiled here, once ea
 functions and the compiled decision (:mod:`softreach.filters.compiled`) call them: the interpolant's maximum over a
 box (:func:`softreach.reach.box_max.box_max`; the certificate at a state is the same with a box of no width), the
 cells' cover test and plans (:class:`~softreach.reach.cell_certificate.CellCertificate`); a model's own compiled
-functions are called through :mod:`softreach.reach.model_kernels`. Compiled code is cached on disk (numba's
-``cache=True``): the first process on a machine compiles it (with the decision; docs/filters.md
+functions are called through :mod:`softreach.reach.model_kernels`. Compiled code is cached on disk
+(:mod:`softreach.reach.jit`): the first process on a machine compiles it (with the decision; docs/filters.md
 "Speed" gives the time), later ones load it. Small functions that are handed the filter's large tuples of arrays are inlined
 (``inline="always"``): such a call costs more than their work. The box maximum's lattice is inlined into the box
 maximum, which halves the certificate's cost at a point; the box maximum itself is not inlined into its callers,
@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
 import numpy as np
+
+from .jit import njit
 
 #: tolerance of the grid checks, in cell units, and of the time-span checks, in seconds
 #: (:data:`softreach.reach.interpolation.TOL`)
@@ -36,7 +37,7 @@ def frozen(a: np.ndarray) -> np.ndarray:
     return view
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def snapshot(times, t):
     """``(k, wt)``: the snapshot interval ``[times[k], times[k + 1]]`` of ``t`` and the later snapshot's weight,
     clamped to ``[0, 1]`` (:func:`softreach.reach.interpolation.snapshot_pair`)."""
@@ -60,7 +61,7 @@ def snapshot(times, t):
     return k, wt
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _node_offset(q, first, extent, shape, periodic):
     """The flat index of the ``q``-th node (the last axis fastest) of the block of ``extent`` nodes from ``first``
     along each axis: wrapped along a periodic axis, held at the grid's last node along another."""
@@ -74,7 +75,7 @@ def _node_offset(q, first, extent, shape, periodic):
     return off
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first, count, buf_a, buf_b, coord_cell,
                  coord_frac, axes, contrib):
     """The interpolant's largest value on the lattice of a box (along each axis ``a`` its two ends and the
@@ -165,7 +166,7 @@ def _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first
     return best
 
 
-@nb.njit(cache=True)
+@njit
 def box_scratch(D, max_nodes):
     """Work space of :func:`box_max_row` for ``D`` axes: a block of at most ``max_nodes + 3`` nodes per axis, and
     each axis' lattice coordinates located, the block's extent and each node's share of the flat index, and a
@@ -175,7 +176,7 @@ def box_scratch(D, max_nodes):
             np.empty((4, D), np.int64), np.empty((D, max_nodes + 3), np.int64), np.empty(1 << D, np.int64))
 
 
-@nb.njit(cache=True, _nrt=False)
+@njit(_nrt=False)
 def box_max_row(field, t, lo, hi, max_nodes, scratch):
     """The interpolant's maximum over the box ``[lo, hi]`` at time ``t``: exact where the box holds at most
     ``max_nodes`` nodes along every axis, else the largest node value of the cells it touches at both snapshots
@@ -224,7 +225,7 @@ def box_max_row(field, t, lo, hi, max_nodes, scratch):
     return best
 
 
-@nb.njit(cache=True)
+@njit
 def box_max_rows(field, t, lo, hi, max_nodes, out):
     """:func:`box_max_row` for every row."""
     scratch = box_scratch(lo.shape[1], max_nodes)
@@ -232,7 +233,7 @@ def box_max_rows(field, t, lo, hi, max_nodes, out):
         out[r] = box_max_row(field, t[r], lo[r], hi[r], max_nodes, scratch)
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def point_value(field, t, x, buf, node):
     """The interpolant at the point ``x`` at time ``t``: :func:`box_max_row` of a box of no width (the same grid
     check, the same arithmetic in the same order: each node blended in time, then the axes contracted from the
@@ -281,7 +282,7 @@ def point_value(field, t, x, buf, node):
     return buf[0]
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def certificate_row(W, z_top, z_floor, V, has_V, t, x, z, point, scratch_W, scratch_V):
     """``D(t, x, z) = min(V~(t, x), W~(t, x, min(z, z_top)))`` (:meth:`~softreach.reach.lookahead.Lookahead.
     certificate`); ``+inf`` off the grid or the time span, at a budget below the table's (``W``) or a negative one
@@ -302,7 +303,7 @@ def certificate_row(W, z_top, z_floor, V, has_V, t, x, z, point, scratch_W, scra
     return out
 
 
-@nb.njit(cache=True)
+@njit
 def certificate_rows(W, z_top, z_floor, V, has_V, t, x, z, out):
     """:func:`certificate_row` for every row."""
     n = x.shape[1]
@@ -312,7 +313,7 @@ def certificate_rows(W, z_top, z_floor, V, has_V, t, x, z, out):
         out[r] = certificate_row(W, z_top, z_floor, V, has_V, t[r], x[r], z[r], point, scratch_W, scratch_V)
 
 
-@nb.njit(cache=True)
+@njit
 def step_index(t, dt, steps, safe):
     """The sample index whose cell game covers time ``t`` (:meth:`~softreach.reach.cell_certificate.
     CellCertificate.step_index`): ``floor(t / dt)`` for the safe game, ``ceil(t / dt)`` for the landing game."""
@@ -321,7 +322,7 @@ def step_index(t, dt, steps, safe):
     return min(max(k, 0), steps)
 
 
-@nb.njit(cache=True)
+@njit
 def budget_floor(z, dz, top):
     """The budget cell whose lower end lies at or below ``z`` (at most ``top``); ``-1`` at a negative budget."""
     if not z >= 0.0:
@@ -332,7 +333,7 @@ def budget_floor(z, dz, top):
     return j
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _cell_span(lo, hi, clo, chi, width, n):
     """The cells ``[first, last]`` that ``[lo, hi]`` touches along one axis of ``n`` cells (clamped to the grid),
     and whether it lies on the grid along it."""
@@ -346,7 +347,7 @@ def _cell_span(lo, hi, clo, chi, width, n):
     return fi, max(fi, gi), on
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def cover_row(cells, t, lo, hi, z):
     """Whether every cell the box ``[lo, hi]`` touches (closed cells; a box reaching the grid's upper end exactly
     touches the last cell only) is good at sample time ``t`` with budget ``z``: on the grid, ``t`` not past the
@@ -390,7 +391,7 @@ def cover_row(cells, t, lo, hi, z):
     return True
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def plan_row(cells, action, hold, t, x):
     """The stored plan of the cell holding ``x`` at sample time ``t``: ``(candidate index, periods to hold it)``,
     ``(-1, 0)`` off the grid or where no budget suffices (:meth:`~softreach.reach.cell_certificate.CellCertificate.
@@ -408,27 +409,27 @@ def plan_row(cells, action, hold, t, x):
     return (j, int(hold[k, off])) if j >= 0 else (-1, 0)
 
 
-@nb.njit(cache=True)
+@njit
 def plan_rows(cells, action, hold, t, x, out_action, out_hold):
     """:func:`plan_row` for every row."""
     for r in range(len(x)):
         out_action[r], out_hold[r] = plan_row(cells, action, hold, t[r], x[r])
 
 
-@nb.njit(cache=True)
+@njit
 def cover_rows(cells, t, lo, hi, z, out):
     """:func:`cover_row` for every row."""
     for r in range(len(lo)):
         out[r] = cover_row(cells, t[r], lo[r], hi[r], z[r])
 
 
-@nb.njit(cache=True)
+@njit
 def step_rows(t, dt, steps, safe, out):
     for r in range(len(t)):
         out[r] = step_index(t[r], dt, steps, safe)
 
 
-@nb.njit(cache=True)
+@njit
 def budget_floor_rows(z, dz, top, out):
     for r in range(len(z)):
         out[r] = budget_floor(z[r], dz, top)

@@ -19,11 +19,7 @@ from numba import types
 from numba.extending import intrinsic
 
 from .blocks import default_threads, run_in_blocks
-
-# numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
-# start of its sha256, so that a change there changes this file and numba compiles it afresh
-# (tests/test_numba_cache.py)
-COMPILED_IN = {"reach/blocks.py": "80c7dd5d0eb21b9c"}
+from .jit import njit
 
 _P = types.CPointer(types.float64)
 #: the fewest rows an enclosure thread takes: a row costs 0.1 to 0.5 us, handing a block to a thread about 50 us
@@ -71,7 +67,7 @@ def call_held_box(typingctx, address, params, x_lo, x_hi, a, s0, s1, lo, hi):
     return types.void(address, params, x_lo, x_hi, a, s0, s1, lo, hi), _call_by_address(None)
 
 
-@nb.njit(cache=True, nogil=True)
+@njit(nogil=True)
 def held_box_rows(address, params, x_lo, x_hi, a, s0, s1, lo, hi):
     """:func:`call_held_box` for every row (2-d C-contiguous arrays, and ``s0``, ``s1`` one time per row)."""
     for r in range(x_lo.shape[0]):
@@ -112,7 +108,7 @@ SET_INDEX = {"target": 0, "hard_constraint": 1, "soft_constraint": 2}
 SET_MAX_SIGNATURE = types.float64(_P, types.int64, _P, _P)
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def box_distance_max(params, offset, lo, hi):
     """The largest value over the box ``[lo, hi]`` of the box distance :func:`~softreach.reach.sets.box` whose
     lower bounds, upper bounds and scales are ``params[offset:]`` (``n`` of each): per axis the larger of the
@@ -135,7 +131,7 @@ def box_distance_max(params, offset, lo, hi):
     return out
 
 
-@nb.njit(cache=True)
+@njit
 def boxes_set_max(params, which, lo, hi):
     """The set-maximum kernel of a model whose sets are all box distances (:func:`box_params`)."""
     return box_distance_max(params, 3 * len(lo) * which, lo, hi)
@@ -176,7 +172,7 @@ def call_set_max(typingctx, address, params, which, lo, hi):
     return types.float64(address, params, which, lo, hi), _call_by_address(types.float64)
 
 
-@nb.njit(cache=True)
+@njit
 def set_max_rows(address, params, which, lo, hi, out):
     """:func:`call_set_max` for every row of ``lo``, ``hi`` (``(N, n)``, C-contiguous)."""
     for r in range(lo.shape[0]):

@@ -1,79 +1,198 @@
-"""Numba keeps compiled code on disk keyed by the text of the function's own file alone (numba 0.68 hashes it), not
-by what it compiles in from other files: the functions it calls or inlines and the global constants it reads. A
-module whose cached functions import from another package file therefore names each such file with a digest of
-its text (``COMPILED_IN``): a change there must change the importing module's text too, so that numba compiles it
-afresh instead of loading code built from the old import (after an upgrade that changed only the imported file,
-or during development)."""
+"""The package's compiled-code cache (:mod:`softreach.reach.jit`): every compiled function is cached through it,
+its key covers every source file of the package, a change to a file that compiled code only depends on (not the
+file of the function itself) compiles it afresh, and the cache lives in the user's cache folder, never in the
+package."""
 
 from __future__ import annotations
 
-import ast
-import hashlib
 import importlib
+import json
+import os
+import re
+import subprocess
+import sys
+import tomllib
 from pathlib import Path
 
+import numba
 import pytest
+from numba.core.caching import NullCache
+
+from softreach.reach import jit
 
 ROOT = Path(__file__).resolve().parents[1]
-# the installed packages' folders (pyproject.toml, [tool.setuptools.package-dir])
-FOLDERS = {"softreach.reach.models": "reach/models", "softreach.reach": "reach", "softreach.filters": "filters",
-           "softreach.envs": "envs", "softreach.agents": "agents"}
-CACHED = sorted(p.relative_to(ROOT).as_posix() for d in ("reach", "filters", "envs", "agents")
-                for p in (ROOT / d).rglob("*.py") if "cache=True" in p.read_text())
+PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
 
 
-def _module(rel: str) -> str:
-    """The dotted name of the package file ``rel``."""
-    folder, name = rel.rsplit("/", 1)
-    package = next(k for k, v in FOLDERS.items() if v == folder)
-    return package if name == "__init__.py" else f"{package}.{name[:-3]}"
-
-
-def _file(module: str) -> str | None:
-    """The package file of a dotted module name, or ``None`` outside the package folders."""
-    for package, folder in sorted(FOLDERS.items(), key=lambda kv: -len(kv[0])):
-        if module == package:
-            return f"{folder}/__init__.py"
-        if module.startswith(package + "."):
-            rest = module[len(package) + 1:].replace(".", "/")
-            for rel in (f"{folder}/{rest}.py", f"{folder}/{rest}/__init__.py"):
-                if (ROOT / rel).exists():
-                    return rel
-    return None
-
-
-def _imported(rel: str) -> set[str]:
-    """The package files the module ``rel`` imports at its top level."""
-    here = _module(rel)
-    package = here if rel.endswith("__init__.py") else here.rsplit(".", 1)[0]
-    out = set()
-    for node in ast.parse((ROOT / rel).read_text()).body:
-        if isinstance(node, ast.Import):
-            names = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                anchor = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
-                base = f"{anchor}.{base}" if base else anchor
-            # "from pkg import name" imports the module pkg.name where there is one
-            names = [f"{base}.{a.name}" if _file(f"{base}.{a.name}") else base for a in node.names]
-        else:
-            continue
-        out.update(f for f in map(_file, names) if f is not None and f != rel)
+def _package_folders() -> dict[str, Path]:
+    """Each installed package's folder in this checkout (pyproject.toml's ``packages`` and ``package-dir``)."""
+    dirs = PYPROJECT["package-dir"]
+    out = {}
+    for name in PYPROJECT["packages"]:
+        parent = max((p for p in dirs if name == p or name.startswith(p + ".")), key=len)
+        out[name] = ROOT / dirs[parent] / name[len(parent):].lstrip(".").replace(".", "/")
     return out
 
 
-def _digest(rel: str) -> str:
-    return hashlib.sha256((ROOT / rel).read_bytes()).hexdigest()[:16]
+def _compiled_modules() -> list[str]:
+    """The dotted names of the package files that compile code with numba."""
+    out = []
+    for name, folder in _package_folders().items():
+        for p in sorted(folder.glob("*.py")):
+            if re.search(r"^\s*@(nb\.|numba\.)?njit", p.read_text(), re.M):
+                out.append(name if p.name == "__init__.py" else f"{name}.{p.stem}")
+    return out
 
 
-def test_the_cached_modules_are_found():
-    assert {"filters/compiled.py", "filters/judge.py", "reach/kernels.py"} <= set(CACHED)
+def test_every_compiled_function_is_cached_by_the_package_cache():
+    modules = _compiled_modules()
+    assert {"softreach.filters.compiled", "softreach.filters.judge", "softreach.reach.kernels",
+            "softreach.reach.models.pointmass"} <= set(modules)
+    found = 0
+    for name in modules:
+        module = importlib.import_module(name)
+        for value in vars(module).values():
+            if isinstance(value, numba.core.registry.CPUDispatcher) and value.py_func.__module__ == name:
+                assert isinstance(value._cache, jit.PackageCache), f"{name}.{value.__name__} is not cached by jit"
+                found += 1
+    assert found >= 50
+    # and no module asks numba for its own cache, which would key the code on the module's file alone
+    for folder in _package_folders().values():
+        for p in folder.glob("*.py"):
+            assert not re.search(r"^\s*@[\w.]*jit\([^)]*cache\s*=", p.read_text(), re.M), p
 
 
-@pytest.mark.parametrize("rel", CACHED)
-def test_a_cached_module_names_what_it_compiles_in(rel):
-    expected = {f: _digest(f) for f in sorted(_imported(rel))}
-    declared = getattr(importlib.import_module(_module(rel)), "COMPILED_IN", {})
-    assert declared == expected, (f"{rel} imports package files whose change numba would not notice; set its "
-                                  f"COMPILED_IN = {expected!r}")
+def test_the_key_is_a_digest_of_every_package_source():
+    expected = sorted({p.resolve() for folder in _package_folders().values() for p in folder.rglob("*.py")})
+    assert {ROOT / "reach/kernels.py", ROOT / "filters/judge.py", ROOT / "reach/models/glider.py",
+            ROOT / "src/softreach/cli.py"} <= set(expected)
+    assert jit.source_files() == expected
+    from softreach.reach.kernels import box_max_row
+    assert box_max_row._cache._impl.locator.get_source_stamp() == jit.source_stamp()
+    jit.source_stamp.cache_clear()  # read the files again now (the stamp is computed once per process)
+    assert jit.source_stamp() == jit.digest(expected)
+
+
+def test_a_one_space_edit_of_any_source_changes_the_key(tmp_path):
+    files = []
+    for rel in ("reach/kernels.py", "filters/judge.py", "reach/model_kernels.py"):
+        dst = tmp_path / rel.replace("/", "_")
+        dst.write_bytes((ROOT / rel).read_bytes())
+        files.append(dst)
+    before = jit.digest(files)
+    for f in files:
+        text = f.read_text()
+        f.write_text(text.replace('"""', '""" ', 1))
+        assert jit.digest(files) != before, f
+        f.write_text(text)
+        assert jit.digest(files) == before
+    files[0].rename(tmp_path / "renamed.py")
+    assert jit.digest([tmp_path / "renamed.py", *files[1:]]) != before
+
+
+# two modules outside the package: ``user.f`` compiles in ``dep.g`` and ``dep.SCALE``
+DEP = """\
+from softreach.reach.jit import njit
+SCALE = {scale}
+
+@njit(inline="always")
+def g(x):
+    return x + 1.0
+"""
+USER = """\
+from softreach.reach.jit import njit
+from dep import SCALE, g
+
+@njit
+def f(x):
+    return g(x) * SCALE
+"""
+# one process: ``f`` keyed by a digest of the two modules' folder (as the package's sources key the package's
+# functions), and a function of the user's own with numba's plain cache, which keeps numba's defaults
+RUN = """\
+import json, sys
+from pathlib import Path
+import numba
+folder = Path(sys.argv[1])
+sys.path.insert(0, str(folder))
+import softreach.reach.jit as jit
+jit.source_stamp = lambda: jit.digest(sorted(folder.glob("*.py")))
+import user, plain
+print(json.dumps({{"f": user.f(2.0), "hits": sum(user.f.stats.cache_hits.values()),
+                   "misses": sum(user.f.stats.cache_misses.values()), "path": user.f.stats.cache_path,
+                   "plain": plain.p(1.0), "plain_path": plain.p.stats.cache_path,
+                   "numba_dir": numba.config.CACHE_DIR}}))
+"""
+PLAIN = """\
+import numba
+
+@numba.njit(cache=True)
+def p(x):
+    return x * 3.0
+"""
+
+
+def _run(folder: Path, env: dict[str, str]) -> dict:
+    out = subprocess.run([sys.executable, "-c", RUN.format(), str(folder)], env=env, capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_a_changed_dependency_recompiles_and_the_cache_stays_out_of_the_sources(tmp_path):
+    code, cache = tmp_path / "code", tmp_path / "cache"
+    code.mkdir()
+    (code / "dep.py").write_text(DEP.format(scale=10.0))
+    (code / "user.py").write_text(USER)
+    (code / "plain.py").write_text(PLAIN)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
+    env["SOFTREACH_CACHE"] = str(cache)
+
+    first = _run(code, env)
+    assert (first["f"], first["misses"], first["hits"]) == (30.0, 1, 0)
+    again = _run(code, env)
+    assert (again["f"], again["misses"], again["hits"]) == (30.0, 0, 1)  # loaded from the disk cache
+    # only the dependency changes, not the file of the compiled function: numba's own key would not see it
+    (code / "dep.py").write_text(DEP.format(scale=100.0))
+    changed = _run(code, env)
+    assert (changed["f"], changed["misses"], changed["hits"]) == (300.0, 1, 0)
+
+    # the compiled code lives under $SOFTREACH_CACHE/numba, nothing of it beside the sources
+    assert Path(first["path"]).is_relative_to(cache / "numba")
+    assert list((cache / "numba").rglob("user.f-*.nbi"))
+    assert not [p for p in code.rglob("*") if p.name.startswith("user.") and p.suffix in (".nbi", ".nbc")]
+    # a user's own numba code in the same process keeps numba's defaults: its cache beside its file, no
+    # NUMBA_CACHE_DIR set for it
+    assert first["plain"] == 3.0 and Path(first["plain_path"]) == code / "__pycache__"
+    assert first["numba_dir"] == ""
+
+
+def test_numba_cache_dir_takes_precedence(tmp_path, monkeypatch):
+    monkeypatch.setenv("SOFTREACH_CACHE", str(tmp_path / "softreach"))
+    monkeypatch.setattr(jit.config, "CACHE_DIR", "")
+    assert jit.compiled_cache_dir() == tmp_path / "softreach" / "numba"
+    assert jit.PackageCache(_square).cache_path.startswith(str(tmp_path / "softreach" / "numba") + os.sep)
+    monkeypatch.setattr(jit.config, "CACHE_DIR", str(tmp_path / "numba_dir"))
+    assert jit.compiled_cache_dir() == tmp_path / "numba_dir"
+    assert jit.PackageCache(_square).cache_path.startswith(str(tmp_path / "numba_dir") + os.sep)
+
+
+def _square(x):
+    return x * x
+
+
+def test_an_unwritable_cache_folder_compiles_without_a_cache(tmp_path, monkeypatch):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    monkeypatch.setenv("SOFTREACH_CACHE", str(blocker))  # a file, so the folder below it cannot be made
+    monkeypatch.setattr(jit.config, "CACHE_DIR", "")
+    monkeypatch.setattr(jit, "_UNWRITABLE", [])
+    with pytest.warns(UserWarning, match=re.escape(str(blocker / "numba"))):
+        square = jit.njit(_square)
+    assert isinstance(square._cache, NullCache)
+    assert square(3.0) == 9.0
+
+
+def test_cache_is_not_an_option():
+    with pytest.raises(TypeError, match="cache=False"):
+        jit.njit(cache=False)

@@ -23,34 +23,24 @@ import math
 from dataclasses import asdict
 from typing import Any, Sequence
 
-import numba as nb
 import numpy as np
 
 from .. import backend as B
 from .. import sets
 from ..dynamics import Components
+from ..jit import njit
 from ..model_kernels import box_distance_max, box_params
-from ..problem import Model
+from ..problem import LANDING_WORDS, Model
 from .glider_enclosure import GliderHeldEnclosure
 from .glider_game import GliderGame
 # re-exported: users take the parameters and the angle helpers from the model module
 from .glider_params import (DEGREES_SUSPECT, GliderParams, _as_numpy, _check_radians, _cos, _sin,
                             degrees_to_radians, radians_to_degrees)
 
-# numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
-# start of its sha256, so that a change there changes this file and numba compiles it afresh
-# (tests/test_numba_cache.py)
-COMPILED_IN = {"reach/backend.py": "a7d96dcea5f1a6a8", "reach/dynamics.py": "a3005ba09203d03b",
-               "reach/model_kernels.py": "f9012b6cc1f8669e",
-               "reach/models/glider_enclosure.py": "5e709816dff144f3",
-               "reach/models/glider_game.py": "45fdd8a4c8cb3f2e",
-               "reach/models/glider_params.py": "b1e61c00ba36d2ae", "reach/problem.py": "bf0873d8c7c825b9",
-               "reach/sets.py": "989c3e976e6eef70"}
-
 Array = B.Array
 
 
-@nb.njit(cache=True)
+@njit
 def _set_max(params, which, lo, hi):
     """The largest value of the glider's set ``which`` (:data:`~softreach.reach.model_kernels.SET_INDEX`) over the box
     ``[lo, hi]``: its box distance's, and for the target also the sink-rate term's, which is ``-V sin(gamma)``,
@@ -122,6 +112,7 @@ class Glider(GliderGame, GliderHeldEnclosure, Model):
     #: the start distribution of ``GliderLanding-v0`` (and of the generic env with this model)
     start_box = ((2.0, 66.0, math.radians(-2.5)), (40.0, 78.0, math.radians(-0.5)))
     start_budget = (0.0, 10.0)
+    words = LANDING_WORDS
 
     def __init__(self, params: GliderParams | None = None, **overrides: Any):
         """:param params: a full parameter set; or pass :class:`GliderParams` fields as keyword overrides"""

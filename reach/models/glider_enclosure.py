@@ -10,18 +10,12 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import numba as nb
 import numpy as np
 
 from ..intervals import HALF_PI, ROUND_ABS, ROUND_REL
+from ..jit import njit
 from ..model_kernels import held_boxes
 from .glider_params import GliderParams
-
-# numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
-# start of its sha256, so that a change there changes this file and numba compiles it afresh
-# (tests/test_numba_cache.py)
-COMPILED_IN = {"reach/intervals.py": "af47be164a359a9e", "reach/model_kernels.py": "f9012b6cc1f8669e",
-               "reach/models/glider_params.py": "b1e61c00ba36d2ae"}
 
 #: inflation of a failed Picard candidate: relative to its width, and absolute (plus relative to |x|) so that a
 #: zero-width side still grows
@@ -30,24 +24,24 @@ _INFLATE_REL, _INFLATE_ABS, _INFLATE_STATE = 0.1, 1e-9, 1e-6
 _MAX_TRIES, _REFINE = 20, 3
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _dn(v):
     return v - (abs(v) * ROUND_REL + ROUND_ABS)
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _up(v):
     return v + (abs(v) * ROUND_REL + ROUND_ABS)
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _mul(a0, a1, b0, b1):
     # the extremes of a bilinear function over a box lie at its corners, whatever the signs
     p1, p2, p3, p4 = a0 * b0, a0 * b1, a1 * b0, a1 * b1
     return _dn(min(min(p1, p2), min(p3, p4))), _up(max(max(p1, p2), max(p3, p4)))
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _div_pos(a0, a1, b0, b1):
     """``a / b`` for ``b0 > 0``: ``1 / b`` is decreasing, so its ends swap."""
     return _mul(a0, a1, _dn(1.0 / b1), _up(1.0 / b0))
@@ -58,7 +52,7 @@ def _div_pos(a0, a1, b0, b1):
 # decision.
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _field(P, c0, c1, V0, V1, g0, g1):
     """Interval extension of :meth:`Glider.f` over the states with airspeed in ``[V0, V1]`` and flight-path angle
     in ``[g0, g1]`` (the field does not depend on ``h``), the lift coefficients ``[c0, c1]`` and every wind in
@@ -93,24 +87,24 @@ def _field(P, c0, c1, V0, V1, g0, g1):
     return True, (h0, v0, _dn(l0 - r1)), (h1, v1, _up(l1 - r0))
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _field_over(P, c0, c1, lo, hi):
     """:func:`_field` over the box ``[lo, hi]`` (3-tuples)."""
     return _field(P, c0, c1, lo[1], hi[1], lo[2], hi[2])
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _hull_lo(x, s, d):
     # a rate that cannot be negative adds nothing below the start: its end is exact, no rounding to widen it
     return x if d >= 0.0 else _dn(x + _dn(s * d))
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _hull_hi(x, s, d):
     return x if d <= 0.0 else _up(x + _up(s * d))
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _hull_step(x_lo, x_hi, s, d_lo, d_hi):
     """``[x_lo, x_hi] + [0, s] * [d_lo, d_hi]`` (``s >= 0``), rounded outwards, as two 3-tuples. Along an axis
     whose rate has one sign the start's end is kept exactly: the motion only leaves it the other way."""
@@ -118,13 +112,13 @@ def _hull_step(x_lo, x_hi, s, d_lo, d_hi):
             (_hull_hi(x_hi[0], s, d_hi[0]), _hull_hi(x_hi[1], s, d_hi[1]), _hull_hi(x_hi[2], s, d_hi[2])))
 
 
-@nb.njit(cache=True, inline="always")
+@njit(inline="always")
 def _pad(X_lo, X_hi, x_lo, x_hi, i):
     """How far a failed Picard candidate grows along axis ``i``."""
     return _INFLATE_REL * (X_hi[i] - X_lo[i]) + _INFLATE_ABS + _INFLATE_STATE * max(abs(x_lo[i]), abs(x_hi[i]))
 
 
-@nb.njit(cache=True)
+@njit
 def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
     """The box of every state reachable at some time in ``[s0, s1]`` of a period with ``alpha = a[0]`` held, from
     every start in ``[x_lo, x_hi]``, for every wind signal of the box, written into ``lo`` and ``hi``; NaN where

@@ -6,19 +6,13 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
-import numba as nb
 import numpy as np
 
 from .. import sets
 from ..dynamics import ControlAndDisturbanceAffine
+from ..jit import njit
 from ..model_kernels import held_boxes
-from ..problem import Model
-
-# numba keys its on-disk cache on this file's text alone; the package files this module imports, each with the
-# start of its sha256, so that a change there changes this file and numba compiles it afresh
-# (tests/test_numba_cache.py)
-COMPILED_IN = {"reach/dynamics.py": "a3005ba09203d03b", "reach/model_kernels.py": "f9012b6cc1f8669e",
-               "reach/problem.py": "bf0873d8c7c825b9", "reach/sets.py": "989c3e976e6eef70"}
+from ..problem import LANDING_WORDS, Model
 
 
 @dataclass(frozen=True)
@@ -80,6 +74,7 @@ class PointMass(Model, ControlAndDisturbanceAffine):
     #: the start distribution of ``PointMassLanding-v0`` (and of the generic env with this model)
     start_box = ((-5.0, 1.0), (5.0, 12.0))
     start_budget = (0.0, 0.6)
+    words = LANDING_WORDS
 
     def __init__(self, params: PointMassParams | None = None, **overrides: Any):
         if params is None:
@@ -227,7 +222,7 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         return drop + p.target_altitude[1]
 
 
-@nb.njit(cache=True)
+@njit
 def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
     """The box of every state reachable at some time in ``[s0, s1]`` of a period with the thrust ``a[0]`` held, from
     every start in ``[x_lo, x_hi]`` (:meth:`PointMass.held_enclosure`), written into ``lo`` and ``hi``; ``params``
@@ -241,7 +236,7 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
     hi[1] = _parabola(x_hi[1], x_hi[0], acc_hi, s0, s1, True)
 
 
-@nb.njit(cache=True)
+@njit
 def _parabola(y, v, acc, s0, s1, largest):
     """The smallest (or ``largest``) value of ``y + v s + acc s^2 / 2`` over ``s`` in ``[s0, s1]``: at an end or
     where its slope ``v + acc s`` vanishes."""
