@@ -1,6 +1,8 @@
 """``softreach sweep``: the grid of a sweep, its runs and evaluations, and their stable ids.
 
-A sweep is a grid of training runs (model x algorithm x filter rule x training budget x wind x variant x seed),
+A sweep is a grid of training runs (model x algorithm x method x filter rule x training budget x wind x variant x
+seed; the methods are plain PPO/SAC and the constrained-RL baselines of :mod:`.safe_rl`, which train without
+the filter, so a baseline with a filter rule is left out of the grid),
 each evaluated under a list of settings (evaluation wind x budget ``Q`` x with/without the filter). This module
 holds the configuration only: :class:`SweepSpec` (what the user asks for, from the command line or a JSON/TOML
 sweep file), :class:`SweepRun` (one training run) and :class:`EvalSetting` (one evaluation of it). Running them
@@ -30,8 +32,9 @@ SWEEP_SCHEMA = "softreach.sweep/1"
 FILTER_RULES = ("none",) + RULES
 EVAL_FILTERS = ("on", "off")
 CHECKPOINTS = ("best", "final")
-#: the keys of an overrides block: RunConfig fields under "run", each algorithm's config fields under its name
-OVERRIDE_SECTIONS = ("run",) + ALGOS
+#: the keys of an overrides block: RunConfig fields under "run", each algorithm's config fields under its name,
+#: the baselines' :class:`~softreach.agents.safe_rl.SafeRLConfig` fields under "safe"
+OVERRIDE_SECTIONS = ("run",) + ALGOS + ("safe",)
 
 
 def stable_hash(obj: Any, length: int = 10) -> str:
@@ -91,6 +94,8 @@ class SweepRun:
     :param n_envs: environments stepped together (``None``: the default)
     :param run_overrides: fields of :class:`~softreach.agents.config.RunConfig` to replace
     :param algo_overrides: fields of the algorithm's config to replace
+    :param method: ``"plain"`` (the algorithm as it is), ``"lag"`` (PPO-Lagrangian) or ``"saute"`` (PPO-Saute)
+    :param safe_overrides: fields of :class:`~softreach.agents.safe_rl.SafeRLConfig` to replace (baselines only)
     """
 
     model: str
@@ -105,11 +110,19 @@ class SweepRun:
     n_envs: int | None = None
     run_overrides: dict[str, Any] = field(default_factory=dict)
     algo_overrides: dict[str, Any] = field(default_factory=dict)
+    method: str = "plain"
+    safe_overrides: dict[str, Any] = field(default_factory=dict)
 
     @property
     def run_id(self) -> str:
-        """Readable prefix plus the hash of every field (e.g. ``pointmass-ppo-switch-s0-3f2a...``)."""
-        return f"{self.model}-{self.algo}-{self.rule}-s{self.seed}-{stable_hash(asdict(self))}"
+        """Readable prefix plus the hash of every field (e.g. ``pointmass-ppo-switch-s0-3f2a...``,
+        ``pointmass-ppo-lag-none-s0-...``); a plain run hashes without the method fields, so its id is the one
+        it had before methods existed and earlier sweeps resume."""
+        d = asdict(self)
+        if self.method == "plain" and not self.safe_overrides:
+            del d["method"], d["safe_overrides"]
+        method = "" if self.method == "plain" else f"-{self.method}"
+        return f"{self.model}-{self.algo}{method}-{self.rule}-s{self.seed}-{stable_hash(d)}"
 
     def train_spec(self, out: str | Path, progress: bool = False):
         """The :class:`~softreach.agents.train.TrainSpec` of this run, writing into ``out``."""
@@ -159,6 +172,8 @@ class SweepSpec:
 
     :param models: models
     :param algos: algorithms
+    :param methods: training methods (:data:`~softreach.agents.safe_rl.METHODS`; the baselines only with rule
+        ``"none"``: other combinations are left out of the grid)
     :param rules: filter rules during training (``"none"``, ``"switch"``, ``"smooth"``)
     :param budgets: training budgets (``None``, ``Q`` or ``(low, high)``; see :func:`parse_budget`)
     :param winds: training winds
@@ -179,6 +194,7 @@ class SweepSpec:
 
     models: tuple[str, ...] = ("pointmass",)
     algos: tuple[str, ...] = ("ppo",)
+    methods: tuple[str, ...] = ("plain",)
     rules: tuple[str, ...] = ("switch",)
     budgets: tuple[Any, ...] = (None,)
     winds: tuple[str, ...] = ("random",)
@@ -199,27 +215,33 @@ class SweepSpec:
     # ------------------------------------------------------------------------------------------ the grid
 
     def runs(self) -> list[SweepRun]:
-        """Every training run of the grid, in a fixed order (models outermost, seeds innermost)."""
+        """Every training run of the grid, in a fixed order (models outermost, seeds innermost); a baseline
+        method (not ``"plain"``) only with rule ``"none"``."""
         out = []
         for model in self.models:
             for algo in self.algos:
-                for rule in self.rules:
-                    for budget in self.budgets:
-                        for wind in self.winds:
-                            for name, block in self.variants.items():
-                                for seed in self.seeds:
-                                    out.append(self._run(model, algo, rule, parse_budget(budget), wind, name, block,
-                                                         int(seed)))
+                for method in self.methods:
+                    for rule in self.rules:
+                        if method != "plain" and rule != "none":
+                            continue
+                        for budget in self.budgets:
+                            for wind in self.winds:
+                                for name, block in self.variants.items():
+                                    for seed in self.seeds:
+                                        out.append(self._run(model, algo, rule, parse_budget(budget), wind, name,
+                                                             block, int(seed), method))
         return out
 
     def _run(self, model: str, algo: str, rule: str, budget: Any, wind: str, variant: str,
-             block: dict[str, Any], seed: int) -> SweepRun:
+             block: dict[str, Any], seed: int, method: str = "plain") -> SweepRun:
         needs_table = rule != "none" or wind == "adversarial"
+        safe = {**self.overrides.get("safe", {}), **block.get("safe", {})} if method != "plain" else {}
         return SweepRun(model=model, algo=algo, rule=rule, budget=budget, wind=wind, seed=seed, variant=variant,
                         table=self.tables.get(model) if needs_table else None, timesteps=self.timesteps,
                         n_envs=self.n_envs,
                         run_overrides={**self.overrides.get("run", {}), **block.get("run", {})},
-                        algo_overrides={**self.overrides.get(algo, {}), **block.get(algo, {})})
+                        algo_overrides={**self.overrides.get(algo, {}), **block.get(algo, {})},
+                        method=method, safe_overrides=safe)
 
     def evaluations(self, model: str) -> list[EvalSetting]:
         """The evaluations of every run of ``model``."""
@@ -245,9 +267,12 @@ class SweepSpec:
         from softreach.reach.models import get_model
 
         from .evaluate import EvalSpec, check_spec
+        from .safe_rl import METHODS
+        from .safe_train import check_method, safe_config
         from .train import resolve
 
-        axes = {"models": (self.models, MODELS), "algos": (self.algos, ALGOS), "rules": (self.rules, FILTER_RULES),
+        axes = {"models": (self.models, MODELS), "algos": (self.algos, ALGOS), "methods": (self.methods, METHODS),
+                "rules": (self.rules, FILTER_RULES),
                 "winds": (self.winds, WINDS), "eval_winds": (self.eval_winds or (), WINDS),
                 "eval_filters": (self.eval_filters or (), EVAL_FILTERS)}
         for name, (values, choices) in axes.items():
@@ -277,12 +302,17 @@ class SweepSpec:
         for q in self.eval_budgets or ():
             if isinstance(q, bool) or not isinstance(q, (int, float)):
                 raise ValueError(f"eval budgets must be numbers Q in seconds, got {q!r}")
+        if not self.runs():
+            raise ValueError(f"the grid has no run: methods {list(self.methods)} train only with rule 'none', "
+                             f"and rules are {list(self.rules)}")
         for run in self.runs():
             if run.table is None and (run.rule != "none" or run.wind == "adversarial"):
                 why = f"rule {run.rule!r}" if run.rule != "none" else "wind 'adversarial'"
                 raise ValueError(f"{why} needs a table for {run.model}: give --table {run.model}=PATH")
             try:
                 resolve(run.train_spec(out="unused"))
+                check_method(run.method, run.train_spec(out="unused"))
+                safe_config(run.safe_overrides)
             except TypeError as exc:  # dataclasses.replace with a field the config does not have
                 raise ValueError(f"run {run.run_id} (variant {run.variant!r}): {exc}") from None
         for model in self.models:
@@ -309,7 +339,7 @@ class SweepSpec:
         unknown = sorted(set(data) - known)
         if unknown:
             raise ValueError(f"unknown sweep setting(s) {unknown}; known: {sorted(known)}")
-        for key in ("models", "algos", "rules", "budgets", "winds", "seeds", "eval_winds", "eval_budgets",
+        for key in ("models", "algos", "methods", "rules", "budgets", "winds", "seeds", "eval_winds", "eval_budgets",
                     "eval_filters"):
             if key in data and data[key] is not None:
                 value = data[key]

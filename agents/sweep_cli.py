@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from .config import ALGOS, MODELS
+from .safe_rl import METHODS
 
 
 def add_sweep_command(sub: argparse._SubParsersAction) -> None:
@@ -35,6 +36,9 @@ def add_sweep_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("file", nargs="?", metavar="FILE", help="a .json or .toml sweep file (optional)")
     p.add_argument("--models", nargs="+", choices=MODELS, help="grid: models (default pointmass)")
     p.add_argument("--algos", nargs="+", choices=ALGOS, help="grid: algorithms (default ppo)")
+    p.add_argument("--methods", nargs="+", choices=METHODS,
+                   help="grid: training method, 'plain' (the algorithm as it is; the default), 'lag' "
+                        "(PPO-Lagrangian) or 'saute' (PPO-Saute); the baselines train without the filter (rule none)")
     p.add_argument("--rules", nargs="+", choices=("none",) + RULE_CHOICES,
                    help="grid: filter rule during training, 'none' for no filter (default switch)")
     p.add_argument("--budgets", nargs="+", metavar="Q|LO:HI|default",
@@ -46,7 +50,8 @@ def add_sweep_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--timesteps", type=int, help="environment steps per run (default: each model's)")
     p.add_argument("--n-envs", type=int, help="environments stepped together per run")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
-                   help="override for every run, SECTION run, ppo or sac: run.eval_freq=0, ppo.n_steps=64 "
+                   help="override for every run, SECTION run, ppo, sac or safe (the baselines): run.eval_freq=0, "
+                        "ppo.n_steps=64, safe.lambda_lr=0.05 "
                         "(VALUE read as JSON, else as text)")
     p.add_argument("--eval-winds", nargs="+", choices=WIND_CHOICES,
                    help="evaluation winds (default adversarial with a table, else random)")
@@ -78,11 +83,11 @@ def _value(text: str) -> Any:
 
 def spec_from_args(args: argparse.Namespace):
     """The :class:`~softreach.agents.sweep.SweepSpec` of a command line: the file's, with the options given."""
-    from .sweep import SweepSpec, load_sweep_file, parse_budget
+    from .sweep import OVERRIDE_SECTIONS, SweepSpec, load_sweep_file, parse_budget
 
     spec = load_sweep_file(args.file) if args.file else SweepSpec()
     given: dict[str, Any] = {}
-    for name in ("models", "algos", "rules", "winds", "seeds", "eval_winds", "eval_budgets", "eval_filters"):
+    for name in ("models", "algos", "methods", "rules", "winds", "seeds", "eval_winds", "eval_budgets", "eval_filters"):
         if getattr(args, name) is not None:
             given[name] = tuple(getattr(args, name))
     if args.budgets is not None:
@@ -109,8 +114,8 @@ def spec_from_args(args: argparse.Namespace):
         section, dot, fld = key.partition(".")
         if not (sep and dot and fld):
             raise ValueError(f"--set {item!r} must be SECTION.FIELD=VALUE (e.g. ppo.n_steps=64)")
-        if section not in ("run",) + ALGOS:
-            raise ValueError(f"--set {item!r}: section {section!r} must be one of {['run', *ALGOS]}")
+        if section not in OVERRIDE_SECTIONS:
+            raise ValueError(f"--set {item!r}: section {section!r} must be one of {list(OVERRIDE_SECTIONS)}")
         overrides.setdefault(section, {})[fld] = _value(text)
     return replace(spec, overrides=overrides)
 

@@ -75,24 +75,25 @@ def _train(run: SweepRun, run_dir: Path, previous: dict[str, Any] | None) -> dic
     old = (previous or {}).get("train", {})
     if old.get("status") == "done" and Path(old.get("model_path", "")).is_file():
         return old
-    from .train import train
+    from .safe_train import train_method
 
-    res = train(run.train_spec(run_dir / "train"))
+    res, safety = train_method(run.train_spec(run_dir / "train"), run.method, run.safe_overrides)
     return {"status": "done", "model_path": str(res.model_path),
             "best_model_path": str(res.best_model_path) if res.best_model_path else None,
-            "wall_time_s": res.wall_time_s, "timesteps": res.timesteps, "run_dir": str(res.out_dir)}
+            "wall_time_s": res.wall_time_s, "timesteps": res.timesteps, "run_dir": str(res.out_dir),
+            "safety": safety}
 
 
 def _evaluate(run: SweepRun, ev: EvalSetting, trained: dict[str, Any], run_dir: Path, cache: dict) -> dict[str, Any]:
     """One evaluation of the trained policy; its full document goes to ``eval-<eval_id>.json``."""
     from .evaluate import EvalSpec, evaluate
     from .report import write_json
-    from .train import load_policy
+    from .safe_train import load_method_policy
 
     best = trained.get("best_model_path")
     path = best if (ev.checkpoint == "best" and best) else trained["model_path"]
     if path not in cache:
-        cache[path] = load_policy(path)
+        cache[path] = load_method_policy(path)  # a Saute policy appends its safety state itself
     rule = run.rule if run.rule != "none" else "switch"
     t0 = time.perf_counter()
     res = evaluate(EvalSpec(model=run.model, policy=path, filter=ev.table if ev.filter == "on" else None, rule=rule,

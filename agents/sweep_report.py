@@ -21,16 +21,20 @@ from .report import AGGREGATE_FIELDS, MEAN, RATE
 from .report_plots import _plt, _save
 from .sweep import EvalSetting, SweepRun, budget_text
 
-CONFIG_COLUMNS = ("run_id", "status", "error", "model", "algo", "rule", "budget", "wind", "variant", "seed",
+CONFIG_COLUMNS = ("run_id", "status", "error", "model", "algo", "method", "rule", "budget", "wind", "variant", "seed",
                   "timesteps", "n_envs", "table")
 EVAL_COLUMNS = ("eval_id", "eval_wind", "eval_budget", "eval_filter", "eval_rule", "episodes", "starts",
                 "eval_seed", "checkpoint")
 RUN_COLUMNS = ("train_timesteps", "train_wall_s", "eval_wall_s")
+#: what the training episodes did (:class:`~softreach.agents.safe_train.TrainingSafetyCounter`): counts over the
+#: whole training and per 100k environment steps
+TRAIN_SAFETY_COLUMNS = ("train_episodes", "train_landed", "train_hard_violations", "train_over_budget",
+                        "train_hard_per_100k", "train_over_per_100k")
 RATE_KEYS = ("value", "low", "high", "count", "n")
 MEAN_KEYS = ("mean", "low", "high", "std", "min", "max", "n")
 OUTCOMES = ("landed", "hard_violation", "timeout")
 #: the fields that tell configurations apart in the report (the seed is pooled over)
-GROUP_FIELDS = ("model", "algo", "rule", "budget", "wind", "variant")
+GROUP_FIELDS = ("model", "algo", "method", "rule", "budget", "wind", "variant")
 
 
 def metric_columns() -> list[str]:
@@ -51,7 +55,7 @@ def metric_columns() -> list[str]:
     return cols
 
 
-COLUMNS = CONFIG_COLUMNS + EVAL_COLUMNS + RUN_COLUMNS + tuple(metric_columns())
+COLUMNS = CONFIG_COLUMNS + EVAL_COLUMNS + RUN_COLUMNS + TRAIN_SAFETY_COLUMNS + tuple(metric_columns())
 
 
 def _flatten(aggregates: dict[str, Any]) -> dict[str, Any]:
@@ -81,10 +85,15 @@ def table_rows(items: Sequence[tuple[SweepRun, list[EvalSetting], dict[str, Any]
         result = result or {"status": "missing", "error": "no result (the run did not finish)", "train": {},
                             "evaluations": {}}
         train = result.get("train", {})
-        base = {"run_id": run.run_id, "model": run.model, "algo": run.algo, "rule": run.rule,
+        safety = train.get("safety") or {}
+        per = safety.get("per_100k") or {}
+        base = {"run_id": run.run_id, "model": run.model, "algo": run.algo, "method": run.method, "rule": run.rule,
                 "budget": budget_text(run.budget), "wind": run.wind, "variant": run.variant, "seed": run.seed,
                 "timesteps": run.timesteps, "n_envs": run.n_envs, "table": run.table,
-                "train_timesteps": train.get("timesteps"), "train_wall_s": train.get("wall_time_s")}
+                "train_timesteps": train.get("timesteps"), "train_wall_s": train.get("wall_time_s"),
+                "train_episodes": safety.get("episodes"), "train_landed": safety.get("landed"),
+                "train_hard_violations": safety.get("hard_violations"), "train_over_budget": safety.get("over_budget"),
+                "train_hard_per_100k": per.get("hard_violations"), "train_over_per_100k": per.get("over_budget")}
         for ev in evals:
             e = result.get("evaluations", {}).get(ev.eval_id)
             row = {**base, "eval_id": ev.eval_id, "eval_wind": ev.wind, "eval_budget": ev.budget,
@@ -121,8 +130,12 @@ def read_table(path: str | Path) -> list[dict[str, str]]:
 
 # --------------------------------------------------------------------------------------------- grouping
 
+METHOD_NAMES = {"plain": "", "lag": "-Lagrangian", "saute": "-Saute"}
+
+
 def _label(row: dict[str, Any]) -> str:
-    parts = [row["model"], row["algo"], "no filter" if row["rule"] == "none" else f"filter {row['rule']}",
+    algo = row["algo"] + METHOD_NAMES.get(row.get("method") or "plain", f"-{row.get('method')}")
+    parts = [row["model"], algo, "no filter" if row["rule"] == "none" else f"filter {row['rule']}",
              f"Q {row['budget']}", f"{row['wind']} wind"]
     if row["variant"] != "default":
         parts.append(row["variant"])
@@ -162,7 +175,8 @@ def pooled_lines(rows: list[dict[str, Any]]) -> list[str]:
     of the seeds' means with their range."""
     head = ["| configuration | evaluation | seeds done | landing rate (pooled) | per seed | hard violations | "
             "over Q | interventions (mean of seeds) | return (mean of seeds) | control effort | touchdown sink rate "
-            "[m/s] | time to land [s] |", "|---" * 12 + "|"]
+            "[m/s] | time to land [s] | training: hard violations, overspends per 100k steps (mean of seeds) |",
+            "|---" * 13 + "|"]
     lines = []
     for _, rs in _groups(rows, GROUP_FIELDS + ("eval_id",)).items():
         ok = [r for r in rs if r["status"] == "done"]
@@ -174,6 +188,9 @@ def pooled_lines(rows: list[dict[str, Any]]) -> list[str]:
         inter = [r["intervention_rate_mean"] for r in ok if r["intervention_rate_mean"] is not None]
         ret = [r["return_mean"] for r in ok if r["return_mean"] is not None]
         perf = [_seed_mean(ok, k) for k in ("control_effort_mean", "touchdown_sink_rate_mean", "time_to_land_mean")]
+        trained = [(r["train_hard_per_100k"], r["train_over_per_100k"]) for r in ok
+                   if r.get("train_hard_per_100k") not in (None, "")]
+        perf.append(f"{np.mean([h for h, _ in trained]):.0f}, {np.mean([o for _, o in trained]):.0f}" if trained else "—")
         lines.append(f"| {_label(rs[0])} | {_eval_label(rs[0])} | {len(ok)}/{len(rs)} | {_pct(landed, n)} | "
                      f"{per_seed} | {hard}/{n} | {over}/{n} | "
                      f"{f'{100 * np.mean(inter):.1f}%' if inter else '—'} | "
@@ -225,7 +242,7 @@ def plot_learning(results: Sequence[tuple[SweepRun, dict[str, Any] | None]], out
     for run, res in results:
         rd = ((res or {}).get("train") or {}).get("run_dir")
         if rd:
-            key = (run.model, run.algo, run.rule, budget_text(run.budget), run.wind, run.variant)
+            key = (run.model, run.algo, run.method, run.rule, budget_text(run.budget), run.wind, run.variant)
             groups.setdefault(key, []).append((run, learning_data(rd)))
     groups = {k: v for k, v in groups.items() if any(d for _, d in v)}
     if not groups:
@@ -249,6 +266,42 @@ def plot_learning(results: Sequence[tuple[SweepRun, dict[str, Any] | None]], out
     return _save(fig, out)
 
 
+def plot_violations_return(rows: list[dict[str, Any]], out: str | Path) -> Path | None:
+    """The comparison at a glance: per run (one point per seed and configuration), the hard violations plus
+    overspends of its training episodes per 100k steps (x) against the mean return of its deployed evaluations
+    (y), one panel without and one with the filter at deployment; the label counts the deployed hard violations
+    and overspends. ``None`` if no run has both."""
+    done = [r for r in rows if r["status"] == "done" and r.get("train_hard_per_100k") not in (None, "")]
+    if not done:
+        return None
+    plt = _plt()
+    filters = [f for f in ("off", "on") if any(r["eval_filter"] == f for r in done)]
+    configs = list(_groups(done, GROUP_FIELDS))
+    markers = "osD^v<>P*X"
+    fig, axs = plt.subplots(1, len(filters), figsize=(5.5 * len(filters), 4.2), squeeze=False, sharey=True)
+    for ax, f in zip(axs[0], filters):
+        for i, key in enumerate(configs):
+            runs = _groups([r for r in done if r["eval_filter"] == f and tuple(r[k] for k in GROUP_FIELDS) == key],
+                           ("run_id",))
+            xs, ys, hard, over, n = [], [], 0, 0, 0
+            for rs in runs.values():
+                xs.append(float(rs[0]["train_hard_per_100k"]) + float(rs[0]["train_over_per_100k"]))
+                ys.append(float(np.mean([r["return_mean"] for r in rs if r["return_mean"] is not None])))
+                hard += sum(r["hard_violation_rate_count"] for r in rs)
+                over += sum(r["over_budget_rate_count"] for r in rs)
+                n += sum(r["hard_violation_rate_n"] for r in rs)
+            if xs:
+                ax.scatter(xs, ys, marker=markers[i % len(markers)], color=f"C{i % 10}", s=40,
+                           label=f"{_label(dict(zip(GROUP_FIELDS, key)))}\n deployed: {hard} hard, {over} over Q of {n}")
+        ax.set_xlabel("training: hard violations + overspends per 100k steps", fontsize=8)
+        ax.set_title(f"deployed {'with' if f == 'on' else 'without'} the filter (mean return over its evaluations)",
+                     fontsize=8)
+        ax.legend(fontsize=6, loc="best")
+    axs[0, 0].set_ylabel("deployed mean return", fontsize=8)
+    fig.suptitle("violations during training against return at deployment: one point per seed and method", fontsize=9)
+    return _save(fig, out)
+
+
 # --------------------------------------------------------------------------------------------- report
 
 def write_report(rows: list[dict[str, Any]], results: Sequence[tuple[SweepRun, dict[str, Any] | None]],
@@ -266,7 +319,8 @@ def write_report(rows: list[dict[str, Any]], results: Sequence[tuple[SweepRun, d
     (out / "plots").mkdir(parents=True, exist_ok=True)
     plots = [p for p in (plot_metric(rows, "landing_rate", out / "plots" / "landing_rate.png", "landing rate"),
                          plot_metric(rows, "return", out / "plots" / "return.png", "mean return"),
-                         plot_learning(results, out / "plots" / "learning_curves.png"))
+                         plot_learning(results, out / "plots" / "learning_curves.png"),
+                         plot_violations_return(rows, out / "plots" / "violations_vs_return.png"))
              if p is not None]
     status = {s: sum(1 for r in rows if r["status"] == s) for s in ("done", "failed", "killed", "missing")}
     checkpoints: dict[str, int] = {}
@@ -294,5 +348,5 @@ def write_report(rows: list[dict[str, Any]], results: Sequence[tuple[SweepRun, d
     return path
 
 
-__all__ = ["COLUMNS", "CONFIG_COLUMNS", "EVAL_COLUMNS", "RUN_COLUMNS", "metric_columns", "plot_learning",
-           "plot_metric", "pooled_lines", "read_table", "table_rows", "write_report", "write_table"]
+__all__ = ["COLUMNS", "CONFIG_COLUMNS", "EVAL_COLUMNS", "RUN_COLUMNS", "TRAIN_SAFETY_COLUMNS", "metric_columns",
+           "plot_learning", "plot_metric", "plot_violations_return", "pooled_lines", "read_table", "table_rows", "write_report", "write_table"]
