@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from . import cell_game
+from .enclosure_check import check_model_for_filter
 from .jit import cache_root
 from .kernels import budget_floor_rows, cover_rows, frozen, plan_rows, step_rows
 
@@ -128,6 +129,9 @@ class CellCertificate:
         N = int(round(T / dt))
         if not math.isclose(N * dt, T, rel_tol=1e-9):
             raise ValueError(f"the horizon {T} s is not a whole number of periods {dt} s")
+        # the cells prove what the model's enclosure claims: compared with simulated runs first
+        check_model_for_filter(model, dt, "building the filter's cells", la.pieces, la.target_checks, cells=True,
+                               cell_width=(np.asarray(model.hard_box[1]) - model.hard_box[0]) / np.asarray(shape))
         return cell_game.solve(cls, la, key)
 
     # ---------------------------------------------------------------- cell arithmetic

@@ -158,6 +158,9 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
     kappa = cfg.budget_scale if cfg.budget_scale is not None else model.budget_scale
     held = cfg.control_period is not None
     if held:
+        # the filter's proof rests on the model's enclosure: refuse a model without one, or a wrong one, now
+        from .enclosure_check import check_model_for_filter
+        check_model_for_filter(model, cfg.control_period, "softreach solve --held", cells=model.cell_shape is not None)
         times = sample_times(model.horizon, cfg.control_period)
         controls = [list(a) for a in model.held_candidates(cfg.held_levels)]
     else:
