@@ -120,7 +120,7 @@ def require_filter_extras(model: Any, job: str, cells: bool) -> None:
         raise EnclosureError(
             f"{model.name} ({type(model).__module__}.{type(model).__qualname__}) lacks what the safety filter needs "
             f"for {job}; add to the class: " + "; ".join(missing) + ". A compiled held_box_kernel(params, x_lo, x_hi, "
-            "a, s0, s1, lo, hi) with held_box_params gives both through softreach.reach.model_kernels.held_boxes "
+            "a, s0, s1, lo, hi) with held_box_params gives these through softreach.reach.model_kernels.held_boxes "
             f"(as reach/models/pointmass.py does); see {DOCS}")
 
 
