@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -150,6 +151,7 @@ def _threads() -> None:
 
 
 def run_train(args: argparse.Namespace) -> int:
+    from .resume import TrainingInterrupted
     from .train import TrainSpec, train
 
     _threads()
@@ -168,13 +170,61 @@ def run_train(args: argparse.Namespace) -> int:
     spec = TrainSpec(model=args.model, algo=args.algo, filter=args.filter, rule=args.rule, budget=args.budget,
                      wind=args.wind, table=args.table, timesteps=args.timesteps, n_envs=args.n_envs, seed=args.seed,
                      out=args.out, progress=not args.quiet, init=args.init, eval_filter=args.eval_filter,
-                     run_overrides=run_over, algo_overrides=algo_over)
-    res = train(spec)
-    print(f"trained {res.timesteps} steps in {res.wall_time_s:.0f} s ({res.timesteps / max(res.wall_time_s, 1e-9):.0f} steps/s)")
+                     run_overrides=run_over, algo_overrides=algo_over, resume=args.resume)
+    for line in train_notes(spec):
+        print(f"softreach: {line}", file=sys.stderr)
+    try:
+        res = train(spec)
+    except TrainingInterrupted as stop:
+        target = f" of {stop.target:,}" if stop.target else ""
+        print(f"\nsoftreach: interrupted after {stop.timesteps:,}{target} steps; the policy so far is saved in "
+              f"{stop.model_path}. Run the same command with --resume {stop.model_path} to continue from it.",
+              file=sys.stderr)
+        return 130
+    before = int(res.config.get("timesteps_at_start", 0))
+    print(f"trained {res.timesteps - before} steps in {res.wall_time_s:.0f} s "
+          f"({(res.timesteps - before) / max(res.wall_time_s, 1e-9):.0f} steps/s)"
+          + (f", resumed from {spec.resume} at step {before}: {res.timesteps} in all" if spec.resume else ""))
     print(f"policy: {res.model_path}" + (f"  best: {res.best_model_path}" if res.best_model_path else ""))
     print(f"evaluate: softreach evaluate {args.model} --policy {res.model_path}"
           + (f" --filter {args.filter}" if args.filter else "") + " --plots " + str(res.out_dir / "plots"))
     return 0
+
+
+def train_notes(spec: Any) -> list[str]:
+    """What ``softreach train`` says before it starts: a filter table that certifies nothing (solved in continuous
+    time, or for another control period), and a step count SB3 will round up (its whole rollouts)."""
+    import math
+
+    from softreach.reach import load_table
+    from softreach.reach.models import get_model
+
+    from .config import learn_unit, planned_steps
+    from .train import resolve
+
+    run, algo, _ = resolve(spec)  # raises, naming the first bad value
+    notes = []
+    period = get_model(spec.model).control_period
+    for option, path in (("--filter", spec.filter), ("--eval-filter", spec.eval_filter)):
+        if path is None:
+            continue
+        got = load_table(path).control_period
+        if got is None or not math.isclose(got, period):
+            solved = "in continuous time" if got is None else f"for a control period of {got:g} s"
+            notes.append(f"warning: {option} {path} was solved {solved}, not for the sampled-data game at the "
+                         f"environment's {period:g} s: its filter certifies no state, so it intervenes without the "
+                         f"filter's guarantee (evaluate --starts certified refuses it); for the guarantee, solve "
+                         f"`softreach solve {spec.model} --held`")
+    pretrain = run.pretrain_steps if spec.filter else 0
+    unit = learn_unit(algo, run.n_envs)
+    for what, asked in (("--pretrain-steps", pretrain), ("--timesteps", run.timesteps)):
+        if asked and planned_steps(asked, algo, run.n_envs) != asked:
+            how = (f"whole rollouts of n_steps x n_envs = {algo.n_steps} x {run.n_envs}" if spec.algo == "ppo"
+                   else f"updates every train_freq x n_envs = {unit // run.n_envs} x {run.n_envs}")
+            notes.append(f"note: {spec.algo.upper()} learns in {how} = {unit:,} steps, so {what} {asked:,} trains "
+                         f"{planned_steps(asked, algo, run.n_envs):,} steps (give a multiple of {unit:,} to train "
+                         f"exactly that many)")
+    return notes
 
 
 def run_evaluate(args: argparse.Namespace) -> int:
@@ -209,10 +259,23 @@ def run_demo(args: argparse.Namespace) -> int:
     from .demo import DEMO_TIMESTEPS, run_demo as demo
 
     _threads()
-    out = demo(out=args.out, table=args.table, policy=args.policy, timesteps=args.timesteps or DEMO_TIMESTEPS,
-               episodes=args.episodes, budgets=args.budgets, winds=args.winds, seed=args.seed,
-               progress=not args.quiet, n_envs=args.n_envs)
+    from .resume import TrainingInterrupted
+
+    eval_seed = args.seed if args.eval_seed is None else args.eval_seed
+    try:
+        out = demo(out=args.out, table=args.table, policy=args.policy, timesteps=args.timesteps or DEMO_TIMESTEPS,
+                   episodes=args.episodes, budgets=args.budgets, winds=args.winds, seed=args.seed,
+                   progress=not args.quiet, n_envs=args.n_envs, eval_seed=eval_seed)
+    except KeyboardInterrupt as stop:
+        saved = (f" The policy trained so far is in {stop.model_path} (--policy {stop.model_path} evaluates it)."
+                 if isinstance(stop, TrainingInterrupted) else "")
+        print(f"\nsoftreach: demo interrupted; its table, finished or partly solved, is reused by the same command.{saved}",
+              file=sys.stderr)
+        return 130
     print((out["report"].read_text().split("## Plots")[0]).strip())
+    trained = "no training (--policy given)" if args.policy else f"training seed {args.seed}"
+    print(f"\nseeds: {trained}; evaluation seed {eval_seed} (the starts and gusts of every row"
+          + (", from --seed; --eval-seed sets it apart)" if args.eval_seed is None else ")"))
     print(f"\nreport: {out['report']}")
     return 0
 

@@ -197,5 +197,20 @@ def algo_kwargs(cfg: PPOConfig | SACConfig) -> dict[str, Any]:
     raise TypeError(f"expected a PPOConfig or SACConfig, got {type(cfg).__name__}")
 
 
+def learn_unit(cfg: PPOConfig | SACConfig, n_envs: int) -> int:
+    """Environment steps SB3 takes between two looks at its total: PPO collects whole rollouts of
+    ``n_steps * n_envs`` transitions, SAC ``train_freq * n_envs`` steps between updates."""
+    if isinstance(cfg, PPOConfig):
+        return int(cfg.n_steps) * int(n_envs)
+    freq = cfg.train_freq[0] if isinstance(cfg.train_freq, (tuple, list)) else cfg.train_freq
+    return int(freq) * int(n_envs)
+
+
+def planned_steps(requested: int, cfg: PPOConfig | SACConfig, n_envs: int) -> int:
+    """The steps SB3 learns when asked for ``requested``: the first multiple of :func:`learn_unit` at or above it."""
+    unit = learn_unit(cfg, n_envs)
+    return -(-int(requested) // unit) * unit
+
+
 __all__ = ["ALGOS", "Defaults", "ENV_IDS", "MODELS", "PPOConfig", "RunConfig", "SACConfig", "algo_kwargs",
-           "defaults", "with_overrides"]
+           "defaults", "learn_unit", "planned_steps", "with_overrides"]

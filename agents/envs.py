@@ -123,7 +123,7 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
              filter_table: Any = None, rule: str = "switch", margin: float | None = None,
              monitor: bool = False, monitor_file: str | None = None, reward_scale: float = 1.0,
              intervention_penalty: float = 0.0, env_kwargs: dict[str, Any] | None = None,
-             certified_starts: bool = False) -> gym.Env:
+             certified_starts: bool = False, monitor_append: bool = False) -> gym.Env:
     """One landing environment with its wind, optional safety filter and training wrappers.
 
     :param model: a registered short name (``"pointmass"``, ``"glider"``, ``"dubins"``) or ``"module:Class"``
@@ -140,6 +140,7 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
     :param intervention_penalty: reward subtracted per filter intervention (0 for evaluation)
     :param env_kwargs: more keyword arguments of the environment
     :param certified_starts: start every episode from a state the filter certifies (needs ``filter_table``)
+    :param monitor_append: append to an existing ``monitor_file`` (a resumed training run) instead of replacing it
     """
     model_class(model)  # raises, naming an unknown model
     check_choice("wind", wind, WINDS)
@@ -157,10 +158,12 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
     if monitor:
         from stable_baselines3.common.monitor import Monitor
 
-        env = Monitor(env, filename=monitor_file, info_keywords=("landed", "hard_violation", "budget_used"))
+        env = Monitor(env, filename=monitor_file, info_keywords=("landed", "hard_violation", "budget_used"),
+                      override_existing=not monitor_append)
     if filter_table is not None:
         table = filter_table.table if isinstance(filter_table, TableOracle) else as_table(filter_table)
         env = safety_filter(env, table, rule=rule, margin=margin)
+        announce_filter_compile(env)
         if certified_starts:
             env = CertifiedStarts(env)
         if intervention_penalty:
@@ -172,6 +175,44 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
     if reward_scale != 1.0:
         env = ScaleReward(env, reward_scale)
     return env
+
+
+#: seconds the safety filter's first decision and first certificate take to compile on a machine with an empty
+#: compile cache: ``softreach compile`` of a point-mass ``--held`` table took COLD s with an empty
+#: ``NUMBA_CACHE_DIR`` on the shared 2-core development machine with other jobs running
+FILTER_COMPILE_S = 0
+_announced = False
+
+
+def filter_code_cached() -> bool | None:
+    """Whether the compiled decision, certificate and start-plan search are in numba's on-disk cache (or already
+    compiled in this process): ``False`` when one must be compiled, ``None`` when the cache cannot be read."""
+    try:
+        from softreach.filters.compiled import decide_rows
+        from softreach.filters.compiled_certify import certify_rows
+        from softreach.filters.compiled_starts import start_plan_rows
+
+        # an index that numba loads for these sources (it reads an empty one where the sources changed)
+        return all(f.signatures or f._cache._cache_file._load_index()
+                   for f in (decide_rows, certify_rows, start_plan_rows))
+    except Exception:  # noqa: BLE001 - numba internals: no announcement is better than a failed episode
+        return None
+
+
+def announce_filter_compile(env: gym.Env) -> None:
+    """Say on stderr, once per process, that the first filtered decision will compile the filter (about
+    :data:`FILTER_COMPILE_S` s, once per machine), where the model's filter has compiled code and the cache lacks
+    it: a step that would otherwise sit silently at 0 %."""
+    global _announced
+    filt = unwrap_filter(env)
+    if _announced or filt is None or filt.value_filter.compiled is None or filter_code_cached() is not False:
+        return
+    _announced = True
+    import sys
+
+    print(f"softreach: the safety filter's first decision compiles it with numba, once per machine: about "
+          f"{FILTER_COMPILE_S:.0f} s (measured on a 2-core machine); `softreach compile TABLE` does it ahead",
+          file=sys.stderr)
 
 
 def unwrap_filter(env: gym.Env) -> Any:
@@ -191,5 +232,5 @@ def normalized_action(env: gym.Env, physical: np.ndarray) -> np.ndarray:
     return np.clip(env.unwrapped.normalized_action(np.asarray(physical, dtype=np.float64)), -1.0, 1.0).astype(np.float32)
 
 
-__all__ = ["CertifiedStarts", "InterventionPenalty", "RULES", "ScaleReward", "WINDS", "check_budget", "check_choice",
-           "make_env", "normalized_action", "unwrap_filter"]
+__all__ = ["CertifiedStarts", "FILTER_COMPILE_S", "InterventionPenalty", "RULES", "ScaleReward", "WINDS",
+           "announce_filter_compile", "check_budget", "check_choice", "filter_code_cached", "make_env", "normalized_action", "unwrap_filter"]

@@ -19,6 +19,7 @@ import numpy as np
 
 from softreach.reach.registry import model_class
 
+from .policies import check_fits
 from .envs import RULES, WINDS, check_budget, check_choice, make_env, normalized_action, unwrap_filter
 # re-exported: the statistics are imported from this module too
 from .statistics import Z95, aggregate, mean_ci, wilson
@@ -167,6 +168,10 @@ def check_spec(spec: EvalSpec, policy_given: bool = False) -> None:
     """Check ``spec`` (ValueError / FileNotFoundError naming the bad value); ``policy_given``: the policy object
     is passed in, ``spec.policy`` is only its name."""
     model_class(spec.model)  # raises, naming an unknown model
+    # the policy first: a mistyped path must not be reported as a missing table
+    if not policy_given and spec.policy not in POLICIES and not Path(spec.policy).exists():
+        raise FileNotFoundError(f"policy file {spec.policy} does not exist (give a saved policy: a model.zip or its "
+                                f"run directory, or 'optimal' or 'random')")
     check_choice("rule", spec.rule, RULES)
     check_choice("wind", spec.wind, WINDS)
     check_choice("start distribution", spec.starts, STARTS)
@@ -187,8 +192,6 @@ def check_spec(spec: EvalSpec, policy_given: bool = False) -> None:
     for path in (spec.filter, spec.table):
         if path is not None and not Path(path).is_file():
             raise FileNotFoundError(f"table {path} does not exist (solve one with `softreach solve {spec.model}`)")
-    if not policy_given and spec.policy not in POLICIES and not Path(spec.policy).exists():
-        raise FileNotFoundError(f"policy {spec.policy!r} is neither 'optimal', 'random' nor an existing file")
 
 
 def certifier(table, env) -> Any:
@@ -338,6 +341,8 @@ def evaluate(spec: EvalSpec, policy_obj: Any = None, progress: bool = False) -> 
     policy = resolve_policy(spec, oracle, policy_obj)
     env = make_env(spec.model, wind=spec.wind, wind_table=oracle, filter_table=table if spec.filter and
                    spec.filter == table_path else spec.filter, rule=spec.rule, margin=spec.margin)
+    if isinstance(policy, SB3Policy):
+        check_fits(policy.model, env, spec.model, spec.policy if policy_obj is None else None)
     base = env.unwrapped
     rng = np.random.default_rng(spec.seed)
     starts = _starts(spec, table, env, rng, base.budget_range)

@@ -45,9 +45,9 @@ from softreach.reach.registry import env_id, model_class
 from .config import ALGOS, PPOConfig, SACConfig, algo_kwargs, defaults, with_overrides
 from .envs import RULES, WINDS, check_budget, check_choice, make_env
 from .callbacks import progress_callback  # noqa: F401  (public here too)
+from .policies import TRAIN_SCHEMA, load_policy, run_config_of  # noqa: F401  (public here too)
+from .resume import load_for_resume, remaining, restore_evaluations, resume_point, save_interrupted
 from .tables import TableOracle, as_table
-
-TRAIN_SCHEMA = "softreach.train/1"
 
 
 @dataclass
@@ -75,6 +75,8 @@ class TrainSpec:
         the recipe measured best on the point mass (``docs/agents.md``)
     :param run_overrides: fields of :class:`~softreach.agents.config.RunConfig` to replace
     :param algo_overrides: fields of the algorithm's config to replace
+    :param resume: an interrupted run's ``model.zip`` (or directory) to continue (:mod:`.resume`): its weights,
+        optimiser state and step count, learning up to ``timesteps`` in all, in its directory unless ``out`` is given
     """
 
     model: str = "pointmass"
@@ -93,6 +95,7 @@ class TrainSpec:
     eval_filter: str | None = None
     run_overrides: dict[str, Any] = field(default_factory=dict)
     algo_overrides: dict[str, Any] = field(default_factory=dict)
+    resume: str | None = None
 
 
 @dataclass
@@ -147,6 +150,10 @@ def resolve(spec: TrainSpec) -> tuple[Any, PPOConfig | SACConfig, dict[str, Any]
     budget = check_budget(run.budget, horizon)
     if run.wind == "adversarial" and not (spec.table or spec.filter):
         raise ValueError("--wind adversarial needs a table for the worst-case wind: give --filter TABLE or --table TABLE")
+    if spec.resume is not None:
+        if spec.init is not None:
+            raise ValueError("--resume continues a run with its own weights: drop --init")
+        resume_point(spec.resume, spec.model, spec.algo)  # raises, naming a missing or mismatched run
     for name, path in (("init policy", spec.init), ("eval filter table", spec.eval_filter)):
         if path is not None and not Path(path).is_file():
             raise FileNotFoundError(f"{name} {path} does not exist")
@@ -220,7 +227,8 @@ def train(spec: TrainSpec, *, model_class: Any = None, wrap_env: Any = None, cal
     from softreach.reach.models import get_model
 
     run, algo_cfg, env_settings = resolve(spec)
-    out = Path(spec.out) if spec.out else default_out(spec)
+    point = resume_point(spec.resume, spec.model, spec.algo) if spec.resume is not None else None
+    out = Path(spec.out) if spec.out else (point.run_dir if point else default_out(spec))
     out.mkdir(parents=True, exist_ok=True)
     (out / "monitor").mkdir(exist_ok=True)
 
@@ -242,7 +250,7 @@ def train(spec: TrainSpec, *, model_class: Any = None, wrap_env: Any = None, cal
             # the deployed loop is measured where the filter's guarantee holds: from the starts it certifies
             return make_env(spec.model, wind=run.wind, wind_table=oracle, budget=env_settings["budget"],
                             filter_table=use, rule=spec.rule, monitor=True,
-                            monitor_file=str(out / "monitor" / f"{name}-{rank}"),
+                            monitor_file=str(out / "monitor" / f"{name}-{rank}"), monitor_append=point is not None,
                             reward_scale=run.reward_scale if learner else 1.0,
                             intervention_penalty=run.intervention_penalty if (learner and use is not None) else 0.0,
                             certified_starts=deployed)
@@ -250,7 +258,8 @@ def train(spec: TrainSpec, *, model_class: Any = None, wrap_env: Any = None, cal
 
     def training_envs(filtered: bool):
         v = DummyVecEnv([env_fn(i, True, filtered) for i in range(run.n_envs)])
-        v.seed(spec.seed)
+        # a resumed run does not replay the starts and gusts its first part began with
+        v.seed(spec.seed + (point.timesteps if point else 0))
         if filtered and filt is not None:
             from softreach.filters import VecSafetyFilter
 
@@ -260,19 +269,24 @@ def train(spec: TrainSpec, *, model_class: Any = None, wrap_env: Any = None, cal
 
     # curriculum: learn to fly without the filter first (no filter decisions: several times faster per step)
     pretrain = run.pretrain_steps if filt is not None else 0
-    venv = training_envs(filtered=not pretrain)
+    pretrain_left, main_left = remaining(point, pretrain, run.timesteps)
+    venv = training_envs(filtered=not pretrain_left)
     kwargs = algo_kwargs(algo_cfg)
-    if spec.algo == "ppo":
-        model = (model_class or PPO)("MlpPolicy", venv, seed=spec.seed, verbose=0, device="cpu", **kwargs)
+    cls = (model_class or PPO) if spec.algo == "ppo" else _sac_class(algo_cfg.action_label)
+    if point is not None:
+        model = load_for_resume(point, cls, venv)
     else:
-        model = _sac_class(algo_cfg.action_label)("MlpPolicy", venv, seed=spec.seed, verbose=0, device="cpu",
-                                                  **kwargs)
+        model = cls("MlpPolicy", venv, seed=spec.seed, verbose=0, device="cpu", **kwargs)
+    # saved with every policy of the run (model.zip, best_model.zip, checkpoints): evaluate names it on a mismatch
+    model.softreach_model = spec.model
     if spec.init is not None:
         try:
             model.set_parameters(str(spec.init), exact_match=True, device="cpu")
         except (ValueError, KeyError, RuntimeError) as err:
             raise ValueError(f"init policy {spec.init} does not fit this run's {spec.algo.upper()} network "
                              f"({err})") from None
+    if point is not None and (out / "progress.csv").is_file():  # SB3's logger starts its file afresh
+        (out / "progress.csv").rename(out / f"progress-to-{point.timesteps}.csv")
     logger = configure(str(out), ["csv"])
     model.set_logger(logger)
 
@@ -293,6 +307,8 @@ def train(spec: TrainSpec, *, model_class: Any = None, wrap_env: Any = None, cal
                                             eval_freq=max(1, run.eval_freq // run.n_envs),
                                             log_path=str(out / "eval"), best_model_save_path=str(out),
                                             deterministic=True, verbose=0))
+        if point is not None:
+            restore_evaluations(callbacks[-1], out)
     if run.checkpoint_freq > 0:
         callbacks.append(CheckpointCallback(save_freq=max(1, run.checkpoint_freq // run.n_envs),
                                             save_path=str(out / "checkpoints"), name_prefix="model"))
@@ -315,19 +331,29 @@ def train(spec: TrainSpec, *, model_class: Any = None, wrap_env: Any = None, cal
         "algo_config": asdict(algo_cfg),
         "versions": _versions(),
         "status": "running",
+        "resumed_from": str(point.model_path) if point else None,
+        "timesteps_at_start": point.timesteps if point else 0,
     }
     (out / "config.json").write_text(json.dumps(config, indent=2))
     t0 = time.perf_counter()
+    phase, pretrain_end = ("pretrain", None) if pretrain_left else ("train", point.pretrain_end if point else None)
     try:
-        if pretrain:
+        if pretrain_left:
             with _mixed_envs_quiet():
-                model.learn(total_timesteps=pretrain, callback=CallbackList(callbacks), progress_bar=False)
+                model.learn(total_timesteps=pretrain_left, callback=CallbackList(callbacks), progress_bar=False,
+                            reset_num_timesteps=point is None)
+            phase, pretrain_end = "train", int(model.num_timesteps)
             venv.close()
             venv = training_envs(filtered=True)
             model.set_env(venv)
-        with _mixed_envs_quiet():
-            model.learn(total_timesteps=run.timesteps, callback=CallbackList(callbacks), progress_bar=False,
-                        reset_num_timesteps=not pretrain)
+        if main_left:
+            with _mixed_envs_quiet():
+                model.learn(total_timesteps=main_left, callback=CallbackList(callbacks), progress_bar=False,
+                            reset_num_timesteps=not (pretrain or point))
+    except KeyboardInterrupt:
+        # Ctrl-C: keep what was learned and say how to go on (softreach train --resume)
+        target = (pretrain_end or pretrain) + run.timesteps if pretrain else run.timesteps
+        raise save_interrupted(model, out, config, phase, pretrain_end, target) from None
     finally:
         venv.close()
         for env in (eval_env, deployed_env):
@@ -338,52 +364,12 @@ def train(spec: TrainSpec, *, model_class: Any = None, wrap_env: Any = None, cal
     model_path = out / "model.zip"
     model.save(model_path)
     best = out / "best_model.zip"
-    config.update(status="done", wall_time_s=wall, timesteps=int(model.num_timesteps),
-                  steps_per_s=model.num_timesteps / wall if wall > 0 else math.nan)
+    config.update(status="done", wall_time_s=wall, timesteps=int(model.num_timesteps), phase="train",
+                  pretrain_end=pretrain_end,
+                  steps_per_s=(model.num_timesteps - config["timesteps_at_start"]) / wall if wall > 0 else math.nan)
     (out / "config.json").write_text(json.dumps(config, indent=2))
     return TrainResult(out_dir=out, model_path=model_path, best_model_path=best if best.exists() else None,
                        config=config, wall_time_s=wall, timesteps=int(model.num_timesteps))
-
-
-def run_config_of(policy_path: str | Path) -> dict[str, Any] | None:
-    """The ``config.json`` of the run a saved policy belongs to (its directory or the one above), if any."""
-    p = Path(policy_path)
-    for d in ([p] if p.is_dir() else []) + [p.parent, p.parent.parent]:
-        cfg = d / "config.json"
-        if cfg.is_file():
-            try:
-                data = json.loads(cfg.read_text())
-            except (OSError, ValueError):
-                continue
-            if data.get("schema") == TRAIN_SCHEMA:
-                return {**data, "_dir": str(d)}
-    return None
-
-
-def load_policy(path: str | Path, algo: str | None = None):
-    """Load a saved SB3 policy (``model.zip`` or a run directory); the algorithm is read from the run's
-    ``config.json`` when ``algo`` is not given, else PPO and SAC are tried in turn.
-
-    :raises FileNotFoundError: no such file
-    :raises ValueError: the file is not a PPO or SAC model
-    """
-    from stable_baselines3 import PPO, SAC
-
-    p = Path(path)
-    if p.is_dir():
-        p = p / "model.zip"
-    if not p.is_file():
-        raise FileNotFoundError(f"policy {path} does not exist (train one with `softreach train`)")
-    cfg = run_config_of(p)
-    algo = algo or (cfg or {}).get("algo")
-    classes = {"ppo": [PPO], "sac": [SAC]}.get(algo, [PPO, SAC])
-    errors = []
-    for cls in classes:
-        try:
-            return cls.load(p, device="cpu")
-        except Exception as exc:  # noqa: BLE001 - try the next class, report all if none fits
-            errors.append(f"{cls.__name__}: {exc}")
-    raise ValueError(f"{path} is not a saved PPO or SAC policy ({'; '.join(errors)})")
 
 
 __all__ = ["TRAIN_SCHEMA", "TrainResult", "TrainSpec", "default_out", "load_policy", "progress_callback", "resolve",

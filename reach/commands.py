@@ -78,7 +78,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_plot)
 
     p = sub.add_parser("study", help="convergence studies of the paper (Fig. 2, Fig. 3)")
-    p.add_argument("which", choices=["grid-convergence", "eps-convergence"])
+    p.add_argument("which", choices=["grid-convergence", "eps-convergence"],
+                   help="grid-convergence: distance from the classical set's boundary to that of RA~_0 as the "
+                        "point-mass grid is refined (Fig. 2); eps-convergence: the measure of the difference "
+                        "between RA~_Q at successive eps (Fig. 3)")
     p.add_argument("--sizes", type=int, nargs="+", default=[50, 100, 150, 200, 300],
                    help="grid-convergence: state grid sizes N of the N x N grids (default 50 100 150 200 300)")
     p.add_argument("--budget-points", type=int, default=200, help="nodes along the budget axis z (default 200)")

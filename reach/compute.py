@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -190,6 +192,10 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
     writer = TableWriter(out, header, resume=resume)
     resumed = _announce_resume(writer, problems)
     walls: dict[str, float] = {}
+    # the first torch.compile on a machine takes a minute or more at 0 %: say so when it starts
+    notices = contextlib.ExitStack()
+    if progress and cfg.settings.backend == "torch":
+        notices.enter_context(compile_notice())
     try:
         for name, (problem, grid) in problems.items():
             k = writer.resume_point(name)
@@ -248,6 +254,7 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
         writer.set(wall_time=walls)
         path = writer.finalize()
     finally:
+        notices.close()
         writer.close()
     from .query import load_table
 
@@ -265,8 +272,6 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
 def _announce_resume(writer: TableWriter, problems: dict[str, Any]) -> bool:
     """Say on stderr (progress bar or not) that the solve continues an interrupted one, and how far that got;
     return whether it does."""
-    import sys
-
     done = {name: writer.header["fields"][name]["done"] for name in problems}
     if not any(any(d) for d in done.values()):
         return False
@@ -274,6 +279,53 @@ def _announce_resume(writer: TableWriter, problems: dict[str, Any]) -> bool:
     print(f"softreach: resuming the interrupted solve in {writer.partial} (snapshots already solved: {parts}); "
           f"--no-resume starts over", file=sys.stderr)
     return True
+
+
+#: seconds the solver's first ``torch.compile`` takes on a machine with an empty compile cache: ``softreach solve
+#: pointmass`` (101 x 101 x 111, one thread) took COLD s with an empty ``TORCHINDUCTOR_CACHE_DIR`` and WARM s
+#: again with it filled, on the shared 2-core development machine with other jobs running
+COLD_COMPILE_S = 0
+
+
+def compile_notice():
+    """A context in which the first ``torch.compile`` that starts announces itself on stderr, once per process,
+    with :data:`COLD_COMPILE_S` when torch's compile cache is empty (a machine's first solve), or as a load
+    from the cache otherwise. Nothing is said where torch offers no compile hook."""
+    try:
+        from torch._dynamo.callback import callback_handler
+        from torch._inductor.runtime.cache_dir_utils import cache_dir
+    except ImportError:  # another torch: no announcement, the solve is unchanged
+        return contextlib.nullcontext()
+    return _CompileNotice(callback_handler, cache_dir)
+
+
+class _CompileNotice:
+    said = False  # once per process, whatever the number of solves and compiled graphs
+
+    def __init__(self, handler: Any, cache_dir: Any):
+        self.handler, self.cache_dir = handler, cache_dir
+
+    def __enter__(self) -> "_CompileNotice":
+        self.handler.register_start_callback(self._start)
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.handler.remove_start_callback(self._start)
+
+    def _start(self, args: Any) -> None:
+        if _CompileNotice.said:
+            return
+        _CompileNotice.said = True
+        where = Path(self.cache_dir())
+        graphs = where / "fxgraph"
+        if graphs.is_dir() and any(graphs.iterdir()):
+            line = f"softreach: torch.compile: building the solver's kernels from the compile cache in {where}"
+        else:
+            line = (f"softreach: compiling the solver with torch.compile, once per machine: about "
+                    f"{COLD_COMPILE_S:.0f} s at 0 % (measured on a 2-core machine), then cached in {where}")
+        from tqdm.auto import tqdm
+
+        tqdm.write(line, file=sys.stderr)
 
 
 def summarize(table, budgets: Sequence[float] = DEFAULT_BUDGETS, t: float = 0.0) -> dict[str, Any]:
