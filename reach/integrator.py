@@ -16,11 +16,11 @@ the target is reached at any instant (:func:`episode_ends` is that rule for ``N`
 the safety filter counts on landing only at those instants (:class:`~softreach.reach.lookahead.Lookahead`,
 ``target_checks``).
 
-One algorithm, three entry points that share every step of it: the RK4 step's lines are written once
-(:mod:`softreach.reach.rk4`) and compiled per state dimension into the step that :func:`_period` takes, on numpy
-component arrays (``N`` states) or Python floats (one state), and into :func:`_integrate_period_scalar`'s loop;
-the stage times, the gathered stage rates and the budget rule are those of :func:`_period`.
-:func:`_integrate_period_scalar` is the same loop specialised to a model's scalar methods
+One algorithm, three entry points that share every step of it: one RK4 step
+(:func:`~softreach.reach.rk4.rk4_step`) on numpy component arrays (``N`` states, :func:`_period`) or Python
+floats (one state, :func:`_period` and :func:`_integrate_period_scalar`), the same stage times, stage rates and
+budget rule.
+:func:`_integrate_period_scalar` is :func:`_period`'s loop on a model's scalar methods
 (:mod:`softreach.reach.scalar_model`): it evaluates ``h_eps`` stage by stage on floats and decides the two cases
 that need no arithmetic (all stages inside ``C2``: ``0``; all beyond the band: the sub-step's length) inline,
 leaving every other sub-step to the same :func:`budget_piece` and :func:`kink_costs`. tests/test_integrator.py
@@ -37,7 +37,7 @@ import numpy as np
 
 from .budget_quadrature import FLOATS, budget_piece, kink_costs
 from .problem import Model
-from .rk4 import rk4_stages, rk4_step, written_out
+from .rk4 import rk4_stages, rk4_step
 from .scalar_model import ScalarModel, scalar_model
 
 __all__ = ["BatchPeriod", "ScalarModel", "episode_ends", "integrate_batch", "integrate_period", "rk4_stages",
@@ -131,7 +131,6 @@ def _period(model: Model, t: float, x: list[Any], a: list[Any], b: list[Any], h:
     :return: the end state (one float or ``(N,)`` array per component), the costs, the end rates and the times
         elapsed (floats for one state, else ``(N,)`` arrays)
     """
-    step = rk4_step(len(x))
     one = type(x[0]) is not np.ndarray
     rows = 1 if one else len(x[0])
     hs = h / n_substeps
@@ -147,7 +146,7 @@ def _period(model: Model, t: float, x: list[Any], a: list[Any], b: list[Any], h:
         tc = t + j * hs
         tm = tc + hh
         te = tc + hs
-        xc, x2, x3, x4 = step(model.f, tc, tm, te, hh, hs, h6, xc, a, b)
+        xc, x2, x3, x4 = rk4_step(model.f, tc, tm, te, hh, hs, h6, xc, a, b)
         path.append(xc)
         points += (x2, x3, x4, xc)
         times += (tm, tm, te, t + h if j == n_substeps - 1 else te)
@@ -291,10 +290,17 @@ def integrate_period(model: Model, t: float, x: Sequence[float], a: Sequence[flo
     return [float(v) for v in xe], cost, rate, elapsed
 
 
-#: :func:`_integrate_period_scalar`'s loop: :func:`_period`'s steps on Python floats with ``h_eps`` taken stage by
-#: stage, the RK4 lines written into it (a call per sub-step would cost a twentieth of an environment step)
-_SCALAR_LOOP = """\
-def scalar_period(f, rate, model, t, xc, a, b, h, n_substeps, eps, resolution, r0, stop):
+def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Sequence[float], a: Sequence[float],
+                             b: Sequence[float], h: float, n_substeps: int, eps: float, budget_resolution: float,
+                             rate0: float | None, stop: Callable | None = None
+                             ) -> tuple[list[float], float, float, float]:
+    """:func:`integrate_period` on the model's scalar fast path: :func:`_period`'s loop with ``h_eps`` taken
+    stage by stage on Python floats (the same stages, stage times and budget rule). The two sub-steps that need
+    no arithmetic are decided here: all stages inside ``C2`` cost ``0``, all beyond the band the sub-step's
+    length; every other goes to :func:`budget_piece` and, at a kink, :func:`kink_costs`."""
+    f, rate = fast.f, fast.violation_rate
+    xc = x if type(x) is list else list(x)
+    r0 = rate(t, xc, eps) if rate0 is None else rate0
     hs = h / n_substeps
     hh = 0.5 * hs
     h6 = hs / 6.0
@@ -304,7 +310,7 @@ def scalar_period(f, rate, model, t, xc, a, b, h, n_substeps, eps, resolution, r
         tc = t + j * hs
         tm = tc + hh
         te = tc + hs
-        {rk4}
+        xn, x2, x3, x4 = rk4_step(f, tc, tm, te, hh, hs, h6, xc, a, b)
         r2, r3, r4 = rate(tm, x2, eps), rate(tm, x3, eps), rate(te, x4, eps)
         if r0 == 0.0 and r2 == 0.0 and r3 == 0.0 and r4 == 0.0:
             pass
@@ -312,31 +318,14 @@ def scalar_period(f, rate, model, t, xc, a, b, h, n_substeps, eps, resolution, r
             costs.append(hs)
         else:
             piece, kink = budget_piece(r0, r2, r3, r4, hs, FLOATS)
-            if kink and hs > resolution:
+            if kink and hs > budget_resolution:
                 piece = float(kink_costs(model, np.array([tc]), hs, np.array([xc]), np.array([f(tc, xc, a, b)]),
-                                         np.array([xn]), np.array([f(te, xn, a, b)]), eps, resolution)[0])
+                                         np.array([xn]), np.array([f(te, xn, a, b)]), eps, budget_resolution)[0])
             costs.append(piece)
         xc = xn
         if j == last:
-            return xc, fsum(costs), rate(t + h, xn, eps), h
+            return xc, math.fsum(costs), rate(t + h, xn, eps), h
         r0 = rate(te, xn, eps)
         if stop is not None and stop(te, xn, r0):
-            return xc, fsum(costs), r0, (j + 1) * hs
-    raise ValueError(f"n_substeps must be a positive integer, got {{n_substeps!r}}")
-"""
-
-
-_SCALAR_SCOPE = {"budget_piece": budget_piece, "FLOATS": FLOATS, "kink_costs": kink_costs, "np": np,
-                 "fsum": math.fsum}
-
-
-def _integrate_period_scalar(fast: ScalarModel, model: Model, t: float, x: Sequence[float], a: Sequence[float],
-                             b: Sequence[float], h: float, n_substeps: int, eps: float, budget_resolution: float,
-                             rate0: float | None, stop: Callable | None = None
-                             ) -> tuple[list[float], float, float, float]:
-    """:func:`integrate_period` on the model's scalar fast path: :func:`_period`'s loop with ``h_eps`` taken
-    stage by stage on Python floats (the same stages, stage times and budget rule; :data:`_SCALAR_LOOP`)."""
-    xc = x if type(x) is list else list(x)
-    r0 = fast.violation_rate(t, xc, eps) if rate0 is None else rate0
-    loop = written_out(_SCALAR_LOOP, len(xc), _SCALAR_SCOPE)
-    return loop(fast.f, fast.violation_rate, model, t, xc, a, b, h, n_substeps, eps, budget_resolution, r0, stop)
+            return xc, math.fsum(costs), r0, (j + 1) * hs
+    raise ValueError(f"n_substeps must be a positive integer, got {n_substeps!r}")
