@@ -34,11 +34,15 @@ def pad(u: Array, axis: int, width: int, boundary: str) -> Array:
     lo_rule, hi_rule = (boundary, boundary) if isinstance(boundary, str) else boundary
     first, second = _take(u, axis, 0, 1), _take(u, axis, 1, 2)
     last, before = _take(u, axis, n - 1, n), _take(u, axis, n - 2, n - 1)
-    slope_lo = _ghost_slope(lo_rule, first, first - second)  # per ghost step, outward
-    slope_hi = _ghost_slope(hi_rule, last, last - before)
-    left = [first + k * slope_lo for k in range(width, 0, -1)]
-    right = [last + k * slope_hi for k in range(1, width + 1)]
+    left = [ghost(lo_rule, first, second, k) for k in range(width, 0, -1)]
+    right = [ghost(hi_rule, last, before, k) for k in range(1, width + 1)]
     return B.concatenate(left + [u] + right, axis)
+
+
+def ghost(rule: str, edge: Array, inner: Array, k: int) -> Array:
+    """The ``k``-th ghost value (``k = 1`` next to the edge) beyond an end with values ``edge``, then ``inner``,
+    under a non-periodic ``rule`` of :func:`pad`."""
+    return edge + k * _ghost_slope(rule, edge, edge - inner)
 
 
 def _ghost_slope(rule: str, edge: Array, slope: Array) -> Array:

@@ -153,7 +153,7 @@ class HamiltonianOperator:
     def project(self, t: float, u: Array) -> Array:
         """``max(c, min(l, u))``: the obstacles of the variational inequality."""
         l, c = self._sets(t)
-        return B.maximum(c, B.minimum(l, u))
+        return project_values(l, c, u)
 
     def rate(self, t: float, u: Array) -> tuple[Array, float]:
         """``(H_hat, max_x sum_i alpha_i / dx_i)`` for the value ``u`` at time ``t``."""
@@ -168,23 +168,35 @@ class HamiltonianOperator:
             dm, dp = upwind_derivatives(u, i, self.dx[i], s.scheme, self.boundaries[i])
             lefts.append(dm)
             rights.append(dp)
-        if self.godunov:
-            return godunov_hamiltonian(self.dynamics, t, self.x, self.dx, lefts, rights)
-        p = [0.5 * (a + b) for a, b in zip(lefts, rights)]
-        out = self.dynamics.hamiltonian(t, self.x, p)
-        if s.dissipation == "local":
-            p_lo = [B.minimum(a, b) for a, b in zip(lefts, rights)]
-            p_hi = [B.maximum(a, b) for a, b in zip(lefts, rights)]
-            alpha = self.dynamics.dissipation(t, self.x, p_lo, p_hi)
-        else:
-            alpha = self.dynamics.dissipation(t, self.x, None, None)
-        speed: Any = 0.0
-        for i in range(self.grid.ndim):
-            out = out + (0.5 * alpha[i]) * (rights[i] - lefts[i])
-            speed = speed + alpha[i] / self.dx[i]
+        out, speed = self.numerical_hamiltonian(t, self.x, self.dx, lefts, rights)
         if hasattr(speed, "shape"):
             speed = speed.max()
         return out, speed
+
+    def numerical_hamiltonian(self, t: Any, x: Sequence[Array], dx: Sequence[Any], lefts: Sequence[Array],
+                              rights: Sequence[Array]) -> tuple[Array, Any]:
+        """``(H_hat, sum_i alpha_i / dx_i)`` at every node from the one-sided derivatives ``lefts`` (``p-``) and
+        ``rights`` (``p+``): pointwise, so that :mod:`softreach.reach.fused` compiles it node by node."""
+        if self.godunov:
+            return godunov_hamiltonian(self.dynamics, t, x, dx, lefts, rights)
+        p = [0.5 * (a + b) for a, b in zip(lefts, rights)]
+        out = self.dynamics.hamiltonian(t, x, p)
+        if self.settings.dissipation == "local":
+            p_lo = [B.minimum(a, b) for a, b in zip(lefts, rights)]
+            p_hi = [B.maximum(a, b) for a, b in zip(lefts, rights)]
+            alpha = self.dynamics.dissipation(t, x, p_lo, p_hi)
+        else:
+            alpha = self.dynamics.dissipation(t, x, None, None)
+        speed: Any = 0.0
+        for i in range(len(x)):
+            out = out + (0.5 * alpha[i]) * (rights[i] - lefts[i])
+            speed = speed + alpha[i] / dx[i]
+        return out, speed
+
+
+def project_values(l: Array, c: Array, u: Array) -> Array:
+    """``max(c, min(l, u))``: the value projected onto the obstacles ``l`` (target) and ``c`` (constraint)."""
+    return B.maximum(c, B.minimum(l, u))
 
 
 def _axis_costates(x: Sequence[Array], i: int, sign: float) -> list[Any]:
@@ -244,21 +256,37 @@ def separable(dynamics: Any, x: Sequence[Array], samples: int = 4, seed: int = 0
     return True
 
 
+#: the TVD Runge-Kutta schemes of Shu and Osher, stage by stage: ``(a, b, c)`` makes the stage value
+#: ``u_k = P(t - c dt, a u + b (u_k-1 + dt rate(u_k-1)))`` from the step's start ``u = u_0``, with ``P`` the
+#: projection and the rate taken at the previous stage's time (``t`` for the first)
+RK_STAGES: dict[int, tuple[tuple[float, float, float], ...]] = {
+    1: ((0.0, 1.0, 1.0),),
+    2: ((0.0, 1.0, 1.0), (0.5, 0.5, 1.0)),
+    3: ((0.0, 1.0, 1.0), (0.75, 0.25, 0.5), (1.0 / 3.0, 2.0 / 3.0, 1.0)),
+}
+
+
+def stage_value(a: float, b: float, u: Array, prev: Array, dt: Any, rate: Array) -> Array:
+    """``a u + b (prev + dt rate)``, the unprojected value of a stage of :data:`RK_STAGES` (a zero ``a`` and a
+    unit ``b`` are left out, not multiplied)."""
+    moved = prev + dt * rate
+    moved = moved if b == 1.0 else b * moved
+    return moved if a == 0.0 else a * u + moved
+
+
 def tvd_rk_step(op: HamiltonianOperator, t: float, u: Array, dt: float, order: int, first_rate: Array | None = None,
                 rate: Callable[[float, Array], Array] | None = None) -> Array:
-    """One backward step ``t -> t - dt`` of the TVD Runge-Kutta scheme of Shu & Osher, projected after each stage.
+    """One backward step ``t -> t - dt`` of the TVD Runge-Kutta scheme of Shu & Osher (:data:`RK_STAGES`),
+    projected after each stage.
 
     :param rate: ``(t, u) -> du/dt`` in place of ``op.rate_lazy`` (a compiled one)
     """
     rate = rate or (lambda s, v: op.rate_lazy(s, v)[0])
-    r0 = first_rate if first_rate is not None else rate(t, u)
-    u1 = op.project(t - dt, u + dt * r0)
-    if order == 1:
-        return u1
-    if order == 2:
-        return op.project(t - dt, 0.5 * u + 0.5 * (u1 + dt * rate(t - dt, u1)))
-    u2 = op.project(t - 0.5 * dt, 0.75 * u + 0.25 * (u1 + dt * rate(t - dt, u1)))
-    return op.project(t - dt, u / 3.0 + (2.0 / 3.0) * (u2 + dt * rate(t - 0.5 * dt, u2)))
+    prev, before = u, 0.0
+    for k, (a, b, c) in enumerate(RK_STAGES[order]):
+        r = first_rate if (k == 0 and first_rate is not None) else rate(t - before * dt, prev)
+        prev, before = op.project(t - c * dt, stage_value(a, b, u, prev, dt, r)), c
+    return prev
 
 
 SnapshotSink = Callable[[int, float, Array], None]
@@ -344,7 +372,7 @@ def march(stepper: "Stepper", t: float, u: Array, target: float, progress: Any =
         if progress is not None:
             # clamp: summed float steps would overshoot the bar's total
             progress.update(max(0.0, min(dt, (progress.total or math.inf) - progress.n)))
-    return u
+    return stepper.done(u)
 
 
 #: grids from this many nodes fuse the whole Runge-Kutta step into one compiled graph; smaller ones compile only the
@@ -354,19 +382,40 @@ def march(stepper: "Stepper", t: float, u: Array, target: float, progress: Any =
 FUSED_STEP_NODES = 250_000
 
 
-class Stepper:
-    """Runs :func:`tvd_rk_step`, fused by ``torch.compile`` where that is enabled and possible.
+#: the ways :class:`Stepper` runs a step: ``"fused"`` (compiled loops on a CPU, :mod:`softreach.reach.fused`),
+#: ``"compile"`` (``torch.compile``, the GPU's), ``"eager"``
+ENGINES = ("fused", "compile", "eager")
 
-    A compiled graph must not see a changing Python float (it would recompile every step), so the compiled
+
+class Stepper:
+    """Runs :func:`tvd_rk_step`: on a CPU as compiled loops (:mod:`softreach.reach.fused`), elsewhere fused by
+    ``torch.compile`` where that is enabled and possible, else eagerly.
+
+    A compiled graph must not see a changing Python float (it would recompile every step), so the ``torch.compile``
     path passes ``dt`` as a 0-d tensor and is used only for time-invariant problems, where ``t`` is irrelevant.
+
+    :param engine: one of :data:`ENGINES`; ``None`` chooses: ``settings.compile`` (``None``: grids of 90,000 nodes
+        or more) asks for compiled code, which is ``"fused"`` on a CPU where the model's code records pointwise
+        and ``"compile"`` otherwise
     """
 
-    def __init__(self, op: HamiltonianOperator, settings: SolverSettings):
+    def __init__(self, op: HamiltonianOperator, settings: SolverSettings, engine: str | None = None):
         self.op, self.settings = op, settings
+        if engine is not None and engine not in ENGINES:
+            raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
         want = settings.compile
         if want is None:
-            want = settings.backend == "torch" and op.grid.size >= 90_000
-        self.compiled = bool(want) and settings.backend == "torch" and op.time_invariant
+            want = op.grid.size >= 90_000
+        self.fused = None
+        if engine == "fused" or (engine is None and want and settings.device == "cpu"):
+            from .fused import fused_stepper
+
+            self.fused = fused_stepper(op, settings)
+            if self.fused is None and engine == "fused":
+                raise ValueError(f"{op.dynamics.name}'s step cannot be compiled pointwise on {settings.device}")
+        self.engine = "fused" if self.fused is not None else (
+            engine or ("compile" if want and settings.backend == "torch" and op.time_invariant else "eager"))
+        self.compiled = self.engine == "compile"
         if self.compiled:
             torch = B.torch
             t0 = 0.0
@@ -377,6 +426,8 @@ class Stepper:
                                              dynamic=False)
 
     def rate(self, t: float, u: Array) -> tuple[Array, float]:
+        if self.fused is not None:
+            return self.fused.rate(t, u)
         if self.compiled:
             try:
                 r, s = self._rate_c(u)
@@ -386,6 +437,8 @@ class Stepper:
         return self.op.rate(t, u)
 
     def step(self, t: float, u: Array, rate: Array, dt: float) -> Array:
+        if self.fused is not None:
+            return self.fused.step(t, u, rate, dt)
         if self.compiled:
             try:
                 if self._step_c is None:  # the stages eagerly, each rate compiled
@@ -396,9 +449,13 @@ class Stepper:
                 self._fall_back(exc)
         return tvd_rk_step(self.op, t, u, dt, self.settings.time_order, first_rate=rate)
 
+    def done(self, u: Array) -> Array:
+        """``u`` as a value to keep: the fused stepper overwrites its own buffer at the next step."""
+        return self.fused.done(u) if self.fused is not None else u
+
     def _fall_back(self, exc: Exception) -> None:
         import warnings
 
         warnings.warn(f"torch.compile failed ({type(exc).__name__}: {exc}); continuing without it", RuntimeWarning)
         self.compiled = False
-
+        self.engine = "eager"
