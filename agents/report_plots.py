@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from .report_text import _title
+from .report_text import _title, task_words
 
 
 OUTCOME_COLOURS = {"landed": "tab:green", "hard_violation": "tab:red", "timeout": "tab:orange"}
@@ -35,6 +35,27 @@ def _plt():
     return plt
 
 
+def _wrapped_title(text: str, width_in: float, fontsize: float = 8) -> str:
+    """``text`` broken into lines that fit a figure ``width_in`` inches wide at ``fontsize`` points (a character
+    is about 0.55 em wide), instead of running off its edge."""
+    import textwrap
+
+    return "\n".join(textwrap.wrap(text, max(20, int(width_in * 72 / (0.55 * fontsize)))))
+
+
+def _outcome_handles(result) -> list:
+    """Legend entries of the outcome colours, in the words of the model's task, and of the start marker."""
+    from matplotlib.lines import Line2D
+
+    words = task_words(result)
+    names = {"landed": words.reached, "hard_violation": "hard violation (left C1)", "timeout": "timeout"}
+    handles = [Line2D([], [], color=c, label=names[k]) for k, c in OUTCOME_COLOURS.items()]
+    handles.append(Line2D([], [], color="0.5", marker="o", mec="k", ls="", ms=4, label="start"))
+    if result.config.get("filtered"):
+        handles.append(Line2D([], [], color="k", marker=".", ls="", label="filter acted"))
+    return handles
+
+
 def _outcome(tr) -> str:
     return "landed" if tr.landed else ("hard_violation" if tr.hard_violation else "timeout")
 
@@ -53,23 +74,25 @@ def plot_trajectories(result, out: str | Path, table=None, max_episodes: int = 4
 
         model = get_model(result.config["model"])
     n = model.state_dim
-    handles = [Line2D([], [], color=c, label=k.replace("_", " ")) for k, c in OUTCOME_COLOURS.items()]
-    handles.append(Line2D([], [], color="k", marker=".", ls="", label="filter acted"))
+    handles = _outcome_handles(result)
     if n == 2:
         fig, ax = plt.subplots(figsize=(7.5, 6))
         if table is not None:
-            from softreach.reach.plotting import _colour, _set_region
+            from softreach.reach.plotting import _colour, _contour_level, _set_region
 
             axes = table.state_axes("W_eps")
             _set_region(ax, model, axes, model.hard_constraint, 0.0, colors=[(1.0, 0.85, 0.85)])
             _set_region(ax, model, axes, model.soft_constraint, 0.0, colors=[(0.95, 0.9, 0.78)])
             X, Y, g = _set_region(ax, model, axes, model.target, 0.0, colors=[(0.6, 0.6, 0.6)])
+            handles += [Line2D([], [], color=(1.0, 0.85, 0.85), lw=8, label="hard C1"),
+                        Line2D([], [], color=(0.95, 0.9, 0.78), lw=8, label="soft C2"),
+                        Line2D([], [], color=(0.6, 0.6, 0.6), lw=8, label=model.words.target)]
             q = result.config.get("budget")
             budgets = [q] if q is not None else list(model.paper_budgets)
             for i, b in enumerate(budgets):
-                m = table.set_mask(0.0, float(b)).astype(float)
-                if m.max() > 0:
-                    ax.contour(X, Y, m, levels=[0.5], colors=[_colour(i)], linewidths=2)
+                level = _contour_level(table.set_level(0.0, float(b)))
+                if level.min() <= 0:
+                    ax.contour(X, Y, level, levels=[0.0], colors=[_colour(i)], linewidths=2)
                     handles.append(Line2D([], [], color=_colour(i), lw=2, label=f"RA~ Q={b:g} (t=0)"))
         for tr in traces:
             c = OUTCOME_COLOURS[_outcome(tr)]
@@ -82,7 +105,7 @@ def plot_trajectories(result, out: str | Path, table=None, max_episodes: int = 4
         ax.set_xlabel(f"{names[0]} [{units[0]}]")
         ax.set_ylabel(f"{names[1]} [{units[1]}]")
         ax.legend(handles=handles, fontsize=7, loc="upper right")
-        ax.set_title(_title(result), fontsize=8)
+        ax.set_title(_wrapped_title(_title(result), 7.5), fontsize=8)
     else:
         fig, axs = plt.subplots(1, n - 1, figsize=(5 * (n - 1), 5), squeeze=False)
         alt = 0
@@ -100,10 +123,12 @@ def plot_trajectories(result, out: str | Path, table=None, max_episodes: int = 4
             if box is not None:
                 for v in (box[0][i], box[1][i]):
                     ax.axvline(v, color="r", lw=0.8, ls="--")
+                if j == 0:
+                    handles.append(Line2D([], [], color="r", lw=0.8, ls="--", label="bounds of hard C1"))
             ax.set_xlabel(f"{names[i]} [{model.state_units[i]}]")
             ax.set_ylabel(f"{names[alt]} [{model.state_units[alt]}]")
         axs[0, 0].legend(handles=handles, fontsize=7)
-        fig.suptitle(_title(result), fontsize=8)
+        fig.suptitle(_wrapped_title(_title(result), 5 * (n - 1)), fontsize=8)
     return _save(fig, out)
 
 
@@ -111,12 +136,13 @@ def plot_budget_curves(result, out: str | Path, max_episodes: int = 60) -> Path:
     """Fig. 5/9 style: the remaining budget ``z(t)`` along each episode, coloured by outcome."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.axhline(0.0, color="0.6", lw=0.8, zorder=0)
     for tr in result.traces[:max_episodes]:
         ax.plot(tr.t, tr.z, color=OUTCOME_COLOURS[_outcome(tr)], lw=1, alpha=0.7)
-    ax.axhline(0.0, color="k", lw=0.8)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("remaining budget z [s]")
-    ax.set_title("budget depletion: " + _title(result), fontsize=8)
+    ax.legend(handles=_outcome_handles(result)[:3], fontsize=7)
+    ax.set_title(_wrapped_title("budget depletion: " + _title(result), 7), fontsize=8)
     return _save(fig, out)
 
 
@@ -138,7 +164,7 @@ def plot_budget_histogram(result, out: str | Path) -> Path:
     axs[1].axvline(result.config.get("budget_tol", 0.0), color="r", ls=":", label="Q + tolerance")
     axs[1].set_xlabel("budget used - Q [s]")
     axs[1].legend(fontsize=8)
-    fig.suptitle(_title(result), fontsize=8)
+    fig.suptitle(_wrapped_title(_title(result), 10), fontsize=8)
     return _save(fig, out)
 
 
@@ -161,7 +187,7 @@ def plot_interventions(result, out: str | Path) -> Path:
     ax.set_ylim(-0.02, 1.02)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("fraction of episodes filtered")
-    ax.set_title("filter interventions: " + _title(result), fontsize=8)
+    ax.set_title(_wrapped_title("filter interventions: " + _title(result), 7), fontsize=8)
     return _save(fig, out)
 
 
@@ -195,7 +221,7 @@ def learning_data(run_dir: str | Path) -> dict[str, Any]:
 
 
 def plot_learning_curves(run_dir: str | Path, out: str | Path) -> Path | None:
-    """Return and landing rate over training: periodic evaluations (mean and spread) and a running mean of the
+    """Return and success (landing) rate over training: periodic evaluations (mean and spread) and a running mean of the
     training episodes; where the evaluations ran under the safety filter, the share of steps it acted. ``None``
     if the run left no curves."""
     data = learning_data(run_dir)
@@ -223,13 +249,14 @@ def plot_learning_curves(run_dir: str | Path, out: str | Path) -> Path | None:
         ev = data["eval"]
         m, s = ev["returns"].mean(axis=1), ev["returns"].std(axis=1)
         axs[0].plot(ev["timesteps"], m, "o-", color="tab:red", label="evaluation (deterministic)")
-        axs[0].fill_between(ev["timesteps"], m - s, m + s, color="tab:red", alpha=0.2)
+        axs[0].fill_between(ev["timesteps"], m - s, m + s, color="tab:red", alpha=0.2,
+                            label="evaluation: mean ± 1 std over its episodes")
         if ev["successes"] is not None and np.size(ev["successes"]):
             axs[1].plot(ev["timesteps"], ev["successes"].mean(axis=1), "o-", color="tab:red", label="evaluation")
     axs[0].set_xlabel("environment steps")
     axs[0].set_ylabel("episode return")
     axs[1].set_xlabel("environment steps")
-    axs[1].set_ylabel("landing rate")
+    axs[1].set_ylabel("share of episodes that reached the target")
     axs[1].set_ylim(-0.02, 1.02)
     for ax in axs:
         ax.legend(fontsize=8)

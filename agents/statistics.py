@@ -24,9 +24,14 @@ def wilson(successes: int, n: int, z: float = Z95) -> dict[str, Any]:
             "n": int(n)}
 
 
-def mean_ci(values: Any) -> dict[str, Any]:
+def mean_ci(values: Any, lower: float = -math.inf, upper: float = math.inf) -> dict[str, Any]:
     """Mean with a Student-t 95 % interval, plus ``std``, ``min``, ``max``, ``n`` (NaNs dropped; ``None`` where
-    there is no data; the interval collapses to the mean for one value)."""
+    there is no data; the interval collapses to the mean for one value).
+
+    :param lower: the smallest value the quantity can take (0 for a duration): the interval is cut there, which
+        keeps its coverage (the true mean lies in the range) and never reports, say, a negative time
+    :param upper: the largest such value
+    """
     v = np.asarray([x for x in values if x is not None and not (isinstance(x, float) and math.isnan(x))],
                    dtype=np.float64)
     n = len(v)
@@ -40,7 +45,7 @@ def mean_ci(values: Any) -> dict[str, Any]:
         half = float(student.ppf(0.975, n - 1)) * s / math.sqrt(n)
     else:
         s, half = 0.0, 0.0
-    return {"mean": m, "low": m - half, "high": m + half, "std": s, "min": float(v.min()), "max": float(v.max()),
+    return {"mean": m, "low": max(m - half, lower), "high": min(m + half, upper), "std": s, "min": float(v.min()), "max": float(v.max()),
             "n": int(n)}
 
 
@@ -54,15 +59,15 @@ def aggregate(rows: list[dict[str, Any]], filtered: bool) -> dict[str, Any]:
         "landing_rate": wilson(sum(col("landed")), n),
         "hard_violation_rate": wilson(sum(col("hard_violation")), n),
         "over_budget_rate": wilson(sum(col("over_budget")), n),
-        "budget_used": {**mean_ci(used), "p50": float(np.median(used)) if n else None,
+        "budget_used": {**mean_ci(used, lower=0.0), "p50": float(np.median(used)) if n else None,
                         "p90": float(np.quantile(used, 0.9)) if n else None,
                         "excess_max": float(np.max(used - np.array(col("budget")))) if n else None},
-        "time_outside_c2": mean_ci(col("time_outside_c2")),
+        "time_outside_c2": mean_ci(col("time_outside_c2"), lower=0.0),
         "touchdown_sink_rate": mean_ci([r["touchdown_sink_rate"] for r in rows if r["landed"]]),
-        "control_effort": mean_ci(col("control_effort")),
-        "time_to_land": mean_ci([r["duration"] for r in rows if r["landed"]]),
+        "control_effort": mean_ci(col("control_effort"), lower=0.0, upper=1.0),
+        "time_to_land": mean_ci([r["duration"] for r in rows if r["landed"]], lower=0.0),
         "return": mean_ci(col("return")),
-        "intervention_rate": mean_ci(col("intervention_rate")) if filtered else None,
+        "intervention_rate": mean_ci(col("intervention_rate"), lower=0.0, upper=1.0) if filtered else None,
         "intervened_episodes": wilson(sum(1 for r in rows if r["interventions"]), n) if filtered else None,
         "outcomes": {k: sum(1 for r in rows if r["outcome"] == k) for k in ("landed", "hard_violation", "timeout")},
     }

@@ -26,6 +26,15 @@ def _set_region(ax, model, axes, fn, t, **kw):
     return X, Y, vals
 
 
+def _contour_level(level: np.ndarray) -> np.ndarray:
+    """A set's level function (:meth:`~softreach.reach.query.Table.set_level`) ready for ``contour``: values that
+    are not finite (no budget suffices, off the table) become a positive value above every finite one."""
+    level = np.asarray(level, dtype=float)
+    finite = np.isfinite(level)
+    high = (float(np.max(np.abs(level[finite]))) if finite.any() else 0.0) + 1.0
+    return np.where(finite, level, high)
+
+
 def representative_starts(table, budgets: Sequence[float], t: float = 0.0) -> list[tuple[tuple[float, ...], float]]:
     """The paper's representative initial conditions (Fig. 1): :func:`softreach.reach.starts.paper_starts`, the
     starts ``softreach evaluate --starts paper`` runs from, as tuples."""
@@ -61,38 +70,51 @@ def plot_sets_2d(table, budgets: Sequence[float], out: str | Path, t: float = 0.
     ax.contour(X, Y, g, levels=[0], colors="k", linewidths=1)
     handles = [Line2D([], [], color=(1.0, 0.8, 0.8), lw=8, label="hard C1 (allowed; outside is a crash)"),
                Line2D([], [], color=(0.93, 0.85, 0.7), lw=8, label="soft C2 (outside costs budget)"),
-               Line2D([], [], color=(0.6, 0.6, 0.6), lw=8, label="target")]
+               Line2D([], [], color=(0.6, 0.6, 0.6), lw=8, label=model.words.target)]
+    budgets = [float(q) for q in budgets]
+    x0 = np.asarray(starts, dtype=float).reshape(len(starts), -1) if with_traj else np.zeros((0, 2))
+    qs = np.asarray(list(start_budgets) or [0.0] * len(x0), dtype=float)
     for i, q in enumerate(budgets):
-        m = table.set_mask(t, q).astype(float)
-        ax.contour(X, Y, m, levels=[0.5], colors=[_colour(i)], linewidths=2, zorder=2)
-        handles.append(Line2D([], [], color=_colour(i), lw=2, label=f"RA~ Q={q:g}"))
+        ax.contour(X, Y, _contour_level(table.set_level(t, q)), levels=[0.0], colors=[_colour(i)], linewidths=2,
+                   zorder=2)
+        no_path = with_traj and not np.any(qs == q)
+        handles.append(Line2D([], [], color=_colour(i), lw=2,
+                              label=f"RA~ Q={q:g}" + (" (no start given: no path)" if no_path else "")))
     if "V" in table.fields:
         # on top: RA and RA~_0 nearly coincide (Prop. 3), and the dashes must stay visible over the Q = 0 line
-        ra = table.set_mask(t).astype(float)
-        ax.contour(X, Y, ra, levels=[0.5], colors="k", linestyles=[(0, (4, 3))], linewidths=1.2, zorder=3)
+        ax.contour(X, Y, _contour_level(table.set_level(t)), levels=[0.0], colors="k", linestyles=[(0, (4, 3))],
+                   linewidths=1.2, zorder=3)
         handles.append(Line2D([], [], color="k", ls=(0, (4, 3)), lw=1.2, label="classical RA"))
     names, units = model.state_names, model.state_units
     ax.set_xlabel(f"{names[0]} [{units[0]}]")
     ax.set_ylabel(f"{names[1]} [{units[1]}]")
     ax.set_title(f"{model.name}: reach-avoid sets at t={t:g}")
     if with_traj:
-        x0 = np.asarray(starts, dtype=float)
-        qs = np.asarray(list(start_budgets) or [0.0] * len(x0), dtype=float)
         ro = rollout(model, x0, qs, table_control(table), table_disturbance(table), t0=t, dt=dt, eps=table.eps or 1e-3)
+        bax = axs[0, 1]
+        # the zero line below the curves: a run that spends nothing stays on it and must still be seen
+        bax.axhline(0, color="0.6", lw=0.8, zorder=0)
+        words = model.words
         for j in range(len(x0)):
-            c = _colour(list(budgets).index(qs[j]) if qs[j] in list(budgets) else j)
+            c = _colour(budgets.index(qs[j]) if qs[j] in budgets else j)
             n = ro.steps[j] + 1
-            ax.plot(ro.x[:n, j, 0], ro.x[:n, j, 1], ls=":", color=c, lw=1.8, zorder=4)
-            ax.plot(*x0[j], "o", color=c, mec="k", zorder=5)
-            axs[0, 1].plot(ro.t[:n], ro.z[:n, j], color=c, label=f"Q={qs[j]:g}: used {ro.budget_used[j]:.3f}"
-                           + (" landed" if ro.landed[j] else " NOT landed") + (" HARD VIOLATION" if ro.hard_violation[j] else ""))
-        handles.append(Line2D([], [], color="0.3", ls=":", lw=1.8, marker="o", mec="k",
-                              label="W-derived path, worst-case wind"))
-        axs[0, 1].axhline(0, color="k", lw=0.8)
-        axs[0, 1].set_xlabel("t [s]")
-        axs[0, 1].set_ylabel("remaining budget z [s]")
-        axs[0, 1].set_title("budget depletion (worst-case disturbance)")
-        axs[0, 1].legend(fontsize=8)
+            # a black underlay keeps a path visible where it runs along the outline drawn in its own colour
+            ax.plot(ro.x[:n, j, 0], ro.x[:n, j, 1], color="k", lw=3.2, zorder=4)
+            ax.plot(ro.x[:n, j, 0], ro.x[:n, j, 1], ls=(0, (2, 1)), color=c, lw=2.0, zorder=5)
+            ax.plot(*x0[j], "o", color=c, mec="k", ms=7, zorder=6)
+            outcome = words.reached if ro.landed[j] else f"NOT {words.reached}"
+            bax.plot(ro.t[:n], ro.z[:n, j], color="k", lw=3.2, zorder=1)
+            bax.plot(ro.t[:n], ro.z[:n, j], color=c, lw=2.0, zorder=2,
+                     label=f"Q={qs[j]:g}: used {ro.budget_used[j]:.3f} s, {outcome}"
+                     + (", HARD VIOLATION" if ro.hard_violation[j] else ""))
+        handles.append(Line2D([], [], color="0.3", ls=(0, (2, 1)), lw=2.0, marker="o", mec="k",
+                              label="start (dot) and W-derived path, worst-case wind"))
+        top = max(float(np.max(qs)) if len(qs) else 0.0, 0.05)
+        bax.set_ylim(-0.06 * top, 1.1 * top)
+        bax.set_xlabel("t [s]")
+        bax.set_ylabel("remaining budget z [s]")
+        bax.set_title("budget depletion (worst-case disturbance)")
+        bax.legend(fontsize=8)
     ax.legend(handles=handles, fontsize=8, loc="upper right")
     fig.tight_layout()
     out = Path(out)

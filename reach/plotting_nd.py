@@ -7,12 +7,13 @@ The sets live in three dimensions ``(x0, x1, x2)``; a panel shows the first two 
 axis, airspeed ``V`` on the horizontal one for the glider) and either
 
 * the **projection** over the third (``gamma``): a node ``(h, V)`` is in the projected set when some grid value
-  of ``gamma`` puts it in the set (:func:`project`), or
+  of ``gamma`` puts it in the set (:func:`project_level`), or
 * **slices** at chosen values of the third coordinate, drawn as outlines over the projection
   (``slices=(...)`` in the state's units, radians for the glider).
 
-Everything is computed from the table's grid masks (:meth:`softreach.reach.query.Table.set_mask`) and the
-model's implicit functions; no set is smoothed or interpolated beyond what the table does.
+Every region is the zero sublevel set of a function on the table's nodes: the sets' level functions
+(:meth:`softreach.reach.query.Table.set_level`) and the model's implicit functions, projected by their minimum
+over the third state. Outlines are those functions' zero contours, interpolated between nodes as the table is.
 """
 
 from __future__ import annotations
@@ -39,15 +40,10 @@ def _colour(i: int):
     return plt.rcParams["axes.prop_cycle"].by_key()["color"][i % 10]
 
 
-def project(mask: np.ndarray, axis: int = 2) -> np.ndarray:
-    """The projection of a grid mask along ``axis``: true where any node along it is true."""
-    return np.asarray(mask, bool).any(axis=axis)
-
-
 def highest_node(table, mask: np.ndarray, axis: int = 0) -> float | None:
     """The largest grid coordinate along ``axis`` (altitude for the glider) of a node in ``mask``; ``None`` if empty.
 
-    This is the "highest altitude from which a landing is verified" of a set on the table's grid.
+    For the glider, the highest altitude from which a landing is verified.
     """
     mask = np.asarray(mask, bool)
     if not mask.any():
@@ -71,19 +67,30 @@ def pick_starts(table, budgets: Sequence[float], t: float = 0.0, depth: float | 
     return [(tuple(float(v) for v in x), q) for x, q in picks]
 
 
-def _fill(ax, X, Y, mask, colour, alpha=1.0, zorder=1):
-    """Fill the region of a boolean node mask (its 0.5 contour of the node values)."""
-    m = np.asarray(mask, float)
-    if m.max() <= 0:
-        return
-    ax.contourf(X, Y, m, levels=[0.5, 1.5], colors=[colour], alpha=alpha, zorder=zorder)
+def project_level(level: np.ndarray, axis: int = 2) -> np.ndarray:
+    """The projection of a level function along ``axis``: its minimum there, whose zero sublevel set is the
+    projection of the set: a node is in it when some node along ``axis`` is in the set."""
+    return np.min(np.asarray(level, float), axis=axis)
 
 
-def _outline(ax, X, Y, mask, **kw):
-    m = np.asarray(mask, float)
-    if m.max() <= 0 or m.min() >= 1:
+def _fill(ax, X, Y, level, colour, alpha=1.0, zorder=1):
+    """Fill the zero sublevel set of a level function over the nodes."""
+    from .plotting import _contour_level
+
+    v = _contour_level(level)
+    if v.min() > 0:
         return
-    ax.contour(X, Y, m, levels=[0.5], **kw)
+    ax.contourf(X, Y, v, levels=[min(v.min(), 0.0) - 1.0, 0.0], colors=[colour], alpha=alpha, zorder=zorder)
+
+
+def _outline(ax, X, Y, level, **kw):
+    """Draw the zero contour of a level function over the nodes."""
+    from .plotting import _contour_level
+
+    v = _contour_level(level)
+    if v.min() > 0 or v.max() <= 0:
+        return
+    ax.contour(X, Y, v, levels=[0.0], **kw)
 
 
 def plot_sets_nd(table, budgets: Sequence[float], out: str | Path, t: float = 0.0,
@@ -136,16 +143,17 @@ def plot_sets_nd(table, budgets: Sequence[float], out: str | Path, t: float = 0.
     axes = [grid.axis(i) for i in range(n)]
     X, Y = np.meshgrid(axes[ix], axes[iy], indexing="ij")
 
-    def proj(mask):  # (n0, n1, n2) -> (len(axes[ix]), len(axes[iy]))
-        p = project(mask, axis=iz)
+    def proj(level):  # (n0, n1, n2) -> (len(axes[ix]), len(axes[iy]))
+        p = project_level(level, axis=iz)
         kept = [i for i in range(3) if i != iz]
         return p if kept == [ix, iy] else p.T
 
     full = np.meshgrid(*axes, indexing="ij")
-    hard = proj(np.asarray(model.hard_constraint(t, full)) <= 0)
-    soft = proj((np.asarray(model.soft_constraint(t, full)) <= 0) & (np.asarray(model.hard_constraint(t, full)) <= 0))
-    target = proj((np.asarray(model.target(t, full)) <= 0) & (np.asarray(model.hard_constraint(t, full)) <= 0))
-    classical = proj(table.set_mask(t)) if "V" in table.fields else None
+    c1 = np.asarray(model.hard_constraint(t, full), float)
+    hard = proj(c1)
+    soft = proj(np.maximum(np.asarray(model.soft_constraint(t, full), float), c1))
+    target = proj(np.maximum(np.asarray(model.target(t, full), float), c1))
+    classical = proj(table.set_level(t)) if "V" in table.fields else None
 
     runs: list[tuple[np.ndarray, float]] = []
     if len(starts):
@@ -169,19 +177,19 @@ def plot_sets_nd(table, budgets: Sequence[float], out: str | Path, t: float = 0.
         ax = axs[0, k]
         _fill(ax, X, Y, hard, HARD_COLOUR, zorder=0)
         _fill(ax, X, Y, soft, SOFT_COLOUR, zorder=0)
-        mask = table.set_mask(t, q)
-        _fill(ax, X, Y, proj(mask), _colour(k), alpha=0.55, zorder=2)
-        _outline(ax, X, Y, proj(mask), colors=[_colour(k)], linewidths=1.5, zorder=3)
+        level = table.set_level(t, q)
+        _fill(ax, X, Y, proj(level), _colour(k), alpha=0.55, zorder=2)
+        _outline(ax, X, Y, proj(level), colors=[_colour(k)], linewidths=1.5, zorder=3)
         _fill(ax, X, Y, target, TARGET_COLOUR, zorder=4)
         if classical is not None:
             _outline(ax, X, Y, classical, colors="k", linestyles="--", linewidths=1.0, zorder=5)
         for j, s in enumerate(slices):
             kz = int(np.argmin(np.abs(axes[iz] - s)))
-            sl = np.take(mask, kz, axis=iz)
+            sl = np.take(level, kz, axis=iz)
             sl = sl if [i for i in range(3) if i != iz] == [ix, iy] else sl.T
             _outline(ax, X, Y, sl, colors="k", linestyles=[SLICE_STYLES[j % len(SLICE_STYLES)]], linewidths=1.0, zorder=5)
-        top = highest_node(table, mask, axis=iy)
-        ax.set_title(f"Q = {q:g} s: verified up to {names[iy]} = {top:g} {units[iy]}" if top is not None
+        top = highest_node(table, level <= 0, axis=iy)
+        ax.set_title(f"Q = {q:g} s: highest {names[iy]} in the set {top:g} {units[iy]}" if top is not None
                      else f"Q = {q:g} s: empty on this grid", fontsize=10)
         ax.set_xlabel(label_x)
         if k == 0:
@@ -189,7 +197,7 @@ def plot_sets_nd(table, budgets: Sequence[float], out: str | Path, t: float = 0.
         ax.set_xlim(axes[ix][0], axes[ix][-1])
         ax.set_ylim(axes[iy][0], axes[iy][-1])
     handles = [Patch(color=HARD_COLOUR, label="hard constraint C1"), Patch(color=SOFT_COLOUR, label="soft constraint C2"),
-               Patch(color=TARGET_COLOUR, label="target (landing zone)"),
+               Patch(color=TARGET_COLOUR, label=model.words.target),
                Patch(color=(0.6, 0.6, 0.6), alpha=0.55, label=f"verified safe region (over {names[iz]})")]
     if classical is not None:
         handles.append(Line2D([], [], color="k", ls="--", lw=1.0, label="classical RA (hard C1 and C2)"))
@@ -211,7 +219,8 @@ def plot_sets_nd(table, budgets: Sequence[float], out: str | Path, t: float = 0.
             ax.plot(path[:, ix], path[:, iy], color="k", lw=2.6, zorder=6)
             ax.plot(path[:, ix], path[:, iy], color=c, lw=1.6, zorder=7)
             ax.plot(x0j[ix], x0j[iy], "o", color=c, mec="k", ms=7, zorder=8)
-            status = ("landed" if ro.landed[j] else "NOT landed") + (", HARD VIOLATION" if ro.hard_violation[j] else "")
+            status = (model.words.reached if ro.landed[j] else f"NOT {model.words.reached}") + (
+                ", HARD VIOLATION" if ro.hard_violation[j] else "")
             zz = ro.z[:steps, j]
             bax.plot(ro.t[:steps], zz, color=c, lw=2,
                      label=f"Q={qj:g}: used {ro.budget_used[j]:.2f} s, {status} at t={ro.t[steps - 1]:.2f} s")

@@ -323,14 +323,22 @@ class Table:
         * A budget-surface table (``Q_min`` on the state grid): ``RA~_Q = {Q_min(t, x) + margin <= Q}`` (where
           ``Q_min`` says some budget suffices), together with ``RA``.
         """
+        return self.set_level(t, budget, margin) <= 0
+
+    def set_level(self, t: float = 0.0, budget: float | None = None, margin: float | None = None) -> np.ndarray:
+        """A function over the state grid's nodes whose zero sublevel set is :meth:`set_mask` (``set_mask`` is
+        ``set_level <= 0``): ``V + margin``, ``W_eps(t, x, max(Q, r)) + margin``, or for a budget-surface table
+        the smaller (``nan`` ignored) of ``Q_min + margin - Q`` (``+inf`` where no budget suffices) and ``V + margin``. Its zero
+        contour, interpolated between nodes, is the set's smooth outline; a boolean mask only gives a staircase.
+        """
         if margin is None:
             margin = 0.0
         if budget is None:
-            return self._in_set(lambda field, z: self.slice(field, t), None, margin, t)
+            return self._level(lambda field, z: self.slice(field, t), None, margin, t)
         q = float(budget)
         if not (math.isfinite(q) and q >= 0):
             raise ValueError(f"budget must be a finite number >= 0, got {budget!r}")
-        return self._in_set(lambda field, z: self.slice(field, t, z), q, margin, float(t))
+        return self._level(lambda field, z: self.slice(field, t, z), q, margin, float(t))
 
     def contains(self, t: Any, x: Any, budget: Any = None, margin: float = 0.0) -> np.ndarray:
         """Membership of states in the set :meth:`set_mask` draws, by the same rule (:meth:`_in_set`) evaluated at
@@ -355,16 +363,23 @@ class Table:
         return self._in_set(read, q, margin, tt)
 
     def _in_set(self, read: Any, q: Any, margin: float, t: Any) -> np.ndarray:
-        """The one membership rule of :meth:`set_mask` (nodes) and :meth:`contains` (states), on values that
-        ``read(field, z)`` gives at the nodes or at the states, at budget ``z`` along ``W_eps``'s last axis."""
+        """The one membership rule of :meth:`set_mask` (nodes) and :meth:`contains` (states): :meth:`_level`
+        ``<= 0``."""
+        return self._level(read, q, margin, t) <= 0
+
+    def _level(self, read: Any, q: Any, margin: float, t: Any) -> np.ndarray:
+        """The level function of the sets on values that ``read(field, z)`` gives at the nodes or at the states,
+        at budget ``z`` along ``W_eps``'s last axis. ``a + m - q <= 0`` is ``a + m <= q`` exactly in IEEE
+        arithmetic (the difference of two unequal floats is never zero)."""
         if q is None:
-            return read("V", None) + margin <= 0
+            return read("V", None) + margin
         if not self.has_budget and self.has_budget_surface:
             # {Q_min <= 0} is a flat face of Q_min, as {W_eps(., 0) <= 0} is of W_eps: the classical V beside it
             # gives RA~_0 (Prop. 3), and every RA~_Q contains it
             qm = read("Q_min", None)
-            return ((qm + margin <= q) & ~no_budget_suffices(qm, self.horizon - t)) | (read("V", None) + margin <= 0)
-        return read("W_eps", np.maximum(q, self.budget_resolution)) + margin <= 0
+            by_budget = np.where(no_budget_suffices(qm, self.horizon - t), np.inf, qm + margin - q)
+            return np.fmin(by_budget, read("V", None) + margin)
+        return read("W_eps", np.maximum(q, self.budget_resolution)) + margin
 
     def paper_proxy_margin(self) -> float:
         """The margin of the paper's proxy ``W_eps + 1e-3 <= 0`` (``kappa = 1`` there) in this table's value units:
