@@ -327,3 +327,9 @@ def fused_stepper(op: Any, settings: Any) -> FusedStepper | None:
         return FusedStepper(op, settings)
     except Unsupported:
         return None
+    except Exception as exc:  # a model's code that fails on placeholders, or numba that cannot compile it
+        import warnings
+
+        warnings.warn(f"the step of {op.dynamics.name} could not be compiled pointwise ({type(exc).__name__}: "
+                      f"{str(exc)[:200]}); continuing with the array code", RuntimeWarning)
+        return None

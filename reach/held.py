@@ -42,6 +42,10 @@ class HeldControl(Dynamics):
     :param dynamics: the game's dynamics (a model, or a model augmented with the budget)
     """
 
+    #: the held action changes between sub-solves in place (:meth:`set_control`): a compiled loop
+    #: (:mod:`softreach.reach.fused`) would keep the one it was compiled with, so the array code runs it
+    fused_kernel = False
+
     def __init__(self, dynamics: Dynamics):
         self.inner = dynamics
         self.name = f"{dynamics.name}|held"

@@ -358,6 +358,10 @@ def march(stepper: "Stepper", t: float, u: Array, target: float, progress: Any =
     The one time-integration loop of the solver: the continuous solve and every sub-solve of the sampled-data
     game (:mod:`softreach.reach.held`) run it.
     """
+    if stepper.compiled and DEVICE_LOOP:
+        from .device_loop import march_on_device
+
+        return march_on_device(stepper.whole, stepper.settings.cfl, t, u, target, progress)
     while t - target > 1e-12 * max(1.0, abs(target)):
         rate, speed = stepper.rate(t, u)
         if not math.isfinite(speed):
@@ -382,9 +386,15 @@ def march(stepper: "Stepper", t: float, u: Array, target: float, progress: Any =
 FUSED_STEP_NODES = 250_000
 
 
+#: the ``torch.compile`` engine marches with the step's length computed on the device
+#: (:mod:`softreach.reach.device_loop`); ``False``: the host reads the speed at every step, as the other engines
+DEVICE_LOOP = True
 #: the ways :class:`Stepper` runs a step: ``"fused"`` (compiled loops on a CPU, :mod:`softreach.reach.fused`),
 #: ``"compile"`` (``torch.compile``, the GPU's), ``"eager"``
 ENGINES = ("fused", "compile", "eager")
+#: what compiled code means on a CPU: ``"fused"``, or ``"compile"`` to run the GPU's ``torch.compile`` step there
+#: (its tests do, so that it stays right between GPU measurements)
+CPU_ENGINE = "fused"
 
 
 class Stepper:
@@ -407,7 +417,7 @@ class Stepper:
         if want is None:
             want = op.grid.size >= 90_000
         self.fused = None
-        if engine == "fused" or (engine is None and want and settings.device == "cpu"):
+        if engine == "fused" or (engine is None and want and settings.device == "cpu" and CPU_ENGINE == "fused"):
             from .fused import fused_stepper
 
             self.fused = fused_stepper(op, settings)
@@ -424,6 +434,11 @@ class Stepper:
             if op.grid.size >= FUSED_STEP_NODES:
                 self._step_c = torch.compile(lambda u, r, dt: tvd_rk_step(op, t0, u, dt, settings.time_order, first_rate=r),
                                              dynamic=False)
+            from .device_loop import whole_step
+
+            #: the step with its own CFL length, on the device (:mod:`softreach.reach.device_loop`)
+            self.whole = torch.compile(lambda u, t, stop, tol, bad: whole_step(op, settings.time_order, settings.cfl,
+                                                                                u, t, stop, tol, bad), dynamic=False)
 
     def rate(self, t: float, u: Array) -> tuple[Array, float]:
         if self.fused is not None:

@@ -77,6 +77,7 @@ def test_compiled_step_matches_eager(fused, monkeypatch):
     """Both compiled paths: the rate alone (small grids), and the whole step fused (``FUSED_STEP_NODES``)."""
     pytest.importorskip("torch")
     monkeypatch.setattr("softreach.reach.solver.FUSED_STEP_NODES", 0 if fused else 10**12)
+    monkeypatch.setattr("softreach.reach.solver.CPU_ENGINE", "compile")
     eager = _advect(48, "eno2", 2, backend="torch", dtype="float32", compile=False)
     compiled = _advect(48, "eno2", 2, backend="torch", dtype="float32", compile=True)
     assert abs(eager - compiled) < 1e-5
@@ -130,6 +131,7 @@ def test_compiled_soft_solve_has_no_graph_break(fused, monkeypatch):
     """A graph break sends every step back to eager Python and recompiles for each new time: ~25x slower."""
     torch = pytest.importorskip("torch")
     monkeypatch.setattr("softreach.reach.solver.FUSED_STEP_NODES", 0 if fused else 10**12)
+    monkeypatch.setattr("softreach.reach.solver.CPU_ENGINE", "compile")
     from torch._dynamo.utils import counters
 
     from softreach.reach import budget_axis, get_model, soft_problem
