@@ -369,15 +369,32 @@ def test_a_first_torch_compile_announces_itself_once(tmp_path, monkeypatch, caps
 
 
 def test_a_first_filtered_decision_announces_its_compile(monkeypatch, capsys, tiny_table):
-    from softreach.agents import envs
+    from types import SimpleNamespace
 
+    from softreach.agents import envs
+    from softreach.filters import SafetyFilter
+
+    assert envs.filter_code_cached() in (True, False)  # numba's cache is readable here
     monkeypatch.setattr(envs, "_announced", False)
-    monkeypatch.setattr(envs, "filter_code_cached", lambda: True)
+    monkeypatch.setattr(envs, "filter_code_cached", lambda: False)
+    # a filter without compiled code (this continuous-time table's) has nothing to compile: no word
     envs.make_env("pointmass", filter_table=str(tiny_table)).close()
     assert "numba" not in capsys.readouterr().err
+
+    def with_compiled_filter(env, table, rule, margin):
+        """The filter make_env wraps, as one with a compiled decision looks to the announcement (a real one
+        compiles at its first decision, minutes on a cold cache)."""
+        stub = SafetyFilter.__new__(SafetyFilter)
+        stub.env, stub.value_filter = env, SimpleNamespace(compiled=object())
+        return stub
+
+    monkeypatch.setattr(envs, "safety_filter", with_compiled_filter)
+    monkeypatch.setattr(envs, "filter_code_cached", lambda: True)
+    envs.make_env("pointmass", filter_table=str(tiny_table))
+    assert "numba" not in capsys.readouterr().err  # cached: nothing to say
     monkeypatch.setattr(envs, "filter_code_cached", lambda: False)
     for _ in range(2):
-        envs.make_env("pointmass", filter_table=str(tiny_table)).close()
+        envs.make_env("pointmass", filter_table=str(tiny_table))
     err = capsys.readouterr().err
-    assert err.count("the safety filter's first decision compiles it with numba") == 1
+    assert err.count("the safety filter's first decision compiles it with numba") == 1  # once per process
     assert f"about {envs.FILTER_COMPILE_S:.0f} s" in err and "softreach compile TABLE" in err
