@@ -259,7 +259,7 @@ def evaluate(table) -> dict:
     rows = []
     for q in (0.06, 0.3, 0.6):
         ref = filters["switch"]
-        starts = xs[ref.value(0.0, xs, q) <= -ref.margin(0.0, xs, q)]
+        starts = xs[ref.value(0.0, xs, q) <= -(ref.constant_margin or 0.0)]
         for wname, wind in winds.items():
             for rule in ("none", "switch", "smooth"):
                 rng = np.random.default_rng(1)

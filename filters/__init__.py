@@ -7,13 +7,13 @@
 * :class:`VecSafetyFilter` — one batched decision per step for SB3's ``DummyVecEnv`` of filtered environments.
 """
 
-from .core import (AFTER_HORIZON, BLEND, CERTIFY_REASONS, FALLBACK, NO_PLAN, NONFINITE, OPTIMAL, OUTSIDE, PASS,
+from .core import (AFTER_HORIZON, BLEND, CERTIFY_REASONS, FALLBACK, NO_PLAN, OPTIMAL, OUTSIDE, PASS,
                    PLAN_LAND, PLAN_SAFE, REASONS, RULES, UNCERTIFIED, ValueFilter)
 from .field import TableField
 from softreach.reach.lookahead import Lookahead
 from .wrapper import SafetyFilter
 from .vector import VecSafetyFilter
 
-__all__ = ["AFTER_HORIZON", "BLEND", "CERTIFY_REASONS", "FALLBACK", "Lookahead", "NO_PLAN", "NONFINITE", "OPTIMAL",
+__all__ = ["AFTER_HORIZON", "BLEND", "CERTIFY_REASONS", "FALLBACK", "Lookahead", "NO_PLAN", "OPTIMAL",
            "OUTSIDE", "PASS", "PLAN_LAND", "PLAN_SAFE", "REASONS", "RULES", "SafetyFilter", "TableField", "UNCERTIFIED", "ValueFilter",
            "VecSafetyFilter"]

@@ -35,6 +35,7 @@ from softreach.reach.blocks import run_in_blocks
 from softreach.reach.box_max import kernel_field
 from softreach.reach.jit import njit
 from softreach.reach.kernels import MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row
+from softreach.reach.lookahead import exact_normalized
 from softreach.reach.model_kernels import held_box_address
 
 from .compiled_certify import certify_rows
@@ -80,12 +81,14 @@ def _after(a, b):
 # work space is the caller's, decision_space), and with it on, every array that a call or an unpacking binds costs
 # two calls (a fifth of the box maximum's time: docs/filters.md, "How")
 @njit(nogil=True, _nrt=False)
-def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t, x, z, pol, plans, has_plans,
+def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, action, t, x, z, pol, plans, has_plans,
                 diagnostics, applied, reason, value, nxt, certified, chosen, blend, new_plans, space):
     """The decision for every row (:meth:`ValueFilter.filter`) by the ``"switch"`` rule, or with ``smooth`` by the
     ``"smooth"`` rule with ``iterations`` bisection steps, in the work space ``space`` (:func:`decision_space`); see
     the module docstring. Without ``diagnostics`` the certificate at the state and the next one of a passing
-    policy action, which decide nothing, are not read: both are NaN."""
+    policy action, which decide nothing, are not read: both are NaN. ``action``: the control box's centre and
+    half-width and the candidates normalised (:meth:`ValueFilter.blend`)."""
+    a_mid, a_half, cands_q = action
     N, n = x.shape
     J, m = cands.shape
     safe, has_safe, land, safe_plan, land_plan = C[0], C[1], C[2], C[3], C[4]
@@ -114,7 +117,8 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
                 elif s <= J:
                     act[i] = cands[s - 1, i]
                 else:
-                    act[i] = cands[best, i] + mid * (pol[r, i] - cands[best, i])
+                    act[i] = a_mid[i] + a_half[i] * (cands_q[best, i] + mid * ((pol[r, i] - a_mid[i]) / a_half[i]
+                                                                              - cands_q[best, i]))
             a_ok, a_lands, a_bounded, a_in, a_kept, a_proven, a_c1, a_zend, t_next = judge(
                 enclose, M, C, tr, xr, xr, zr, act, end_lo[slot], end_hi[slot], work)
             a_next = -np.inf if a_lands else np.inf
@@ -194,7 +198,8 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, a_half, t
             continue
         lam = lo
         for i in range(m):
-            act[i] = cands[best, i] + lam * (pol[r, i] - cands[best, i])
+            act[i] = a_mid[i] + a_half[i] * (cands_q[best, i] + lam * ((pol[r, i] - a_mid[i]) / a_half[i]
+                                                                       - cands_q[best, i]))
         # the plans (follow_plans): landing cells first, then safe cells
         for game in (_PLAN_LAND, _PLAN_SAFE):
             if game == _PLAN_LAND:
@@ -257,7 +262,8 @@ class CompiledDecision:
         # the sets over boxes: the lookahead's compiled set maxima (its _corner_max), called by address too
         set_address, set_params = la.set_kernel
         self.M = (np.asarray(model.held_box_params, dtype=np.float64), la.eps, set_params, set_address, t_lo, t_hi,
-                  np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon)
+                  np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon, frozen(la.slack), la.first_check,
+                  la.budget_slack)
         safe, land = vf.safe_cells, vf.landing_cells
         some = safe if safe is not None else land
         self.C = (some.kernel_args, safe is not None, land.kernel_args, some.plan_args, land.plan_args)
@@ -265,6 +271,8 @@ class CompiledDecision:
         has_S = "V_safe" in la.fields
         self.T = W_args + ((kernel_field(*la.fields["V_safe"]) if has_S else W_args[3]), has_S)
         self.cands = frozen(np.ascontiguousarray(la.candidates, dtype=np.float64))
+        self.action = (frozen(np.ascontiguousarray(la.a_mid)), frozen(np.ascontiguousarray(la.a_half)),
+                       frozen(np.ascontiguousarray(exact_normalized(self.cands, la.a_mid, la.a_half))))
         self.fallback = frozen(np.asarray(vf.fallback_action, dtype=np.float64))
         self.no_plans = np.zeros((1, 3), np.int64)
         # one work space per thread: decide_rows writes into it
@@ -328,7 +336,7 @@ class CompiledDecision:
         space."""
         vf = self.filter
         decide_rows(self.enclose, self.M, self.C, self.T, self.cands, self.fallback, vf.rule == "smooth",
-                    vf.smooth_iterations, vf.a_half, *rows[:5], has_plans, diagnostics, *rows[5:], self._space())
+                    vf.smooth_iterations, self.action, *rows[:5], has_plans, diagnostics, *rows[5:], self._space())
 
     def certify(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple:
         """:func:`~softreach.filters.compiled_certify.certify_rows` for ``N`` rows: ``(ok, next_value, value,

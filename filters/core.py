@@ -39,17 +39,17 @@ import numpy as np
 
 from softreach.reach import Table, TableError
 from softreach.reach.blocks import default_threads
-from softreach.reach.lookahead import Lookahead
+from softreach.reach.lookahead import Lookahead, exact_normalized
 
 from .compiled import CompiledDecision
 from .plans import (NO_PLAN, PLAN_LAND, PLAN_SAFE, START_SEGMENTS, check_plans, follow_plans, resolve_cells,
                     start_plans)
-from .reasons import (AFTER_HORIZON, BLEND, FALLBACK, NONFINITE, OPTIMAL, OUTSIDE, PASS, REASONS,
+from .reasons import (AFTER_HORIZON, BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, REASONS,
                       UNCERTIFIED)
 from .single import filter_one
 from .tensors import batch_inputs, clip_unit, to_torch
 
-__all__ = ["NO_PLAN", "PLAN_LAND", "PLAN_SAFE", "PASS", "BLEND", "OPTIMAL", "OUTSIDE", "AFTER_HORIZON", "NONFINITE",
+__all__ = ["NO_PLAN", "PLAN_LAND", "PLAN_SAFE", "PASS", "BLEND", "OPTIMAL", "OUTSIDE", "AFTER_HORIZON",
            "FALLBACK", "UNCERTIFIED", "REASONS", "RULES", "CERTIFY_REASONS", "ValueFilter"]
 
 RULES = ("switch", "smooth")
@@ -160,6 +160,13 @@ class ValueFilter:
         """Physical actions to the normalised ``[-1, 1]`` space (inverse of :meth:`physical`)."""
         return (np.asarray(physical, dtype=np.float64) - self.a_mid) / self.a_half
 
+    def blend(self, best: np.ndarray, pol: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """The smooth rule's point ``lam`` of the way from the candidates ``best`` to the policy's actions ``pol``
+        (physical, ``(N, m)``), taken in the normalised space and mapped back as an environment maps it: so the
+        point judged is one an environment applies exactly (the candidate itself at ``lam = 0``)."""
+        qb = exact_normalized(best, self.a_mid, self.a_half)
+        return self.a_mid + self.a_half * (qb + lam[:, None] * ((pol - self.a_mid) / self.a_half - qb))
+
     def _inputs(self, t: Any, x: Any, z: Any, action: Any | None):
         return batch_inputs(t, x, z, action, self.n, self.m, self.model.state_names)
 
@@ -168,12 +175,6 @@ class ValueFilter:
         """The certificate ``D = min(V~, W~_eps)`` (``+inf`` outside the table); numpy out."""
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
         out = self.lookahead.certificate(tt, xs, zz)
-        return out[0] if single else out
-
-    def margin(self, t: Any, x: Any, z: Any) -> np.ndarray:
-        """The extra tightening of the next-state test at each query (a constant; 0 by default)."""
-        tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
-        out = np.full(len(xs), self.constant_margin or 0.0)
         return out[0] if single else out
 
     def certify(self, t: Any, x: Any, z: Any) -> tuple[np.ndarray, list[str], np.ndarray]:
@@ -239,12 +240,6 @@ class ValueFilter:
             return certified[0], reasons[0], nxt[0], plans[0]
         return certified, reasons, nxt, plans
 
-    def optimal_action(self, t: Any, x: Any, z: Any) -> np.ndarray:
-        """The certified candidate with the lowest worst-case next certificate, ``(N, m)`` physical."""
-        tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
-        out = self.lookahead.best_candidate(tt, xs, zz)[0]
-        return out[0] if single else out
-
     def worst_disturbance(self, t: Any, x: Any, z: Any) -> np.ndarray:
         """The table's ``b*(t, x, z)`` (:meth:`Table.worst_disturbance`), ``(N, k)`` physical; numpy out."""
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
@@ -266,7 +261,8 @@ class ValueFilter:
             changed the action), ``reason`` (codes of :data:`REASONS`), ``optimal_action`` (the candidate the
             filter chose; NaN where the policy passed and none was needed), ``blend`` (``1`` where the policy's
             action passed), ``lookahead`` (the worst next certificate of the applied action, ``+inf`` where it
-            may leave ``C1``, overspend or leave the table), ``certified`` (the applied action passed the test),
+            may leave ``C1``, overspend or leave the table), ``certified`` (the applied action passed the test
+            and, as :meth:`certify` asks, the table was solved for this control period),
             ``plan`` (numpy ``(N, 3)`` ints: the cells' plan the filter follows: candidate index, periods still to
             hold it, and whose plan, :data:`PLAN_LAND` or :data:`PLAN_SAFE`; :data:`NO_PLAN`: none)
         :param plan: the ``info["plan"]`` this filter returned at the previous step of the same runs (``None`` at the
@@ -335,7 +331,7 @@ class ValueFilter:
             lam = np.zeros(len(rows))
             if self.rule == "smooth" and self.smooth_iterations:
                 lam, best_next = self._bisect(tt[rows], xs[rows], zz[rows], best, pol[rows], any_ok, best_next)
-            a = best + lam[:, None] * (pol[rows] - best)
+            a = self.blend(best, pol[rows], lam)
             any_ok = follow_plans(self, plans, new_plans, rows, tt, xs, zz, a, best, best_next, best_bad, any_ok,
                                   cand_next)
             # -inf: the period surely ends landed; +inf: no candidate could be bounded at all
@@ -356,11 +352,12 @@ class ValueFilter:
         reason = np.where(after, AFTER_HORIZON, reason)
         active = reason != PASS
         if normalized:
-            applied = np.where(active[:, None], clip_unit(self.normalized(applied)), act)
+            # what the filter judged, exactly: an environment maps it back to the same physical action
+            applied = np.where(active[:, None], exact_normalized(applied, self.a_mid, self.a_half), act)
             chosen = self.normalized(chosen)
         margin = np.full(N, self.constant_margin or 0.0)
         info = {"value": value, "margin": margin, "active": active, "reason": reason, "optimal_action": chosen,
-                "blend": blend, "lookahead": nxt, "certified": ok & ~after}
+                "blend": blend, "lookahead": nxt, "certified": ok & ~after & self.sampled}
         if single:
             applied = applied[0]
             info = {k: v[0] for k, v in info.items()}
@@ -410,7 +407,7 @@ class ValueFilter:
         nxt = best_next.copy()
         for _ in range(self.smooth_iterations):
             mid = 0.5 * (lo + hi)
-            _, val, _, ok = self.lookahead.passes(t, x, z, best + mid[:, None] * (pol - best))
+            _, val, _, ok = self.lookahead.passes(t, x, z, self.blend(best, pol, mid))
             ok &= any_ok
             lo = np.where(ok, mid, lo)
             hi = np.where(ok, hi, mid)

@@ -31,16 +31,51 @@ _TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_I
 
 
 @njit(inline="always")
+def _widen(lo, hi, slack):
+    """:meth:`Lookahead.widen`: the box ``[lo, hi]`` grown in place by the rounding allowance ``slack``."""
+    for i in range(len(lo)):
+        lo[i] -= slack[i]
+        hi[i] += slack[i]
+
+
+@njit(inline="always")
+def _checked_c1(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
+    """:meth:`Lookahead.checked_c1`: the largest ``c1`` over the tube and over the widened box of the states from
+    the environment's first check instant on (``lo``, ``hi``: work space)."""
+    params, set_params, sets, slack, first = M[0], M[2], M[3], M[9], M[10]
+    c1 = call_set_max(sets, set_params, _HARD, tube_lo, tube_hi)
+    call_held_box(enclose, params, x_lo, x_hi, a, min(first, length), length, lo, hi)
+    _widen(lo, hi, slack)
+    moved = call_set_max(sets, set_params, _HARD, lo, hi)
+    # np.maximum's NaN rule: a NaN from either side
+    return moved if (moved > c1 or math.isnan(moved)) else c1
+
+
+@njit(inline="always")
+def _may_spend(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
+    """:meth:`Lookahead.may_spend`: whether the tube, or the widened box of the states from half the first
+    sub-step on, may leave ``C2`` (``lo``, ``hi``: work space)."""
+    params, set_params, sets, slack, first = M[0], M[2], M[3], M[9], M[10]
+    if not call_set_max(sets, set_params, _SOFT, tube_lo, tube_hi) <= 0:
+        return True
+    call_held_box(enclose, params, x_lo, x_hi, a, min(0.5 * first, length), length, lo, hi)
+    _widen(lo, hi, slack)
+    return not call_set_max(sets, set_params, _SOFT, lo, hi) <= 0
+
+
+@njit(inline="always")
 def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
-    """:meth:`Lookahead._budget_spent` over the pieces ``[edges[j], edges[j + 1]]`` of a held action's motion."""
-    params, eps, set_params, sets = M[0], M[1], M[2], M[3]
+    """:meth:`Lookahead._budget_spent` over the pieces ``[edges[j], edges[j + 1]]`` of a held action's motion, each
+    piece's box widened, and the rounding allowance added where the charge is positive."""
+    params, eps, set_params, sets, slack, budget_slack = M[0], M[1], M[2], M[3], M[9], M[11]
     P = len(edges) - 1
     length = edges[P]
     out = 0.0
     for j in range(P):
         call_held_box(enclose, params, x_lo, x_hi, a, edges[j], edges[j + 1], lo, hi)
+        _widen(lo, hi, slack)
         out += (length / P) * min(max(call_set_max(sets, set_params, _SOFT, lo, hi) / eps, 0.0), 1.0)
-    return out
+    return out + budget_slack if out > 0 else out
 
 
 @njit(_nrt=False)
@@ -49,7 +84,7 @@ def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
     target inside ``C2``, the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``. Not
     inlined into :func:`judge`: asked only of actions that do not pass and whose motion meets the target, it would
     add to the first compilation more than its call costs."""
-    params, set_params, sets = M[0], M[2], M[3]
+    params, set_params, sets, slack = M[0], M[2], M[3], M[9]
     for j in range(check_edges.shape[0]):
         edges = check_edges[j]
         s = edges[len(edges) - 1]
@@ -58,11 +93,17 @@ def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
         good = True
         for i in range(len(lo)):
             good = good and math.isfinite(lo[i]) and math.isfinite(hi[i])
-        if not (good and call_set_max(sets, set_params, _TARGET, e_lo, e_hi) <= 0
-                and call_set_max(sets, set_params, _SOFT, e_lo, e_hi) <= 0
-                and call_set_max(sets, set_params, _HARD, lo, hi) <= 0):
+        if not good:
             continue
-        if z - _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi) >= 0:
+        _widen(e_lo, e_hi, slack)
+        if not (call_set_max(sets, set_params, _TARGET, e_lo, e_hi) <= 0
+                and call_set_max(sets, set_params, _SOFT, e_lo, e_hi) <= 0):
+            continue
+        # (e_lo, e_hi are free again: the widened box of the checked states)
+        if not _checked_c1(enclose, M, x_lo, x_hi, a, s, lo, hi, e_lo, e_hi) <= 0:
+            continue
+        spends = _may_spend(enclose, M, x_lo, x_hi, a, s, lo, hi, e_lo, e_hi)
+        if z - (_spent(enclose, M, x_lo, x_hi, a, edges, lo, hi) if spends else 0.0) >= 0:
             return True
     return False
 
@@ -72,7 +113,7 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     """What :meth:`Lookahead.assess` decides without the table, for one row: ``(ok, lands, bounded, in_c1, kept,
     proven, c1, z_end, t_next)``; writes the end box into ``end_lo``, ``end_hi``. ``ok``: the action passes by the
     cells; ``lands``: every run surely lands inside the period; ``proven``: its end keeps inside the safe cells."""
-    params, set_params, sets = M[0], M[2], M[3]
+    params, set_params, sets, slack = M[0], M[2], M[3], M[9]
     target_lo, target_hi, edges, horizon = M[4], M[5], M[6], M[8]
     check_edges = M[7]
     safe, has_safe, land = C[0], C[1], C[2]
@@ -82,12 +123,14 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     dt = edges[P]
     call_held_box(enclose, params, x_lo, x_hi, a, edges[0], dt, tube_lo, tube_hi)
     call_held_box(enclose, params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
+    # every box compared with a set or a cell holds the environment's states, rounding included
+    _widen(end_lo, end_hi, slack)
     bounded = True
     for i in range(n):
         bounded = bounded and math.isfinite(tube_lo[i]) and math.isfinite(tube_hi[i])
-    c1 = call_set_max(sets, set_params, _HARD, tube_lo, tube_hi)
+    c1 = _checked_c1(enclose, M, x_lo, x_hi, a, dt, tube_lo, tube_hi, lo, hi)
     # a period whose whole box lies in C2 spends nothing: its pieces are charged only where it may leave C2
-    spends = not call_set_max(sets, set_params, _SOFT, tube_lo, tube_hi) <= 0
+    spends = _may_spend(enclose, M, x_lo, x_hi, a, dt, tube_lo, tube_hi, lo, hi)
     z_end = z - _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi) if spends else z
     t_next = t + dt
     in_time = t_next <= horizon + 1e-9 * max(1.0, horizon)
@@ -257,6 +300,7 @@ def _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     tube_lo, tube_hi = work[0], work[1]
     dt = edges[len(edges) - 1]
     call_held_box(enclose, params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
+    _widen(end_lo, end_hi, M[9])
     if cover_row(C[2], min(t + dt, horizon), end_lo, end_hi, z):
         return True
     call_held_box(enclose, params, x_lo, x_hi, a, edges[0], dt, tube_lo, tube_hi)

@@ -14,14 +14,11 @@ OPTIMAL = 2
 OUTSIDE = 3
 #: the time is at or after the table's horizon
 AFTER_HORIZON = 4
-#: kept for scripts that test for it; this filter reads a non-finite table value as unsafe (``+inf``) and reports
-#: the state as ``UNCERTIFIED`` or ``OUTSIDE``
-NONFINITE = 5
+# (5 is not used: a non-finite table value reads as unsafe, ``+inf``, and the state is ``UNCERTIFIED`` or ``OUTSIDE``)
 #: no candidate could even be bounded (the model's enclosure failed): the fallback action was applied
 FALLBACK = 6
 #: inside the table, but no held action passes the test: the least-bad candidate was applied
 UNCERTIFIED = 7
 #: reason code -> name, as reported by the wrapper's ``info["filter_reason"]``
 REASONS = {PASS: "pass", BLEND: "blend", OPTIMAL: "optimal", OUTSIDE: "outside_domain",
-           AFTER_HORIZON: "after_horizon", NONFINITE: "nonfinite_value", FALLBACK: "fallback",
-           UNCERTIFIED: "uncertified"}
+           AFTER_HORIZON: "after_horizon", FALLBACK: "fallback", UNCERTIFIED: "uncertified"}

@@ -19,9 +19,9 @@ from typing import Any
 import numpy as np
 
 from softreach.reach.blocks import check_threads
+from softreach.reach.lookahead import exact_normalized
 
 from .reasons import AFTER_HORIZON, PASS
-from .tensors import clip_unit
 
 _SCALARS = (float, int, np.floating, np.integer)
 
@@ -63,11 +63,23 @@ def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, p
     code = AFTER_HORIZON if after else int(reason[0])
     active = code != PASS
     if normalized:
-        out = clip_unit(vf.normalized(applied[0])) if active else np.array(act, dtype=np.float64)
+        out = _normalized(vf, applied[0].tolist()) if active else np.array(act, dtype=np.float64)
         chosen_out = vf.normalized(chosen[0])
     else:
         out, chosen_out = applied[0].copy(), chosen[0].copy()
     info = {"value": value[0], "margin": np.float64(vf.constant_margin or 0.0), "active": np.bool_(active),
             "reason": np.int64(code), "optimal_action": chosen_out, "blend": blend[0], "lookahead": nxt[0],
-            "certified": np.bool_(bool(ok[0]) and not after), "plan": new_plans[0].copy()}
+            "certified": np.bool_(bool(ok[0]) and not after and vf.sampled), "plan": new_plans[0].copy()}
     return out, info
+
+
+def _normalized(vf: Any, u: list[float]) -> np.ndarray:
+    """:func:`~softreach.reach.lookahead.exact_normalized` of one physical action, in Python numbers where the
+    plain quotient maps back exactly (the usual case), as the batched path returns it."""
+    out = []
+    for v, mid, half in zip(u, vf.a_mid.tolist(), vf.a_half.tolist()):
+        q = min(max((v - mid) / half, -1.0), 1.0)
+        if mid + half * q != v:
+            q = float(exact_normalized(np.array([v]), np.array([mid]), np.array([half]))[0])
+        out.append(q)
+    return np.array(out, dtype=np.float64)

@@ -44,7 +44,7 @@ class SafetyFilter(gym.Wrapper):
     * ``value`` — the certificate ``min(V~, W~_eps)`` at the state the decision was taken in (``+inf`` outside);
     * ``margin`` (the extra tightening, 0 by default), ``optimal_action`` (the normalised candidate the filter
       chose, NaN where the policy passed), ``filter_reason`` (``"pass"``, ``"blend"``, ``"optimal"``,
-      ``"outside_domain"``, ``"after_horizon"``, ``"nonfinite_value"``, ``"fallback"``, ``"uncertified"``);
+      ``"outside_domain"``, ``"after_horizon"``, ``"fallback"``, ``"uncertified"``);
     * ``certified`` — the applied action passed the one-period test; ``lookahead`` — its worst next certificate;
     * on the last step of an episode, ``filter_episode``: ``steps``, ``interventions``, ``intervention_rate``,
       ``min_value`` and ``max_value`` (over the decisions; ``max_value <= 0`` means the episode never left the
@@ -152,7 +152,7 @@ class SafetyFilter(gym.Wrapper):
         vf = self.value_filter
         info = dict(info)
         info["value"] = float(vf.value(base.time, base.state, base.budget))
-        info["margin"] = float(vf.margin(base.time, base.state, base.budget))
+        info["margin"] = float(vf.constant_margin or 0.0)
         certified, why, _, plan = vf.certify_start(base.time, base.state, base.budget)
         info["certified"] = bool(certified)
         info["certified_reason"] = why
@@ -183,8 +183,10 @@ class SafetyFilter(gym.Wrapper):
         # read once a step: each read of a wrapper's action_space goes down the chain of wrappers
         space = self.action_space
         dtype, shape = space.dtype if space.dtype is not None else np.float32, space.shape
-        # the policy's own object passes untouched where the filter does not act (no float round trip)
-        to_env = clip_unit(applied).astype(dtype) if active else action
+        # the policy's own object passes untouched where the filter does not act (no float round trip); the
+        # filter's own action goes in binary64, the normalised action whose physical image is exactly the one it
+        # judged (a cast to the space's float32 would move it: the hover thrust 9.8 by 4e-7 m/s^2)
+        to_env = np.array(applied, dtype=np.float64) if active else action
         obs, reward, terminated, truncated, info = self.env.step(to_env)
 
         value = float(f["value"])

@@ -16,6 +16,11 @@ satisfies, from *every* state of the cell and for every wind signal (the model's
 3. every run surely lands at a check instant of one of the periods (then the episode ends), or every cell the
    end box touches, at every budget the plan can leave, is good at ``t_{k+K}``, and ``k + K <= N``.
 
+Every box is widened, and every period that may spend is charged more, by the look-ahead's allowances for the
+environment's rounding (:func:`~softreach.reach.lookahead.state_allowance`,
+:func:`~softreach.reach.lookahead.budget_allowance`; the key records them), so that a cell's claim holds for the
+numbers the environment computes; the next period starts from the widened end box.
+
 Two games differ only at ``T``: in ``"safe"`` every cell inside ``C1`` is good there (stay in ``C1`` within the
 budget until ``T``, or land); in ``"land"`` none is (land by ``T``). More budget never hurts: if ``(c, j)`` is good
 so is ``(c, j + 1)`` (the same plan works, by induction from ``T``). So a cell column is stored as one number,
@@ -259,7 +264,8 @@ def cell_key(lookahead: Any, shape: Any, dz: float | None = None, game: str = "s
             "horizon": la.horizon, "candidates": la.candidates.tolist(), "pieces": la.pieces,
             "target_checks": la.target_checks, "shape": [int(v) for v in shape],
             "dz": la.dt / 4 if dz is None else float(dz), "game": game,
-            "holds": sorted({int(h) for h in holds}), "span_cap": int(span_cap)}
+            "holds": sorted({int(h) for h in holds}), "span_cap": int(span_cap),
+            "allowance": {"state": la.slack.tolist(), "budget": la.budget_slack, "first_check": la.first_check}}
 
 
 def cache_dir() -> Path:

@@ -171,10 +171,14 @@ def plan_steps(cells: Any, la: Any, t0: float, lo: np.ndarray, hi: np.ndarray, a
         t = np.full(C, t0 + (p - 1) * la.dt)
         tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure_box(float(t[0]), lo, hi, acts, la.dt)
         ok &= np.isfinite(tube_lo).all(axis=1) & np.isfinite(tube_hi).all(axis=1)
+        # every box compared with a set or a cell holds the environment's states, rounding included (la.widen)
+        end_lo, end_hi = la.widen(end_lo, end_hi)
         with np.errstate(invalid="ignore"):
-            ok &= la._corner_max(model.hard_constraint, t, tube_lo, tube_hi) <= 0
-            pieces = model.held_tube_pieces_box(float(t[0]), lo, hi, acts, la.dt, la.pieces)
-            spend = spend + np.nan_to_num(la._budget_spent(t, pieces[0], pieces[1], la.dt), nan=np.inf)
+            ok &= la.checked_c1(t, lo, hi, acts, la.dt, tube_lo, tube_hi) <= 0
+            pieces = la.widen(*model.held_tube_pieces_box(float(t[0]), lo, hi, acts, la.dt, la.pieces))
+            charge = np.where(la.may_spend(t, lo, hi, acts, la.dt, tube_lo, tube_hi),
+                              la._budget_spent(t, pieces[0], pieces[1], la.dt), 0.0)
+            spend = spend + np.nan_to_num(charge, nan=np.inf)
         # landing needs only the budget spent until the landing instant, at most the plan's bound so far
         rows = ok & ~lands & meets_target(la, np.nan_to_num(tube_lo), np.nan_to_num(tube_hi))
         lands |= lands_within(la, t, lo, np.full(C, np.inf), acts, hi, rows)

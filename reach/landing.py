@@ -7,7 +7,10 @@ passes the one-period test (:class:`~softreach.reach.lookahead.Lookahead`) when,
 * the box of the states at ``s`` lies in the target and inside ``C2`` (every corner: the target and ``c2`` are
   convex or monotone along each axis on such boxes),
 * the motion over ``[0, s]`` stays in ``C1``,
-* and the budget spent until ``s`` is at most ``z``.
+* and the budget spent until ``s`` is at most ``z``,
+
+each box widened by the allowance for the environment's rounding
+(:meth:`~softreach.reach.lookahead.Lookahead.widen`, :meth:`~softreach.reach.lookahead.Lookahead.checked_c1`).
 
 Every run then ends landed at ``s`` at the latest, whatever the wind did. The cells
 (:mod:`softreach.reach.cell_certificate`) ask the same of their plans, and the compiled filter mirrors it
@@ -63,9 +66,11 @@ def lands_within(la: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.nda
             tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure_box(row_time(tr), lo, hi, a[todo], s)
             good = np.isfinite(tube_lo).all(axis=1) & np.isfinite(tube_hi).all(axis=1)
         ts = tr + s
+        # the environment's states, with its rounding (Lookahead.widen, checked_c1), are what must have landed
+        end_lo, end_hi = la.widen(end_lo, end_hi)
         good &= la._corner_max(model.target, ts, end_lo, end_hi) <= 0
         good &= la._corner_max(model.soft_constraint, ts, end_lo, end_hi) <= 0
-        good &= la._corner_max(model.hard_constraint, tr, tube_lo, tube_hi) <= 0
+        good &= la.checked_c1(tr, lo, hi, a[todo], s, tube_lo, tube_hi) <= 0
         idx = np.nonzero(good)[0]
         if len(idx):
             if x_hi is None:
@@ -73,7 +78,9 @@ def lands_within(la: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.nda
             else:
                 piece_lo, piece_hi = model.held_tube_pieces_box(row_time(tr[idx]), lo[idx], hi[idx], a[todo][idx],
                                                                 s, la.pieces)
-            spent = la._budget_spent(tr[idx], piece_lo, piece_hi, s)
+            spent = la._budget_spent(tr[idx], *la.widen(piece_lo, piece_hi), s)
+            spent = np.where(la.may_spend(tr[idx], lo[idx], hi[idx], a[todo][idx], s, tube_lo[idx], tube_hi[idx]),
+                             spent, 0.0)
             done = idx[z[todo][idx] - spent >= 0]
             out[todo[done]] = True
             todo = np.delete(todo, done)

@@ -12,7 +12,7 @@ motion of the period and a box ``E`` holding its end point. The action is **admi
 2. ``z' = z - sum_j (dt / P) max_{T_j} h_eps >= 0``, ``T_j`` a box holding the motion over the ``j``-th of ``P``
    equal pieces of the period (:meth:`~softreach.reach.dynamics.Dynamics.held_tube_pieces`): the budget
    spent in the period, crossings of ``C2`` included, is at most that (``h_eps`` grows with ``c2``, also convex,
-   so each maximum is at a corner), and the budget never goes negative: exact, with no allowance of a period;
+   so each maximum is at a corner), and the budget never goes negative, with no allowance of a period;
 3. ``max_{E x [z', z]} D(t + dt, .) <= -margin``: every possible end state lies inside the certificate at the
    next sample time.
    The maximum of the interpolant over the box is exact (:func:`softreach.reach.interpolation.box_max`), so no
@@ -21,6 +21,11 @@ motion of the period and a box ``E`` holding its end point. The action is **admi
 
 The episode also ends when the target is reached *inside* a period, so an action also passes when every run
 surely lands at one of the environment's check instants (:mod:`softreach.reach.landing`).
+
+Each box compared with a set or a cell holds the environment's own numbers, rounding included: it is widened by
+:func:`state_allowance` (``C1`` is asked of the exact tube and of the widened box from the environment's first
+check instant on, :meth:`Lookahead.checked_c1`), and a period that may spend is charged :func:`budget_allowance`
+more. The candidates are actions an environment applies exactly (:func:`representable`).
 
 A budget-surface table (``softreach solve MODEL --held --budget-surface``) gives the same test with
 ``W~(t, x, z)`` replaced by ``Q~_min(t, x) - min(z, T - t)``: its maximum over ``E x [z', z]`` is
@@ -48,11 +53,88 @@ from .dynamics import row_time
 from .interpolation import interpolate
 from .kernels import certificate_rows
 from .landing import lands_within, meets_target
-from .model_kernels import SET_INDEX, set_max_address, set_max_rows
+from .model_kernels import SET_INDEX, held_boxes, set_max_address, set_max_rows
 
 
 #: the fields that say how much budget suffices, in the order a table's is picked
 BUDGET_FIELDS = ("W_eps", "Q_min")
+
+#: the unit roundoff of binary64, in which the environments integrate and the filter bounds
+UNIT_ROUNDOFF = 2.0 ** -53
+
+
+def action_map(model: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The centre and half-width of the model's control box: the environments apply the normalised action ``q``
+    as ``mid + half * q`` (binary64), :mod:`softreach.envs.actions`."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in model.control_bounds)
+    return 0.5 * (lo + hi), 0.5 * (hi - lo)
+
+
+def exact_normalized(u: np.ndarray, mid: np.ndarray, half: np.ndarray, ulps: int = 4) -> np.ndarray:
+    """Normalised actions ``q`` in ``[-1, 1]`` (binary64) that the environments map back to exactly ``u``
+    (``mid + half * q == u``), where one lies within ``ulps`` units in the last place of ``(u - mid) / half``;
+    elsewhere that quotient (clipped). The filter judges physical actions; what it hands an environment must be
+    what it judged, not a neighbour one rounding away."""
+    u = np.asarray(u, dtype=np.float64)
+    q = np.minimum(np.maximum((u - mid) / half, -1.0), 1.0)
+    miss = mid + half * q != u
+    if not miss.any():
+        return q
+    out = q.copy()
+    for sign in (np.inf, -np.inf):
+        step = q.copy()
+        for _ in range(ulps):
+            step = np.nextafter(step, sign)
+            hit = miss & (np.abs(step) <= 1.0) & (mid + half * step == u)
+            out = np.where(hit, step, out)
+            miss &= ~hit
+    return out
+
+
+def representable(u: np.ndarray, mid: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """The physical actions an environment can apply exactly nearest ``u``: ``u`` itself where a normalised action
+    maps to it (:func:`exact_normalized`), else the image of the nearest normalised one. The filter's candidates
+    are these, so that the action it proves is the one the environment applies, bit for bit."""
+    return mid + half * exact_normalized(u, mid, half)
+
+
+def state_allowance(model: Any, checks: int) -> np.ndarray:
+    """How far, per state axis, the environment's state after a period may lie from the exact motion that the
+    model's enclosure bounds, by rounding alone: every box the filter compares with ``C1``, ``C2``, the target or
+    a cell edge is widened by it (the start of a period is the environment's own number, so it is exact).
+
+    Derivation. The environment advances a period by ``checks`` classical RK4 sub-steps in binary64 (unit roundoff
+    ``u``). Along axis ``i``, a sub-step forms three stage states ``x + c h k`` (2 roundings each), the weighted sum
+    ``k1 + 2 k2 + 2 k3 + k4`` (5), its product with ``h / 6`` (2) and the new state (1): at most 16 roundings,
+    each of a number at most ``M_i``, twice the largest ``|x_i|`` of the model's domain (a state the episode goes
+    on from lies in ``C1``, inside the domain; a stage state or a sub-step's increment lies within the domain's
+    extent of it). The stage states' errors (``2 u M_i`` each) reach the increment through ``f`` times ``h``, with
+    ``h L <= 1``: at most ``8 u M_i`` more. So ``24 u M_i`` a sub-step, ``24 checks u M_i`` a period; the
+    enclosures' own arithmetic (a few operations on such numbers) adds ``8 u M_i``. The allowance is
+    ``(24 checks + 8) u M_i``. It covers rounding only: where the environment's integrator is exact in real
+    arithmetic (the point mass's RK4, for its piecewise quadratic motion) it covers the whole difference; the
+    truncation error of RK4 on a nonlinear model (the glider) is not covered (``docs/filters.md``).
+    """
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in model.domain)
+    M = 2.0 * np.maximum(np.abs(lo), np.abs(hi))
+    return (24 * int(checks) + 8) * UNIT_ROUNDOFF * M
+
+
+def budget_allowance(dt: float, horizon: float, pieces: int, samples: int = 128) -> float:
+    """What every budget charge of a period adds for rounding [s], so that the filter's end budget is never above
+    the environment's (``z - cost`` in binary64, :mod:`softreach.reach.integrator`).
+
+    Derivation (``u`` the unit roundoff; every rate ``h_eps`` lies in ``[0, 1]``, so every partial sum of a
+    period's cost is at most ``dt``, and every budget at most the horizon ``T``): the environment's cost of a
+    sub-step is Simpson's sum (8 roundings) or, at a kink, trapezoid sums over ``samples`` cells a level (at most
+    ``2 samples + 8`` roundings of numbers at most the sub-step), summed correctly rounded: at most
+    ``(2 samples + 8) u dt`` a period. The filter's charge, ``pieces`` products and sums: ``2 pieces u dt``. The
+    environment's subtraction ``z - cost``: ``u T``; the filter's own (or the cells' sum of a plan's charges and
+    the comparison with a budget cell's edge): ``3 u T``. So ``u ((2 samples + 8 + 2 pieces) dt + 4 T)``: a period
+    that may leave ``C2`` is charged that much more. A period whose widened box lies in ``C2`` costs exactly 0 in
+    the environment (every rate it reads is 0), and is charged nothing.
+    """
+    return UNIT_ROUNDOFF * ((2 * samples + 8 + 2 * int(pieces)) * float(dt) + 4.0 * float(horizon))
 
 
 class Lookahead:
@@ -84,6 +166,14 @@ class Lookahead:
             raise ValueError(f"target_checks must be a positive integer, got {target_checks!r}")
         self.target_checks = int(target_checks)
         self.n = model.state_dim
+        #: the environment's sub-steps a period: it checks ``C1`` and landing at their ends, the first
+        #: :attr:`first_check` after the period's start (:class:`SafetyFilter` passes the environment's count as
+        #: ``target_checks``; a bare filter assumes the model's own ``substeps``)
+        self.checks = max(self.target_checks, int(getattr(model, "substeps", 1) or 1))
+        self.first_check = self.dt / self.checks
+        #: the outward allowances for the environment's rounding (:func:`state_allowance`, per state axis, and
+        #: :func:`budget_allowance`, a period's charge)
+        self.slack = state_allowance(model, self.checks)
         self.fields = dict(fields)
         #: the field that says how much budget suffices: ``W_eps`` on ``(x, z)``, or the budget surface ``Q_min``
         self.budget_field = next((f for f in BUDGET_FIELDS if f in self.fields), None)
@@ -93,6 +183,7 @@ class Lookahead:
         b_values, b_times, b_grid = self.fields[self.budget_field]
         self.z_top = b_grid.hi[-1] if self.budget_field == "W_eps" else np.inf
         self.horizon = float(b_times[-1])
+        self.budget_slack = budget_allowance(self.dt, self.horizon, self.pieces)
         #: a ``W_eps`` table's fields as the compiled certificate reads them (:func:`~softreach.reach.kernels.
         #: certificate_row`): ``(W, z_top, z_floor, V, has_V)``; ``None`` for a budget surface
         self.table_args = None
@@ -107,7 +198,10 @@ class Lookahead:
             left = (self.horizon - np.asarray(b_times, dtype=np.float64)).reshape((-1,) + (1,) * b_grid.ndim)
             self._no_budget = (np.asarray(b_values) > left + 1e-9).astype(np.float64)
         self.corners = np.array(list(itertools.product((0, 1), repeat=self.n)), dtype=bool)  # (2^n, n)
-        self.candidates = np.asarray(candidates, dtype=np.float64)
+        #: the control box's map (:func:`action_map`), and the candidates as an environment applies them: each
+        #: one the image of a normalised action (:func:`representable`)
+        self.a_mid, self.a_half = action_map(model)
+        self.candidates = representable(np.asarray(candidates, dtype=np.float64), self.a_mid, self.a_half)
         box = model.target_box
         self.target_lo, self.target_hi = (None, None) if box is None else (np.asarray(box[0], float),
                                                                             np.asarray(box[1], float))
@@ -195,7 +289,44 @@ class Lookahead:
         t_all = t if np.isscalar(row_time(t)) else np.tile(t, P)
         c2 = self._corner_max(self.model.soft_constraint, t_all, np.reshape(piece_lo, (P * N, -1)),
                               np.reshape(piece_hi, (P * N, -1)))
-        return (length / P) * np.clip(c2 / self.eps, 0.0, 1.0).reshape(P, N).sum(axis=0)
+        charge = (length / P) * np.clip(c2 / self.eps, 0.0, 1.0).reshape(P, N).sum(axis=0)
+        # a charge for rounding wherever the environment's cost may be positive (budget_allowance)
+        return charge + np.where(charge > 0, self.budget_slack, 0.0)
+
+    def widen(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The boxes ``[lo, hi]`` grown on every side by the rounding allowance :attr:`slack`
+        (:func:`state_allowance`): they then hold the environment's states, not only the exact motion."""
+        return lo - self.slack, hi + self.slack
+
+    def checked_c1(self, t: np.ndarray, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, length: float,
+                   tube_lo: np.ndarray, tube_hi: np.ndarray) -> np.ndarray:
+        """The largest ``c1`` over the motion of ``length`` seconds held from the boxes ``[x_lo, x_hi]``: over the
+        model's tube ``[tube_lo, tube_hi]`` (the exact motion, from the start on), and over the states from the
+        environment's first check instant (:attr:`first_check`) on, widened by the allowance: those are the
+        environment's own numbers, with its rounding, where it checks ``C1``. The start needs none: it is the
+        environment's number itself. A model without a compiled enclosure (:func:`~softreach.reach.model_kernels.
+        held_boxes`) has its whole tube widened."""
+        c1 = self._corner_max(self.model.hard_constraint, t, tube_lo, tube_hi)
+        moved = self._moved(x_lo, x_hi, a, self.first_check, length, tube_lo, tube_hi)
+        return np.maximum(c1, self._corner_max(self.model.hard_constraint, t, *moved))
+
+    def may_spend(self, t: np.ndarray, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, length: float,
+                  tube_lo: np.ndarray, tube_hi: np.ndarray) -> np.ndarray:
+        """Where the environment's cost of the motion of ``length`` seconds may be positive: where the model's tube
+        may leave ``C2``, or the widened box of the states from half the first sub-step on (the first RK4 stage
+        states the environment computes, :func:`state_allowance`) may. Elsewhere every rate the environment
+        reads is 0 (the start is its own number), so its cost is exactly 0 and the period is charged nothing."""
+        soft = self.model.soft_constraint
+        moved = self._moved(x_lo, x_hi, a, 0.5 * self.first_check, length, tube_lo, tube_hi)
+        return ~((self._corner_max(soft, t, tube_lo, tube_hi) <= 0) & (self._corner_max(soft, t, *moved) <= 0))
+
+    def _moved(self, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, s0: float, length: float,
+               tube_lo: np.ndarray, tube_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The box of the states from ``s0`` to ``length`` into the period, widened (:meth:`widen`); the whole tube
+        widened for a model without a compiled enclosure."""
+        if getattr(self.model, "held_box_kernel", None) is not None:
+            return self.widen(*held_boxes(self.model, x_lo, x_hi, a, min(s0, length), length))
+        return self.widen(tube_lo, tube_hi)
 
     def _enclose(self, t: np.ndarray, x: np.ndarray, a: np.ndarray, dt: float | None = None):
         t0 = row_time(t)
@@ -253,7 +384,7 @@ class Lookahead:
             tube_lo, tube_hi, end_lo, end_hi = self.model.held_enclosure_box(row_time(t), x, x_hi, a, self.dt)
             bounded = np.isfinite(tube_lo).all(axis=1) & np.isfinite(tube_hi).all(axis=1)
         z_top = z if z_hi is None else z_hi
-        c1 = self._corner_max(self.model.hard_constraint, t, tube_lo, tube_hi)
+        c1 = self.checked_c1(t, x, x if x_hi is None else x_hi, a, self.dt, tube_lo, tube_hi)
         # budget: piece j of the period is charged at the largest violation rate over a box holding every state
         # of that piece, so a short excursion out of C2 costs only its pieces, and never less than the
         # environment's exact integral of h_eps
@@ -264,8 +395,11 @@ class Lookahead:
         else:
             piece_lo = np.broadcast_to(tube_lo, (self.pieces,) + tube_lo.shape)
             piece_hi = np.broadcast_to(tube_hi, (self.pieces,) + tube_hi.shape)
+        # every box compared with a set or a cell from here on holds the environment's states (widen)
+        piece_lo, piece_hi = self.widen(piece_lo, piece_hi)
+        end_lo, end_hi = self.widen(end_lo, end_hi)
         # a period whose whole box lies in C2 spends nothing: its pieces are charged only where it may leave C2
-        spends = np.nonzero(~(self._corner_max(self.model.soft_constraint, t, tube_lo, tube_hi) <= 0))[0]
+        spends = np.nonzero(self.may_spend(t, x, x if x_hi is None else x_hi, a, self.dt, tube_lo, tube_hi))[0]
         z_end = np.array(np.broadcast_to(z, (len(x),)), dtype=np.float64)
         if len(spends):
             t_s = t[spends] if np.ndim(t) else t

@@ -1,0 +1,193 @@
+"""The filter against the environment's own arithmetic, at exact floating-point ties (issue 37, "sound to the last
+bit"): the action the environment applies is the one the filter judged, bit for bit; a start that ``reset``
+certifies never meets a hard violation or an overspend, even where the exact motion touches ``C1``'s face and the
+environment's RK4 rounds to the other side of it; and starts bisected onto the certified edge run without an
+``"uncertified"`` step. Every run here is the environment itself (``PointMassLanding-v0`` under ``SafetyFilter``),
+not a re-integration."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import softreach.envs  # noqa: F401  (registers the environments)
+from softreach.filters import SafetyFilter, ValueFilter
+from softreach.reach import get_model
+from softreach.reach.lookahead import exact_normalized
+
+ENV = "softreach/PointMassLanding-v0"
+
+
+@pytest.fixture(scope="module")
+def vf(pointmass_held_table):
+    """The filter ``SafetyFilter`` makes for the point-mass env (landing checked at its 10 sub-steps)."""
+    return ValueFilter(pointmass_held_table, 0.01, target_checks=get_model("pointmass").substeps)
+
+
+def _episode(vf, x0, q, t0, action, wind_value=None, wind="constant", seed=0):
+    """One filtered episode in the env: ``(reset info, [step infos])``; ``action`` a constant normalised action or a
+    callable ``rng -> action``."""
+    kwargs = {"wind": wind} if wind_value is None else {"wind": wind, "wind_value": wind_value}
+    env = SafetyFilter(gym.make(ENV, **kwargs), value_filter=vf)
+    _, first = env.reset(seed=seed, options={"state": list(x0), "budget": q, "time": t0})
+    rng = np.random.default_rng(seed)
+    steps = []
+    while True:
+        a = action(rng) if callable(action) else action
+        _, _, terminated, truncated, info = env.step(np.array([a], np.float32))
+        steps.append(info)
+        if terminated or truncated:
+            return first, steps
+
+
+def _sound(first, steps):
+    """What a certified start promises, read off the env's own flags: no hard violation, never a negative budget,
+    landed, and every step certified."""
+    assert first["certified"], first["certified_reason"]
+    assert not any(s["hard_violation"] for s in steps), [s["t"] for s in steps if s["hard_violation"]]
+    assert not any(s["budget_exceeded"] for s in steps), min(s["budget"] for s in steps)
+    assert steps[-1]["landed"], steps[-1]
+    assert all(s["filter_reason"] != "uncertified" for s in steps)
+
+
+def test_the_env_applies_exactly_the_candidate_judged(vf):
+    """Issue 37: the hover candidate u = 9.8 went to the env as float32 and came out as 9.799999594688416 m/s^2.
+    Every action the filter applies reaches the env's physics bit for bit: a candidate as the candidate, and any
+    action as the physical value the filter judged."""
+    cands = vf.lookahead.candidates[:, 0]
+    assert 9.8 in cands.tolist()
+    applied = []
+    env = SafetyFilter(gym.make(ENV, wind="constant", wind_value=-10.0), value_filter=vf)
+    env.reset(options={"state": [-0.01, 1.5000000000000002e-05], "budget": 0.0})
+    for _ in range(200):
+        _, _, terminated, truncated, info = env.step(np.array([-1.0], np.float32))
+        if info["filter_active"] and info["filter_reason"] == "optimal":
+            applied.append(float(info["action_physical"][0]))
+            assert applied[-1] in cands.tolist(), applied[-1]
+        if terminated or truncated:
+            break
+    assert 9.8 in applied, applied  # the hover thrust itself was applied, not a float32 neighbour
+    # every candidate of every built-in model is the image of a normalised action (the env's map, binary64)
+    for name in ("pointmass", "glider", "dubins"):
+        model = get_model(name)
+        lo, hi = (np.asarray(b, float) for b in model.control_bounds)
+        mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+        from softreach.reach.lookahead import representable
+
+        c = representable(np.asarray(model.held_candidates(), float), mid, half)
+        q = exact_normalized(c, mid, half)
+        assert np.array_equal(mid + half * np.clip(q, -1, 1), c), name
+        # a candidate with no exact preimage moves by at most one unit in the last place
+        np.testing.assert_allclose(c, np.asarray(model.held_candidates(), float), rtol=4e-16, atol=0)
+
+
+def test_hover_start_just_above_the_ground(vf):
+    """Issue 37: start (-0.01, 1.5e-05) m/s, m, no budget, a policy that always dives, wind -10: the float32 hover
+    thrust ended 2.0e-13 m below the ground after 1 ms. Certified, the run now lands."""
+    first, steps = _episode(vf, (-0.01, 1.5000000000000002e-05), 0.0, 0.0, -1.0, wind_value=-10.0)
+    _sound(first, steps)
+
+
+@pytest.mark.parametrize("wind_value", [-10.0, -9.9, -9.0, -5.0, 0.0, 10.0])
+def test_fast_fall_at_the_speed_limit(vf, wind_value):
+    """Issue 37: start (-14.9, 11.385...) with Q = 0.6; a wind that aims the end speed at -14.9 - 0.1 left the
+    float32 hover thrust at v = -15.000000004, outside C1."""
+    first, steps = _episode(vf, (-14.9, 11.38525635681534), 0.6, 0.0, -1.0, wind_value=wind_value)
+    _sound(first, steps)
+
+
+@pytest.mark.parametrize("x0, t0", [((-0.32973171649909216, 0.00030963171649909214), 0.0),
+                                    ((-0.2600974477372232, 0.0002399974477372232), 0.99)])
+@pytest.mark.parametrize("action", [-1.0, 0.0, 1.0])
+def test_exact_motion_touching_the_ground(vf, x0, t0, action):
+    """Issue 37: starts whose exact motion under full thrust and the worst wind reaches y = 0 exactly at the first
+    sub-step end; the env's RK4 rounds to y = -5.42e-20 there. The filter's boxes carry the allowance for the env's
+    rounding, so such a start is either not certified, or certified and every run from it keeps C1."""
+    first, steps = _episode(vf, x0, 0.0, t0, action, wind_value=-10.0)
+    if first["certified"]:
+        _sound(first, steps)
+    else:
+        assert first["certified_reason"] in ("not_in_set", "no_certified_action"), first["certified_reason"]
+
+
+def test_the_allowances_are_outward_and_tiny(vf):
+    """The allowances widen every box and charge every spending period a little more, never less, and stay far
+    below any physical scale (metres, m/s, seconds of budget)."""
+    la = vf.lookahead
+    assert (la.slack > 0).all() and (la.slack < 1e-9).all()
+    assert 0 < la.budget_slack < 1e-12
+    # a period outside C2 (v = -12 m/s): the filter's end budget lies below the env's after each of several
+    # periods, so a chain of them never ends above what the env holds (0.3 - 0.01 four times is 0.2599...95)
+    x = np.array([[-12.0, 10.0]])
+    a = np.array([[9.8]])
+    z = 0.3
+    for _ in range(4):
+        _, _, _, _, _, z_end, _ = la.assess(np.array([0.0]), x, np.array([z]), a, ends=True)
+        z_env = z - 0.01  # the env's own update for a period wholly outside C2 (cost exactly dt)
+        assert z_end[0] < z_env, (z_end[0], z_env)
+        z = z_env
+    assert z == 0.25999999999999995
+
+
+def _edge_starts(vf, q, t0, speeds):
+    """Starts bisected onto the certified edge along the altitude at fixed speeds: the last certified altitude
+    within 1e-12 m of the first uncertified one above it (``reset``'s certificate, start plans included)."""
+    ys = np.linspace(0.0, 18.0, 181)
+    out = []
+    for v in speeds:
+        ok = np.array([bool(vf.certify_start(t0, [v, y], q)[0]) for y in ys])
+        flips = np.nonzero(ok[:-1] & ~ok[1:])[0]
+        if not len(flips):
+            continue
+        lo, hi = ys[flips[-1]], ys[flips[-1] + 1]
+        while hi - lo > 1e-12:
+            mid = 0.5 * (lo + hi)
+            if vf.certify_start(t0, [v, mid], q)[0]:
+                lo = mid
+            else:
+                hi = mid
+        out.append((v, lo))
+    return out
+
+
+@pytest.mark.parametrize("q", [0.0, 0.06, 0.3])
+def test_starts_bisected_onto_the_certified_edge(vf, q):
+    """Issue 37: from starts bisected onto the certified edge the filter reported ``"uncertified"`` steps (states
+    within 1e-12 of a cell edge; the env's running budget one rounding below a proven budget cell). Every run from
+    such a start, under policies that dive, climb or act at random and winds at both extremes, is certified at every
+    step, keeps C1 and the budget and lands."""
+    starts = _edge_starts(vf, q, 0.0, speeds=(-8.0, -3.0, 0.0, 3.0))
+    assert len(starts) >= 3, starts
+    policies = (-1.0, 1.0, lambda rng: float(rng.uniform(-1, 1)))
+    runs = 0
+    for v, y in starts:
+        for k, action in enumerate(policies):
+            for wind_value in (-10.0, 10.0):
+                first, steps = _episode(vf, (v, y), q, 0.0, action, wind_value=wind_value, seed=k)
+                _sound(first, steps)
+                runs += 1
+        # and the random wind of the env (a new value every step)
+        first, steps = _episode(vf, (v, y), q, 0.0, lambda rng: float(rng.uniform(-1, 1)), wind="random", seed=7)
+        _sound(first, steps)
+    assert runs >= 18
+
+
+def test_continuous_table_certifies_no_step(pointmass_table):
+    """Issue 39 item 6: with a continuous-time table ``reset`` says ``certified=False`` ("table_not_sampled"); the
+    steps agree with it (the table is not a proof for held actions) while the filter still decides."""
+    env = SafetyFilter(gym.make(ENV, wind="random"), pointmass_table)
+    _, info = env.reset(seed=0, options={"state": [-2.0, 4.0], "budget": 0.3})
+    assert not info["certified"] and info["certified_reason"] == "table_not_sampled"
+    reasons = set()
+    for _ in range(30):
+        _, _, terminated, truncated, info = env.step(env.action_space.sample())
+        assert info["certified"] is False
+        reasons.add(info["filter_reason"])
+        if terminated or truncated:
+            break
+    assert reasons - {"uncertified", "outside_domain"}, reasons  # it decides: some steps pass or are replaced
+    # the batched path says the same
+    _, out = env.value_filter.filter(np.zeros(3), np.array([[-2.0, 4.0]] * 3), np.full(3, 0.3),
+                                     np.zeros((3, 1)), normalized=True)
+    assert not out["certified"].any()
