@@ -25,8 +25,8 @@ falls 16-fold when the step halves, so the finer run's error is about a fifteent
 ``(steps taken + 8)`` roundings of the largest magnitude the coordinate takes (each RK4 step adds one increment,
 rounding by at most half an ulp of that magnitude; the model's bound is a few operations on numbers of that size).
 A run outside a box by more than the allowance refutes the enclosure: :class:`EnclosureError` names the claim, the
-start, the action, the wind and the coordinate. Passing is evidence, not proof: the samples are finite and the
-nodes are instants.
+start, the action, the wind and the coordinate. Passing is evidence, not proof: the samples are finite, the nodes
+are instants, and the runs start at ``t = 0`` (a model whose motion depends on ``t`` is checked there only).
 """
 
 from __future__ import annotations
@@ -65,11 +65,11 @@ class EnclosureCheck:
     seed: int = 0
 
     def __post_init__(self):
-        for name in ("samples", "switches", "steps"):
+        for name, least, kind in (("samples", 1, "positive"), ("switches", 0, "non-negative"),
+                                  ("steps", 1, "positive")):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < (0 if name == "switches" else 1):
-                raise ValueError(f"EnclosureCheck.{name} must be a {'non-negative' if name == 'switches' else 'positive'}"
-                                 f" integer, got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, int) or v < least:
+                raise ValueError(f"EnclosureCheck.{name} must be a {kind} integer, got {v!r}")
         for name in ("face_share", "constant_share"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"EnclosureCheck.{name} must lie in [0, 1], got {getattr(self, name)!r}")
@@ -253,26 +253,22 @@ def _claims(model: Any, t0: float, b_lo: np.ndarray, b_hi: np.ndarray, x0: np.nd
 
 
 def _guarded(call: Callable[[], Any], N: int, n: int, pieces: int | None = None) -> Any:
-    """``call()``; where the model refuses a row (``ValueError``: no enclosure for it, which the filter reads as
-    not admissible) every box NaN, which claims nothing."""
+    """``call()``; where the model refuses (``ValueError``: no enclosure, which the filter reads as not
+    admissible) every box NaN, which claims nothing."""
     try:
         return call()
     except ValueError:
-        shape = (N, n) if pieces is None else (pieces, N, n)
-        return (np.full(shape, np.nan),) * (2 if pieces is not None else 4)
+        return (np.full((N, n) if pieces is None else (pieces, N, n), np.nan),) * (4 if pieces is None else 2)
 
 
 def _point_enclosure(model: Any, t0: float, x0: np.ndarray, a: np.ndarray, D: float):
-    """:meth:`held_enclosure` of the rows; rows the model refuses one by one (as the look-ahead does) are NaN."""
+    """:meth:`held_enclosure` of the rows; where the model refuses the batch, row by row (as the look-ahead does)."""
     try:
         return model.held_enclosure(t0, x0, a, D)
     except ValueError:
-        boxes = [np.full(x0.shape, np.nan) for _ in range(4)]
-        for r in range(len(x0)):
-            one = _guarded(lambda: model.held_enclosure(t0, x0[r:r + 1], a[r:r + 1], D), 1, x0.shape[1])
-            for b, o in zip(boxes, one):
-                b[r] = np.asarray(o)[0]
-        return tuple(boxes)
+        rows = [_guarded(lambda: model.held_enclosure(t0, x0[r:r + 1], a[r:r + 1], D), 1, x0.shape[1])
+                for r in range(len(x0))]
+        return tuple(np.concatenate([np.asarray(one[i]) for one in rows]) for i in range(4))
 
 
 # ---------------------------------------------------------------------------------------------- the check
