@@ -264,6 +264,7 @@ class FusedStepper:
         self.acc = np.zeros(shape[0], dt)
         self.torch = settings.backend == "torch"
         self.handle = B.torch.from_numpy(self.u) if self.torch else self.u
+        self._loaded: Any = None
         if threads is None:
             threads = B.torch.get_num_threads() if B.torch is not None else 1
         self.rows = Rows(threads)
@@ -274,6 +275,7 @@ class FusedStepper:
         self.stages = [getattr(self.kernels, names[(a, b)]) for a, b, _ in self.table]
 
     def _load(self, u: Any) -> None:
+        self._loaded = u  # the value held now (a reference: the same object handed in again is not copied again)
         self.u[...] = B.to_numpy(u)
         self.up[tuple(slice(self.width, -self.width) for _ in self.u.shape)] = self.u
         self._ghosts()
@@ -291,15 +293,16 @@ class FusedStepper:
         return float(self.speed.max())
 
     def rate(self, t: float, u: Any) -> tuple[Any, float]:
-        if u is not self.handle:
+        if u is not self.handle and u is not self._loaded:
             self._load(u)
         speed = self._rate(t)
         return (B.torch.from_numpy(self.r) if self.torch else self.r), speed
 
     def step(self, t: float, u: Any, rate: Any, dt: float) -> Any:
-        if u is not self.handle:  # a rate from elsewhere for a value from elsewhere: start from them
+        if u is not self.handle and u is not self._loaded:  # a value from elsewhere, with its rate: start from them
             self._load(u)
             self.r[...] = B.to_numpy(rate)
+        self._loaded = None  # the buffer moves on: the value handed in last is no longer what it holds
         before = 0.0
         last = len(self.table) - 1
         for k, (kernel, (_, _, c)) in enumerate(zip(self.stages, self.table)):

@@ -207,7 +207,8 @@ def _axis_costates(x: Sequence[Array], i: int, sign: float) -> list[Any]:
 def godunov_hamiltonian(dynamics: Any, t: float, x: Sequence[Array], dx: Sequence[float], lefts: Sequence[Array],
                         rights: Sequence[Array]) -> tuple[Array, Any]:
     """Godunov's numerical Hamiltonian of a separable ``H`` (module docstring) and the CFL speed
-    ``sum_i max(|H(e_i)|, |H(-e_i)|) / dx_i`` (the largest ``|dH/dp_i|``), as :meth:`HamiltonianOperator.rate_lazy`.
+    ``sum_i max(|H(e_i)|, |H(-e_i)|) / dx_i`` (the largest ``|dH/dp_i|``) at every node, as
+    :meth:`HamiltonianOperator.numerical_hamiltonian`.
 
     :param lefts: ``p-_i`` per axis; ``rights``: ``p+_i``; each on the grid
     """
@@ -231,8 +232,6 @@ def godunov_hamiltonian(dynamics: Any, t: float, x: Sequence[Array], dx: Sequenc
         lo = B.where(crosses, B.minimum(B.minimum(hm, hp), 0 * hm), B.minimum(hm, hp))
         out = out + B.where(pm <= pp, hi, lo)
         speed = speed + B.maximum(abs(up), abs(down)) / dx[i]
-    if hasattr(speed, "shape"):
-        speed = speed.max()
     return out, speed
 
 

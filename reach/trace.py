@@ -20,6 +20,10 @@ class Unsupported(Exception):
     """The code asked for something a pointwise kernel cannot do."""
 
 
+class _Missing(Unsupported, AttributeError):
+    """An array method a placeholder does not have (an ``AttributeError`` too, so that ``hasattr`` says no)."""
+
+
 #: numpy ufuncs a kernel line can spell, as ``name -> format`` of their arguments
 _UFUNCS = {
     "add": "({0} + {1})", "subtract": "({0} - {1})", "multiply": "({0} * {1})", "true_divide": "({0} / {1})",
@@ -136,6 +140,12 @@ class Sym:
 
     __int__ = __index__ = __float__
     __hash__ = object.__hash__
+
+    def __getattr__(self, name: str):
+        # an array method (``.max()``, ``.all()``, ``.sum()``) reduces or inspects the grid: not pointwise
+        if name.startswith("__"):
+            raise AttributeError(name)
+        raise _Missing(f"the array method .{name}")
 
     def __eq__(self, o):  # noqa: D105 - elementwise, as arrays
         return self._op("({0} == {1})", self, o, kind="b")
