@@ -23,9 +23,10 @@ from __future__ import annotations
 
 from gymnasium.envs.registration import register, registry
 
+from softreach.reach.integrator import integrate_period, rk4_stages
+
 from ._common import LandingEnv
 from .config import LandingConfig
-from .integrator import integrate_period, rk4_stages
 from .wind import OrnsteinUhlenbeckGust
 from .glider_landing import GliderLandingEnv
 from .pointmass_landing import PointMassLandingEnv

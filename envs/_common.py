@@ -4,7 +4,7 @@
 The environments simulate the models of :mod:`softreach.reach.models` with the model objects themselves:
 the vector field is ``model.f``, the budget drains at ``model.violation_rate``, landing and crashing are read off
 ``model.target``, ``model.hard_constraint`` and ``model.soft_constraint``. Nothing here re-implements a model.
-The integrator (:mod:`softreach.envs.integrator`) advances one control period and ends it at the first sub-step
+The integrator (:mod:`softreach.reach.integrator`) advances one control period and ends it at the first sub-step
 that lands or leaves ``C1``. The other parts are base classes from their own modules: the options
 (:class:`~softreach.envs.config.LandingConfig`), the action map (:mod:`softreach.envs.actions`), the winds
 (:mod:`softreach.envs.wind`) and drawing (:mod:`softreach.envs.display`).
@@ -22,8 +22,7 @@ import numpy as np
 import gymnasium as gym
 from gymnasium import spaces
 
-from softreach.reach.integrator import (ScalarModel, _integrate_period_scalar, _rates, episode_ends, integrate_period,
-                                        scalar_model)
+from softreach.reach.integrator import ScalarModel, episode_ends, integrate_period, scalar_model, stage_rates
 from softreach.reach.problem import Model
 
 from .actions import ActionMapping
@@ -215,7 +214,7 @@ class LandingEnv(ActionMapping, WindInputs, Rendering, gym.Env):
             c1 = fast.hard_constraint(self._t, x)
         else:
             self._g = float(self.model.target(self._t, x))
-            rate = _rates(self.model, [self._t], [x], self.eps)[0]
+            rate = float(stage_rates(self.model, [self._t], [x], self.eps)[0, 0])
             c1 = float(self.model.hard_constraint(self._t, x))
         self._rate_now = (self._t, x, rate)
         if self._gust is not None:
@@ -249,8 +248,9 @@ class LandingEnv(ActionMapping, WindInputs, Rendering, gym.Env):
         known = self._rate_now  # h_eps at (t, x0) when the last step or reset left it there
         rate0 = known[2] if known is not None and known[0] == t and known[1] is x0 else None
         if fast is not None:
-            x, cost, rate_end, h = _integrate_period_scalar(fast, model, t, x0, a, b, h, self.n_substeps, self.eps,
-                                                            self.budget_resolution, rate0, self._fast_event)
+            x, cost, rate_end, h = integrate_period(model, t, x0, a, b, h, self.n_substeps, self.eps,
+                                                    self.budget_resolution, fast=fast, rate0=rate0,
+                                                    stop=self._fast_event)
         else:
             x, cost, rate_end, h = integrate_period(model, t, x0, a, b, h, self.n_substeps, self.eps,
                                                     self.budget_resolution, fast=None, stop=self._event)

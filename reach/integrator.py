@@ -62,11 +62,6 @@ def stage_rates(model: Model, times: Sequence[float], points: Sequence[Sequence[
     return r.reshape(shape)
 
 
-def _rates(model: Model, times: Sequence[float], points: Sequence[Sequence[float]], eps: float) -> list[float]:
-    """:func:`stage_rates` of single states, as Python floats."""
-    return stage_rates(model, times, points, eps).reshape(-1).tolist()
-
-
 def episode_ends(model: Model, t: float, x: Sequence[Any], rate: Any) -> Any:
     """The environments' events at a sub-step end: out of ``C1``, or landed (in the target with ``h_eps = 0``,
     i.e. inside ``C2``).

@@ -2,8 +2,9 @@
 
 * the point mass's scalar methods (``f_scalar``, ``*_scalar`` sets) against its ``f`` and sets, exactly;
 * ``sets.box`` and the numpy shortcuts of ``backend.maximum/minimum/clip`` against the plain formulas;
-* the scalar integrator (:func:`_integrate_period_scalar`) and the cached Hermite basis of the budget refinement
-  against the vectorised integrator, and whole episodes with and without the fast path, bit for bit.
+* the scalar integrator (:func:`integrate_period` on the model's scalar methods) and the cached Hermite basis of
+  the budget refinement against the vectorised integrator, and whole episodes with and without the fast path, bit
+  for bit.
 """
 
 from __future__ import annotations
@@ -14,9 +15,9 @@ import numpy as np
 import pytest
 
 import softreach.envs._common
-import softreach.envs.integrator as C
 from softreach.envs import GliderLandingEnv, PointMassLandingEnv
-from softreach.envs.integrator import ScalarModel, integrate_period, scalar_model
+from softreach.reach import budget_quadrature as Q
+from softreach.reach.integrator import ScalarModel, integrate_period, scalar_model
 from softreach.reach import backend as B
 from softreach.reach import sets
 from softreach.reach.models import get_model
@@ -218,7 +219,7 @@ def test_scalar_integrator_equals_vectorised_pointmass():
         slow = integrate_period(model, 0.1, x, a, b, h, n, eps, res, fast=None)
         assert _same(list(integrate_period(model, 0.1, x, a, b, h, n, eps, res)), list(slow))
         rate0 = model.violation_rate_scalar(0.1, x, eps)
-        assert _same(list(C._integrate_period_scalar(fast, model, 0.1, x, a, b, h, n, eps, res, rate0)), list(slow))
+        assert _same(list(integrate_period(model, 0.1, x, a, b, h, n, eps, res, fast=fast, rate0=rate0)), list(slow))
         refined += 0.0 < slow[1] < h and res < h
     assert refined > 100
 
@@ -241,7 +242,7 @@ def test_scalar_integrator_general_dimension_equals_vectorised():
 
 
 def test_hermite_cached_basis_and_first_level_grid():
-    grid, basis = C._kink_grid(128)
+    grid, basis = Q.kink_grid(128)
     assert np.array_equal(grid, (np.zeros(1)[:, None] + 1.0 * grid[None, :]).reshape(-1))
     assert not grid.flags.writeable
     rng = np.random.default_rng(5)
@@ -253,8 +254,8 @@ def test_hermite_cached_basis_and_first_level_grid():
         h = 0.01
         h00, h10, h01, h11 = 2.0 * t3 - 3.0 * t2 + 1.0, (t3 - 2.0 * t2 + theta) * h, 3.0 * t2 - 2.0 * t3, (t3 - t2) * h
         ref = [h00 * p + h10 * fp + h01 * q + h11 * fq for p, fp, q, fq in zip(x0, f0, x1, f1)]
-        assert _same(C._hermite(theta, x0, f0, x1, f1, h), ref)
-        assert _same(C._hermite(theta, x0, f0, x1, f1, h, C._hermite_basis(theta)), ref)
+        assert _same(Q.hermite(theta, x0, f0, x1, f1, h), ref)
+        assert _same(Q.hermite(theta, x0, f0, x1, f1, h, Q.hermite_basis(theta)), ref)
 
 
 # --------------------------------------------------------------------------------------------- whole episodes

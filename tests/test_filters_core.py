@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from softreach.envs.integrator import integrate_period
+from softreach.reach.integrator import integrate_period
 from softreach.filters import AFTER_HORIZON, BLEND, OPTIMAL, OUTSIDE, PASS, UNCERTIFIED, ValueFilter
 from softreach.reach import TableError, get_model, load_table
 from softreach.reach.interpolation import box_max, interpolate
