@@ -369,8 +369,9 @@ def _refutation(model, name, D, from_box, b_lo, b_hi, x0, a, tau, wind, times, x
     run = {"claim": name, "period": D, "box_lo": b_lo[r].copy(), "box_hi": b_hi[r].copy(), "start": x0[r].copy(),
            "action": a[r].copy(), "wind": wind[r, :len(switch)].copy(), "until": switch, "s": s, "axis": i,
            "value": v, "side": side}
-    return (f"{model.name}'s held enclosure does not hold its own motion: {name} of a {D:.17g} s period from "
-            f"{start}, {_action(model, a[r])}, wind {signal}: at s = {s:.17g} s the simulated "
+    units = f" [{', '.join(model.disturbance_units)}]" if model.disturbance_units else ""
+    return (f"{model.name}'s held enclosure does not hold its own motion: {name} for a hold of {D:.17g} s from "
+            f"{start}, {_action(model, a[r])}, wind{units} {signal}: at s = {s:.17g} s the simulated "
             f"{model.state_names[i]} = {v:.17g} {unit} is {'below' if below else 'above'} the box's "
             f"{'lower' if below else 'upper'} side {side:.17g} {unit} by {abs(v - side):.3g} {unit} (integration "
             f"allowance {float(allowance[r, i]):.3g}). The filter's proof rests on this box; fix the enclosure "

@@ -111,7 +111,7 @@ def test_an_enclosure_that_underestimates_the_wind_is_refuted_with_the_run(fract
         _check(wrong)
     msg, run = str(err.value), err.value.run
     assert "state (v, y) = (" in msg or "start box (" in msg
-    assert "action (" in msg and "wind (" in msg and " s: at s = " in msg
+    assert "action (" in msg and "wind [m/s^2] (" in msg and " s: at s = " in msg
     assert f"simulated {('v', 'y')[run['axis']]} = " in msg and "docs/models.md" in msg
     value = _simulated(wrong, run)
     assert value == pytest.approx(run["value"], rel=1e-12, abs=1e-12)
@@ -124,7 +124,7 @@ def test_an_enclosure_that_underestimates_the_wind_is_refuted_with_the_run(fract
 
 
 def test_an_enclosure_that_ignores_the_wind_is_refuted():
-    with pytest.raises(EnclosureError, match=r"wind \((-10|10)\)"):
+    with pytest.raises(EnclosureError, match=r"wind \[m/s\^2\] \((-10|10)\)"):
         _check(WindShrunk(1.0), FEW)
 
 
@@ -198,19 +198,21 @@ def test_the_cells_ask_for_the_box_enclosure():
     assert "held_enclosure_box(t, x_lo, x_hi, a, dt)" in missing_extras(PointsOnly(), cells=True)[0]
 
 
-def _lookahead(model):
-    """What :meth:`CellCertificate.build` reads of a look-ahead before it solves."""
-    return types.SimpleNamespace(model=model, dt=model.control_period, eps=1e-3, horizon=model.horizon,
-                                 candidates=np.asarray(model.held_candidates()), pieces=4,
+def _lookahead(model, monkeypatch):
+    """What :meth:`CellCertificate.build` reads of a look-ahead before it solves (the key's parts from elsewhere in
+    the look-ahead replaced by the few the build reads)."""
+    monkeypatch.setattr(cell_certificate, "cell_key", lambda la, shape, dz=None, game="safe", holds=(1,), span_cap=32:
+                        {"shape": list(shape), "holds": sorted(holds), "dz": la.dt / 4})
+    return types.SimpleNamespace(model=model, dt=model.control_period, horizon=model.horizon, pieces=4,
                                  target_checks=model.substeps)
 
 
 def test_a_wrong_enclosure_is_refused_before_the_cells_are_solved(monkeypatch):
     monkeypatch.setattr(cell_game, "solve", _no_solve)
     with pytest.raises(EnclosureError, match="held enclosure does not hold its own motion"):
-        CellCertificate.build(_lookahead(WindShrunk(0.01)), (30, 40), holds=(1, 2))
+        CellCertificate.build(_lookahead(WindShrunk(0.01), monkeypatch), (30, 40), holds=(1, 2))
     with pytest.raises(EnclosureError, match="lacks what the safety filter needs for building the filter's cells"):
-        CellCertificate.build(_lookahead(Cart()), (30, 40))
+        CellCertificate.build(_lookahead(Cart(), monkeypatch), (30, 40))
 
 
 def test_a_right_enclosure_goes_on_to_the_cells_and_is_checked_once(monkeypatch):
@@ -221,8 +223,8 @@ def test_a_right_enclosure_goes_on_to_the_cells_and_is_checked_once(monkeypatch)
     monkeypatch.setitem(cell_certificate.check_model_for_filter.__globals__, "check_enclosure",
                         lambda *a, **k: checks.append(1) or real(*a, **k))
     model = PointMass(d_max=9.0)  # parameters no other test checks
-    assert CellCertificate.build(_lookahead(model), (30, 40)) == "solved"
-    assert CellCertificate.build(_lookahead(model), (30, 40), game="land") == "solved"
+    assert CellCertificate.build(_lookahead(model, monkeypatch), (30, 40)) == "solved"
+    assert CellCertificate.build(_lookahead(model, monkeypatch), (30, 40), game="land") == "solved"
     assert calls == [[30, 40], [30, 40]] and checks == [1]
     check_model_for_filter(model, 0.01, "a job", checks=model.substeps, cells=True,
                            cell_width=np.array([30.0 / 30, 18.0 / 40]))
