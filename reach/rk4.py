@@ -24,19 +24,24 @@ def rk4_step(f: Callable, tc: float, tm: float, te: float, hh: float, hs: float,
         ``xc + hs k3`` (where RK4 evaluates ``f`` at ``tm``, ``tm``, ``te``; the budget evaluates ``h_eps`` there
         too)
     """
+    n = len(xc)
+    each = range(n)
     k1 = f(tc, xc, a, b)
-    x2, x3, x4, xn = [], [], [], []
-    for y, k in zip(xc, k1):
-        x2.append(y + hh * k)
+    x2 = [0.0] * n
+    for i in each:
+        x2[i] = xc[i] + hh * k1[i]
     k2 = f(tm, x2, a, b)
-    for y, k in zip(xc, k2):
-        x3.append(y + hh * k)
+    x3 = [0.0] * n
+    for i in each:
+        x3[i] = xc[i] + hh * k2[i]
     k3 = f(tm, x3, a, b)
-    for y, k in zip(xc, k3):
-        x4.append(y + hs * k)
+    x4 = [0.0] * n
+    for i in each:
+        x4[i] = xc[i] + hs * k3[i]
     k4 = f(te, x4, a, b)
-    for y, p, q, r, s in zip(xc, k1, k2, k3, k4):
-        xn.append(y + h6 * (p + 2.0 * q + 2.0 * r + s))
+    xn = [0.0] * n
+    for i in each:
+        xn[i] = xc[i] + h6 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
     return xn, x2, x3, x4
 
 
