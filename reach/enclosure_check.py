@@ -22,8 +22,9 @@ period. Nothing in the proof compares them with the model's ``f``. :func:`check_
 A simulated state at time ``s`` must lie in every box that claims ``s``, within an **allowance** per run and
 coordinate: the largest difference between the ``steps`` and the ``2 steps`` runs at the breakpoints (RK4's error
 falls 16-fold when the step halves, so the finer run's error is about a fifteenth of that difference), plus
-``(steps taken + 8)`` roundings of the largest magnitude the coordinate takes (each RK4 step adds one increment,
-rounding by at most half an ulp of that magnitude; the model's bound is a few operations on numbers of that size).
+``(steps taken + 8) eps`` times the largest magnitude the coordinate takes (each RK4 step adds one increment,
+which rounds by at most half an ulp of that magnitude, ``eps`` leaving as much again for the increment's own
+roundings; the model's bound is a few operations on numbers of that size: 8 more).
 A run outside a box by more than the allowance refutes the enclosure: :class:`EnclosureError` names the claim, the
 start, the action, the wind and the coordinate. Passing is evidence, not proof: the samples are finite, the nodes
 are instants, and the runs start at ``t = 0`` (a model whose motion depends on ``t`` is checked there only).
