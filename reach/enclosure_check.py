@@ -141,14 +141,6 @@ def _corners(lo: Any, hi: Any) -> np.ndarray:
     return np.where(bits == 1, hi, lo)
 
 
-def _pick(rng: np.random.Generator, corners: np.ndarray, lo: np.ndarray, hi: np.ndarray, shape: tuple,
-          corner_share: float) -> np.ndarray:
-    """Values of shape ``shape + (len(lo),)``: a random corner with probability ``corner_share``, else uniform."""
-    uniform = lo + rng.random(shape + (len(lo),)) * (hi - lo)
-    corner = corners[rng.integers(len(corners), size=shape)]
-    return np.where((rng.random(shape) < corner_share)[..., None], corner, uniform)
-
-
 def _samples(model: Any, dt: float, cell_width: np.ndarray, s: EnclosureCheck, rng: np.random.Generator):
     """Start boxes, starts, actions, switch instants and wind values of the runs."""
     N, n = s.samples, model.state_dim
@@ -174,7 +166,9 @@ def _samples(model: Any, dt: float, cell_width: np.ndarray, s: EnclosureCheck, r
                           a_lo + rng.random((N, len(a_lo))) * (a_hi - a_lo)))
     d_lo, d_hi = (np.asarray(v, dtype=np.float64) for v in model.disturbance_bounds)
     d_corners = _corners(d_lo, d_hi)
-    wind = _pick(rng, d_corners, d_lo, d_hi, (N, s.switches + 1), 0.5)
+    pieces = (N, s.switches + 1)  # each piece of the signal at a corner of the box or uniform in it, half and half
+    wind = np.where((rng.random(pieces) < 0.5)[..., None], d_corners[rng.integers(len(d_corners), size=pieces)],
+                    d_lo + rng.random(pieces + (len(d_lo),)) * (d_hi - d_lo))
     constant = rng.random(N) < s.constant_share
     wind = np.where(constant[:, None, None], d_corners[rng.integers(len(d_corners), size=N)][:, None, :], wind)
     tau = np.sort(rng.uniform(0.0, dt, (N, s.switches)), axis=1)
