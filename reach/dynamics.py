@@ -15,76 +15,16 @@ the dissipation bounds ``alpha_i >= |dH/dp_i|`` that the Lax-Friedrichs scheme n
 from __future__ import annotations
 
 import itertools
-import math
 from abc import ABC, abstractmethod
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from . import backend as B
+from .boxes import box_check
 
 Array = B.Array
 Components = Sequence[Array]
-
-
-def _number(v: Any) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
-
-
-def check_box(owner: str, box: Any, *, field: str, strict: bool = False, unbounded: bool = False,
-              axis_names: Sequence[str] = ()) -> None:
-    """Raise a one-line ``ValueError`` naming ``owner``, ``field`` and the bad values unless ``box`` is a pair
-    ``(lower, upper)`` of equally long sequences of real numbers with ``lower <= upper`` on every axis.
-
-    :param owner: what declares the box (the model's name), for the message
-    :param field: the attribute, for the message
-    :param strict: ask ``lower < upper`` (a box that a grid spans or that cells tile has width on every axis); a
-        zero width is otherwise allowed (an input held fixed, a start fixed along an axis)
-    :param unbounded: allow ``-inf`` lower and ``+inf`` upper ends (a box that only bounds some axes); NaN never
-    :param axis_names: names of the axes, for the message (indices where not given)
-    """
-    where = f"{owner}: {field}"
-    if isinstance(box, (str, bytes)) or not isinstance(box, (Sequence, np.ndarray)) or len(box) != 2:
-        raise ValueError(f"{where} must be a pair (lower, upper) of per-axis bounds, got {box!r}")
-    lower, upper = box
-    for side, ends in (("lower", lower), ("upper", upper)):
-        if isinstance(ends, (str, bytes)) or not isinstance(ends, (Sequence, np.ndarray)):
-            raise ValueError(f"{where}: {side} must be a sequence of numbers, one per axis, got {ends!r} in {box!r}")
-        bad = [v for v in ends if not _number(v)]
-        if bad:
-            raise ValueError(f"{where}: {side} holds {bad[0]!r}, not a real number, in {box!r}")
-    if len(lower) != len(upper):
-        raise ValueError(f"{where}: lower has {len(lower)} entries and upper {len(upper)}, got {box!r}")
-    for i, (lo, hi) in enumerate(zip(lower, upper)):
-        axis = f"axis {axis_names[i]!r}" if i < len(axis_names) else f"axis {i}"
-        lo_ok = math.isfinite(lo) or (unbounded and lo == -math.inf)
-        hi_ok = math.isfinite(hi) or (unbounded and hi == math.inf)
-        if not (lo_ok and hi_ok):
-            allowed = "finite, or -inf below and +inf above" if unbounded else "finite"
-            raise ValueError(f"{where}: bounds must be {allowed}; {axis} has [{lo!r}, {hi!r}] in {box!r}")
-        if lo > hi or (strict and lo == hi):
-            rule = "lower < upper" if strict else "lower <= upper"
-            raise ValueError(f"{where} needs {rule} on every axis; {axis} has lower {lo!r} > upper {hi!r} in {box!r}"
-                             if lo > hi else f"{where} needs {rule} on every axis; {axis} has zero width "
-                             f"[{lo!r}, {hi!r}] in {box!r}")
-
-
-def box_check(field: str, *, states: bool = False, optional: bool = False, **options: Any
-              ) -> Callable[[Any, Any], None]:
-    """The check of a box attribute for :attr:`Dynamics._CHECKS`: ``check(obj, value)`` runs :func:`check_box`
-    naming ``obj`` (a model class or instance).
-
-    :param states: a box over the state: its axes are named by ``obj.state_names``
-    :param optional: ``None`` (not declared) is accepted
-    :param options: ``strict`` and ``unbounded`` of :func:`check_box`
-    """
-    def check(obj: Any, value: Any) -> None:
-        if optional and value is None:
-            return
-        names = tuple(getattr(obj, "state_names", ())) if states else ()
-        check_box(_owner(obj), value, field=field, axis_names=names, **options)
-
-    return check
 
 
 class Dynamics(ABC):
@@ -257,12 +197,6 @@ class Dynamics(ABC):
         with a sharper bound overrides this)."""
         lo, hi, _, _ = self.held_enclosure(t, x, a, dt)
         return np.broadcast_to(lo, (pieces,) + lo.shape), np.broadcast_to(hi, (pieces,) + hi.shape)
-
-
-def _owner(obj: Any) -> str:
-    """How a message names a model: ``model 'name' (Class)``."""
-    cls = obj if isinstance(obj, type) else type(obj)
-    return f"model {getattr(obj, 'name', cls.__name__)!r} ({cls.__qualname__})"
 
 
 def _unstack(x: Array) -> list[Array]:

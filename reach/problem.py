@@ -26,25 +26,11 @@ import math
 import numpy as np
 
 from . import backend as B
-from .dynamics import Components, Dynamics, _owner, box_check
+from .boxes import box_check, check_horizon, check_start_budget
+from .dynamics import Components, Dynamics
 from .model_kernels import box_params, boxes_set_max
 
 Array = B.Array
-
-
-def _check_horizon(obj: Any, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not (
-            math.isfinite(value) and value > 0):
-        raise ValueError(f"{_owner(obj)}: horizon must be a finite number of seconds > 0, got {value!r}")
-
-
-def _check_start_budget(obj: Any, value: Any) -> None:
-    ends = tuple(value) if isinstance(value, (tuple, list)) else (value,)
-    ok = len(ends) in (1, 2) and all(not isinstance(v, bool) and isinstance(v, (int, float, np.integer, np.floating))
-                                     and math.isfinite(v) and v >= 0 for v in ends)
-    if not ok or ends[0] > ends[-1]:
-        raise ValueError(f"{_owner(obj)}: start_budget must be a budget [s] >= 0 or a (low, high) range with "
-                         f"0 <= low <= high, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -145,8 +131,8 @@ class Model(Dynamics):
         "hard_box": box_check("hard_box", states=True, strict=True, optional=True),
         "start_box": box_check("start_box", states=True, optional=True),
         "target_box": box_check("target_box", states=True, optional=True, unbounded=True),
-        "start_budget": _check_start_budget,
-        "horizon": _check_horizon,
+        "start_budget": check_start_budget,
+        "horizon": check_horizon,
     }
 
     @property

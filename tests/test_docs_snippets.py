@@ -6,7 +6,8 @@ Per file, the blocks run in order in one folder and one namespace, as a reader p
   name: it is written to the folder and imported there.
 * ``bash`` blocks: every ``softreach`` command is parsed by the real command-line parser (each option, choice and
   model argument checked); the few in :data:`RUN` are also run, on the small grids given there. Other shell lines
-  (installing, the test suite itself, a shell loop around ``softreach``) must be in :data:`NOT_SOFTREACH`.
+  (installing, the test suite itself, the example and benchmark scripts, a shell loop around ``softreach``) must
+  be in :data:`NOT_SOFTREACH`.
 * a ``toml`` block whose first line is ``# NAME.toml: COMMAND`` is written to ``NAME.toml`` and loaded by the
   loader that ``COMMAND`` uses, and ``COMMAND`` is parsed as above.
 
@@ -184,9 +185,9 @@ def run_block(block: Block, namespace: dict, previous: dict[str, list[str]], ski
 
 @pytest.mark.parametrize("rel", FILES)
 def test_code_blocks_run_as_written(rel, tmp_path, monkeypatch, request):
-    text = (ROOT / rel).read_text()
+    code = "".join(b.text for b in blocks(rel) if b.lang == "python")
     for name, fixture in TABLES.items():
-        if name in text:
+        if f'"{name}"' in code:  # a snippet loads it
             value = request.getfixturevalue(fixture)
             shutil.copyfile(getattr(value, "path", value), tmp_path / name)
     monkeypatch.chdir(tmp_path)

@@ -11,7 +11,8 @@ import textwrap
 import numpy as np
 import pytest
 
-from softreach.reach.dynamics import ControlAndDisturbanceAffine, check_box
+from softreach.reach.boxes import check_box
+from softreach.reach.dynamics import ControlAndDisturbanceAffine
 from softreach.reach.problem import Model
 from softreach.reach.registry import get_model, make_env
 
