@@ -130,11 +130,12 @@ def read_table(path: str | Path) -> list[dict[str, str]]:
 
 # --------------------------------------------------------------------------------------------- grouping
 
-METHOD_NAMES = {"plain": "", "lag": "-Lagrangian", "saute": "-Saute"}
+METHOD_NAMES = {"lag": "Lagrangian", "saute": "Saute"}
 
 
 def _label(row: dict[str, Any]) -> str:
-    algo = row["algo"] + METHOD_NAMES.get(row.get("method") or "plain", f"-{row.get('method')}")
+    method = row.get("method") or "plain"
+    algo = row["algo"] if method == "plain" else f"{row['algo'].upper()}-{METHOD_NAMES.get(method, method)}"
     parts = [row["model"], algo, "no filter" if row["rule"] == "none" else f"filter {row['rule']}",
              f"Q {row['budget']}", f"{row['wind']} wind"]
     if row["variant"] != "default":
