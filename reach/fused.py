@@ -49,9 +49,12 @@ _RULES = {"periodic": "periodic", "extrapolate": "extrapolate", "extrapolate_awa
 
 
 def kernel_dir() -> Path:
-    """Where the generated loops and numba's compiled copies of them are kept: ``$SOFTREACH_CACHE/kernels``
-    (``~/.cache/softreach/kernels``)."""
-    return Path(os.environ.get("SOFTREACH_CACHE") or Path.home() / ".cache" / "softreach") / "kernels"
+    """Where the generated loops and numba's compiled copies of them are kept: ``kernels/`` in
+    :func:`~softreach.reach.jit.cache_root`. Each file holds all its code and is named by the digest of its text, so
+    numba's own cache check (the file's time stamp) is the right one for it."""
+    from .jit import cache_root
+
+    return cache_root() / "kernels"
 
 
 def _index(ndim: int, axis: int | None, expr: str, pad: str) -> str:

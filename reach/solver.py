@@ -28,6 +28,7 @@ optimal motion is at rest along an axis: a run that rides a constraint boundary 
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Callable, Sequence
 
@@ -35,6 +36,7 @@ import numpy as np
 
 from . import backend as B
 from .derivatives import SCHEMES, upwind_derivatives
+from .godunov import godunov_hamiltonian, separable  # noqa: F401 - part of this module's interface
 from .grid import Grid
 from .problem import ReachAvoidProblem
 
@@ -67,9 +69,10 @@ class SolverSettings:
     :param backend: ``"torch"`` or ``"numpy"``
     :param device: torch device (``"cpu"``, ``"cuda"``, ``"cuda:1"``)
     :param dtype: ``"float32"`` or ``"float64"`` for the computation (tables store float32)
-    :param compile: fuse each time step with ``torch.compile`` (about 10x faster on a CPU once compiled, the
-        compilation itself takes 15-30 s and is cached on disk); ``None`` compiles grids of 90,000 nodes or more
-        (the point mass at ``300 x 300`` pays it back on the first run, and is about 4 times faster on later ones)
+    :param compile: compiled time steps: on a CPU the loops of :mod:`softreach.reach.fused` (numba; compiled once
+        per model and scheme, a few seconds, and cached on disk), elsewhere ``torch.compile`` with the step's length
+        computed on the device (:mod:`softreach.reach.device_loop`); ``None`` compiles grids of
+        :data:`FUSED_MIN_NODES` nodes or more on a CPU, 90,000 elsewhere; ``False`` runs the array code
     """
 
     scheme: str = "weno5"
@@ -197,62 +200,6 @@ class HamiltonianOperator:
 def project_values(l: Array, c: Array, u: Array) -> Array:
     """``max(c, min(l, u))``: the value projected onto the obstacles ``l`` (target) and ``c`` (constraint)."""
     return B.maximum(c, B.minimum(l, u))
-
-
-def _axis_costates(x: Sequence[Array], i: int, sign: float) -> list[Any]:
-    """The co-state ``sign e_i`` as components broadcastable against the grid ``x``."""
-    return [sign if j == i else 0.0 for j in range(len(x))]
-
-
-def godunov_hamiltonian(dynamics: Any, t: float, x: Sequence[Array], dx: Sequence[float], lefts: Sequence[Array],
-                        rights: Sequence[Array]) -> tuple[Array, Any]:
-    """Godunov's numerical Hamiltonian of a separable ``H`` (module docstring) and the CFL speed
-    ``sum_i max(|H(e_i)|, |H(-e_i)|) / dx_i`` (the largest ``|dH/dp_i|``) at every node, as
-    :meth:`HamiltonianOperator.numerical_hamiltonian`.
-
-    :param lefts: ``p-_i`` per axis; ``rights``: ``p+_i``; each on the grid
-    """
-    zero = [0.0] * len(x)
-    h0 = dynamics.hamiltonian(t, x, zero)
-    out = h0 + 0 * lefts[0]
-    speed: Any = 0.0
-    for i, (pm, pp) in enumerate(zip(lefts, rights)):
-        up = dynamics.hamiltonian(t, x, _axis_costates(x, i, 1.0)) - h0      # slope of H_i for p_i > 0
-        down = h0 - dynamics.hamiltonian(t, x, _axis_costates(x, i, -1.0))  # slope of H_i for p_i < 0
-
-        def h_i(p):
-            return B.where(p > 0, up * p, down * p)
-
-        hm, hp = h_i(pm), h_i(pp)
-        # H_i is piecewise linear with its one kink at 0 (H_i(0) = 0): its extrema over an interval are at the
-        # ends or at 0 when 0 is inside
-        straddles = (pm < 0) & (pp > 0)
-        crosses = (pp < 0) & (pm > 0)
-        hi = B.where(straddles, B.maximum(B.maximum(hm, hp), 0 * hm), B.maximum(hm, hp))
-        lo = B.where(crosses, B.minimum(B.minimum(hm, hp), 0 * hm), B.minimum(hm, hp))
-        out = out + B.where(pm <= pp, hi, lo)
-        speed = speed + B.maximum(abs(up), abs(down)) / dx[i]
-    return out, speed
-
-
-def separable(dynamics: Any, x: Sequence[Array], samples: int = 4, seed: int = 0) -> bool:
-    """Is ``H(t, x, p) = H(t, x, 0) + sum_i H(t, x, p_i e_i)`` on the grid ``x``? Checked at ``t = 0``, at every node,
-    for ``samples`` random co-states with components of mixed signs and sizes: a Hamiltonian where one input enters
-    two state equations couples their co-states and fails at almost every node."""
-    rng = np.random.default_rng(seed)
-    zero = [0.0] * len(x)
-    h0 = np.asarray(B.to_numpy(dynamics.hamiltonian(0.0, x, zero)), dtype=np.float64)
-    for _ in range(samples):
-        p = [float(v) for v in rng.normal(size=len(x)) * rng.choice([1.0, 10.0], size=len(x))]
-        whole = np.asarray(B.to_numpy(dynamics.hamiltonian(0.0, x, p)), dtype=np.float64)
-        parts, scale = h0, np.abs(whole) + np.abs(h0)
-        for i, pi in enumerate(p):
-            hi = np.asarray(B.to_numpy(dynamics.hamiltonian(0.0, x, [pi if j == i else 0.0 for j in range(len(x))])),
-                            dtype=np.float64)
-            parts, scale = parts + (hi - h0), scale + np.abs(hi)
-        if not np.all(np.abs(whole - parts) <= 1e-9 * (1.0 + scale)):
-            return False
-    return True
 
 
 #: the TVD Runge-Kutta schemes of Shu and Osher, stage by stage: ``(a, b, c)`` makes the stage value
@@ -388,6 +335,10 @@ FUSED_STEP_NODES = 250_000
 #: the ``torch.compile`` engine marches with the step's length computed on the device
 #: (:mod:`softreach.reach.device_loop`); ``False``: the host reads the speed at every step, as the other engines
 DEVICE_LOOP = True
+#: with ``compile=None``, grids from this many nodes run the compiled loops on a CPU (the point mass's default
+#: ``V``, ``101 x 101``, among them): numba compiles them once per model and scheme (a few seconds) and keeps them
+#: for every later process; smaller grids run the array code, fast enough there
+FUSED_MIN_NODES = 10_000
 #: the ways :class:`Stepper` runs a step: ``"fused"`` (compiled loops on a CPU, :mod:`softreach.reach.fused`),
 #: ``"compile"`` (``torch.compile``, the GPU's), ``"eager"``
 ENGINES = ("fused", "compile", "eager")
@@ -403,9 +354,9 @@ class Stepper:
     A compiled graph must not see a changing Python float (it would recompile every step), so the ``torch.compile``
     path passes ``dt`` as a 0-d tensor and is used only for time-invariant problems, where ``t`` is irrelevant.
 
-    :param engine: one of :data:`ENGINES`; ``None`` chooses: ``settings.compile`` (``None``: grids of 90,000 nodes
-        or more) asks for compiled code, which is ``"fused"`` on a CPU where the model's code records pointwise
-        and ``"compile"`` otherwise
+    :param engine: one of :data:`ENGINES`; ``None`` chooses: ``settings.compile`` (``None``: grids of
+        :data:`FUSED_MIN_NODES` nodes or more on a CPU, 90,000 elsewhere) asks for compiled code, which is
+        ``"fused"`` on a CPU where the model's code records pointwise and ``"compile"`` otherwise
     """
 
     def __init__(self, op: HamiltonianOperator, settings: SolverSettings, engine: str | None = None):
@@ -413,10 +364,11 @@ class Stepper:
         if engine is not None and engine not in ENGINES:
             raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
         want = settings.compile
+        on_cpu = settings.device == "cpu" and CPU_ENGINE == "fused"
         if want is None:
-            want = op.grid.size >= 90_000
+            want = op.grid.size >= (FUSED_MIN_NODES if on_cpu else 90_000)
         self.fused = None
-        if engine == "fused" or (engine is None and want and settings.device == "cpu" and CPU_ENGINE == "fused"):
+        if engine == "fused" or (engine is None and want and on_cpu):
             from .fused import fused_stepper
 
             self.fused = fused_stepper(op, settings)
@@ -428,6 +380,10 @@ class Stepper:
         if self.compiled:
             torch = B.torch
             t0 = 0.0
+            # inductor's compiled graphs kept beside softreach's other caches, for every later process
+            from .fused import kernel_dir
+
+            os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(kernel_dir().parent / "inductor"))
             self._rate_c = torch.compile(lambda u: op.rate_lazy(t0, u), dynamic=False)
             self._step_c = None
             if op.grid.size >= FUSED_STEP_NODES:

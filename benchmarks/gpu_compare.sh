@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# The whole GPU comparison of issue 40 in one go (softreach and hj_reachability, every row), under 8 minutes on one
+# H100: prints the device, then one table per row (bench_solver.py: whole `softreach solve` process against the
+# peer's solve, same accuracy preset, horizon and projection; cold = empty compile caches, warm = from them).
+#
+# On the lent GPU machine (its python3 holds CUDA torch, JAX and numba; nothing can be fetched there), from the repo
+# root, with the peer's wheel carried (.whl/, made here by
+# `pip download --no-deps hj-reachability==0.7.0 -d .whl`):
+#
+#     bash benchmarks/gpu_compare.sh            # run tool: carry [".whl"], timeout_s 540
+#
+# Each row has its own time limit, so that one slow row cannot take the others with it. Logs go to $OUT (or
+# /tmp/gpu_compare) as well as to the terminal.
+set -u
+export PYTHONUNBUFFERED=1
+LOG=${OUT:-/tmp/gpu_compare}
+mkdir -p "$LOG"
+PY=${PYTHON:-python3}
+
+# the peer, and softreach importable without pip: a softreach package of links to the repo's folders
+if ls .whl/hj_reachability-*.whl >/dev/null 2>&1; then
+  $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/hj_reachability-*.whl
+fi
+rm -rf /tmp/sr && mkdir -p /tmp/sr/softreach && cp -r src/softreach/. /tmp/sr/softreach/
+for d in reach envs filters agents; do ln -sfn "$PWD/$d" "/tmp/sr/softreach/$d"; done
+export PYTHONPATH=/tmp/sr:/tmp/site${PYTHONPATH:+:$PYTHONPATH}
+CACHE=/tmp/softreach-gpu-cache   # one cache for every row: the first row of each shape is the cold one
+rm -rf "$CACHE"
+
+{
+  date -u; nvidia-smi -L
+  $PY - <<'EOF'
+import time, torch
+print("torch", torch.__version__, "device", torch.cuda.get_device_name(0))
+x = torch.empty(2**28, device="cuda"); y = torch.empty_like(x); y.copy_(x); torch.cuda.synchronize()
+t0 = time.perf_counter()
+for _ in range(10):
+    y.copy_(x)
+torch.cuda.synchronize()
+print(f"device copy: {2 * x.numel() * 4 * 10 / (time.perf_counter() - t0) / 1e12:.2f} TB/s (read + written)")
+try:
+    import jax, hj_reachability
+    print("peer: hj_reachability", hj_reachability.__version__, "jax", jax.__version__, jax.devices())
+except Exception as exc:
+    print("peer unavailable:", exc)
+EOF
+} 2>&1 | tee "$LOG/device.txt"
+
+B="$PY benchmarks/bench_solver.py --device cuda --peer-python $PY --threads 1 --cache-dir $CACHE --accuracy very_high"
+row() {  # row NAME SECONDS ARGS...
+  local name=$1 limit=$2; shift 2
+  echo "=== $name ($(date -u +%T))"
+  timeout "$limit" $B "$@" 2>&1 | tee "$LOG/$name.txt" || echo "!!! $name: failed or over ${limit} s"
+}
+row pointmass_W_101 120 --grid 101 101 --budget-points 111           # cold + warm + peer
+row pointmass_V_101 45 --grid 101 101 --game V --no-cold             # V compiled by the row above
+row paper_W_300 200 --grid 300 300 --budget-points 200               # cold + warm + peer
+row paper_V_300 45 --grid 300 300 --game V --no-cold
+
+# the glider: softreach only (the peer has no model of it), whole process, warm after one cold run of each
+for what in W V; do
+  extra=$([ $what = V ] && echo --classical)
+  for run in cold warm; do
+    t0=$(date +%s.%N)
+    timeout 120 env SOFTREACH_CACHE=$CACHE/cache TRITON_CACHE_DIR=$CACHE/triton \
+      $PY -m softreach.cli solve glider --device cuda --quiet --no-resume --out /tmp/glider.srt $extra \
+      >"$LOG/glider_$what_$run.txt" 2>&1 || echo "!!! glider $what $run failed"
+    echo "glider default $what ($run): $(echo "$(date +%s.%N) - $t0" | bc) s whole process" | tee -a "$LOG/glider.txt"
+  done
+done
+date -u
