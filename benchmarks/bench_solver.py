@@ -18,8 +18,9 @@ softreach's time stepping moves at least 32 bytes per node and Runge-Kutta stage
 the padded value and writes the rate, 8 B; the stage loop reads the value, the padded value, the rate and both
 obstacles and writes the padded value, 24 B), which over its stepping time is the bandwidth it reaches.
 
-``--scaling``: wall clock of the solve (in this process, warm) against the grid size per axis for ``V`` (``N x N``)
-and ``W_eps`` (``N x N x N``), and the exponent ``p`` of the least-squares fit ``wall ~ N^p``. A CFL-limited explicit
+``--scaling``: wall clock (and the process's CPU time, which a loaded machine changes less) of the solve (in this
+process, warm) against the grid size per axis for ``V`` (``N x N``) and ``W_eps`` (``N x N x N``), and the exponent
+``p`` of the least-squares fit ``wall ~ N^p``. A CFL-limited explicit
 scheme takes ``N`` steps of ``N^d`` nodes, so ``p`` is about ``d + 1`` once fixed costs no longer matter.
 
 The machine's load (``os.getloadavg``) is printed beside each number: on a shared machine the wall clock of a run
@@ -299,7 +300,7 @@ def scaling(args) -> None:
     model = get_model("pointmass")
     st = SolverSettings.from_accuracy(args.accuracy, dtype="float32", compile=True)
     for name, sizes in (("V", args.v_sizes), ("W_eps", args.w_sizes)):
-        walls = []
+        walls, cpus = [], []
         print(f"{name}: wall clock of the solve against N (accuracy {args.accuracy}, {torch.get_num_threads()} threads)")
         for n in sizes:
             if name == "V":
@@ -310,14 +311,17 @@ def scaling(args) -> None:
                 problem = soft_problem(model, 1e-3, model.budget_scale)
             solve(problem, grid, [model.horizon - 0.01, model.horizon], st)  # compiled loops loaded, caches warm
             load = _load()
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             solve(problem, grid, [0.0, model.horizon], st)
             walls.append(time.perf_counter() - t0)
-            print(f"  N = {n:4d}: {grid.size:>11,d} nodes  {walls[-1]:8.2f} s  (load {load})")
-        p = np.polyfit(np.log(sizes), np.log(walls), 1)[0]
-        q = np.polyfit(np.log(sizes[-2:]), np.log(walls[-2:]), 1)[0] if len(sizes) > 2 else p
-        print(f"  fit wall ~ N^p: p = {p:.2f} over all sizes, {q:.2f} over the two largest "
-              f"(a CFL-limited scheme: about {2 if name == 'V' else 3} + 1)")
+            cpus.append(time.process_time() - c0)
+            print(f"  N = {n:4d}: {grid.size:>11,d} nodes  wall {walls[-1]:8.2f} s  CPU {cpus[-1]:8.2f} s  "
+                  f"(load {load})")
+        for what, ys in (("wall", walls), ("CPU", cpus)):
+            p = np.polyfit(np.log(sizes), np.log(ys), 1)[0]
+            q = np.polyfit(np.log(sizes[-2:]), np.log(ys[-2:]), 1)[0] if len(sizes) > 2 else p
+            print(f"  fit {what} ~ N^p: p = {p:.2f} over all sizes, {q:.2f} over the two largest "
+                  f"(a CFL-limited scheme: about {2 if name == 'V' else 3} + 1)")
 
 
 def main() -> None:
