@@ -263,7 +263,7 @@ class CompiledDecision:
         set_address, set_params = la.set_kernel
         self.M = (np.asarray(model.held_box_params, dtype=np.float64), la.eps, set_params, set_address, t_lo, t_hi,
                   np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon, frozen(la.slack), la.first_check,
-                  la.budget_slack)
+                  la.budget_slack, la.exact_env)
         safe, land = vf.safe_cells, vf.landing_cells
         some = safe if safe is not None else land
         self.C = (some.kernel_args, safe is not None, land.kernel_args, some.plan_args, land.plan_args)

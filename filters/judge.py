@@ -44,6 +44,8 @@ def _checked_c1(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
     the environment's first check instant on (``lo``, ``hi``: work space)."""
     params, set_params, sets, slack, first = M[0], M[2], M[3], M[9], M[10]
     c1 = call_set_max(sets, set_params, _HARD, tube_lo, tube_hi)
+    if not M[12]:  # no allowance (Lookahead.exact_env): the tube alone
+        return c1
     call_held_box(enclose, params, x_lo, x_hi, a, min(first, length), length, lo, hi)
     _widen(lo, hi, slack)
     moved = call_set_max(sets, set_params, _HARD, lo, hi)
@@ -58,6 +60,8 @@ def _may_spend(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
     params, set_params, sets, slack, first = M[0], M[2], M[3], M[9], M[10]
     if not call_set_max(sets, set_params, _SOFT, tube_lo, tube_hi) <= 0:
         return True
+    if not M[12]:  # no allowance (Lookahead.exact_env): the tube alone
+        return False
     call_held_box(enclose, params, x_lo, x_hi, a, min(0.5 * first, length), length, lo, hi)
     _widen(lo, hi, slack)
     return not call_set_max(sets, set_params, _SOFT, lo, hi) <= 0

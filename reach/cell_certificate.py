@@ -260,12 +260,15 @@ def cell_key(lookahead: Any, shape: Any, dz: float | None = None, game: str = "s
     la, model = lookahead, lookahead.model
     if game not in GAMES:
         raise ValueError(f"game must be one of {GAMES}, got {game!r}")
-    return {"model": model.name, "parameters": model.parameters(), "dt": la.dt, "eps": la.eps,
-            "horizon": la.horizon, "candidates": la.candidates.tolist(), "pieces": la.pieces,
-            "target_checks": la.target_checks, "shape": [int(v) for v in shape],
-            "dz": la.dt / 4 if dz is None else float(dz), "game": game,
-            "holds": sorted({int(h) for h in holds}), "span_cap": int(span_cap),
-            "allowance": {"state": la.slack.tolist(), "budget": la.budget_slack, "first_check": la.first_check}}
+    key = {"model": model.name, "parameters": model.parameters(), "dt": la.dt, "eps": la.eps,
+           "horizon": la.horizon, "candidates": la.candidates.tolist(), "pieces": la.pieces,
+           "target_checks": la.target_checks, "shape": [int(v) for v in shape],
+           "dz": la.dt / 4 if dz is None else float(dz), "game": game,
+           "holds": sorted({int(h) for h in holds}), "span_cap": int(span_cap)}
+    if la.exact_env:  # the allowances for the environment's rounding (Lookahead.exact_env)
+        key["allowance"] = {"state": la.slack.tolist(), "budget": la.budget_slack, "c1_from": la.first_check,
+                            "spends_from": 0.5 * la.first_check}
+    return key
 
 
 def cache_dir() -> Path:

@@ -98,6 +98,42 @@ def representable(u: np.ndarray, mid: np.ndarray, half: np.ndarray) -> np.ndarra
     return mid + half * exact_normalized(u, mid, half)
 
 
+def rk4_exact(model: Any, h: float, samples: int = 64) -> bool:
+    """Whether the environments' RK4 sub-step of ``h`` seconds is exact for the model's held motion, as step
+    doubling shows: from ``samples`` states across ``C1`` (the domain where the model has no hard box), with the
+    control and the disturbance at the corners and centres of their boxes, one sub-step and two of half its length
+    agree to within rounding (``64 u M``, :func:`state_allowance`'s magnitudes). They do for the point mass (its
+    motion under held inputs is quadratic in time); RK4's truncation error on a nonlinear model (the glider, Dubins)
+    is many orders above that."""
+    box = model.hard_box if model.hard_box is not None else model.domain
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in box)
+    x = np.random.default_rng(0).uniform(lo, hi, (samples, len(lo)))
+    M = 2.0 * np.maximum(*(np.abs(np.asarray(b, dtype=np.float64)) for b in model.domain))
+
+    def step(x0: np.ndarray, a: np.ndarray, b: np.ndarray, dt: float) -> np.ndarray:
+        def f(y: np.ndarray) -> np.ndarray:
+            out = model.f(0.0, list(y.T), list(a.T), list(b.T))
+            return np.stack([np.broadcast_to(np.asarray(c, dtype=np.float64), (len(y),)) for c in out], axis=1)
+        k1 = f(x0)
+        k2 = f(x0 + 0.5 * dt * k1)
+        k3 = f(x0 + 0.5 * dt * k2)
+        k4 = f(x0 + dt * k3)
+        return x0 + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+
+    def levels(bounds: Any) -> list[np.ndarray]:
+        b_lo, b_hi = (np.asarray(v, dtype=np.float64) for v in bounds)
+        return [b_lo, b_hi, 0.5 * (b_lo + b_hi)]
+
+    for a in levels(model.control_bounds):
+        for b in levels(model.disturbance_bounds):
+            A, B = np.tile(a, (samples, 1)), np.tile(b, (samples, 1))
+            one = step(x, A, B, h)
+            two = step(step(x, A, B, 0.5 * h), A, B, 0.5 * h)
+            if not (np.abs(one - two) <= 64 * UNIT_ROUNDOFF * M).all():
+                return False
+    return True
+
+
 def state_allowance(model: Any, checks: int) -> np.ndarray:
     """How far, per state axis, the environment's state after a period may lie from the exact motion that the
     model's enclosure bounds, by rounding alone: every box the filter compares with ``C1``, ``C2``, the target or
@@ -171,9 +207,14 @@ class Lookahead:
         #: ``target_checks``; a bare filter assumes the model's own ``substeps``)
         self.checks = max(self.target_checks, int(getattr(model, "substeps", 1) or 1))
         self.first_check = self.dt / self.checks
+        #: the environment's RK4 is exact for the model's motion (:func:`rk4_exact`): then the proof holds for the
+        #: environment's own numbers, with the allowances below and candidates it applies exactly. Elsewhere RK4's
+        #: truncation error, which no rounding allowance covers, is not covered, the proof is one about the exact
+        #: motion, and no allowance is applied (``docs/filters.md``, "Sound to the last bit")
+        self.exact_env = rk4_exact(model, self.first_check)
         #: the outward allowances for the environment's rounding (:func:`state_allowance`, per state axis, and
-        #: :func:`budget_allowance`, a period's charge)
-        self.slack = state_allowance(model, self.checks)
+        #: :func:`budget_allowance`, a period's charge); zero where :attr:`exact_env` is not
+        self.slack = state_allowance(model, self.checks) if self.exact_env else np.zeros(model.state_dim)
         self.fields = dict(fields)
         #: the field that says how much budget suffices: ``W_eps`` on ``(x, z)``, or the budget surface ``Q_min``
         self.budget_field = next((f for f in BUDGET_FIELDS if f in self.fields), None)
@@ -183,7 +224,7 @@ class Lookahead:
         b_values, b_times, b_grid = self.fields[self.budget_field]
         self.z_top = b_grid.hi[-1] if self.budget_field == "W_eps" else np.inf
         self.horizon = float(b_times[-1])
-        self.budget_slack = budget_allowance(self.dt, self.horizon, self.pieces)
+        self.budget_slack = budget_allowance(self.dt, self.horizon, self.pieces) if self.exact_env else 0.0
         #: a ``W_eps`` table's fields as the compiled certificate reads them (:func:`~softreach.reach.kernels.
         #: certificate_row`): ``(W, z_top, z_floor, V, has_V)``; ``None`` for a budget surface
         self.table_args = None
@@ -201,7 +242,9 @@ class Lookahead:
         #: the control box's map (:func:`action_map`), and the candidates as an environment applies them: each
         #: one the image of a normalised action (:func:`representable`)
         self.a_mid, self.a_half = action_map(model)
-        self.candidates = representable(np.asarray(candidates, dtype=np.float64), self.a_mid, self.a_half)
+        self.candidates = np.asarray(candidates, dtype=np.float64)
+        if self.exact_env:
+            self.candidates = representable(self.candidates, self.a_mid, self.a_half)
         box = model.target_box
         self.target_lo, self.target_hi = (None, None) if box is None else (np.asarray(box[0], float),
                                                                             np.asarray(box[1], float))
@@ -295,7 +338,10 @@ class Lookahead:
 
     def widen(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The boxes ``[lo, hi]`` grown on every side by the rounding allowance :attr:`slack`
-        (:func:`state_allowance`): they then hold the environment's states, not only the exact motion."""
+        (:func:`state_allowance`): they then hold the environment's states, not only the exact motion. The same
+        boxes where no allowance applies (:attr:`exact_env`)."""
+        if not self.exact_env:
+            return lo, hi
         return lo - self.slack, hi + self.slack
 
     def checked_c1(self, t: np.ndarray, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, length: float,
@@ -307,6 +353,8 @@ class Lookahead:
         environment's number itself. A model without a compiled enclosure (:func:`~softreach.reach.model_kernels.
         held_boxes`) has its whole tube widened."""
         c1 = self._corner_max(self.model.hard_constraint, t, tube_lo, tube_hi)
+        if not self.exact_env:
+            return c1
         moved = self._moved(x_lo, x_hi, a, self.first_check, length, tube_lo, tube_hi)
         return np.maximum(c1, self._corner_max(self.model.hard_constraint, t, *moved))
 
@@ -317,8 +365,11 @@ class Lookahead:
         states the environment computes, :func:`state_allowance`) may. Elsewhere every rate the environment
         reads is 0 (the start is its own number), so its cost is exactly 0 and the period is charged nothing."""
         soft = self.model.soft_constraint
+        inside = self._corner_max(soft, t, tube_lo, tube_hi) <= 0
+        if not self.exact_env:
+            return ~inside
         moved = self._moved(x_lo, x_hi, a, 0.5 * self.first_check, length, tube_lo, tube_hi)
-        return ~((self._corner_max(soft, t, tube_lo, tube_hi) <= 0) & (self._corner_max(soft, t, *moved) <= 0))
+        return ~(inside & (self._corner_max(soft, t, *moved) <= 0))
 
     def _moved(self, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, s0: float, length: float,
                tube_lo: np.ndarray, tube_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

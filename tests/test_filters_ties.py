@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 import softreach.envs  # noqa: F401  (registers the environments)
-from softreach.filters import SafetyFilter, ValueFilter
+from softreach.filters import OPTIMAL, SafetyFilter, ValueFilter
 from softreach.reach import get_model
-from softreach.reach.lookahead import exact_normalized
+from softreach.reach.lookahead import exact_normalized, representable, rk4_exact
 
 ENV = "softreach/PointMassLanding-v0"
 
@@ -73,13 +73,67 @@ def test_the_env_applies_exactly_the_candidate_judged(vf):
         model = get_model(name)
         lo, hi = (np.asarray(b, float) for b in model.control_bounds)
         mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-        from softreach.reach.lookahead import representable
-
         c = representable(np.asarray(model.held_candidates(), float), mid, half)
         q = exact_normalized(c, mid, half)
         assert np.array_equal(mid + half * np.clip(q, -1, 1), c), name
         # a candidate with no exact preimage moves by at most one unit in the last place
         np.testing.assert_allclose(c, np.asarray(model.held_candidates(), float), rtol=4e-16, atol=0)
+
+
+@pytest.mark.parametrize("env_id", [ENV, "softreach/SoftReach-v0"])
+def test_every_env_gets_the_physical_action_judged(vf, env_id):
+    """The landing env and the generic one (same action map): each step's physical control is the policy's own
+    action where it passed, and otherwise the exact image of the normalised action the filter returned, which is
+    the physical action it judged (a candidate, or the smooth rule's blend)."""
+    kwargs = {"model": get_model("pointmass")} if env_id != ENV else {}
+    smooth = ValueFilter(vf.table, 0.01, rule="smooth", target_checks=vf.target_checks)
+    for f in (vf, smooth):
+        env = SafetyFilter(gym.make(env_id, wind="random", **kwargs), value_filter=f)
+        env.reset(seed=3, options={"state": [-6.0, 6.0], "budget": 0.06})
+        rng = np.random.default_rng(3)
+        acted = 0
+        for _ in range(100):
+            base = env.unwrapped
+            t, x, z = base.time, base.state, base.budget
+            a = np.array([rng.uniform(-1, 1)], np.float32)
+            applied, out = f.filter(t, x, z, a, normalized=True, plan=env._plan)
+            _, _, terminated, truncated, info = env.step(a)
+            phys = float(info["action_physical"][0])
+            if out["active"]:
+                acted += 1
+                judged = float(f.physical(applied)[0])
+                assert phys == judged, (phys, judged)
+                if out["reason"] == OPTIMAL:  # the candidate itself
+                    assert phys in f.lookahead.candidates[:, 0].tolist()
+            else:
+                assert phys == float(f.physical(a)[0])
+            if terminated or truncated:
+                break
+        assert acted, f.rule
+
+
+def test_glider_gets_its_candidates_in_binary64(glider_held_table):
+    """The glider's env is not integrated exactly (RK4 on a nonlinear model), so its proof is one of the exact
+    motion and its candidates stay those of its table; they reach the env in binary64: eight of the nine exactly,
+    the second angle of attack (no normalised action maps to it) one unit in the last place away, where a float32
+    action would have moved each by about 1e-9 rad."""
+    f = ValueFilter(glider_held_table, 0.1, target_checks=2, safe_cells=None, landing_cells=None)
+    assert not f.lookahead.exact_env and not f.lookahead.slack.any() and f.lookahead.budget_slack == 0
+    cands = f.lookahead.candidates[:, 0]
+    env = SafetyFilter(gym.make("softreach/GliderLanding-v0"), value_filter=f)
+    replaced = 0
+    for action in (1.0, -1.0):
+        env.reset(seed=0)
+        for _ in range(15):
+            _, _, terminated, truncated, info = env.step(np.array([action], np.float32))
+            if info["filter_active"]:
+                replaced += 1
+                phys = float(info["action_physical"][0])
+                j = int(np.argmin(np.abs(cands - phys)))
+                assert phys == cands[j] or (j == 1 and abs(phys - cands[j]) <= np.spacing(cands[j])), (phys, j)
+            if terminated or truncated:
+                break
+    assert replaced
 
 
 def test_hover_start_just_above_the_ground(vf):
@@ -115,6 +169,9 @@ def test_the_allowances_are_outward_and_tiny(vf):
     """The allowances widen every box and charge every spending period a little more, never less, and stay far
     below any physical scale (metres, m/s, seconds of budget)."""
     la = vf.lookahead
+    # the point mass's RK4 is exact for its motion (the allowances apply); the glider's and Dubins' are not
+    assert la.exact_env and rk4_exact(get_model("pointmass"), 0.001)
+    assert not rk4_exact(get_model("glider"), 0.05) and not rk4_exact(get_model("dubins"), 0.05)
     assert (la.slack > 0).all() and (la.slack < 1e-9).all()
     assert 0 < la.budget_slack < 1e-12
     # a period outside C2 (v = -12 m/s): the filter's end budget lies below the env's after each of several
