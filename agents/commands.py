@@ -100,7 +100,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--starts", choices=START_CHOICES, default="inside",
                    help="certified by the filter (inside RA~_Q and a held action passes: the starts of the guarantee; needs a "
                         "--held table), inside RA~_Q (sampled from the table), the paper's representative points, uniform over C1 "
-                        "(outside the guarantee too), or the environment's own reset distribution")
+                        "(outside the guarantee too), or the environment's own reset distribution "
+                        "(default inside)")
     p.add_argument("--seed", type=int, default=0,
                    help="seed of the starts, the budgets, the gusts and the random policy; episode i resets with "
                         "seed + i, so policies evaluated with the same seed are compared on the same episodes "
@@ -181,6 +182,10 @@ def run_train(args: argparse.Namespace) -> int:
               f"{stop.model_path}. Run the same command with --resume {stop.model_path} to continue from it.",
               file=sys.stderr)
         return 130
+    except KeyboardInterrupt:
+        print("\nsoftreach: interrupted outside learning (while setting up or saving): no policy of this run was "
+              "saved", file=sys.stderr)
+        return 130
     before = int(res.config.get("timesteps_at_start", 0))
     print(f"trained {res.timesteps - before} steps in {res.wall_time_s:.0f} s "
           f"({(res.timesteps - before) / max(res.wall_time_s, 1e-9):.0f} steps/s)"
@@ -238,7 +243,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
             raise ValueError(f"--json directory {jp.parent} does not exist")
     spec = EvalSpec(model=args.model, policy=args.policy, filter=args.filter, rule=args.rule, budget=args.budget,
                     wind=args.wind, table=args.table, episodes=args.episodes, starts=args.starts, seed=args.seed)
-    res = evaluate(spec, progress=not args.quiet)
+    try:
+        res = evaluate(spec, progress=not args.quiet)
+    except KeyboardInterrupt:
+        print("\nsoftreach: evaluation interrupted; nothing was written", file=sys.stderr)
+        return 130
     print("\n".join(summary_lines(res)))
     if args.json_path:
         print(f"wrote {write_json(res, args.json_path)}")
@@ -269,8 +278,8 @@ def run_demo(args: argparse.Namespace) -> int:
     except KeyboardInterrupt as stop:
         saved = (f" The policy trained so far is in {stop.model_path} (--policy {stop.model_path} evaluates it)."
                  if isinstance(stop, TrainingInterrupted) else "")
-        print(f"\nsoftreach: demo interrupted; its table, finished or partly solved, is reused by the same command.{saved}",
-              file=sys.stderr)
+        print(f"\nsoftreach: demo interrupted; its table, finished or partly solved, is reused by the same "
+              f"command.{saved}", file=sys.stderr)
         return 130
     print((out["report"].read_text().split("## Plots")[0]).strip())
     trained = "no training (--policy given)" if args.policy else f"training seed {args.seed}"

@@ -233,4 +233,5 @@ def normalized_action(env: gym.Env, physical: np.ndarray) -> np.ndarray:
 
 
 __all__ = ["CertifiedStarts", "FILTER_COMPILE_S", "InterventionPenalty", "RULES", "ScaleReward", "WINDS",
-           "announce_filter_compile", "check_budget", "check_choice", "filter_code_cached", "make_env", "normalized_action", "unwrap_filter"]
+           "announce_filter_compile", "check_budget", "check_choice", "filter_code_cached", "make_env",
+           "normalized_action", "unwrap_filter"]

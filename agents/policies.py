@@ -84,7 +84,8 @@ def check_fits(policy: Any, env: Any, model: str, path: str | Path | None = None
     if mismatch:
         origin = trained_for(policy, path)
         who = f"was trained for {origin}" if origin else "was trained for another model"
-        raise ValueError(f"policy {path} {who}, not {model}: " + "; ".join(mismatch))
+        raise ValueError(f"{f'policy {path}' if path is not None else 'the policy'} {who}, not {model}: "
+                         + "; ".join(mismatch))
 
 
 def _space(space: Any) -> str:
