@@ -177,10 +177,12 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
     return env
 
 
-#: seconds the safety filter's first decision and first certificate take to compile on a machine with an empty
-#: compile cache: ``softreach compile`` of a point-mass ``--held`` table took COLD s with an empty
-#: ``NUMBA_CACHE_DIR`` on the shared 2-core development machine with other jobs running
-FILTER_COMPILE_S = 0
+#: CPU seconds the safety filter's first decision, certificate and start-plan search take to compile on a machine
+#: with an empty compile cache: ``NUMBA_CACHE_DIR=<empty> /usr/bin/time softreach compile TABLE`` (a 21 x 21 x 23
+#: point-mass ``--held`` table; ``benchmarks/first_compile.py filter`` runs it) took 147.4 s user + 7.1 s
+#: system, 1,208 s of wall time at a load average of 16-18 on the shared 2-core development machine: the wall
+#: time is about this on an idle core and grows with the machine's load
+FILTER_COMPILE_S = 155
 _announced = False
 
 
@@ -211,8 +213,8 @@ def announce_filter_compile(env: gym.Env) -> None:
     import sys
 
     print(f"softreach: the safety filter's first decision compiles it with numba, once per machine: about "
-          f"{FILTER_COMPILE_S:.0f} s (measured on a 2-core machine); `softreach compile TABLE` does it ahead",
-          file=sys.stderr)
+          f"{FILTER_COMPILE_S:.0f} s on an idle core, longer on a busy machine; `softreach compile TABLE` does it "
+          f"ahead", file=sys.stderr)
 
 
 def unwrap_filter(env: gym.Env) -> Any:
