@@ -43,6 +43,7 @@ import numpy as np
 import numba as nb
 F = np.DTYPE
 _JIT = dict(nogil=True, cache=True, fastmath=set({sorted(FASTMATH)!r}), error_model="numpy", boundscheck=False)
+_EXACT = dict(nogil=True, cache=True, error_model="numpy", boundscheck=False)
 '''
 _RULES = {"periodic": "periodic", "extrapolate": "extrapolate", "extrapolate_away": "extrapolate_away",
           "constant": "constant"}
@@ -93,16 +94,16 @@ def _rate_source(op: Any, width: int) -> list[str]:
     hs = [tape.var(f"h{a}") for a in range(D)]
     out, speed = op.numerical_hamiltonian(tape.var("t"), xs, hs, lefts, rights)
     args = ", ".join(f"x{a}" for a in range(D))
-    src = [f"@nb.njit(**_JIT)", f"def rate_rows(lo, hi, up, out, {args}, inv, h, t, speed, acc):", f"    W = {width}"]
+    src = [f"@nb.njit(**_EXACT)", f"def rate_rows(lo, hi, up, out, {args}, inv, h, t, speed, acc):", f"    W = {width}"]
     src += [f"    n{a} = out.shape[{a}]" for a in range(D)]
     src += [f"    inv{a} = inv[{a}]" for a in range(D)] + [f"    h{a} = h[{a}]" for a in range(D)]
     # the largest speed of a row is kept per node of the last axis: a running maximum in one variable would keep
     # the loop from being vectorised, a maximum per lane does not
     last = f"i{D - 1}"
-    src += [f"    top = np.zeros(n{D - 1}, F)", "    for i0 in range(lo, hi):", "        total = F(0.0)",
+    src += [f"    top = np.zeros(n{D - 1}, F)", f"    total = np.zeros(n{D - 1}, F)", "    for i0 in range(lo, hi):",
             "        x0v = x0[i0]"]
     if D > 1:
-        src.append("        top[:] = F(0.0)")
+        src += ["        top[:] = F(0.0)", "        total[:] = F(0.0)"]
     loops, pad = _loops(D, "", 8, skip=0)
     src += loops
     for a in range(1, D):
@@ -110,8 +111,9 @@ def _rate_source(op: Any, width: int) -> list[str]:
     src += [pad + line for line in loads + tape.lines]
     node = ", ".join(f"i{b}" for b in range(D))
     src += [f"{pad}h_out = {tape.value(out)}", f"{pad}out[{node}] = h_out",
-            f"{pad}top[{last}] = max(top[{last}], {tape.value(speed)})", f"{pad}total += h_out"]
-    src += ["        speed[i0] = top.max()" if D > 1 else "        speed[i0] = top[i0]", "        acc[i0] = total"]
+            f"{pad}top[{last}] = max(top[{last}], {tape.value(speed)})", f"{pad}total[{last}] += h_out"]
+    src += ["        speed[i0] = top.max()" if D > 1 else "        speed[i0] = top[i0]",
+            "        acc[i0] = total.sum()" if D > 1 else "        acc[i0] = total[i0]"]
     return src
 
 
@@ -130,7 +132,9 @@ def _stage_sources(op: Any, width: int) -> tuple[list[str], dict[tuple[float, fl
         v = project_values(tape.var("lv"), tape.var("cv"),
                            stage_value(a, b, tape.var("uv"), tape.var("pv"), tape.var("dt"), tape.var("rv")))
         names[(a, b)] = f"stage_{k}"
-        src += ["@nb.njit(**_JIT)", f"def stage_{k}(lo, hi, u, up, r, l, c, dt, write_u):", f"    W = {width}"]
+        # no fast-math here: each operation rounded as the array code rounds it, so that a stage value that the
+        # array code puts exactly on an obstacle (the floor W = 0 at z = 0, where RA~_0's flat face is) lands there
+        src += ["@nb.njit(**_EXACT)", f"def stage_{k}(lo, hi, u, up, r, l, c, dt, write_u):", f"    W = {width}"]
         src += [f"    n{d} = u.shape[{d}]" for d in range(D)]
         loops, pad = _loops(D, "range(lo, hi)", 4)
         src += loops
