@@ -23,7 +23,7 @@ from softreach.reach import sets
 from softreach.reach.models import get_model
 from softreach.reach.models.pointmass import PointMass
 
-torch = pytest.importorskip("torch")
+import torch
 
 
 def _same(u, v) -> bool:

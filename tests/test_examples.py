@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-torch = pytest.importorskip("torch")
+import torch
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "torch_reinforce.py"
 #: what a learner that knows nothing of softreach reads from every step's info

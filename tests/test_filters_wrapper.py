@@ -208,7 +208,7 @@ def test_gymnasium_vector_envs(pointmass_table_path, vector):
 
 
 def test_stable_baselines3_make_vec_env(pointmass_table_path):
-    pytest.importorskip("stable_baselines3")
+    import stable_baselines3  # noqa: F401
     from stable_baselines3.common.env_util import make_vec_env
 
     venv = make_vec_env(ENV_ID, n_envs=2, seed=0, wrapper_class=SafetyFilter,

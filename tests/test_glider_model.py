@@ -10,7 +10,7 @@ import pytest
 from softreach.reach.models import get_model
 from softreach.reach.models.glider import Glider, GliderParams, degrees_to_radians, radians_to_degrees
 
-torch = pytest.importorskip("torch")
+import torch
 
 DEG = math.pi / 180.0
 M, G, QS, CL0, CLA, CD0, CDK, WIND = 60000.0, 9.8, 68.6, 1.25, 4.2, 2.7, 3.08, 10000.0

@@ -17,7 +17,7 @@ from softreach.reach import SolveConfig, SolverSettings, TableError, load_table,
 from softreach.reach.models.glider import Glider
 from softreach.reach.simulate import constant, random_switching, rollout, table_control, table_disturbance
 
-torch = pytest.importorskip("torch")
+import torch
 
 DEG = math.pi / 180.0
 #: h 1.5 m, V 2 m/s, gamma 0.5 deg; h = 0, gamma = -3 deg and 0 deg are nodes

@@ -16,6 +16,8 @@ import pytest
 from softreach.reach import Grid, SolveConfig, SolverSettings, classical_problem, get_model, load_table, solve, solve_table
 from softreach.reach.simulate import constant, random_switching, rollout, table_control, table_disturbance
 
+from pointmass_ceiling import CEILING
+
 MODEL = get_model("pointmass")
 
 
@@ -90,7 +92,7 @@ def _ceiling(shape):
 
 def test_classical_ceiling_is_sound_and_converges_to_the_exact_value():
     exact = MODEL.exact_ceiling()
-    assert abs(exact - 8.856) < 2e-3
+    assert exact == pytest.approx(CEILING, abs=1e-9)  # both closed forms: equal up to float rounding
     coarse, h1 = _ceiling((81, 81))
     fine, h2 = _ceiling((161, 161))
     assert coarse <= exact + h1 and fine <= exact + h2  # never claims unreachable altitude

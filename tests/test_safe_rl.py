@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
-pytest.importorskip("stable_baselines3")
+import stable_baselines3  # noqa: F401
 
 from softreach.agents.envs import make_env  # noqa: E402
 from softreach.agents.evaluate import BUDGET_TOL  # noqa: E402

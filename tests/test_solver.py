@@ -75,7 +75,7 @@ def test_torch_and_numpy_agree():
 @pytest.mark.parametrize("fused", [False, True], ids=["rate-compiled", "step-fused"])
 def test_compiled_step_matches_eager(fused, monkeypatch):
     """Both compiled paths: the rate alone (small grids), and the whole step fused (``FUSED_STEP_NODES``)."""
-    pytest.importorskip("torch")
+    import torch  # noqa: F401
     monkeypatch.setattr("softreach.reach.solver.FUSED_STEP_NODES", 0 if fused else 10**12)
     monkeypatch.setattr("softreach.reach.solver.CPU_ENGINE", "compile")
     eager = _advect(48, "eno2", 2, backend="torch", dtype="float32", compile=False)
@@ -108,7 +108,7 @@ def test_bad_settings_are_refused():
 
 
 def test_cuda_request_without_a_gpu_is_a_clear_error():
-    torch = pytest.importorskip("torch")
+    import torch
     if torch.cuda.is_available():
         pytest.skip("a GPU is present")
     with pytest.raises(RuntimeError, match="no CUDA device"):
@@ -129,7 +129,7 @@ def test_grid_validation():
 @pytest.mark.parametrize("fused", [False, True], ids=["rate-compiled", "step-fused"])
 def test_compiled_soft_solve_has_no_graph_break(fused, monkeypatch):
     """A graph break sends every step back to eager Python and recompiles for each new time: ~25x slower."""
-    torch = pytest.importorskip("torch")
+    import torch
     monkeypatch.setattr("softreach.reach.solver.FUSED_STEP_NODES", 0 if fused else 10**12)
     monkeypatch.setattr("softreach.reach.solver.CPU_ENGINE", "compile")
     from torch._dynamo.utils import counters

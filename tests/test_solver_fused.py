@@ -13,7 +13,7 @@ from softreach.reach.problem import ReachAvoidProblem
 from softreach.reach.solver import HamiltonianOperator, Stepper
 from softreach.reach.trace import Tape, Unsupported
 
-torch = pytest.importorskip("torch")
+import torch
 
 
 def _soft_grid(n: int = 17, nz: int = 15):

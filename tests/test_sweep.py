@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
-pytest.importorskip("stable_baselines3")
+import stable_baselines3  # noqa: F401
 
 from softreach.agents.sweep import SweepSpec, load_sweep_file  # noqa: E402
 from softreach.agents.sweep_cli import run_sweep  # noqa: E402
@@ -135,6 +135,7 @@ def check_killed(res, spec: SweepSpec, out: Path, killed: list[int], message: st
     assert json.loads((out / "runs" / spec.runs()[0].run_id / "result.json").read_text())["status"] == "killed"
 
 
+@pytest.mark.process
 def test_killed_worker_is_reported(tmp_path, pointmass_table_path):
     """A local worker killed mid-run: that run is reported killed, the others run in a fresh pool."""
     spec = tiny_spec(pointmass_table_path)
@@ -153,6 +154,7 @@ def local_ray():
     ray.shutdown()
 
 
+@pytest.mark.process
 def test_killed_ray_worker_is_reported(tmp_path, pointmass_table_path, local_ray):
     spec = tiny_spec(pointmass_table_path)
     out = tmp_path / "sweep"
@@ -161,6 +163,7 @@ def test_killed_ray_worker_is_reported(tmp_path, pointmass_table_path, local_ray
     check_killed(res, spec, out, killed, "WorkerCrashedError")
 
 
+@pytest.mark.process
 def test_sweep_on_local_ray(tmp_path, pointmass_table_path, local_sweep, local_ray):
     """The same sweep as Ray tasks: the same table, the same numbers (training and evaluation are seeded)."""
     spec = tiny_spec(pointmass_table_path)
@@ -212,6 +215,7 @@ def test_toml_file_and_cli_dry_run(tmp_path, pointmass_table_path, capsys):
     assert "SECTION.FIELD=VALUE" in capsys.readouterr().err
 
 
+@pytest.mark.process
 def test_ctrl_c_says_how_to_resume(tmp_path, pointmass_table_path):
     """SIGINT to the whole process group (what a terminal's Ctrl-C does) while a run is in flight: exit 130, the
     resume command on stderr, the workers gone, the table written with the unfinished runs as missing."""
