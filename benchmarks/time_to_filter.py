@@ -1,0 +1,179 @@
+"""Time from a model to its first filtered step, from empty caches ("cold") and with the same caches again ("warm").
+
+    OMP_NUM_THREADS=1 python benchmarks/time_to_filter.py                       # point mass, its default grid
+    OMP_NUM_THREADS=1 python benchmarks/time_to_filter.py --grid 51 51 --budget-points 56 --out t.json
+    OMP_NUM_THREADS=1 python benchmarks/time_to_filter.py --model glider --runs cold
+
+Phases, each in a fresh Python process (its wall time counts the interpreter's start and imports, as a user's would):
+
+1. ``solve``: ``softreach solve MODEL --held [--grid ...] [--budget-points ...] --threads N`` (the held table);
+2. ``cells``: ``ValueFilter(table, dt, target_checks=model.substeps)``, the filter ``SafetyFilter`` builds: its
+   safe and landing cells are unpacked from the package, loaded from the cache or built;
+3. ``compile``: ``softreach compile TABLE`` (``filters.precompile``): the decision's, the certificate's and the
+   start-plan search's numba code, compiled or loaded from the cache;
+4. ``first step``: ``SafetyFilter(make_env(MODEL), table)``, ``reset(seed=0)`` and one ``step`` of a random action.
+
+"cold" points ``$SOFTREACH_CACHE`` (built cells, fused kernels, inductor's cache below it), ``$NUMBA_CACHE_DIR``
+and ``$TORCHINDUCTOR_CACHE_DIR`` at a new empty folder; "warm" runs every phase again with the same folders (the
+table is solved again: no cache holds tables). Python's own bytecode caches are not emptied. The load average is
+printed beside each phase: wall time on a shared machine depends on what else runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+PHASES = ("solve", "cells", "compile", "first step")
+
+
+# ------------------------------------------------------------------ child processes (one phase each)
+def _child_cells(table_path: str) -> dict[str, Any]:
+    from softreach.filters import ValueFilter
+    from softreach.reach import load_table
+    from softreach.reach.cell_certificate import cache_dir
+
+    before = set(p.name for p in cache_dir().glob("cells-*")) if cache_dir().exists() else set()
+    t0 = time.perf_counter()
+    table = load_table(table_path)
+    model = table.model
+    vf = ValueFilter(table, float(table.control_period), target_checks=int(getattr(model, "substeps", 1) or 1))
+    seconds = time.perf_counter() - t0
+    after = set(p.name for p in cache_dir().glob("cells-*")) if cache_dir().exists() else set()
+    return {"seconds": seconds, "has_cells": vf.landing_cells is not None, "compiled": vf.compiled is not None,
+            "new_cell_files": sorted(after - before)}
+
+
+def _child_compile(table_path: str) -> dict[str, Any]:
+    from softreach.filters.precompile import precompile
+
+    r = precompile(table_path)
+    return {"seconds": r["seconds"], "source": r["source"], "compiled": r["compiled"]}
+
+
+def _child_step(table_path: str, model: str) -> dict[str, Any]:
+    import numpy as np
+
+    from softreach.agents.envs import make_env
+    from softreach.filters import SafetyFilter
+    from softreach.reach import load_table
+
+    t0 = time.perf_counter()
+    env = SafetyFilter(make_env(model), load_table(table_path))
+    t1 = time.perf_counter()
+    _, info = env.reset(seed=0)
+    t2 = time.perf_counter()
+    env.step(np.asarray(env.action_space.sample(), dtype=float))
+    t3 = time.perf_counter()
+    return {"seconds": t3 - t0, "make": t1 - t0, "reset": t2 - t1, "step": t3 - t2,
+            "certified": bool(info.get("certified"))}
+
+
+# ------------------------------------------------------------------ the parent
+def _env(cache: Path, threads: int) -> dict[str, str]:
+    env = dict(os.environ)
+    env.update(SOFTREACH_CACHE=str(cache), NUMBA_CACHE_DIR=str(cache / "numba"),
+               TORCHINDUCTOR_CACHE_DIR=str(cache / "inductor"), OMP_NUM_THREADS=str(threads),
+               MKL_NUM_THREADS=str(threads), NUMBA_NUM_THREADS=str(threads))
+    return env
+
+
+def _run_phase(cmd: list[str], env: dict[str, str]) -> tuple[float, dict[str, Any], tuple[float, float]]:
+    load0 = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    load = (load0, os.getloadavg()[0])
+    if p.returncode:
+        raise RuntimeError(f"{' '.join(cmd)} failed ({p.returncode}):\n{p.stdout[-2000:]}\n{p.stderr[-4000:]}")
+    detail: dict[str, Any] = {}
+    for line in reversed(p.stdout.splitlines()):
+        if line.startswith("TTF "):
+            detail = json.loads(line[4:])
+            break
+    return wall, detail, load
+
+
+def run_once(args: argparse.Namespace, cache: Path, table: Path) -> list[dict[str, Any]]:
+    """Every phase once with the caches in ``cache``; one row per phase."""
+    env = _env(cache, args.threads)
+    me = [sys.executable, os.path.abspath(__file__)]
+    solve = ["softreach", "solve", args.model, "--held", "--quiet", "--threads", str(args.threads), "--out", str(table)]
+    if args.grid:
+        solve += ["--grid", *map(str, args.grid)]
+    if args.budget_points:
+        solve += ["--budget-points", str(args.budget_points)]
+    solve_cmd = [str(Path(sys.executable).with_name("softreach")), *solve[1:]]
+    cmds = {"solve": solve_cmd, "cells": [*me, "--child", "cells", "--table", str(table)],
+            "compile": [*me, "--child", "compile", "--table", str(table)],
+            "first step": [*me, "--child", "first step", "--table", str(table), "--model", args.model]}
+    rows = []
+    for phase in PHASES:
+        if table.exists() and phase == "solve":
+            table.unlink()  # solved afresh every run: --no-resume is not needed, but a finished table is replaced
+        wall, detail, load = _run_phase(cmds[phase], env)
+        rows.append({"phase": phase, "wall_s": wall, "load": load, **detail})
+        print(f"  {phase:<11} {wall:8.1f} s  (load {load[0]:.1f} -> {load[1]:.1f}) {json.dumps(detail)}", flush=True)
+    return rows
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--model", default="pointmass", help="a registered model or module:Class (default pointmass)")
+    ap.add_argument("--grid", type=int, nargs="+", default=None, help="state grid of the held solve (default: "
+                                                                     "softreach solve's)")
+    ap.add_argument("--budget-points", type=int, default=None, help="budget nodes (default: softreach solve's)")
+    ap.add_argument("--threads", type=int, default=1, help="threads of every phase (default 1)")
+    ap.add_argument("--runs", nargs="+", choices=("cold", "warm"), default=["cold", "warm"],
+                    help="cold (empty caches) then warm (the same caches again); default both")
+    ap.add_argument("--cache", default=None, help="cache folder to use (default: a new empty one)")
+    ap.add_argument("--out", default=None, help="write the rows as JSON here")
+    ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--table", default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.child:
+        fn = {"cells": lambda: _child_cells(args.table), "compile": lambda: _child_compile(args.table),
+              "first step": lambda: _child_step(args.table, args.model)}[args.child]
+        print("TTF " + json.dumps(fn()), flush=True)
+        return {}
+    if args.threads < 1:
+        raise SystemExit(f"--threads must be >= 1, got {args.threads}")
+    if args.grid and any(g < 2 for g in args.grid):
+        raise SystemExit(f"--grid sizes must be >= 2, got {args.grid}")
+    cache = Path(args.cache) if args.cache else Path(tempfile.mkdtemp(prefix="softreach-ttf-"))
+    cache.mkdir(parents=True, exist_ok=True)
+    table = cache / f"{args.model.rpartition(':')[2]}-held.srt"
+    out: dict[str, Any] = {"model": args.model, "grid": args.grid or "default", "budget_points":
+                           args.budget_points or "default", "threads": args.threads, "cache": str(cache),
+                           "cpus": os.cpu_count(), "runs": {}}
+    for run in args.runs:
+        print(f"{run}: caches in {cache}, load average {os.getloadavg()[0]:.1f}", flush=True)
+        out["runs"][run] = run_once(args, cache, table)
+    from softreach.reach import load_table
+
+    g = load_table(str(table)).grid("W_eps")
+    out["table_grid"] = [int(n) for n in g.shape]
+    print(f"\n{args.model}, held table {' x '.join(map(str, out['table_grid']))} (state x budget), "
+          f"{args.threads} thread(s), {os.cpu_count()} CPUs; wall seconds of each phase's process "
+          f"(load average at its start -> end)")
+    runs = list(out["runs"])
+    print(f"{'phase':<11} " + " ".join(f"{r:>22}" for r in runs))
+    for i, phase in enumerate(PHASES):
+        cells = [out["runs"][r][i] for r in runs]
+        print(f"{phase:<11} " + " ".join(f"{c['wall_s']:8.1f} s ({c['load'][0]:4.1f}->{c['load'][1]:4.1f})"
+                                          for c in cells))
+    print(f"{'total':<11} " + " ".join(f"{sum(c['wall_s'] for c in out['runs'][r]):8.1f} s{'':>13}" for r in runs))
+    if args.out:
+        Path(args.out).write_text(json.dumps(out, indent=2))
+    return out
+
+
+if __name__ == "__main__":
+    main()
