@@ -180,8 +180,9 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
 #: CPU seconds the safety filter's first decision, certificate and start-plan search take to compile on a machine
 #: with an empty compile cache: ``NUMBA_CACHE_DIR=<empty> /usr/bin/time softreach compile TABLE`` (a 21 x 21 x 23
 #: point-mass ``--held`` table; ``benchmarks/first_compile.py filter`` runs it) took 147.4 s user + 7.1 s
-#: system, 1,208 s of wall time at a load average of 16-18 on the shared 2-core development machine: the wall
-#: time is about this on an idle core and grows with the machine's load
+#: system, 1,208 s of wall time at a load average of 16-18 on the shared 2-core development machine (a second
+#: cold compile, after the package's sources changed, 98.5 s + 2.6 s in 940 s): the wall time is about this on an
+#: idle core and grows with the machine's load
 FILTER_COMPILE_S = 155
 _announced = False
 
