@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -86,10 +86,6 @@ class Grid:
             shape[i] = self.shape[i]
             out.append(B.asarray(self.axis(i).reshape(shape), backend, dtype, device))
         return out
-
-    def contains_box(self, lo: Sequence[float], hi: Sequence[float]) -> bool:
-        """Whether the box ``[lo, hi]`` lies inside the grid box."""
-        return all(gl <= l and h <= gh for gl, gh, l, h in zip(self.lo, self.hi, lo, hi))
 
     def to_dict(self) -> dict[str, Any]:
         return {"lo": list(self.lo), "hi": list(self.hi), "shape": list(self.shape),

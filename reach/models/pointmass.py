@@ -191,10 +191,6 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         """:meth:`hard_constraint` at one point ``x = (v, y)`` of finite Python floats."""
         return _box_scalar(x, self.params.hard_speed, self.params.altitude)
 
-    def soft_constraint_scalar(self, t: float, x) -> float:
-        """:meth:`soft_constraint` at one point ``x = (v, y)`` of finite Python floats."""
-        return _box_scalar(x, self.params.soft_speed, self.params.altitude)
-
     def violation_rate_scalar(self, t: float, x, eps: float) -> float:
         """:meth:`violation_rate` ``h_eps = min(1, max(0, c2 / eps))`` at one point ``x = (v, y)`` of finite Python
         floats."""
