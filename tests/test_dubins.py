@@ -142,21 +142,32 @@ def test_table_grid_is_periodic_in_heading(dubins_table):
     assert np.all(np.isfinite(w)) and np.ptp(w) < 1e-9
 
 
+def _dilate(mask: np.ndarray) -> np.ndarray:
+    """``mask`` grown by one cell along every axis and diagonal (the heading's neighbours taken across the seam;
+    rolling x and y wraps around the grid's edges, where the sets are empty anyway: outside C1)."""
+    out = np.zeros_like(mask)
+    for shift in itertools.product((-1, 0, 1), repeat=mask.ndim):
+        out |= np.roll(mask, shift, axis=tuple(range(mask.ndim)))
+    return out
+
+
 def test_q0_set_equals_the_classical_set_within_one_grid_cell(dubins_table):
-    """RA~_0 (from W_eps) and RA (from V) are the same set (Prop. 3): they may differ only at nodes next to RA's
-    boundary (one cell, the heading's neighbours taken across the seam)."""
+    """RA~_0 (from W_eps) and RA (from V) are the same set (Prop. 3). On the grid their boundaries may lie a cell
+    apart (the paper's grid study: below the spacing h), so
+
+    * every node where they differ has a neighbour on the other side of RA's boundary, and
+    * every node of either set has a node of the other within two cells: the boundaries' one cell, plus one for
+      reading each set at the nodes (a node set misses a sliver thinner than a cell).
+
+    Losing RA's whole one-cell boundary layer (70 % of RA's nodes on this grid) breaks the second."""
     ra = dubins_table.set_mask(0.0)
     ra0 = dubins_table.set_mask(0.0, 0.0)
     assert ra.sum() > 100
     diff = ra ^ ra0
-    assert diff.sum() < 0.3 * ra.sum()
-    # a node of the difference has a neighbour (one step along some axes) on the other side of RA's boundary
-    near = np.zeros_like(ra)
-    for shift in itertools.product((-1, 0, 1), repeat=3):
-        moved = np.roll(ra, shift, axis=(0, 1, 2))
-        # rolling x and y wraps around the grid's edges, where the sets are empty anyway (outside C1)
-        near |= moved != ra
+    near = (_dilate(ra) & ~ra) | (_dilate(~ra) & ra)  # the nodes on either side of RA's boundary
     assert np.all(near[diff])
+    for a, b in ((ra, ra0), (ra0, ra)):
+        assert not (a & ~_dilate(_dilate(b))).any()
 
 
 def test_sets_grow_with_the_budget_and_the_zone_is_the_shortcut(dubins_table):

@@ -8,6 +8,7 @@ checked against were measured on it (see the comments), the grid study of ``docs
 from __future__ import annotations
 
 import contextlib
+import itertools
 import math
 
 import numpy as np
@@ -129,17 +130,32 @@ def test_sets_respect_the_hard_constraint(glider_table):
     assert not (glider_table.set_mask(0.0) & outside).any()
 
 
-def test_q0_set_against_the_classical_set(glider_table):
-    """Prop. 3: RA~_0 = RA. On grids the budget slice loses part of RA near its boundary (the z = 0 face is
-    flat, Table.set_mask); it must not claim states that the classical set rejects, and the part it loses is
-    bounded: measured 13-30% of RA on grids from 46x29x21x21 to 91x57x41x41, 54% on this one."""
+def _next_to(mask: np.ndarray, other: np.ndarray, edge: bool) -> np.ndarray:
+    """The nodes of ``mask`` with a node of ``other`` one step away along some axes (``edge``: whether the grid's
+    edge counts as ``other``)."""
+    padded = np.pad(other, 1, constant_values=edge)
+    near = np.zeros(padded.shape, bool)
+    for shift in itertools.product((-1, 0, 1), repeat=mask.ndim):
+        near |= np.roll(padded, shift, axis=tuple(range(mask.ndim)))
+    return mask & near[(slice(1, -1),) * mask.ndim]
+
+
+def test_q0_set_inside_the_classical_set_and_apart_only_at_its_boundary(glider_table):
+    """Prop. 3: RA~_0 = RA. This grid does not resolve the equality: RA is one or two cells thick here (all but 2
+    of its 180 nodes touch its boundary), and RA~_0, read at half a budget cell (Table.set_mask), keeps 82 of them
+    (the grid study of docs/glider.md measures the equality on finer grids). What holds at one cell, checked:
+
+    * RA~_0 claims no node that RA rejects unless that node touches RA (one cell);
+    * every node RA~_0 loses touches RA's boundary, and RA's interior (the nodes that do not) is all kept;
+    * the nodes with V below half of V's minimum are kept."""
     ra = glider_table.set_mask(0.0)
     ra0 = glider_table.set_mask(0.0, 0.0)
     assert ra.sum() > 50
-    assert (ra0 & ~ra).sum() <= 0.01 * ra.sum()
-    assert (ra & ~ra0).sum() <= 0.6 * ra.sum()
-    # what RA~_0 loses lies near RA's boundary: every node with V below half of V's minimum is kept (measured: the
-    # lost nodes have V >= 0.32 min V here (10 nodes are below 0.5 min V), >= 0.34 min V at 91x29x21x21)
+    boundary = _next_to(ra, ~ra, edge=True)
+    assert not (ra0 & ~ra & ~_next_to(~ra, ra, edge=False)).any()
+    assert not (ra & ~ra0 & ~boundary).any()
+    interior = ra & ~boundary
+    assert interior.any() and not (interior & ~ra0).any()
     V = np.asarray(glider_table.values("V")[0], dtype=float)
     deep = V <= 0.5 * V.min()
     assert deep.sum() >= 5 and not (deep & ~ra0).any()
