@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -76,6 +77,26 @@ def _child_step(table_path: str, model: str) -> dict[str, Any]:
             "certified": bool(info.get("certified"))}
 
 
+def _child_region(table_path: str, budgets: list[float], n: int) -> dict[str, Any]:
+    """The certified region at ``t = 0`` on ``n`` states uniform over ``C1`` (``audit_filter.sampled_region``):
+    the filter with its cells, and the same filter without them (what the table's interpolant certifies)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from audit_filter import sampled_region
+
+    from softreach.filters import ValueFilter
+    from softreach.reach import load_table
+
+    table = load_table(table_path)
+    dt, checks = float(table.control_period), int(getattr(table.model, "substeps", 1) or 1)
+    out: dict[str, Any] = {}
+    for name, kw in (("cells", {}), ("table_alone", {"safe_cells": None, "landing_cells": None})):
+        t0 = time.perf_counter()
+        vf = ValueFilter(table, dt, target_checks=checks, **kw)
+        out[name] = sampled_region(vf, table, budgets, None, n=n)
+        out[name + "_s"] = time.perf_counter() - t0
+    return out
+
+
 # ------------------------------------------------------------------ the parent
 def _env(cache: Path, threads: int) -> dict[str, str]:
     env = dict(os.environ)
@@ -85,11 +106,18 @@ def _env(cache: Path, threads: int) -> dict[str, str]:
     return env
 
 
+def _cpu_children() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
 def _run_phase(cmd: list[str], env: dict[str, str]) -> tuple[float, dict[str, Any], tuple[float, float]]:
+    """Run one phase's process; its wall seconds, the JSON line it printed (plus ``cpu_s``: its CPU seconds and
+    those of the processes it waited for) and the load average at its start and end."""
     load0 = os.getloadavg()[0]
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_children()
     p = subprocess.run(cmd, env=env, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, _cpu_children() - c0
     load = (load0, os.getloadavg()[0])
     if p.returncode:
         raise RuntimeError(f"{' '.join(cmd)} failed ({p.returncode}):\n{p.stdout[-2000:]}\n{p.stderr[-4000:]}")
@@ -98,6 +126,7 @@ def _run_phase(cmd: list[str], env: dict[str, str]) -> tuple[float, dict[str, An
         if line.startswith("TTF "):
             detail = json.loads(line[4:])
             break
+    detail["cpu_s"] = cpu
     return wall, detail, load
 
 
@@ -120,7 +149,7 @@ def run_once(args: argparse.Namespace, cache: Path, table: Path) -> list[dict[st
             table.unlink()  # solved afresh every run: --no-resume is not needed, but a finished table is replaced
         wall, detail, load = _run_phase(cmds[phase], env)
         rows.append({"phase": phase, "wall_s": wall, "load": load, **detail})
-        print(f"  {phase:<11} {wall:8.1f} s  (load {load[0]:.1f} -> {load[1]:.1f}) {json.dumps(detail)}", flush=True)
+        print(f"  {phase:<11} {wall:8.1f} s wall, {detail['cpu_s']:7.1f} s CPU (load {load[0]:.1f} -> {load[1]:.1f}) {json.dumps(detail)}", flush=True)
     return rows
 
 
@@ -135,12 +164,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                     help="cold (empty caches) then warm (the same caches again); default both")
     ap.add_argument("--cache", default=None, help="cache folder to use (default: a new empty one)")
     ap.add_argument("--out", default=None, help="write the rows as JSON here")
+    ap.add_argument("--region", type=float, nargs="*", default=None, metavar="Q",
+                    help="after the runs, the certified region at t = 0 for these budgets (audit_filter."
+                         "sampled_region), with the cells and with the table alone, in one more process")
+    ap.add_argument("--states", type=int, default=20000, help="states uniform over C1 for --region (20,000)")
+    ap.add_argument("--region-only", action="store_true",
+                    help="no runs: only --region on the table already in --cache")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
-    ap.add_argument("--table", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--table", default=None, help="the held table's file (default: in the cache folder); with "
+                                                   "--region-only, an existing held table")
     args = ap.parse_args(argv)
     if args.child:
         fn = {"cells": lambda: _child_cells(args.table), "compile": lambda: _child_compile(args.table),
-              "first step": lambda: _child_step(args.table, args.model)}[args.child]
+              "first step": lambda: _child_step(args.table, args.model),
+              "region": lambda: _child_region(args.table, args.region, args.states)}[args.child]
         print("TTF " + json.dumps(fn()), flush=True)
         return {}
     if args.threads < 1:
@@ -149,27 +186,40 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         raise SystemExit(f"--grid sizes must be >= 2, got {args.grid}")
     cache = Path(args.cache) if args.cache else Path(tempfile.mkdtemp(prefix="softreach-ttf-"))
     cache.mkdir(parents=True, exist_ok=True)
-    table = cache / f"{args.model.rpartition(':')[2]}-held.srt"
+    table = Path(args.table) if args.table else cache / f"{args.model.rpartition(':')[2]}-held.srt"
     out: dict[str, Any] = {"model": args.model, "grid": args.grid or "default", "budget_points":
                            args.budget_points or "default", "threads": args.threads, "cache": str(cache),
                            "cpus": os.cpu_count(), "runs": {}}
-    for run in args.runs:
+    for run in ([] if args.region_only else args.runs):
         print(f"{run}: caches in {cache}, load average {os.getloadavg()[0]:.1f}", flush=True)
         out["runs"][run] = run_once(args, cache, table)
     from softreach.reach import load_table
 
     g = load_table(str(table)).grid("W_eps")
     out["table_grid"] = [int(n) for n in g.shape]
+    runs = list(out["runs"])
     print(f"\n{args.model}, held table {' x '.join(map(str, out['table_grid']))} (state x budget), "
           f"{args.threads} thread(s), {os.cpu_count()} CPUs; wall seconds of each phase's process "
-          f"(load average at its start -> end)")
-    runs = list(out["runs"])
-    print(f"{'phase':<11} " + " ".join(f"{r:>22}" for r in runs))
-    for i, phase in enumerate(PHASES):
+          f"(load average at its start -> end), and its CPU seconds")
+    print(f"{'phase':<11} " + " ".join(f"{r + ' wall (load), CPU':>36}" for r in runs))
+    for i, phase in enumerate(PHASES if runs else ()):
         cells = [out["runs"][r][i] for r in runs]
-        print(f"{phase:<11} " + " ".join(f"{c['wall_s']:8.1f} s ({c['load'][0]:4.1f}->{c['load'][1]:4.1f})"
-                                          for c in cells))
-    print(f"{'total':<11} " + " ".join(f"{sum(c['wall_s'] for c in out['runs'][r]):8.1f} s{'':>13}" for r in runs))
+        print(f"{phase:<11} " + " ".join(f"{c['wall_s']:8.1f} s ({c['load'][0]:4.1f}->{c['load'][1]:4.1f}), "
+                                          f"{c['cpu_s']:7.1f} s" for c in cells))
+    if runs:
+        print(f"{'total':<11} " + " ".join(f"{sum(c['wall_s'] for c in out['runs'][r]):8.1f} s{'':>14}"
+                                          f"{sum(c['cpu_s'] for c in out['runs'][r]):7.1f} s" for r in runs))
+    if args.region is not None:
+        me = [sys.executable, os.path.abspath(__file__)]
+        cmd = [*me, "--child", "region", "--table", str(table), "--states", str(args.states),
+               "--region", *map(str, args.region or [0.0, 0.3, 0.6])]
+        wall, out["region"], load = _run_phase(cmd, _env(cache, args.threads))
+        print(f"\ncertified at t = 0, {args.states:,} states uniform over C1 ({wall:.0f} s, load {load[0]:.1f}): "
+              f"certified / in the held table's RA~_Q, filter with cells | table alone")
+        for rc, ra in zip(out["region"]["cells"], out["region"]["table_alone"]):
+            print(f"  Q = {rc['Q']:<4g} cells {rc['certified']:6d} ({100 * rc['certified'] / rc['states']:.1f} %), "
+                  f"{rc['certified_in_held']} / {rc['in_held']} of RA~_Q | table alone {ra['certified']:6d} "
+                  f"({100 * ra['certified'] / ra['states']:.1f} %)")
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=2))
     return out
