@@ -281,10 +281,13 @@ def _announce_resume(writer: TableWriter, problems: dict[str, Any]) -> bool:
     return True
 
 
-#: seconds the solver's first ``torch.compile`` takes on a machine with an empty compile cache: ``softreach solve
-#: pointmass`` (101 x 101 x 111, one thread) took COLD s with an empty ``TORCHINDUCTOR_CACHE_DIR`` and WARM s
-#: again with it filled, on the shared 2-core development machine with other jobs running
-COLD_COMPILE_S = 0
+#: CPU seconds the solver's first ``torch.compile`` takes with an empty compile cache (the engine of a GPU, and of a
+#: CPU for a model whose step cannot be compiled pointwise): ``OMP_NUM_THREADS=1 python
+#: benchmarks/first_compile.py torch`` (``softreach solve pointmass`` with the ``torch.compile`` engine, an empty
+#: ``TORCHINDUCTOR_CACHE_DIR``) spent 68.6 s of CPU time between dynamo's first compile start and its last end,
+#: 668 s of wall time at a load average of 16-21 on the shared 2-core development machine: about 70 s on an idle
+#: core, more on a busy machine
+COLD_COMPILE_S = 70
 
 
 def compile_notice():
@@ -322,7 +325,7 @@ class _CompileNotice:
             line = f"softreach: torch.compile: building the solver's kernels from the compile cache in {where}"
         else:
             line = (f"softreach: compiling the solver with torch.compile, once per machine: about "
-                    f"{COLD_COMPILE_S:.0f} s at 0 % (measured on a 2-core machine), then cached in {where}")
+                    f"{COLD_COMPILE_S:.0f} s at 0 % on an idle core, longer on a busy machine; then cached in {where}")
         from tqdm.auto import tqdm
 
         tqdm.write(line, file=sys.stderr)
