@@ -64,8 +64,9 @@ for what in W V; do
     t0=$(date +%s.%N)
     timeout 120 env SOFTREACH_CACHE=$CACHE/cache TRITON_CACHE_DIR=$CACHE/triton \
       $PY -m softreach.cli solve glider --device cuda --quiet --no-resume --out /tmp/glider.srt $extra \
-      >"$LOG/glider_$what_$run.txt" 2>&1 || echo "!!! glider $what $run failed"
-    echo "glider default $what ($run): $(echo "$(date +%s.%N) - $t0" | bc) s whole process" | tee -a "$LOG/glider.txt"
+      >"$LOG/glider_${what}_${run}.txt" 2>&1 || echo "!!! glider $what $run failed"
+    echo "glider default $what ($run): $(awk -v a="$t0" -v b="$(date +%s.%N)" 'BEGIN{printf "%.1f", b - a}') s whole process" \
+      | tee -a "$LOG/glider.txt"
   done
 done
 date -u
