@@ -16,11 +16,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                        description="Solve the classical value V and the soft-constrained W_eps on the budget-augmented grid.")
     p.add_argument("model", type=model_argument, metavar=model_metavar(),
                    help="a registered model or the module:Class path of your own Model subclass")
-    p.add_argument("--grid", type=int, nargs="+", metavar="N", help="state grid sizes (default: the model's)")
+    p.add_argument("--grid", type=int, nargs="+", metavar="N", help="state grid sizes (default: the model's; "
+                   "with --held its held_shape where it has one)")
     p.add_argument("--domain", nargs="+", metavar="LO|HI|hard", default=None,
                    help="grid box: the lower ends of every state axis, then the upper ends (2n numbers), or 'hard' "
                         "for the hard-constraint box C1 and 3 cells around it (default: the model's box)")
-    p.add_argument("--budget-points", type=int, metavar="NZ", help="nodes along the budget axis z (default: the model's)")
+    p.add_argument("--budget-points", type=int, metavar="NZ", help="nodes along the budget axis z (default: "
+                   "the model's; with --held its held_budget_points where it has one)")
     p.add_argument("--eps", type=float, default=1e-3, help="width of h_eps (default 1e-3)")
     p.add_argument("--budget-scale", type=float, help="kappa in l = max(c2, -kappa z, g) (default: the model's)")
     p.add_argument("--accuracy", choices=["low", "medium", "high", "very_high"], default="very_high",
@@ -138,11 +140,14 @@ def run_solve(args: argparse.Namespace) -> int:
 
         torch.set_num_threads(threads)
     model = get_model(args.model)
-    shape = tuple(args.grid) if args.grid else model.default_shape
+    # a model may declare a coarser default grid for its held table (held_shape, held_budget_points)
+    held = args.held or args.control_period is not None
+    shape = tuple(args.grid) if args.grid else (held and getattr(model, "held_shape", None)) or model.default_shape
     cfg = SolveConfig(
         shape=shape,
         domain=_domain(args.domain, model, shape),
-        budget_points=args.budget_points or model.default_budget_points,
+        budget_points=(args.budget_points or (held and getattr(model, "held_budget_points", None))
+                       or model.default_budget_points),
         eps=args.eps,
         budget_scale=args.budget_scale,
         settings=_settings(args),
