@@ -52,7 +52,9 @@ def summary_lines(result) -> list[str]:
     a = result.aggregates
     w = task_words(result)
     speed = (f"{w.arrival_speed}: {_num(a['touchdown_sink_rate'])} m/s  " if w.arrival_speed else "")
-    lines = [_title(result), f"  episodes: {a['episodes']}  outcomes: {a['outcomes']}",
+    names = {"landed": w.reached, "hard_violation": "hard violation", "timeout": "timeout"}
+    outcomes = ", ".join(f"{names.get(k, k)} {v}" for k, v in a["outcomes"].items())
+    lines = [_title(result), f"  episodes: {a['episodes']}  outcomes: {outcomes}",
              f"  {w.success}: {_pct(a['landing_rate'])}   hard violations: {_pct(a['hard_violation_rate'])}",
              f"  budget used: mean {_num(a['budget_used'])}  max {_num(a['budget_used'], 'max')}  "
              f"over Q (+{result.config['budget_tol']:g} s): {_pct(a['over_budget_rate'])}",
