@@ -129,11 +129,13 @@ def test_plot_takes_a_start_on_the_domain_edge_and_refuses_a_time_past_the_horiz
 
 
 CART = '''
-from softreach.reach import Model, sets
+from cart_motion import CartMotion
+
+from softreach.reach import Model
 from softreach.reach.dynamics import ControlAndDisturbanceAffine
 
 
-class Cart(Model, ControlAndDisturbanceAffine):
+class Cart(CartMotion, Model, ControlAndDisturbanceAffine):
     name = "cart"
     state_names = ("p", "v")
     state_units = ("m", "m/s")
@@ -157,24 +159,6 @@ class Cart(Model, ControlAndDisturbanceAffine):
 
     def parameters(self):
         return {"accel_max": self.accel_max}
-
-    def drift(self, t, x):
-        return [x[1], 0]
-
-    def control_matrix(self, t, x):
-        return [[0], [1.0]]
-
-    def disturbance_matrix(self, t, x):
-        return [[0], [1.0]]
-
-    def target(self, t, x):
-        return sets.box(x, (-0.2, -0.2), (0.2, 0.2))
-
-    def hard_constraint(self, t, x):
-        return sets.box(x, (-2.0, -2.0), (2.0, 2.0))
-
-    def soft_constraint(self, t, x):
-        return sets.box([x[1]], (-1.0,), (1.0,))
 '''
 
 

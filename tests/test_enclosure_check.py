@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from softreach.reach import Model, SolveConfig, SolverSettings, sets
+from cart_motion import CartMotion
+
+from softreach.reach import Model, SolveConfig, SolverSettings
 from softreach.reach import cell_certificate, cell_game, compute
 from softreach.reach.cell_certificate import CellCertificate
 from softreach.reach.dynamics import ControlAndDisturbanceAffine
@@ -137,7 +139,7 @@ def test_a_tube_that_misses_the_motion_between_its_instants_is_refuted():
 
 
 # ------------------------------------------------------------------------------------------ before any long work
-class Cart(Model, ControlAndDisturbanceAffine):
+class Cart(CartMotion, Model, ControlAndDisturbanceAffine):
     """The cart of docs/models.md: no enclosure."""
 
     name = "cart"
@@ -151,24 +153,6 @@ class Cart(Model, ControlAndDisturbanceAffine):
     substeps = 2
     control_bounds = ((-2.0,), (2.0,))
     disturbance_bounds = ((-0.5,), (0.5,))
-
-    def drift(self, t, x):
-        return [x[1], 0]
-
-    def control_matrix(self, t, x):
-        return [[0], [1.0]]
-
-    def disturbance_matrix(self, t, x):
-        return [[0], [1.0]]
-
-    def target(self, t, x):
-        return sets.box(x, (-0.2, -0.2), (0.2, 0.2))
-
-    def hard_constraint(self, t, x):
-        return sets.box(x, (-2.0, -2.0), (2.0, 2.0))
-
-    def soft_constraint(self, t, x):
-        return sets.box([x[1]], (-1.0,), (1.0,))
 
 
 def _no_solve(*args, **kwargs):

@@ -18,11 +18,13 @@ from softreach.reach.registry import get_model, make_env
 
 # a cart (docs/models.md) whose boxes come from the constructor; the issue's box was (2, -6) m/s^2
 CART = '''
-from softreach.reach import Model, sets
+from cart_motion import CartMotion
+
+from softreach.reach import Model
 from softreach.reach.dynamics import ControlAndDisturbanceAffine
 
 
-class Cart(Model, ControlAndDisturbanceAffine):
+class Cart(CartMotion, Model, ControlAndDisturbanceAffine):
     name = "cart"
     state_names = ("p", "v")
     state_units = ("m", "m/s")
@@ -42,24 +44,6 @@ class Cart(Model, ControlAndDisturbanceAffine):
 
     def parameters(self):
         return {"accel": list(self.accel), "push": list(self.push)}
-
-    def drift(self, t, x):
-        return [x[1], 0]
-
-    def control_matrix(self, t, x):
-        return [[0], [1.0]]
-
-    def disturbance_matrix(self, t, x):
-        return [[0], [1.0]]
-
-    def target(self, t, x):
-        return sets.box(x, (-0.2, -0.2), (0.2, 0.2))
-
-    def hard_constraint(self, t, x):
-        return sets.box(x, (-2.0, -2.0), (2.0, 2.0))
-
-    def soft_constraint(self, t, x):
-        return sets.box([x[1]], (-1.0,), (1.0,))
 
 
 class SwappedControl(Cart):
