@@ -7,6 +7,13 @@ from softreach.reach import sets
 class CartMotion:
     """``p' = v``, ``v' = a + w``; target ``|p|, |v| <= 0.2``, ``C1 = {|p|, |v| <= 2}``, ``C2 = {|v| <= 1}``."""
 
+    name = "cart"
+    state_names = ("p", "v")
+    state_units = ("m", "m/s")
+    horizon = 3.0
+    domain = ((-2.5, -2.5), (2.5, 2.5))
+    hard_box = ((-2.0, -2.0), (2.0, 2.0))
+
     def drift(self, t, x):
         return [x[1], 0]
 

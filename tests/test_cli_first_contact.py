@@ -136,14 +136,8 @@ from softreach.reach.dynamics import ControlAndDisturbanceAffine
 
 
 class Cart(CartMotion, Model, ControlAndDisturbanceAffine):
-    name = "cart"
-    state_names = ("p", "v")
-    state_units = ("m", "m/s")
     control_units = ("m/s^2",)
     disturbance_units = ("m/s^2",)
-    horizon = 3.0
-    domain = ((-2.5, -2.5), (2.5, 2.5))
-    hard_box = ((-2.0, -2.0), (2.0, 2.0))
     default_shape = (11, 11)
     default_budget_points = 9
     default_budgets = (0.0, 0.5)

@@ -142,12 +142,6 @@ def test_a_tube_that_misses_the_motion_between_its_instants_is_refuted():
 class Cart(CartMotion, Model, ControlAndDisturbanceAffine):
     """The cart of docs/models.md: no enclosure."""
 
-    name = "cart"
-    state_names = ("p", "v")
-    state_units = ("m", "m/s")
-    horizon = 3.0
-    domain = ((-2.5, -2.5), (2.5, 2.5))
-    hard_box = ((-2.0, -2.0), (2.0, 2.0))
     default_shape = (31, 31)
     control_period = 0.05
     substeps = 2

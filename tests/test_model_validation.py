@@ -25,12 +25,6 @@ from softreach.reach.dynamics import ControlAndDisturbanceAffine
 
 
 class Cart(CartMotion, Model, ControlAndDisturbanceAffine):
-    name = "cart"
-    state_names = ("p", "v")
-    state_units = ("m", "m/s")
-    horizon = 3.0
-    domain = ((-2.5, -2.5), (2.5, 2.5))
-    hard_box = ((-2.0, -2.0), (2.0, 2.0))
     default_shape = (11, 11)
     default_budget_points = 5
     control_period = 0.05
