@@ -224,6 +224,7 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, action, t
             best, best_next = jj, c_next[jj]
             for i in range(m):
                 act[i] = cands[jj, i]
+            lam = 0.0  # the plan's candidate itself is applied, not a blend towards the policy's action
             best_bad = -1.0 if game == _PLAN_LAND else 0.9e6
             new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = jj, left, game
             if game == _PLAN_LAND:

@@ -334,6 +334,8 @@ class ValueFilter:
             a = self.blend(best, pol[rows], lam)
             any_ok = follow_plans(self, plans, new_plans, rows, tt, xs, zz, a, best, best_next, best_bad, any_ok,
                                   cand_next)
+            # where a plan replaced the action, its candidate itself is applied, not a blend
+            lam = np.where(new_plans[rows, 0] != NO_PLAN[0], 0.0, lam)
             # -inf: the period surely ends landed; +inf: no candidate could be bounded at all
             bounded = best_bad < np.inf
             applied[rows] = np.where(bounded[:, None], a, self.fallback_action)
