@@ -177,12 +177,9 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
     return env
 
 
-#: CPU seconds the safety filter's first decision, certificate and start-plan search take to compile on a machine
-#: with an empty compile cache: ``NUMBA_CACHE_DIR=<empty> /usr/bin/time softreach compile TABLE`` (a 21 x 21 x 23
-#: point-mass ``--held`` table; ``benchmarks/first_compile.py filter`` runs it) took 147.4 s user + 7.1 s
-#: system, 1,208 s of wall time at a load average of 16-18 on the shared 2-core development machine (a second
-#: cold compile, after the package's sources changed, 98.5 s + 2.6 s in 940 s): the wall time is about this on an
-#: idle core and grows with the machine's load
+#: CPU seconds the safety filter's first decision, certificate and start-plan search take to compile with an empty
+#: compile cache, as ``benchmarks/first_compile.py filter`` measures them (docs/agents.md quotes the measurement):
+#: the notice's estimate of the wall time on an idle core
 FILTER_COMPILE_S = 155
 _announced = False
 
@@ -204,7 +201,7 @@ def filter_code_cached() -> bool | None:
 
 def announce_filter_compile(env: gym.Env) -> None:
     """Say on stderr, once per process, that the first filtered decision will compile the filter (about
-    :data:`FILTER_COMPILE_S` s, once per machine), where the model's filter has compiled code and the cache lacks
+    :data:`FILTER_COMPILE_S` s, once per installed version), where the model's filter has compiled code and the cache lacks
     it: a step that would otherwise sit silently at 0 %."""
     global _announced
     filt = unwrap_filter(env)
@@ -213,7 +210,7 @@ def announce_filter_compile(env: gym.Env) -> None:
     _announced = True
     import sys
 
-    print(f"softreach: the safety filter's first decision compiles it with numba, once per machine: about "
+    print(f"softreach: the safety filter's first decision compiles it with numba, once per installed version: about "
           f"{FILTER_COMPILE_S:.0f} s on an idle core, longer on a busy machine; `softreach compile TABLE` does it "
           f"ahead", file=sys.stderr)
 

@@ -282,11 +282,8 @@ def _announce_resume(writer: TableWriter, problems: dict[str, Any]) -> bool:
 
 
 #: CPU seconds the solver's first ``torch.compile`` takes with an empty compile cache (the engine of a GPU, and of a
-#: CPU for a model whose step cannot be compiled pointwise): ``OMP_NUM_THREADS=1 python
-#: benchmarks/first_compile.py torch`` (``softreach solve pointmass`` with the ``torch.compile`` engine, an empty
-#: ``TORCHINDUCTOR_CACHE_DIR``) spent 68.6 s of CPU time between dynamo's first compile start and its last end,
-#: 668 s of wall time at a load average of 16-21 on the shared 2-core development machine: about 70 s on an idle
-#: core, more on a busy machine
+#: CPU for a model whose step cannot be compiled pointwise), as ``benchmarks/first_compile.py torch`` measures them
+#: (docs/solver.md quotes the measurement): the notice's estimate of the wall time on an idle core
 COLD_COMPILE_S = 70
 
 
