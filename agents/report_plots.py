@@ -78,7 +78,7 @@ def plot_trajectories(result, out: str | Path, table=None, max_episodes: int = 4
     if n == 2:
         fig, ax = plt.subplots(figsize=(7.5, 6))
         if table is not None:
-            from softreach.reach.plotting import _colour, _contour_level, _set_region
+            from softreach.reach.plotting import _colour, contour_level, _set_region
 
             axes = table.state_axes("W_eps")
             _set_region(ax, model, axes, model.hard_constraint, 0.0, colors=[(1.0, 0.85, 0.85)])
@@ -90,7 +90,7 @@ def plot_trajectories(result, out: str | Path, table=None, max_episodes: int = 4
             q = result.config.get("budget")
             budgets = [q] if q is not None else list(model.paper_budgets)
             for i, b in enumerate(budgets):
-                level = _contour_level(table.set_level(0.0, float(b)))
+                level = contour_level(table.set_level(0.0, float(b)))
                 if level.min() <= 0:
                     ax.contour(X, Y, level, levels=[0.0], colors=[_colour(i)], linewidths=2)
                     handles.append(Line2D([], [], color=_colour(i), lw=2, label=f"RA~ Q={b:g} (t=0)"))

@@ -26,7 +26,7 @@ def _set_region(ax, model, axes, fn, t, **kw):
     return X, Y, vals
 
 
-def _contour_level(level: np.ndarray) -> np.ndarray:
+def contour_level(level: np.ndarray) -> np.ndarray:
     """A set's level function (:meth:`~softreach.reach.query.Table.set_level`) ready for ``contour``: values that
     are not finite (no budget suffices, off the table) become a positive value above every finite one."""
     level = np.asarray(level, dtype=float)
@@ -75,14 +75,14 @@ def plot_sets_2d(table, budgets: Sequence[float], out: str | Path, t: float = 0.
     x0 = np.asarray(starts, dtype=float).reshape(len(starts), -1) if with_traj else np.zeros((0, 2))
     qs = np.asarray(list(start_budgets) or [0.0] * len(x0), dtype=float)
     for i, q in enumerate(budgets):
-        ax.contour(X, Y, _contour_level(table.set_level(t, q)), levels=[0.0], colors=[_colour(i)], linewidths=2,
+        ax.contour(X, Y, contour_level(table.set_level(t, q)), levels=[0.0], colors=[_colour(i)], linewidths=2,
                    zorder=2)
         no_path = with_traj and not np.any(qs == q)
         handles.append(Line2D([], [], color=_colour(i), lw=2,
                               label=f"RA~ Q={q:g}" + (" (no start given: no path)" if no_path else "")))
     if "V" in table.fields:
         # on top: RA and RA~_0 nearly coincide (Prop. 3), and the dashes must stay visible over the Q = 0 line
-        ax.contour(X, Y, _contour_level(table.set_level(t)), levels=[0.0], colors="k", linestyles=[(0, (4, 3))],
+        ax.contour(X, Y, contour_level(table.set_level(t)), levels=[0.0], colors="k", linestyles=[(0, (4, 3))],
                    linewidths=1.2, zorder=3)
         handles.append(Line2D([], [], color="k", ls=(0, (4, 3)), lw=1.2, label="classical RA"))
     names, units = model.state_names, model.state_units

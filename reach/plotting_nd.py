@@ -75,9 +75,9 @@ def project_level(level: np.ndarray, axis: int = 2) -> np.ndarray:
 
 def _fill(ax, X, Y, level, colour, alpha=1.0, zorder=1):
     """Fill the zero sublevel set of a level function over the nodes."""
-    from .plotting import _contour_level
+    from .plotting import contour_level
 
-    v = _contour_level(level)
+    v = contour_level(level)
     if v.min() > 0:
         return
     ax.contourf(X, Y, v, levels=[min(v.min(), 0.0) - 1.0, 0.0], colors=[colour], alpha=alpha, zorder=zorder)
@@ -85,9 +85,9 @@ def _fill(ax, X, Y, level, colour, alpha=1.0, zorder=1):
 
 def _outline(ax, X, Y, level, **kw):
     """Draw the zero contour of a level function over the nodes."""
-    from .plotting import _contour_level
+    from .plotting import contour_level
 
-    v = _contour_level(level)
+    v = contour_level(level)
     if v.min() > 0 or v.max() <= 0:
         return
     ax.contour(X, Y, v, levels=[0.0], **kw)

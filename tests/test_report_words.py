@@ -31,12 +31,12 @@ def test_set_contour_is_not_a_staircase(pointmass_table):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from softreach.reach.plotting import _contour_level
+    from softreach.reach.plotting import contour_level
 
     axes = pointmass_table.state_axes("W_eps")
     X, Y = np.meshgrid(axes[0], axes[1], indexing="ij")
     fig, ax = plt.subplots()
-    cs = ax.contour(X, Y, _contour_level(pointmass_table.set_level(0.0, 0.3)), levels=[0.0])
+    cs = ax.contour(X, Y, contour_level(pointmass_table.set_level(0.0, 0.3)), levels=[0.0])
     verts = np.concatenate([p.vertices for p in cs.get_paths()])
     plt.close(fig)
     hx, hy = axes[0][1] - axes[0][0], axes[1][1] - axes[1][0]
