@@ -190,6 +190,9 @@ class SweepSpec:
     :param starts: start distribution (``None``: inside ``RA~_Q`` with a table, else the environment's)
     :param eval_seed: evaluation seed
     :param checkpoint: ``"best"`` or ``"final"``
+    :param eval_own_budget: a run trained at one budget ``Q`` is evaluated only at that ``Q`` (it must be one of
+        the evaluation budgets); runs trained with the budget drawn per episode are evaluated at every one. This
+        compares policies trained at each ``Q`` with one policy for every budget at the cost of one grid.
     """
 
     models: tuple[str, ...] = ("pointmass",)
@@ -211,6 +214,7 @@ class SweepSpec:
     starts: str | None = None
     eval_seed: int = 0
     checkpoint: str = "best"
+    eval_own_budget: bool = False
 
     # ------------------------------------------------------------------------------------------ the grid
 
@@ -255,6 +259,14 @@ class SweepSpec:
         return [EvalSetting(wind=w, budget=None if q is None else float(q), filter=f, episodes=self.episodes,
                             starts=starts, seed=self.eval_seed, checkpoint=self.checkpoint, table=table)
                 for w in winds for q in budgets for f in filters]
+
+    def run_evaluations(self, run: SweepRun) -> list[EvalSetting]:
+        """The evaluations of ``run``: its model's, or with :attr:`eval_own_budget` and a run trained at one
+        ``Q``, those at that ``Q``."""
+        evals = self.evaluations(run.model)
+        if self.eval_own_budget and isinstance(run.budget, float):
+            evals = [ev for ev in evals if ev.budget is not None and abs(ev.budget - run.budget) <= 1e-12]
+        return evals
 
     # ------------------------------------------------------------------------------------------ checks
 
@@ -315,6 +327,13 @@ class SweepSpec:
                 safe_config(run.safe_overrides)
             except TypeError as exc:  # dataclasses.replace with a field the config does not have
                 raise ValueError(f"run {run.run_id} (variant {run.variant!r}): {exc}") from None
+        if not isinstance(self.eval_own_budget, bool):
+            raise ValueError(f"eval_own_budget must be true or false, got {self.eval_own_budget!r}")
+        for run in self.runs():
+            if not self.run_evaluations(run):
+                raise ValueError(f"run {run.run_id} trains at Q={budget_text(run.budget)} and eval_own_budget "
+                                 f"evaluates it only there: add {budget_text(run.budget)} to the evaluation budgets "
+                                 f"{list(self.eval_budgets or get_model(run.model).paper_budgets)}")
         for model in self.models:
             horizon = get_model(model).horizon
             for ev in self.evaluations(model):

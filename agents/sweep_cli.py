@@ -62,6 +62,9 @@ def add_sweep_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=int, help="episodes per evaluation (default 30)")
     p.add_argument("--starts", choices=START_CHOICES, help="evaluation starts (default inside with a table, else env)")
     p.add_argument("--eval-seed", type=int, help="evaluation seed (default 0; the same for every run)")
+    p.add_argument("--eval-own-budget", action="store_true", default=None,
+                   help="evaluate a run trained at one budget Q (--budgets Q) only at that Q, which must be among "
+                        "--eval-budgets; runs with the budget drawn per episode ('default', LO:HI) at every one")
     p.add_argument("--checkpoint", choices=("best", "final"),
                    help="evaluate best_model.zip (best periodic evaluation; the default) or the final model.zip")
     p.add_argument("--workers", type=int, default=1, help="runs at once: local processes, or Ray CPUs with "
@@ -92,7 +95,7 @@ def spec_from_args(args: argparse.Namespace):
             given[name] = tuple(getattr(args, name))
     if args.budgets is not None:
         given["budgets"] = tuple(parse_budget(b) for b in args.budgets)
-    for name in ("timesteps", "n_envs", "episodes", "starts", "eval_seed", "checkpoint"):
+    for name in ("timesteps", "n_envs", "episodes", "starts", "eval_seed", "checkpoint", "eval_own_budget"):
         if getattr(args, name) is not None:
             given[name] = getattr(args, name)
     spec = replace(spec, **given)
@@ -143,14 +146,14 @@ def run_sweep(spec, out: str | Path, workers: int = 1, ray: str | None = None,
     if len(set(ids)) != len(ids):
         dup = sorted({i for i in ids if ids.count(i) > 1})
         raise ValueError(f"the grid repeats runs {dup} (a value given twice?)")
-    evals = {m: spec.evaluations(m) for m in spec.models}
+    evals = {r.run_id: spec.run_evaluations(r) for r in runs}
     dirs = {r.run_id: out / "runs" / r.run_id for r in runs}
     results = {r.run_id: read_result(dirs[r.run_id]) for r in runs}
-    todo = {r.run_id: (r, evals[r.model], str(dirs[r.run_id])) for r in runs
-            if not is_done(results[r.run_id], evals[r.model])}
+    todo = {r.run_id: (r, evals[r.run_id], str(dirs[r.run_id])) for r in runs
+            if not is_done(results[r.run_id], evals[r.run_id])}
     resume = f"softreach sweep {shlex.quote(str(out / 'sweep.json'))} --out {shlex.quote(str(out))}" + \
              (f" --ray {ray}" if ray else "") + (f" --workers {workers}" if workers != 1 else "")
-    n_evals = sum(len(evals[r.model]) for r in runs)
+    n_evals = sum(len(evals[r.run_id]) for r in runs)
     log(f"sweep: {len(runs)} runs, {n_evals} evaluations; {len(runs) - len(todo)} already done, {len(todo)} to run "
         f"({'Ray ' + ray if ray else f'{workers} local process(es)'}) -> {out}")
     if dry_run:
@@ -163,7 +166,7 @@ def run_sweep(spec, out: str | Path, workers: int = 1, ray: str | None = None,
     table = out / "results.csv"
 
     def items() -> list:
-        return [(r, evals[r.model], results[r.run_id]) for r in runs]
+        return [(r, evals[r.run_id], results[r.run_id]) for r in runs]
 
     t0 = time.perf_counter()
     finished = 0

@@ -70,11 +70,40 @@ def new_result(run: SweepRun, status: str, error: str | None = None) -> dict[str
             "finished": _dt.datetime.now().isoformat(timespec="seconds")}
 
 
+def finished_training(run: SweepRun, run_dir: Path) -> dict[str, Any] | None:
+    """The ``train`` entry of ``result.json`` for a training that finished in ``run_dir/train`` although the run
+    left no result (its worker was killed while it evaluated), or ``None``.
+
+    Finished means what :func:`~softreach.agents.safe_train.train_method` writes last: ``config.json`` with
+    ``"status": "done"`` and this run's method, ``model.zip`` and ``training_safety.json``. The folder is the run
+    id's, and the id hashes every training setting, so a finished training there is this run's.
+    """
+    from .safe_train import SAFETY_FILE
+
+    d = Path(run_dir) / "train"
+    try:
+        cfg = json.loads((d / "config.json").read_text())
+        safety = json.loads((d / SAFETY_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    if cfg.get("status") != "done" or (cfg.get("method") or {}).get("name", "plain") != run.method or \
+            not (d / "model.zip").is_file():
+        return None
+    best = d / "best_model.zip"
+    return {"status": "done", "model_path": str(d / "model.zip"), "best_model_path": str(best) if best.is_file() else None,
+            "wall_time_s": cfg.get("wall_time_s"), "timesteps": cfg.get("timesteps"), "run_dir": str(d),
+            "safety": safety}
+
+
 def _train(run: SweepRun, run_dir: Path, previous: dict[str, Any] | None) -> dict[str, Any]:
-    """Train, unless ``previous`` says the training is done and its model is still there."""
+    """Train, unless ``previous`` says the training is done and its model is still there, or the run's folder
+    holds a finished training (:func:`finished_training`)."""
     old = (previous or {}).get("train", {})
     if old.get("status") == "done" and Path(old.get("model_path", "")).is_file():
         return old
+    found = finished_training(run, run_dir)
+    if found is not None:
+        return found
     from .safe_train import train_method
 
     res, safety = train_method(run.train_spec(run_dir / "train"), run.method, run.safe_overrides)
@@ -134,17 +163,22 @@ def run_one(run: SweepRun, evals: list[EvalSetting], run_dir: str) -> dict[str, 
                       traceback=traceback.format_exc(limit=8))
         return _finish(d, result)
     old = (previous or {}).get("evaluations", {})
+    same_policy = previous is not None and previous.get("train") == result["train"]
+    if same_policy:  # evaluations of this policy that are not asked for now stay in the record
+        result["evaluations"].update({k: v for k, v in old.items() if v.get("status") == "done"})
     cache: dict[str, Any] = {}
     for ev in evals:
-        if old.get(ev.eval_id, {}).get("status") == "done" and previous["train"] == result["train"]:
-            result["evaluations"][ev.eval_id] = old[ev.eval_id]
+        if same_policy and old.get(ev.eval_id, {}).get("status") == "done":
             continue
+        # the record so far, status "running": a worker killed now loses only the evaluation in flight
+        write_atomic(d / RESULT_FILE, result)
         try:
             result["evaluations"][ev.eval_id] = _evaluate(run, ev, result["train"], d, cache)
         except (Exception, SystemExit) as exc:  # noqa: BLE001
             result["evaluations"][ev.eval_id] = {"status": "failed", "error": "evaluate: " + _error_text(exc),
                                                  "setting": asdict(ev)}
-    failed = [e["error"] for e in result["evaluations"].values() if e["status"] != "done"]
+    failed = [result["evaluations"][ev.eval_id]["error"] for ev in evals
+              if result["evaluations"][ev.eval_id]["status"] != "done"]
     result.update(status="failed" if failed else "done", error=failed[0] if failed else None,
                   finished=_dt.datetime.now().isoformat(timespec="seconds"))
     return _finish(d, result)
