@@ -11,6 +11,7 @@ from typing import Any
 from softreach.reach.registry import model_argument, model_metavar
 
 from .config import ALGOS
+from .safe_rl import METHODS
 
 WIND_CHOICES = ("none", "random", "adversarial")
 RULE_CHOICES = ("switch", "smooth")
@@ -39,6 +40,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--algo", choices=ALGOS, default="ppo",
                    help="learning algorithm: ppo (Proximal Policy Optimisation, on-policy; default, tuned) or sac "
                         "(Soft Actor-Critic, off-policy; wired up, not tuned)")
+    p.add_argument("--method", choices=METHODS, default="plain",
+                   help="training method: plain (the algorithm as it is; default), lag (PPO-Lagrangian: a learned "
+                        "multiplier prices the expected episode cost over Q) or saute (PPO-Saute: the remaining "
+                        "budget joins the observation, the reward is -1 per step once it is spent); lag and saute "
+                        "are the constrained-RL baselines, PPO only and without --filter (docs/agents.md)")
     p.add_argument("--filter", metavar="TABLE", default=None,
                    help="W_eps table of the safety filter, solved with --held (default: no filter)")
     p.add_argument("--rule", choices=RULE_CHOICES, default="switch",
@@ -153,7 +159,8 @@ def _threads() -> None:
 
 def run_train(args: argparse.Namespace) -> int:
     from .resume import TrainingInterrupted
-    from .train import TrainSpec, train
+    from .safe_train import check_method, train_method
+    from .train import TrainSpec, default_out
 
     _threads()
     run_over: dict[str, Any] = {}
@@ -172,10 +179,16 @@ def run_train(args: argparse.Namespace) -> int:
                      wind=args.wind, table=args.table, timesteps=args.timesteps, n_envs=args.n_envs, seed=args.seed,
                      out=args.out, progress=not args.quiet, init=args.init, eval_filter=args.eval_filter,
                      run_overrides=run_over, algo_overrides=algo_over, resume=args.resume)
+    check_method(args.method, spec)
+    if args.method == "lag" and args.resume:
+        raise ValueError("--resume with --method lag would restart its cost critic and multiplier (they are not "
+                         "saved with the policy): train the run again")
+    if args.method != "plain" and spec.out is None and spec.resume is None:
+        spec.out = str(default_out(spec, args.method))
     for line in train_notes(spec):
         print(f"softreach: {line}", file=sys.stderr)
     try:
-        res = train(spec)
+        res, safety = train_method(spec, args.method)
     except TrainingInterrupted as stop:
         target = f" of {stop.target:,}" if stop.target else ""
         print(f"\nsoftreach: interrupted after {stop.timesteps:,}{target} steps; the policy so far is saved in "
@@ -190,6 +203,8 @@ def run_train(args: argparse.Namespace) -> int:
     print(f"trained {res.timesteps - before} steps in {res.wall_time_s:.0f} s "
           f"({(res.timesteps - before) / max(res.wall_time_s, 1e-9):.0f} steps/s)"
           + (f", resumed from {spec.resume} at step {before}: {res.timesteps} in all" if spec.resume else ""))
+    print(f"training episodes: {safety['episodes']}, landed {safety['landed']}, hard violations "
+          f"{safety['hard_violations']}, over Q {safety['over_budget']} (train/training_safety.json)")
     print(f"policy: {res.model_path}" + (f"  best: {res.best_model_path}" if res.best_model_path else ""))
     print(f"evaluate: softreach evaluate {args.model} --policy {res.model_path}"
           + (f" --filter {args.filter}" if args.filter else "") + " --plots " + str(res.out_dir / "plots"))

@@ -154,9 +154,9 @@ def resolve_policy(spec: EvalSpec, oracle: TableOracle | None, policy_obj: Any =
         return OptimalPolicy(oracle)
     if spec.policy == "random":
         return RandomPolicy(spec.seed + 7919)
-    from .train import load_policy
+    from .safe_train import load_method_policy  # a Saute policy appends its safety state itself
 
-    return SB3Policy(load_policy(spec.policy), str(spec.policy))
+    return SB3Policy(load_method_policy(spec.policy), str(spec.policy))
 
 
 def _finite_or_none(v: float) -> float | None:

@@ -303,6 +303,16 @@ class SautePolicy:
         self.model = model
         self.scale = float(scale)
 
+    @property
+    def observation_space(self) -> gym.spaces.Box:
+        """The plain environment's observation space: the model's without the appended safety state."""
+        space = self.model.observation_space
+        return gym.spaces.Box(space.low[:-1], space.high[:-1], dtype=space.dtype)
+
+    @property
+    def action_space(self) -> gym.spaces.Space:
+        return self.model.action_space
+
     def predict(self, obs: np.ndarray, deterministic: bool = True, **kwargs: Any):
         return self.model.predict(saute_observation(obs, self.scale), deterministic=deterministic, **kwargs)
 

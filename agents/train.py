@@ -110,8 +110,10 @@ class TrainResult:
     timesteps: int
 
 
-def default_out(spec: TrainSpec) -> Path:
-    kind = "filtered" if spec.filter else "unfiltered"
+def default_out(spec: TrainSpec, method: str = "plain") -> Path:
+    """``runs/train/<model>-<algo>-<filtered|unfiltered>-s<seed>``; a baseline method (``lag``, ``saute``) is
+    named in place of the filter: ``runs/train/<model>-<algo>-<method>-s<seed>``."""
+    kind = method if method != "plain" else "filtered" if spec.filter else "unfiltered"
     return Path("runs") / "train" / f"{spec.model}-{spec.algo}-{kind}-s{spec.seed}"
 
 

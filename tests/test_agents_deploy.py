@@ -1,0 +1,136 @@
+"""Deploying the budget comparison's policies: ``softreach train --method``, evaluating a Saute policy from the
+command line, a sweep that resumes a run killed while it evaluated, and ``--eval-own-budget`` (policies trained at
+one ``Q`` beside one policy for every budget)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from softreach.agents.sweep import SweepSpec  # noqa: E402
+from softreach.cli import main  # noqa: E402
+
+TINY = {"run": {"eval_freq": 0, "checkpoint_freq": 0}, "ppo": {"n_steps": 64, "batch_size": 64, "n_epochs": 1}}
+
+
+def _train(tmp_path, *extra: str) -> int:
+    return main(["train", "pointmass", "--timesteps", "128", "--n-envs", "2", "--eval-freq", "0", "--quiet",
+                 "--out", str(tmp_path / "run"), *extra])
+
+
+def test_train_method_saute_trains_and_its_policy_evaluates_on_the_plain_env(tmp_path, capsys):
+    """``--method saute`` trains PPO-Saute (its config says so, with the budget's scale) and counts its training
+    episodes; ``softreach evaluate`` then flies the saved policy on the plain environment, whose observation lacks
+    Saute's extra entry (loaded as a plain SB3 policy it would be refused: one observation short)."""
+    assert _train(tmp_path, "--method", "saute", "--budget", "0.06") == 0
+    out = capsys.readouterr().out
+    run = tmp_path / "run"
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["method"]["name"] == "saute" and cfg["method"]["saute_scale"] == pytest.approx(0.06)
+    safety = json.loads((run / "training_safety.json").read_text())
+    assert safety["steps"] >= 128 and "training episodes:" in out
+    assert main(["evaluate", "pointmass", "--policy", str(run / "model.zip"), "--budget", "0.06", "--wind", "random",
+                 "--episodes", "2", "--starts", "env", "--quiet", "--json", str(tmp_path / "ev.json")]) == 0
+    doc = json.loads((tmp_path / "ev.json").read_text())
+    assert doc["aggregates"]["episodes"] == 2
+
+
+def test_train_method_lag_names_its_default_folder(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "pointmass", "--method", "lag", "--timesteps", "128", "--n-envs", "2", "--eval-freq", "0",
+                 "--quiet", "--seed", "3"]) == 0
+    cfg = json.loads((tmp_path / "runs" / "train" / "pointmass-ppo-lag-s3" / "config.json").read_text())
+    assert cfg["method"]["name"] == "lag" and cfg["method"]["cost_unit_s"] == pytest.approx(0.01)
+
+
+@pytest.mark.parametrize("extra, words", [
+    (["--method", "lag", "--filter", "TABLE"], "trains without the safety filter"),
+    (["--method", "saute", "--algo", "sac"], "needs algo 'ppo'"),
+    (["--method", "lag", "--resume", "x/model.zip"], "cost critic"),
+])
+def test_train_method_refuses_what_it_cannot_train(tmp_path, capsys, extra, words):
+    """One line naming the problem, before any training (no run folder appears)."""
+    table = tmp_path / "t.srt"
+    table.touch()
+    extra = [str(table) if e == "TABLE" else e for e in extra]
+    assert _train(tmp_path, *extra) == 2
+    err = capsys.readouterr().err
+    assert words in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "run").exists()
+
+
+def test_train_method_is_a_choice(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "pointmass", "--method", "cpo"])
+    assert exc.value.code == 2 and "'cpo'" in capsys.readouterr().err
+
+
+def test_eval_own_budget_evaluates_a_fixed_q_run_only_at_its_q():
+    spec = SweepSpec(budgets=(None, 0.3, "0:0.6"), rules=("none",), seeds=(0,), eval_budgets=(0.06, 0.3),
+                     eval_winds=("random",), eval_own_budget=True)
+    spec.check()
+    by_budget = {r.budget: [ev.budget for ev in spec.run_evaluations(r)] for r in spec.runs()}
+    assert by_budget == {None: [0.06, 0.3], 0.3: [0.3], (0.0, 0.6): [0.06, 0.3]}
+    off = SweepSpec(budgets=(0.3,), rules=("none",), seeds=(0,), eval_budgets=(0.06, 0.3), eval_winds=("random",))
+    assert [ev.budget for ev in off.run_evaluations(off.runs()[0])] == [0.06, 0.3]
+    with pytest.raises(ValueError, match=r"Q=0\.45.*add 0\.45"):
+        SweepSpec(budgets=(0.45,), rules=("none",), seeds=(0,), eval_budgets=(0.06, 0.3), eval_winds=("random",),
+                  eval_own_budget=True).check()
+
+
+def test_eval_own_budget_from_the_command_line():
+    from softreach.agents.sweep_cli import spec_from_args
+    from softreach.cli import build_parser
+
+    args = build_parser().parse_args(["sweep", "--rules", "none", "--budgets", "default", "0.3", "--eval-own-budget"])
+    assert spec_from_args(args).eval_own_budget is True
+    args = build_parser().parse_args(["sweep", "--rules", "none"])
+    assert spec_from_args(args).eval_own_budget is False
+
+
+def test_sweep_keeps_a_training_and_evaluations_whose_worker_was_killed(tmp_path, monkeypatch):
+    """A worker killed while it evaluated leaves the finished training and the evaluations before the one in
+    flight: the rerun trains nothing and evaluates only what is missing."""
+    import softreach.agents.safe_train as safe_train
+    import softreach.agents.sweep_exec as sweep_exec
+
+    spec = SweepSpec(rules=("none",), budgets=(0.3,), seeds=(0,), timesteps=128, n_envs=2, overrides=TINY,
+                     eval_winds=("random",), eval_budgets=(0.06, 0.3), episodes=1)
+    run = spec.runs()[0]
+    evals = spec.run_evaluations(run)
+    run_dir = tmp_path / "runs" / run.run_id
+    real = sweep_exec._evaluate
+    seen: list[str] = []
+
+    def dies_on_the_second(r, ev, trained, d, cache):
+        seen.append(ev.eval_id)
+        if len(seen) == 2:
+            raise KeyboardInterrupt  # stands for the worker's death: nothing after this point is written
+        return real(r, ev, trained, d, cache)
+
+    monkeypatch.setattr(sweep_exec, "_evaluate", dies_on_the_second)
+    with pytest.raises(KeyboardInterrupt):
+        sweep_exec.run_one(run, evals, str(run_dir))
+    left = json.loads((run_dir / "result.json").read_text())
+    assert left["status"] == "running" and list(left["evaluations"]) == [evals[0].eval_id]
+    assert not sweep_exec.is_done(left, evals)
+
+    def no_training(*a, **k):
+        raise AssertionError("trained again")
+
+    monkeypatch.setattr(safe_train, "train_method", no_training)
+    monkeypatch.setattr(sweep_exec, "_evaluate", lambda *a: (seen.append(a[1].eval_id), real(*a))[1])
+    seen.clear()
+    res = sweep_exec.run_one(run, evals, str(run_dir))  # the record says: evaluate the second only
+    assert res["status"] == "done" and seen == [evals[1].eval_id] and sweep_exec.is_done(res, evals)
+    assert res["evaluations"][evals[0].eval_id] == left["evaluations"][evals[0].eval_id]
+
+    (run_dir / "result.json").unlink()  # a worker that died before writing any record: config.json says done
+    seen.clear()
+    res = sweep_exec.run_one(run, evals, str(run_dir))
+    assert res["status"] == "done" and seen == [ev.eval_id for ev in evals]
+    assert res["train"]["model_path"] == left["train"]["model_path"]
+    assert res["train"]["safety"] == left["train"]["safety"]
