@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 import pytest
 
 pytest.importorskip("stable_baselines3")
@@ -134,3 +136,47 @@ def test_sweep_keeps_a_training_and_evaluations_whose_worker_was_killed(tmp_path
     assert res["status"] == "done" and seen == [ev.eval_id for ev in evals]
     assert res["train"]["model_path"] == left["train"]["model_path"]
     assert res["train"]["safety"] == left["train"]["safety"]
+
+
+def test_pooled_mean_is_the_mean_and_interval_of_every_episode():
+    """From the seeds' (mean, std, n) alone, the pooled mean and its t interval equal those of the raw episodes."""
+    from scipy import stats
+
+    from softreach.agents.sweep_methods import pooled_mean
+
+    rng = np.random.default_rng(5)
+    seeds = [rng.normal(loc, 3.0, n) for loc, n in ((10.0, 20), (14.0, 17), (7.0, 25))]
+    rows = [{"return_mean": float(v.mean()), "return_std": float(v.std(ddof=1)), "return_n": len(v)} for v in seeds]
+    every = np.concatenate(seeds)
+    got = pooled_mean(rows, "return")
+    low, high = stats.t.interval(0.95, len(every) - 1, loc=every.mean(), scale=stats.sem(every))
+    assert got["n"] == 62 and got["mean"] == pytest.approx(every.mean(), rel=1e-12)
+    assert (got["low"], got["high"]) == (pytest.approx(low, rel=1e-10), pytest.approx(high, rel=1e-10))
+    assert pooled_mean([{"return_mean": None, "return_std": None, "return_n": 0}], "return") is None
+
+
+def test_method_table_pools_the_seeds_of_each_recipe_and_deployment():
+    from softreach.agents.sweep_methods import method_lines
+
+    def row(method, rule, budget, filt, seed, landed, hard, over, ret):
+        r = {"status": "done", "method": method, "rule": rule, "algo": "ppo", "budget": budget, "seed": seed,
+             "eval_wind": "adversarial", "eval_budget": 0.3, "eval_filter": filt,
+             "landing_rate_count": landed, "landing_rate_n": 20, "hard_violation_rate_count": hard,
+             "hard_violation_rate_n": 20, "over_budget_rate_count": over, "over_budget_rate_n": 20,
+             "intervention_rate_mean": 0.02 if filt == "on" else None, "train_hard_per_100k": 400.0 + seed,
+             "train_over_per_100k": 200.0}
+        for name, m in (("return", ret), ("control_effort", 0.3), ("time_to_land", 0.7)):
+            r.update({f"{name}_mean": m, f"{name}_std": 1.0, f"{name}_n": landed if name == "time_to_land" else 20})
+        return r
+
+    rows = [row("lag", "none", "default", "off", s, 18 + s, 2 - s, 3, 140.0 + s) for s in (0, 1)] + \
+           [row("lag", "none", "default", "on", s, 20, 0, 0, 150.0) for s in (0, 1)] + \
+           [row("plain", "switch", "0.3", "on", 0, 20, 0, 0, 155.0)]
+    lines = method_lines(rows)
+    assert len(lines) == 2 + 3
+    lag_alone = next(x for x in lines if "PPO-Lagrangian, Q drawn per episode | alone" in x)
+    cells = [c.strip() for c in lag_alone.split("|")]
+    assert cells[1] == "adversarial, 0.3" and cells[4] == "2"
+    assert cells[5].startswith("92% [") and cells[6] == "3/40" and cells[7] == "6/40"  # 37 of 40 landed
+    assert cells[8].startswith("140.5 [") and cells[-2] == "400, 200"
+    assert any("PPO trained under the filter (switch), trained at Q = 0.3 | + filter | 1 | 100%" in x for x in lines)

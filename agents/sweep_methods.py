@@ -1,0 +1,112 @@
+"""The budget comparison's table in a sweep's report: per evaluation setting (wind, ``Q``), one row per recipe
+(training method, filter rule during training, training budget) and deployment (with or without the filter),
+its seeds pooled.
+
+Intervals, 95 %: rates (landing, hard violations, overspends) pool the seeds' episodes (Wilson); the return,
+control effort and time to land give the interval over the pooled episodes (Student t of the pooled mean, from
+each seed's mean, standard deviation and count) and the interval over the seeds' means (Student t of the seed
+means, :func:`~softreach.agents.statistics.mean_ci`), which is the one that says how much a retrained policy may
+differ.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import numpy as np
+
+from .statistics import mean_ci, wilson
+
+#: the baselines' names in the table
+BASELINES = {"lag": "PPO-Lagrangian", "saute": "PPO-Saute"}
+
+
+def recipe(row: dict[str, Any]) -> str:
+    """How a run trained, in words: the method, the filter during training and the training budget."""
+    method = row.get("method") or "plain"
+    if method in BASELINES:
+        name = BASELINES[method]
+    elif row["rule"] == "none":
+        name = f"{row['algo'].upper()} learned without the filter"
+    else:
+        name = f"{row['algo'].upper()} trained under the filter ({row['rule']})"
+    budget = str(row["budget"])
+    return f"{name}, {'Q drawn per episode' if budget == 'default' else f'trained at Q = {budget}'}"
+
+
+def pooled_mean(rows: Sequence[dict[str, Any]], name: str, lower: float = -math.inf) -> dict[str, Any] | None:
+    """The mean of every episode of ``rows`` with its Student-t 95 % interval, from each row's ``<name>_mean``,
+    ``_std`` and ``_n`` (the pooled variance: within-row sums of squares plus the rows' spread about the pooled
+    mean); ``None`` without episodes."""
+    parts = [(int(r[f"{name}_n"]), float(r[f"{name}_mean"]), float(r[f"{name}_std"] or 0.0)) for r in rows
+             if r.get(f"{name}_n") not in (None, "", 0) and r.get(f"{name}_mean") not in (None, "")]
+    n = sum(k for k, _, _ in parts)
+    if n == 0:
+        return None
+    m = sum(k * v for k, v, _ in parts) / n
+    if n == 1:
+        return {"mean": m, "low": m, "high": m, "n": 1}
+    from scipy.stats import t as student
+
+    ss = sum((k - 1) * s * s + k * (v - m) ** 2 for k, v, s in parts)
+    half = float(student.ppf(0.975, n - 1)) * math.sqrt(ss / (n - 1) / n)
+    return {"mean": m, "low": max(m - half, lower), "high": m + half, "n": n}
+
+
+def _num(x: Any) -> float | None:
+    return None if x in (None, "") else float(x)
+
+
+def _rate(rows: Sequence[dict[str, Any]], name: str) -> tuple[int, int]:
+    return (sum(int(r[f"{name}_count"]) for r in rows), sum(int(r[f"{name}_n"]) for r in rows))
+
+
+def _both(rows: Sequence[dict[str, Any]], name: str, digits: int, lower: float = -math.inf) -> str:
+    """``mean [episodes' interval] [seeds' interval]``."""
+    ep = pooled_mean(rows, name, lower)
+    if ep is None:
+        return "—"
+    seeds = mean_ci([_num(r[f"{name}_mean"]) for r in rows], lower=lower)
+    f = f"{{:.{digits}f}}"
+    return (f"{f.format(ep['mean'])} [{f.format(ep['low'])}, {f.format(ep['high'])}] "
+            f"[{f.format(seeds['low'])}, {f.format(seeds['high'])}]")
+
+
+def method_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """The markdown table (see the module docstring); finished rows only, grouped by evaluation wind and ``Q``."""
+    done = [r for r in rows if r["status"] == "done"]
+    if not done:
+        return []
+    head = ["| wind, `Q` | recipe | deployed | seeds | landed | hard | over `Q` | return [episodes] [seeds] | "
+            "control effort [episodes] [seeds] | time to land [s] [episodes] [seeds] | interventions | training: "
+            "hard, over `Q` per 100k steps |", "|---" * 12 + "|"]
+    lines = []
+    settings: dict[tuple, dict[tuple, list[dict[str, Any]]]] = {}
+    for r in done:
+        q = _num(r["eval_budget"])
+        key = (r["eval_wind"], "drawn" if q is None else f"{q:g}")
+        settings.setdefault(key, {}).setdefault((recipe(r), r["eval_filter"]), []).append(r)
+    for (wind, q), groups in settings.items():
+        first = True
+        for (name, filt), rs in groups.items():
+            landed, n = _rate(rs, "landing_rate")
+            hard, _ = _rate(rs, "hard_violation_rate")
+            over, _ = _rate(rs, "over_budget_rate")
+            w = wilson(landed, n)
+            inter = [_num(r["intervention_rate_mean"]) for r in rs if _num(r.get("intervention_rate_mean")) is not None]
+            trained = [(_num(r["train_hard_per_100k"]), _num(r["train_over_per_100k"])) for r in rs
+                       if _num(r.get("train_hard_per_100k")) is not None]
+            lines.append(
+                f"| {f'{wind}, {q}' if first else ''} | {name} | {'+ filter' if filt == 'on' else 'alone'} | "
+                f"{len({r['seed'] for r in rs})} | {100 * w['value']:.0f}% [{100 * w['low']:.0f}, "
+                f"{100 * w['high']:.0f}] | {hard}/{n} | {over}/{n} | {_both(rs, 'return', 1)} | "
+                f"{_both(rs, 'control_effort', 3, 0.0)} | {_both(rs, 'time_to_land', 3, 0.0)} | "
+                f"{f'{100 * np.mean(inter):.1f} %' if inter else '—'} | "
+                + (f"{np.mean([h for h, _ in trained]):.0f}, {np.mean([o for _, o in trained]):.0f}" if trained else "—")
+                + " |")
+            first = False
+    return head + lines
+
+
+__all__ = ["BASELINES", "method_lines", "pooled_mean", "recipe"]
