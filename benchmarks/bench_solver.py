@@ -62,6 +62,22 @@ def stream_copy_gbs(mb: int = 256, repeats: int = 5) -> float:
     return 2 * a.nbytes / best / 1e9
 
 
+def device_copy_gbs(device: str, mb: int = 1024, repeats: int = 10) -> float:
+    """GB/s of a device-to-device copy between two ``mb`` MB float32 tensors (bytes read and written), the mean of
+    ``repeats`` after one warm-up: what the GPU's memory moves."""
+    import torch
+
+    a = torch.ones(mb * 2**20 // 4, device=device)
+    b = torch.empty_like(a)
+    b.copy_(a)
+    torch.cuda.synchronize()
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        b.copy_(a)
+    torch.cuda.synchronize()
+    return 2 * a.numel() * 4 * repeats / (time.perf_counter() - t0) / 1e9
+
+
 def _soft_cli_worker(args) -> dict:
     """``softreach solve`` in this process, with the fused stepper's loops counted and timed."""
     from softreach.cli import main as cli_main
@@ -87,6 +103,32 @@ def _soft_cli_worker(args) -> dict:
         return run
 
     FS.rate, FS.step, FS._rate = timed(FS.rate), timed(FS.step), counted(FS._rate)
+    if args.device.startswith("cuda"):  # the GPU's kernels: a march is timed to its end on the device
+        import torch
+
+        from softreach.reach import gpu
+
+        CS = gpu.CudaStepper
+
+        def synced(original):
+            def run(self, *a, **k):
+                torch.cuda.synchronize()
+                t0 = time.perf_counter()
+                try:
+                    return original(self, *a, **k)
+                finally:
+                    torch.cuda.synchronize()
+                    stats["stepping_s"] += time.perf_counter() - t0
+            return run
+
+        def stages(original):
+            def run(self, *a, **k):
+                stats["stages"] += len(self._stages)
+                stats["nodes_stages"] += len(self._stages) * self.u.numel()
+                return original(self, *a, **k)
+            return run
+
+        CS.march, CS.step = synced(CS.march), stages(CS.step)
     out = Path(args.out)
     argv = ["solve", "pointmass", "--grid", *map(str, args.grid), "--budget-points", str(args.budget_points),
             "--accuracy", args.accuracy, "--device", args.device, "--out", str(out), "--json", str(out) + ".json",
@@ -255,8 +297,12 @@ def compare(args) -> None:
         if peer_python:
             rows.append(_run("peer", args, peer_python) | {"run": "-"})
     # measured after the solvers: a child process reports the parent's peak memory as its own floor
-    gbs = stream_copy_gbs()
-    print(f"stream copy (numpy, 1 thread): {gbs:.1f} GB/s (load {_load()})")
+    if args.device.startswith("cuda"):
+        gbs = device_copy_gbs(args.device)
+        print(f"device copy (torch, {args.device}): {gbs:.1f} GB/s (load {_load()})")
+    else:
+        gbs = stream_copy_gbs()
+        print(f"stream copy (numpy, 1 thread): {gbs:.1f} GB/s (load {_load()})")
     what = "V" if args.game == "V" else "W_eps"
     print(f"point mass {what}, grid {'x'.join(map(str, args.grid))}{'' if args.game == 'V' else 'x' + str(args.budget_points)}, "
           f"accuracy {args.accuracy}, device {args.device}")

@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # The whole GPU comparison of issue 40 in one go (softreach and hj_reachability, every row), under 8 minutes on one
-# H100: prints the device, then one table per row (bench_solver.py: whole `softreach solve` process against the
+# H100 or H200 (the per-row limits add up to 7.5 minutes): prints the device, then one table per row (bench_solver.py: whole `softreach solve` process against the
 # peer's solve, same accuracy preset, horizon and projection; cold = empty compile caches, warm = from them).
 #
 # On the lent GPU machine (its python3 holds CUDA torch, JAX and numba; nothing can be fetched there), from the repo
 # root, with the peer's wheel carried (.whl/, made here by
-# `pip download --no-deps hj-reachability==0.7.0 -d .whl`):
+# `pip download --no-deps --only-binary=:all: --python-version 3.12 -d .whl hj-reachability==0.7.0 gymnasium==1.4.0
+# farama-notifications stable-baselines3==2.9.2`):
 #
 #     bash benchmarks/gpu_compare.sh            # run tool: carry [".whl"], timeout_s 540
 #
@@ -17,9 +18,10 @@ LOG=${OUT:-/tmp/gpu_compare}
 mkdir -p "$LOG"
 PY=${PYTHON:-python3}
 
-# the peer, and softreach importable without pip: a softreach package of links to the repo's folders
-if ls .whl/hj_reachability-*.whl >/dev/null 2>&1; then
-  $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/hj_reachability-*.whl
+# the peer and what the machine lacks (gymnasium, stable-baselines3: the command line imports them), from the carried
+# wheels; softreach importable without pip: a softreach package of links to the repo's folders
+if ls .whl/*.whl >/dev/null 2>&1; then
+  $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl
 fi
 rm -rf /tmp/sr && mkdir -p /tmp/sr/softreach && cp -r src/softreach/. /tmp/sr/softreach/
 for d in reach envs filters agents; do ln -sfn "$PWD/$d" "/tmp/sr/softreach/$d"; done
@@ -46,15 +48,20 @@ except Exception as exc:
 EOF
 } 2>&1 | tee "$LOG/device.txt"
 
+# the CUDA kernels against the CPU loops, and the stepping of the paper grid alone
+echo "=== gpu_check ($(date -u +%T))"
+timeout 150 env SOFTREACH_CACHE=$CACHE/check $PY benchmarks/gpu_check.py 2>&1 | tee "$LOG/gpu_check.txt" \
+  || echo "!!! gpu_check: failed or over 150 s"
+
 B="$PY benchmarks/bench_solver.py --device cuda --peer-python $PY --threads 1 --cache-dir $CACHE --accuracy very_high"
 row() {  # row NAME SECONDS ARGS...
   local name=$1 limit=$2; shift 2
   echo "=== $name ($(date -u +%T))"
   timeout "$limit" $B "$@" 2>&1 | tee "$LOG/$name.txt" || echo "!!! $name: failed or over ${limit} s"
 }
-row pointmass_W_101 120 --grid 101 101 --budget-points 111           # cold + warm + peer
+row pointmass_W_101 100 --grid 101 101 --budget-points 111           # cold + warm + peer
 row pointmass_V_101 45 --grid 101 101 --game V --no-cold             # V compiled by the row above
-row paper_W_300 200 --grid 300 300 --budget-points 200               # cold + warm + peer
+row paper_W_300 120 --grid 300 300 --budget-points 200               # cold + warm + peer
 row paper_V_300 45 --grid 300 300 --game V --no-cold
 
 # the glider: softreach only (the peer has no model of it), whole process, warm after one cold run of each
@@ -62,7 +69,7 @@ for what in W V; do
   extra=$([ $what = V ] && echo --classical)
   for run in cold warm; do
     t0=$(date +%s.%N)
-    timeout 120 env SOFTREACH_CACHE=$CACHE/cache TRITON_CACHE_DIR=$CACHE/triton \
+    timeout 60 env SOFTREACH_CACHE=$CACHE/cache TRITON_CACHE_DIR=$CACHE/triton \
       $PY -m softreach.cli solve glider --device cuda --quiet --no-resume --out /tmp/glider.srt $extra \
       >"$LOG/glider_${what}_${run}.txt" 2>&1 || echo "!!! glider $what $run failed"
     echo "glider default $what ($run): $(awk -v a="$t0" -v b="$(date +%s.%N)" 'BEGIN{printf "%.1f", b - a}') s whole process" \

@@ -13,7 +13,7 @@ that read.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Callable
 
 from . import backend as B
 
@@ -42,15 +42,32 @@ def march_on_device(step: Any, cfl: float, t: float, u: Any, target: float, prog
     the host reads the device (one synchronisation) only after each batch of steps."""
     torch = B.torch
     f64 = dict(dtype=torch.float64, device=u.device)
-    tt, stop = torch.tensor(t, **f64), torch.tensor(target, **f64)
-    tol = torch.tensor(1e-12 * max(1.0, abs(target)), **f64)
-    bad = torch.zeros((), dtype=torch.bool, device=u.device)
+    state = {"u": u, "t": torch.tensor(t, **f64), "bad": torch.zeros((), dtype=torch.bool, device=u.device)}
+    stop, tol = torch.tensor(target, **f64), torch.tensor(1e-12 * max(1.0, abs(target)), **f64)
+
+    def advance(steps: int) -> tuple[float, bool]:
+        for _ in range(steps):
+            state["u"], state["t"], state["bad"] = step(state["u"], state["t"], stop, tol, state["bad"])
+        return float(state["t"]), bool(state["bad"])  # the one synchronisation of a batch
+
+    march_in_batches(advance, t, target, progress)
+    return state["u"]
+
+
+def march_in_batches(advance: Callable[[int], tuple[float, bool]], t: float, target: float,
+                     progress: Any = None) -> None:
+    """Run steps that choose their own length on the device, in batches, until the device time reaches ``target``.
+
+    :param advance: ``advance(n)`` launches ``n`` steps and returns the device time after them and whether a speed
+        was not finite: the one read of the device per batch
+    :param t: the time the value is at
+    :param progress: optional object with ``update(seconds_of_model_time)``
+    :raises FloatingPointError: a step's CFL speed was not finite
+    """
     done_to = t
     batch = 1  # the first batch is one step, whose length sizes the next
     while True:
-        for _ in range(batch):
-            u, tt, bad = step(u, tt, stop, tol, bad)
-        now, failed = float(tt), bool(bad)  # the one synchronisation of a batch
+        now, failed = advance(batch)
         if failed:
             raise FloatingPointError(f"the dissipation speed is not finite between t = {done_to:.6g} and {now:.6g}: "
                                      f"the value or the model's dissipation is not finite (a NaN in the table or "
@@ -58,7 +75,7 @@ def march_on_device(step: Any, cfl: float, t: float, u: Any, target: float, prog
         if progress is not None:
             progress.update(max(0.0, min(done_to - now, (progress.total or math.inf) - progress.n)))
         if now - target <= 1e-12 * max(1.0, abs(target)):
-            return u
+            return
         # the steps so far predict the rest: a speed that does not change needs exactly this many
         per_step = (done_to - now) / batch
         batch = max(1, math.ceil((now - target) / per_step - 1e-9)) if per_step > 0 else 1

@@ -77,8 +77,11 @@ def _loops(ndim: int, first: str, indent: int, skip: int | None = None) -> tuple
     return lines, pad
 
 
-def _rate_source(op: Any, width: int) -> list[str]:
-    """``rate_rows(lo, hi, up, out, xs..., inv, h, t, speed, acc)``: the rate and the CFL speed at rows ``lo:hi``."""
+def rate_body(op: Any, width: int) -> tuple[list[str], str, str]:
+    """The rate at node ``(i0, i1, ...)`` as straight-line code: ``(lines, rate, speed)``, the lines reading the
+    stencil of every axis from the padded ``up`` (ghost width ``W``), the coordinates ``x<a>v``, the steps ``h<a>``,
+    ``inv<a> = 1 / h<a>`` and ``t``; ``rate`` and ``speed`` the expressions of the node's rate and CFL speed. The
+    CPU loops here and the GPU kernels (:mod:`softreach.reach.gpu`) put the same lines in their own loops."""
     D = op.grid.ndim
     fn = SCHEMES[op.settings.scheme][1]
     tape = Tape()
@@ -94,6 +97,13 @@ def _rate_source(op: Any, width: int) -> list[str]:
     xs = [tape.var(f"x{a}v") for a in range(D)]
     hs = [tape.var(f"h{a}") for a in range(D)]
     out, speed = op.numerical_hamiltonian(tape.var("t"), xs, hs, lefts, rights)
+    return loads + tape.lines, tape.value(out), tape.value(speed)
+
+
+def _rate_source(op: Any, width: int) -> list[str]:
+    """``rate_rows(lo, hi, up, out, xs..., inv, h, t, speed, acc)``: the rate and the CFL speed at rows ``lo:hi``."""
+    D = op.grid.ndim
+    body, out, speed = rate_body(op, width)
     args = ", ".join(f"x{a}" for a in range(D))
     src = [f"@nb.njit(**_JIT)", f"def rate_rows(lo, hi, up, out, {args}, inv, h, t, speed, acc):", f"    W = {width}"]
     src += [f"    n{a} = out.shape[{a}]" for a in range(D)]
@@ -109,37 +119,59 @@ def _rate_source(op: Any, width: int) -> list[str]:
     src += loops
     for a in range(1, D):
         src.append(f"{pad}x{a}v = x{a}[i{a}]")
-    src += [pad + line for line in loads + tape.lines]
+    src += [pad + line for line in body]
     node = ", ".join(f"i{b}" for b in range(D))
-    src += [f"{pad}h_out = {tape.value(out)}", f"{pad}out[{node}] = h_out",
-            f"{pad}top[{last}] = max(top[{last}], {tape.value(speed)})", f"{pad}total[{last}] += h_out"]
+    src += [f"{pad}h_out = {out}", f"{pad}out[{node}] = h_out",
+            f"{pad}top[{last}] = max(top[{last}], {speed})", f"{pad}total[{last}] += h_out"]
     src += ["        speed[i0] = top.max()" if D > 1 else "        speed[i0] = top[i0]",
             "        acc[i0] = total.sum()" if D > 1 else "        acc[i0] = total[i0]"]
     return src
 
 
-def _stage_sources(op: Any, width: int) -> tuple[list[str], dict[tuple[float, float], str]]:
-    """One ``stage_<k>(lo, hi, u, up, r, l, c, dt, write_u)`` per distinct ``(a, b)`` of
-    :data:`~softreach.reach.solver.RK_STAGES`: the projected stage value into the padded copy (and into ``u``)."""
-    from .solver import RK_STAGES, project_values, stage_value
+def stage_pairs() -> list[tuple[float, float]]:
+    """The distinct ``(a, b)`` of :data:`~softreach.reach.solver.RK_STAGES`, in the order of their kernels."""
+    from .solver import RK_STAGES
 
+    return sorted({(a, b) for stages in RK_STAGES.values() for a, b, _ in stages})
+
+
+def stage_body(a: float, b: float) -> tuple[list[str], str]:
+    """The projected stage value ``P(a uv + b (pv + dt rv))`` of one node from ``uv``, ``pv``, ``rv``, ``lv``, ``cv``
+    and ``dt``, as ``(lines, value)``."""
+    from .solver import project_values, stage_value
+
+    tape = Tape()
+    v = project_values(tape.var("lv"), tape.var("cv"),
+                       stage_value(a, b, tape.var("uv"), tape.var("pv"), tape.var("dt"), tape.var("rv")))
+    return tape.lines, tape.value(v)
+
+
+def ghost_body(rule: Any, end: str, width: int) -> tuple[list[str], list[str]]:
+    """The ``width`` ghost values beyond one end (``end``: ``"lo"`` or ``"hi"``) under a non-periodic ``rule``
+    (:func:`~softreach.reach.derivatives.ghost`), from the edge value ``e_<end>`` and the next one ``i_<end>``:
+    ``(lines, values)``, nearest the edge first."""
+    tape = Tape()
+    values = [ghost(rule, tape.var(f"e_{end}"), tape.var(f"i_{end}"), k) for k in range(1, width + 1)]
+    return _renamed(tape.lines, f"g{end}_"), [_renamed([tape.value(v)], f"g{end}_")[0] for v in values]
+
+
+def _stage_sources(op: Any, width: int) -> tuple[list[str], dict[tuple[float, float], str]]:
+    """One ``stage_<k>(lo, hi, u, up, r, l, c, dt, write_u)`` per pair of :func:`stage_pairs`: the projected stage
+    value into the padded copy (and into ``u``)."""
     D = op.grid.ndim
-    pairs = sorted({(a, b) for stages in RK_STAGES.values() for a, b, _ in stages})
     src, names = [], {}
     node = ", ".join(f"i{b}" for b in range(D))
     inner = _index(D, None, "", " + W")
-    for k, (a, b) in enumerate(pairs):
-        tape = Tape()
-        v = project_values(tape.var("lv"), tape.var("cv"),
-                           stage_value(a, b, tape.var("uv"), tape.var("pv"), tape.var("dt"), tape.var("rv")))
+    for k, (a, b) in enumerate(stage_pairs()):
+        lines, v = stage_body(a, b)
         names[(a, b)] = f"stage_{k}"
         src += ["@nb.njit(**_JIT)", f"def stage_{k}(lo, hi, u, up, r, l, c, dt, write_u):", f"    W = {width}"]
         src += [f"    n{d} = u.shape[{d}]" for d in range(D)]
         loops, pad = _loops(D, "range(lo, hi)", 4)
         src += loops
         src += [f"{pad}uv = u[{node}]", f"{pad}pv = up[{inner}]", f"{pad}rv = r[{node}]", f"{pad}lv = l[{node}]",
-                f"{pad}cv = c[{node}]"] + [pad + line for line in tape.lines]
-        src += [f"{pad}v = {tape.value(v)}", f"{pad}up[{inner}] = v", f"{pad}if write_u:", f"{pad}    u[{node}] = v"]
+                f"{pad}cv = c[{node}]"] + [pad + line for line in lines]
+        src += [f"{pad}v = {v}", f"{pad}up[{inner}] = v", f"{pad}if write_u:", f"{pad}    u[{node}] = v"]
     return src, names
 
 
@@ -163,12 +195,10 @@ def _ghost_sources(op: Any, width: int) -> list[str]:
         lo_rule, hi_rule = (rule, rule) if isinstance(rule, str) else rule
         for end, r, edge, inner, place in (("lo", lo_rule, "W", "W + 1", "W - {k}"),
                                            ("hi", hi_rule, f"{n} + W - 1", f"{n} + W - 2", f"{n} + W - 1 + {{k}}")):
-            tape = Tape()
-            values = [ghost(r, tape.var(f"e_{end}"), tape.var(f"i_{end}"), k) for k in range(1, width + 1)]
-            src += [f"{pad}e_{end} = {at(edge)}", f"{pad}i_{end} = {at(inner)}"]
-            src += [pad + line for line in _renamed(tape.lines, f"g{end}_")]
+            lines, values = ghost_body(r, end, width)
+            src += [f"{pad}e_{end} = {at(edge)}", f"{pad}i_{end} = {at(inner)}"] + [pad + line for line in lines]
             for k, v in enumerate(values, start=1):
-                src.append(f"{pad}{at(place.format(k=k))} = {_renamed([tape.value(v)], f'g{end}_')[0]}")
+                src.append(f"{pad}{at(place.format(k=k))} = {v}")
     return src
 
 

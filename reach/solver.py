@@ -304,6 +304,8 @@ def march(stepper: "Stepper", t: float, u: Array, target: float, progress: Any =
     The one time-integration loop of the solver: the continuous solve and every sub-solve of the sampled-data
     game (:mod:`softreach.reach.held`) run it.
     """
+    if stepper.cuda is not None:
+        return stepper.cuda.march(t, u, target, progress)
     if stepper.compiled and DEVICE_LOOP:
         from .device_loop import march_on_device
 
@@ -340,23 +342,26 @@ DEVICE_LOOP = True
 #: for every later process; smaller grids run the array code, fast enough there
 FUSED_MIN_NODES = 10_000
 #: the ways :class:`Stepper` runs a step: ``"fused"`` (compiled loops on a CPU, :mod:`softreach.reach.fused`),
-#: ``"compile"`` (``torch.compile``, the GPU's), ``"eager"``
-ENGINES = ("fused", "compile", "eager")
+#: ``"cuda"`` (CUDA kernels from the same node code, a GPU's, :mod:`softreach.reach.gpu`), ``"compile"``
+#: (``torch.compile``: a GPU's where the CUDA kernels are not at hand), ``"eager"``
+ENGINES = ("fused", "cuda", "compile", "eager")
 #: what compiled code means on a CPU: ``"fused"``, or ``"compile"`` to run the GPU's ``torch.compile`` step there
 #: (its tests do, so that it stays right between GPU measurements)
 CPU_ENGINE = "fused"
 
 
 class Stepper:
-    """Runs :func:`tvd_rk_step`: on a CPU as compiled loops (:mod:`softreach.reach.fused`), elsewhere fused by
-    ``torch.compile`` where that is enabled and possible, else eagerly.
+    """Runs :func:`tvd_rk_step`: on a CPU as compiled loops (:mod:`softreach.reach.fused`), on a GPU as CUDA kernels
+    from the same node code (:mod:`softreach.reach.gpu`) or, where those are not at hand, fused by ``torch.compile``;
+    else eagerly.
 
     A compiled graph must not see a changing Python float (it would recompile every step), so the ``torch.compile``
     path passes ``dt`` as a 0-d tensor and is used only for time-invariant problems, where ``t`` is irrelevant.
 
     :param engine: one of :data:`ENGINES`; ``None`` chooses: ``settings.compile`` (``None``: grids of
         :data:`FUSED_MIN_NODES` nodes or more on a CPU, 90,000 elsewhere) asks for compiled code, which is
-        ``"fused"`` on a CPU where the model's code records pointwise and ``"compile"`` otherwise
+        ``"fused"`` on a CPU where the model's code records pointwise and ``"compile"`` otherwise; on a GPU
+        ``"cuda"`` wherever ``settings.compile`` is not ``False`` and the kernels compile
     """
 
     def __init__(self, op: HamiltonianOperator, settings: SolverSettings, engine: str | None = None):
@@ -367,7 +372,16 @@ class Stepper:
         on_cpu = settings.device == "cpu" and CPU_ENGINE == "fused"
         if want is None:
             want = op.grid.size >= (FUSED_MIN_NODES if on_cpu else 90_000)
-        self.fused = None
+        self.fused = self.cuda = None
+        # the CUDA kernels compile once per model and scheme and are cached on disk: any grid on a GPU takes them
+        if engine == "cuda" or (engine is None and settings.compile is not False and settings.backend == "torch"
+                                and str(settings.device).startswith("cuda")):
+            from .gpu import cuda_stepper
+
+            self.cuda = cuda_stepper(op, settings, required=engine == "cuda")
+            if self.cuda is not None:
+                self.engine, self.compiled = "cuda", False
+                return
         if engine == "fused" or (engine is None and want and on_cpu):
             from .fused import fused_stepper
 
