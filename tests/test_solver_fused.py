@@ -10,6 +10,7 @@ import pytest
 
 from softreach.reach import Grid, SolverSettings, budget_axis, classical_problem, get_model, soft_problem, solve
 from softreach.reach.problem import ReachAvoidProblem
+from softreach.reach.fused import Rows
 from softreach.reach.solver import HamiltonianOperator, Stepper
 from softreach.reach.trace import Tape, Unsupported
 
@@ -117,6 +118,7 @@ def test_fused_loops_per_step():
     stepper = Stepper(op, st)
     calls: dict[str, int] = {}
     fs = stepper.fused
+    fs.rows = Rows(1)  # one call a loop: with more threads each loop is called once per chunk of rows
     module = fs.kernels
 
     def counted(name):
