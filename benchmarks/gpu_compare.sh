@@ -11,10 +11,10 @@
 #     bash benchmarks/gpu_compare.sh            # run tool: carry [".whl"], timeout_s 540
 #
 # Each row has its own time limit, so that one slow row cannot take the others with it. Logs go to $OUT (or
-# /tmp/gpu_compare) as well as to the terminal.
+# /tmp/gpu_compare) as well as to the terminal; on the lent machine: `bash benchmarks/gpu_compare.sh 2>&1 | tee $OUT/all.log`.
 set -u
 export PYTHONUNBUFFERED=1
-LOG=${OUT:-/tmp/gpu_compare}
+LOG=${GPU_LOG:-/tmp/gpu_compare}
 mkdir -p "$LOG"
 PY=${PYTHON:-python3}
 
