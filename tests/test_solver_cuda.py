@@ -2,8 +2,8 @@
 loops it shares its node code with, the host loop's steps, a fixed number of kernel launches per step and one read of
 the device per batch of steps.
 
-The simulator is switched on by ``NUMBA_ENABLE_CUDASIM=1`` before numba is imported, so each check runs in a fresh
-interpreter (``_run``)."""
+The simulator is switched on by ``NUMBA_ENABLE_CUDASIM=1`` before numba is imported, so the checks run in a fresh
+interpreter (the ``simulated`` fixture)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,6 @@ import json
 import os
 import subprocess
 import sys
-import textwrap
 
 import pytest
 
@@ -53,27 +52,51 @@ def both(problem, grid, t, target, start=None, **kw):
 '''
 
 
-def _run(body: str) -> dict:
+_CASES = '''
+out = {}
+m = get_model("pointmass")
+z = budget_axis(m.horizon, 8)
+g = Grid(tuple(m.domain[0]) + (z[0],), tuple(m.domain[1]) + (z[1],), (9, 8, 8))
+a, b, launches, steps, reads = both(soft_problem(m, 1e-3, m.budget_scale), g, 1.0, 0.96, scheme="weno5")
+out["weno5"] = {"diff": float(np.abs(a - b).max()), "scale": float(np.abs(b).max()), "launches": launches,
+                "steps": steps, "reads": reads}
+
+d = get_model("dubins")
+g = Grid(tuple(d.domain[0]), tuple(d.domain[1]), (9, 8, 10), periodic=d.periodic_axes())
+a, b, launches, steps, reads = both(classical_problem(d), g, d.horizon, d.horizon - 0.05, scheme="eno2",
+                                   time_order=2)
+out["periodic"] = {"periodic": list(g.periodic), "diff": float(np.abs(a - b).max()),
+                   "scale": float(np.abs(b).max()), "launches": launches, "steps": steps}
+
+g = Grid(tuple(m.domain[0]), tuple(m.domain[1]), (9, 8))
+op, st = operator(classical_problem(m), g, scheme="first", time_order=1)
+gpu = Stepper(op, st, engine="cuda")
+u = op.terminal(1.0).clone()
+u[4, 4] = float("nan")
+try:
+    march(gpu, 1.0, u, 0.9)
+    out["nan"] = None
+except FloatingPointError as exc:
+    out["nan"] = str(exc)
+print(json.dumps(out))
+'''
+
+
+@pytest.fixture(scope="module")
+def simulated() -> dict:
+    """The three cases below, run once in a fresh interpreter with numba-cuda's simulator switched on."""
     env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "OMP_NUM_THREADS": "1"}
-    code = _PRELUDE + textwrap.dedent(body)
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
+    r = subprocess.run([sys.executable, "-c", _PRELUDE + _CASES], capture_output=True, text=True, env=env, timeout=600)
     assert r.returncode == 0, r.stderr[-4000:]
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
-def test_cuda_kernels_march_the_point_mass_as_the_cpu_loops():
-    """``W_eps`` (WENO5, RK3, float32) on a grid whose axes all differ in length, so that a transposed index or a
-    wrong ghost layer shows: every value equal to the CPU loops' (the simulator rounds as they do), the host loop's
-    number of steps, ten launches a step (three rates, the clock, three stages, three ghost refreshes) and at most
-    three reads of the device for the whole march."""
-    out = _run('''
-        m = get_model("pointmass")
-        z = budget_axis(m.horizon, 8)
-        g = Grid(tuple(m.domain[0]) + (z[0],), tuple(m.domain[1]) + (z[1],), (11, 9, 8))
-        a, b, launches, steps, reads = both(soft_problem(m, 1e-3, m.budget_scale), g, 1.0, 0.94, scheme="weno5")
-        print(json.dumps({"diff": float(np.abs(a - b).max()), "scale": float(np.abs(b).max()),
-                          "launches": launches, "steps": steps, "reads": reads}))
-    ''')
+def test_cuda_kernels_march_the_point_mass_as_the_cpu_loops(simulated):
+    """``W_eps`` (WENO5, RK3, float32) on a grid whose axes differ in length, so that a transposed index or a wrong
+    ghost layer shows: every value equal to the CPU loops' (the simulator rounds as they do), the host loop's number
+    of steps, ten launches a step (three rates, the clock, three stages, three ghost refreshes) and at most three
+    reads of the device for the whole march."""
+    out = simulated["weno5"]
     assert out["scale"] > 1.0
     assert out["diff"] == 0.0
     assert out["steps"] >= 2
@@ -83,36 +106,16 @@ def test_cuda_kernels_march_the_point_mass_as_the_cpu_loops():
     assert out["launches"] == 1 + 10 * out["steps"]
 
 
-def test_cuda_kernels_on_a_periodic_axis_and_two_stage_scheme():
+def test_cuda_kernels_on_a_periodic_axis_and_two_stage_scheme(simulated):
     """A periodic angle (the Dubins car's ``V``, ENO2/RK2): the ghost kernel wraps the angle and extrapolates the
     other axes; the values agree with the CPU loops to float32 rounding (``math.cos`` runs in double precision in
     the simulator, ``np.cos`` in single on the CPU), and a RK2 step is seven launches."""
-    out = _run('''
-        m = get_model("dubins")
-        g = Grid(tuple(m.domain[0]), tuple(m.domain[1]), (9, 8, 10), periodic=m.periodic_axes())
-        assert g.periodic[-1]
-        a, b, launches, steps, reads = both(classical_problem(m), g, m.horizon, m.horizon - 0.05, scheme="eno2",
-                                           time_order=2)
-        print(json.dumps({"diff": float(np.abs(a - b).max()), "scale": float(np.abs(b).max()),
-                          "launches": launches, "steps": steps}))
-    ''')
+    out = simulated["periodic"]
+    assert out["periodic"][-1]
     assert out["diff"] <= 1e-5 * out["scale"]
     assert out["launches"] == 1 + 7 * out["steps"]
 
 
-def test_cuda_march_raises_on_a_value_that_is_not_finite():
+def test_cuda_march_raises_on_a_value_that_is_not_finite(simulated):
     """A NaN in the value makes the speed infinite on the device; the batch's read raises, naming the times."""
-    out = _run('''
-        m = get_model("pointmass")
-        g = Grid(tuple(m.domain[0]), tuple(m.domain[1]), (9, 8))
-        op, st = operator(classical_problem(m), g, scheme="first", time_order=1)
-        gpu = Stepper(op, st, engine="cuda")
-        u = op.terminal(1.0).clone()
-        u[4, 4] = float("nan")
-        try:
-            march(gpu, 1.0, u, 0.9)
-            print(json.dumps({"raised": None}))
-        except FloatingPointError as exc:
-            print(json.dumps({"raised": str(exc)}))
-    ''')
-    assert out["raised"] is not None and "not finite" in out["raised"]
+    assert simulated["nan"] is not None and "not finite" in simulated["nan"]
