@@ -73,40 +73,89 @@ def _both(rows: Sequence[dict[str, Any]], name: str, digits: int, lower: float =
             f"[{f.format(seeds['low'])}, {f.format(seeds['high'])}]")
 
 
+def _settings(rows: list[dict[str, Any]]) -> dict[tuple, dict[tuple, list[dict[str, Any]]]]:
+    """Finished rows by evaluation (wind, ``Q``), then by (recipe, filter at deployment)."""
+    settings: dict[tuple, dict[tuple, list[dict[str, Any]]]] = {}
+    for r in rows:
+        if r["status"] != "done":
+            continue
+        q = _num(r["eval_budget"])
+        key = (r["eval_wind"], "drawn" if q is None else f"{q:g}")
+        settings.setdefault(key, {}).setdefault((recipe(r), r["eval_filter"]), []).append(r)
+    return settings
+
+
+def _landed(rs: Sequence[dict[str, Any]]) -> str:
+    landed, n = _rate(rs, "landing_rate")
+    w = wilson(landed, n)
+    return f"{100 * w['value']:.0f}% [{100 * w['low']:.0f}, {100 * w['high']:.0f}]"
+
+
+def _count(rs: Sequence[dict[str, Any]], name: str) -> str:
+    count, n = _rate(rs, name)
+    return f"{count}/{n}"
+
+
+def _training(rs: Sequence[dict[str, Any]]) -> str:
+    trained = [(_num(r["train_hard_per_100k"]), _num(r["train_over_per_100k"])) for r in rs
+               if _num(r.get("train_hard_per_100k")) is not None]
+    return f"{np.mean([h for h, _ in trained]):.0f}, {np.mean([o for _, o in trained]):.0f}" if trained else "—"
+
+
+def paired_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """A shorter table: one row per evaluation setting and recipe, each cell ``alone / + filter`` (the recipe
+    deployed without and with the filter); effort and time to land deployed with the filter."""
+    head = ["| wind, `Q` | recipe | seeds | landed: alone / + filter | hard | over `Q` | return [episodes] "
+            "[seeds]: alone / + filter | control effort, + filter | time to land [s], + filter | interventions | "
+            "training: hard, over `Q` per 100k steps |", "|---" * 11 + "|"]
+    settings = _settings(rows)
+    if not settings:
+        return []
+    lines = []
+    for (wind, q), groups in settings.items():
+        first = True
+        for name in dict.fromkeys(k[0] for k in groups):
+            off, on = groups.get((name, "off"), []), groups.get((name, "on"), [])
+            both = [g for g in (off, on) if g]
+
+            def pair(f):
+                return " / ".join(f(g) if g else "—" for g in (off, on))
+
+            inter = [_num(r["intervention_rate_mean"]) for r in on if _num(r.get("intervention_rate_mean")) is not None]
+            lines.append(
+                f"| {f'{wind}, {q}' if first else ''} | {name} | {len({r['seed'] for g in both for r in g})} | "
+                f"{pair(_landed)} | {pair(lambda g: _count(g, 'hard_violation_rate'))} | "
+                f"{pair(lambda g: _count(g, 'over_budget_rate'))} | "
+                f"{pair(lambda g: _both(g, 'return', 1))} | "
+                f"{_both(on, 'control_effort', 3, 0.0) if on else '—'} | "
+                f"{_both(on, 'time_to_land', 3, 0.0) if on else '—'} | "
+                f"{f'{100 * np.mean(inter):.1f} %' if inter else '—'} | {_training(both[0])} |")
+            first = False
+    return head + lines
+
+
 def method_lines(rows: list[dict[str, Any]]) -> list[str]:
-    """The markdown table (see the module docstring); finished rows only, grouped by evaluation wind and ``Q``."""
-    done = [r for r in rows if r["status"] == "done"]
-    if not done:
+    """The markdown table (see the module docstring): per evaluation setting, one row per recipe and deployment
+    (alone, + filter); finished rows only."""
+    settings = _settings(rows)
+    if not settings:
         return []
     head = ["| wind, `Q` | recipe | deployed | seeds | landed | hard | over `Q` | return [episodes] [seeds] | "
             "control effort [episodes] [seeds] | time to land [s] [episodes] [seeds] | interventions | training: "
             "hard, over `Q` per 100k steps |", "|---" * 12 + "|"]
     lines = []
-    settings: dict[tuple, dict[tuple, list[dict[str, Any]]]] = {}
-    for r in done:
-        q = _num(r["eval_budget"])
-        key = (r["eval_wind"], "drawn" if q is None else f"{q:g}")
-        settings.setdefault(key, {}).setdefault((recipe(r), r["eval_filter"]), []).append(r)
     for (wind, q), groups in settings.items():
         first = True
         for (name, filt), rs in groups.items():
-            landed, n = _rate(rs, "landing_rate")
-            hard, _ = _rate(rs, "hard_violation_rate")
-            over, _ = _rate(rs, "over_budget_rate")
-            w = wilson(landed, n)
             inter = [_num(r["intervention_rate_mean"]) for r in rs if _num(r.get("intervention_rate_mean")) is not None]
-            trained = [(_num(r["train_hard_per_100k"]), _num(r["train_over_per_100k"])) for r in rs
-                       if _num(r.get("train_hard_per_100k")) is not None]
             lines.append(
                 f"| {f'{wind}, {q}' if first else ''} | {name} | {'+ filter' if filt == 'on' else 'alone'} | "
-                f"{len({r['seed'] for r in rs})} | {100 * w['value']:.0f}% [{100 * w['low']:.0f}, "
-                f"{100 * w['high']:.0f}] | {hard}/{n} | {over}/{n} | {_both(rs, 'return', 1)} | "
+                f"{len({r['seed'] for r in rs})} | {_landed(rs)} | {_count(rs, 'hard_violation_rate')} | "
+                f"{_count(rs, 'over_budget_rate')} | {_both(rs, 'return', 1)} | "
                 f"{_both(rs, 'control_effort', 3, 0.0)} | {_both(rs, 'time_to_land', 3, 0.0)} | "
-                f"{f'{100 * np.mean(inter):.1f} %' if inter else '—'} | "
-                + (f"{np.mean([h for h, _ in trained]):.0f}, {np.mean([o for _, o in trained]):.0f}" if trained else "—")
-                + " |")
+                f"{f'{100 * np.mean(inter):.1f} %' if inter else '—'} | {_training(rs)} |")
             first = False
     return head + lines
 
 
-__all__ = ["BASELINES", "method_lines", "pooled_mean", "recipe"]
+__all__ = ["BASELINES", "method_lines", "paired_lines", "pooled_mean", "recipe"]

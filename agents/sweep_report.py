@@ -20,7 +20,7 @@ from .evaluate import wilson
 from .report import AGGREGATE_FIELDS, MEAN, RATE
 from .report_plots import _plt, _save
 from .sweep import EvalSetting, SweepRun, budget_text
-from .sweep_methods import method_lines
+from .sweep_methods import method_lines, paired_lines
 
 CONFIG_COLUMNS = ("run_id", "status", "error", "model", "algo", "method", "rule", "budget", "wind", "variant", "seed",
                   "timesteps", "n_envs", "table")
@@ -338,12 +338,13 @@ def write_report(rows: list[dict[str, Any]], results: Sequence[tuple[SweepRun, d
              " (`best_model.zip`: the best periodic evaluation of the training run).", "",
              "Seeds pooled: counts summed over the finished seeds (Wilson 95 % intervals); the per-seed landing "
              "rates show their spread.", "", *pooled_lines(rows), ""]
-    compared = method_lines(rows)
+    compared = paired_lines(rows)
     if compared:
         lines += ["## Recipes compared", "",
                   "Per evaluation setting, each recipe deployed alone and with the filter, its seeds pooled. Rates: "
                   "Wilson 95 % intervals of the pooled episodes; return, effort and time to land: the mean of every "
-                  "episode, the 95 % interval over the episodes, then over the seeds' means.", "", *compared, ""]
+                  "episode, the 95 % interval over the episodes, then over the seeds' means.", "", *compared, "",
+                  "Every deployment with its effort and time to land:", "", *method_lines(rows), ""]
     bad = [r for r in rows if r["status"] != "done"]
     if bad:
         lines += ["## Runs that did not finish", "", "| run | evaluation | status | error |", "|---|---|---|---|"]

@@ -156,7 +156,7 @@ def test_pooled_mean_is_the_mean_and_interval_of_every_episode():
 
 
 def test_method_table_pools_the_seeds_of_each_recipe_and_deployment():
-    from softreach.agents.sweep_methods import method_lines
+    from softreach.agents.sweep_methods import method_lines, paired_lines
 
     def row(method, rule, budget, filt, seed, landed, hard, over, ret):
         r = {"status": "done", "method": method, "rule": rule, "algo": "ppo", "budget": budget, "seed": seed,
@@ -180,3 +180,12 @@ def test_method_table_pools_the_seeds_of_each_recipe_and_deployment():
     assert cells[5].startswith("92% [") and cells[6] == "3/40" and cells[7] == "6/40"  # 37 of 40 landed
     assert cells[8].startswith("140.5 [") and cells[-2] == "400, 200"
     assert any("PPO trained under the filter (switch), trained at Q = 0.3 | + filter | 1 | 100%" in x for x in lines)
+    paired = paired_lines(rows)
+    assert len(paired) == 2 + 2
+    cells = [c.strip() for c in next(x for x in paired if "PPO-Lagrangian" in x).split("|")]
+    assert cells[3] == "2" and cells[4].startswith("92% [") and " / 100% [" in cells[4]
+    assert cells[5] == "3/40 / 0/40" and cells[6] == "6/40 / 0/40" and cells[7].startswith("140.5 [")
+    assert " / 150.0 [" in cells[7] and cells[-3] == "2.0 %"
+    cells = [c.strip() for c in next(x for x in paired if "switch" in x).split("|")]
+    assert cells[4].startswith("— / 100%") and cells[5] == "— / 0/20"
+    assert method_lines([]) == paired_lines([]) == []
