@@ -12,6 +12,7 @@ differ.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -158,4 +159,59 @@ def method_lines(rows: list[dict[str, Any]]) -> list[str]:
     return head + lines
 
 
-__all__ = ["BASELINES", "method_lines", "paired_lines", "pooled_mean", "recipe"]
+def plot_deployed(rows: list[dict[str, Any]], out: str | Path) -> Path | None:
+    """The comparison at a glance: one panel per evaluation ``Q`` (the winds pooled), deployed alone (open
+    markers) and with the filter (filled); one point per run, its hard violations plus overspends in the episodes
+    at that ``Q`` (x) against their mean return (y); a colour per recipe, a circle for one policy for every budget
+    and a triangle for a policy trained at that ``Q``. ``None`` without finished rows."""
+    from .report_plots import _plt, _save
+
+    done = [r for r in rows if r["status"] == "done" and _num(r["eval_budget"]) is not None]
+    if not done:
+        return None
+    qs = sorted({_num(r["eval_budget"]) for r in done})
+    names = list(dict.fromkeys(recipe(r).split(", ")[0] for r in done))
+    plt = _plt()
+    fig, axs = plt.subplots(1, len(qs) + 1, figsize=(4.2 * len(qs) + 4.0, 4.4), squeeze=False,
+                            gridspec_kw={"width_ratios": [1.0] * len(qs) + [0.95]})
+    legend_ax = axs[0, -1]
+    axs = axs[:, :-1]
+    seen: set[tuple] = set()
+    for ax, q in zip(axs[0], qs):
+        runs: dict[tuple, list[dict[str, Any]]] = {}
+        for r in done:
+            if _num(r["eval_budget"]) == q:
+                runs.setdefault((r["run_id"], r["eval_filter"]), []).append(r)
+        for (_, filt), rs in runs.items():
+            name = recipe(rs[0]).split(", ")[0]
+            own = str(rs[0]["budget"]) != "default"
+            x = sum(int(r["hard_violation_rate_count"]) + int(r["over_budget_rate_count"]) for r in rs)
+            y = pooled_mean(rs, "return")
+            if y is None:
+                continue
+            colour = f"C{names.index(name) % 10}"
+            key = (name, own, filt)
+            label = f"{name}, {'trained at this Q' if own else 'Q drawn'}, {'+ filter' if filt == 'on' else 'alone'}"
+            ax.scatter(x, y["mean"], marker="^" if own else "o", s=42, edgecolors=colour,
+                       facecolors=colour if filt == "on" else "none", label=None if key in seen else label)
+            seen.add(key)
+        ax.set_title(f"Q = {q:g} s (adversarial and random wind pooled)", fontsize=8)
+        ax.set_xlabel("deployed: hard violations + overspends (episodes at this Q)", fontsize=8)
+    axs[0, 0].set_ylabel("deployed mean return", fontsize=8)
+    lows, highs = zip(*(ax.get_ylim() for ax in axs[0]))
+    for ax in axs[0]:
+        ax.set_ylim(min(lows), max(highs))
+        ax.tick_params(labelsize=7)
+    handles, labels = [], []
+    for ax in axs[0]:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            handles.append(h)
+            labels.append(lab)
+    legend_ax.axis("off")
+    legend_ax.legend(handles, labels, fontsize=6.5, loc="center left", frameon=False)
+    fig.suptitle("deployed from certified starts: violations against return, one point per seed and recipe "
+                 "(filled: under the filter)", fontsize=9)
+    return _save(fig, out)
+
+
+__all__ = ["BASELINES", "method_lines", "paired_lines", "plot_deployed", "pooled_mean", "recipe"]

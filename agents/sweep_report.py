@@ -20,7 +20,7 @@ from .evaluate import wilson
 from .report import AGGREGATE_FIELDS, MEAN, RATE
 from .report_plots import _plt, _save
 from .sweep import EvalSetting, SweepRun, budget_text
-from .sweep_methods import method_lines, paired_lines
+from .sweep_methods import method_lines, paired_lines, plot_deployed
 
 CONFIG_COLUMNS = ("run_id", "status", "error", "model", "algo", "method", "rule", "budget", "wind", "variant", "seed",
                   "timesteps", "n_envs", "table")
@@ -322,7 +322,8 @@ def write_report(rows: list[dict[str, Any]], results: Sequence[tuple[SweepRun, d
     plots = [p for p in (plot_metric(rows, "landing_rate", out / "plots" / "landing_rate.png", "landing rate"),
                          plot_metric(rows, "return", out / "plots" / "return.png", "mean return"),
                          plot_learning(results, out / "plots" / "learning_curves.png"),
-                         plot_violations_return(rows, out / "plots" / "violations_vs_return.png"))
+                         plot_violations_return(rows, out / "plots" / "violations_vs_return.png"),
+                         plot_deployed(rows, out / "plots" / "deployed_violations_vs_return.png"))
              if p is not None]
     status = {s: sum(1 for r in rows if r["status"] == s) for s in ("done", "failed", "killed", "missing")}
     checkpoints: dict[str, int] = {}

@@ -189,3 +189,21 @@ def test_method_table_pools_the_seeds_of_each_recipe_and_deployment():
     cells = [c.strip() for c in next(x for x in paired if "switch" in x).split("|")]
     assert cells[4].startswith("— / 100%") and cells[5] == "— / 0/20"
     assert method_lines([]) == paired_lines([]) == []
+
+
+def test_deployed_figure_draws_one_point_per_run_and_deployment(tmp_path):
+    from softreach.agents.sweep_methods import plot_deployed
+
+    def row(run_id, filt, q, hard, ret):
+        return {"status": "done", "run_id": run_id, "method": "plain", "rule": "none", "algo": "ppo", "budget": "default",
+                "seed": 0, "eval_wind": "random", "eval_budget": q, "eval_filter": filt, "hard_violation_rate_count": hard,
+                "over_budget_rate_count": 0, "return_mean": ret, "return_std": 1.0, "return_n": 20}
+
+    rows = [row("a", f, q, 0 if f == "on" else 2, 150.0) for f in ("off", "on") for q in (0.06, 0.3)]
+    path = plot_deployed(rows, tmp_path / "d.png")
+    assert path.stat().st_size > 10_000
+    import matplotlib.image
+
+    h, w = matplotlib.image.imread(path).shape[:2]
+    assert w / h == pytest.approx((2 * 4.2 + 4.0) / 4.4, rel=0.02)  # one panel per Q (two here) and the legend's
+    assert plot_deployed([{**rows[0], "status": "failed"}], tmp_path / "none.png") is None
