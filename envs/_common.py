@@ -68,7 +68,10 @@ class LandingEnv(ActionMapping, WindInputs, Rendering, gym.Env):
         self.eps = float(config.eps)
         self.budget_resolution = float(config.budget_resolution)
 
-        # physical ranges of the inputs; the agent acts in [-1, 1]
+        # physical ranges of the inputs; the agent acts in [-1, 1], normalised by each axis' half-width
+        from softreach.reach.boxes import check_action_box
+
+        check_action_box(model)
         self.action_low_physical = np.array(model.control_bounds[0], dtype=np.float64)
         self.action_high_physical = np.array(model.control_bounds[1], dtype=np.float64)
         self._a_lo = [float(v) for v in model.control_bounds[0]]

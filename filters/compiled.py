@@ -37,26 +37,29 @@ from softreach.reach.jit import njit
 from softreach.reach.kernels import MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row
 from softreach.reach.lookahead import exact_normalized
 from softreach.reach.model_kernels import held_box_address
+from softreach.reach.ranks import LOWEST_BAD, NEXT_CAP, PASSES_ONLY, RANK_PROVEN, RANK_SAFE, SMOOTH_PASSES_ONLY
 
+from .compiled_args import ActionMap, Box, Cells, DecisionSpace, Motion, TableArgs, Work
 from .compiled_certify import certify_rows
 from .compiled_starts import start_plan_rows
-from .judge import LOWEST_BAD, badness, judge, keeps, least_next, next_value, on_table
-
-# reason codes (:mod:`softreach.filters.core`) and plan owners (:mod:`softreach.filters.plans`)
-_PASS, _BLEND, _OPTIMAL, _OUTSIDE, _FALLBACK, _UNCERTIFIED = 0, 1, 2, 3, 6, 7
-_PLAN_LAND, _PLAN_SAFE = 1, 2
+from .judge import badness, judge, keeps, least_next, next_value, on_table
+from .plans import PLAN_LAND, PLAN_SAFE
+from .reasons import BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, UNCERTIFIED
 
 
-def decision_space(n: int, m: int, J: int) -> tuple:
-    """The work space of :func:`decide_rows` (and its last entry, eight boxes, of
+def decision_space(n: int, m: int, J: int) -> DecisionSpace:
+    """The work space of :func:`decide_rows` (and its ``work`` and ``boxes``, eight boxes, of
     :func:`~softreach.filters.compiled_starts.start_plan_rows`) for ``n`` states, ``m`` controls and ``J``
     candidates: the compiled loops allocate nothing."""
-    work = (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n + 1), np.empty(n + 1),
-            box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES))
-    return (work, (np.empty(n), np.empty(n)), np.empty((J + 1, n)), np.empty((J + 1, n)), np.empty(J, np.bool_),
-            np.empty(J), np.empty(J), np.empty(J), np.empty(J, np.bool_), np.empty(J), np.empty(J), np.empty(J),
-            np.empty(m), np.empty(n + 1), np.empty(J, np.bool_), np.empty(J, np.bool_), np.empty(J, np.bool_),
-            np.empty(J), np.empty(J, np.bool_), np.empty(J), np.empty(J), np.empty(J, np.int64), np.empty((8, n)))
+    work = Work(np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n + 1), np.empty(n + 1),
+                box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES))
+    return DecisionSpace(
+        work=work, work_box=Box(np.empty(n), np.empty(n)), end_lo=np.empty((J + 1, n)), end_hi=np.empty((J + 1, n)),
+        c_ok=np.empty(J, np.bool_), c_next=np.empty(J), c_bad=np.empty(J), c_zend=np.empty(J),
+        c_kept=np.empty(J, np.bool_), c_score=np.empty(J), c_dist=np.empty(J), c_pref=np.empty(J), act=np.empty(m),
+        point=np.empty(n + 1), c_in=np.empty(J, np.bool_), c_bounded=np.empty(J, np.bool_),
+        c_proven=np.empty(J, np.bool_), c_c1=np.empty(J), c_pick=np.empty(J, np.bool_), c_low=np.empty(J),
+        c_tie=np.empty(J), c_order=np.empty(J, np.int64), boxes=np.empty((8, n)))
 
 
 @njit(inline="always")
@@ -77,6 +80,129 @@ def _after(a, b):
     return a > b or (math.isnan(a) and not math.isnan(b))
 
 
+@njit(inline="always")
+def _blend(act, action, best, lam, pol, r):
+    """:meth:`ValueFilter.blend` of row ``r`` into ``act``: the point ``lam`` of the way from candidate ``best`` to
+    the policy's action, in the normalised space, mapped back as an environment maps it."""
+    a_mid, a_half, cands_q = action.mid, action.half, action.cands_q
+    for i in range(len(act)):
+        act[i] = a_mid[i] + a_half[i] * (cands_q[best, i] + lam * ((pol[r, i] - a_mid[i]) / a_half[i]
+                                                                   - cands_q[best, i]))
+
+
+@njit(inline="always")
+def _try(s, J, act, action, cands, pol, r, best, mid):
+    """The action row ``r`` tries at step ``s`` of :func:`decide_rows`, into ``act``: the policy's (step 0),
+    candidate ``s - 1`` (steps 1 to ``J``), then the smooth rule's bisection point ``mid`` (:func:`_blend`)."""
+    if s > J:
+        _blend(act, action, best, mid, pol, r)
+        return
+    for i in range(len(act)):
+        act[i] = pol[r, i] if s == 0 else cands[s - 1, i]
+
+
+@njit(inline="always")
+def _distance(cands, j, pol, r, a_half):
+    """The normalised distance from candidate ``j`` to row ``r``'s policy action (the smooth rule's preference)."""
+    d = 0.0
+    for i in range(cands.shape[1]):
+        q = (cands[j, i] - pol[r, i]) / a_half[i]
+        d += q * q
+    return math.sqrt(d)
+
+
+@njit(inline="always")
+def _keeping(enclose, M, C, T, cands, smooth, tr, zr, space):
+    """Which candidate keeps (:func:`~softreach.filters.judge.keeps`), asked in the rule's order of preference
+    (lowest next certificate, or nearest the policy's action) up to the first that does; ``-1``: none."""
+    c_ok, c_kept, c_next, c_zend = space.c_ok, space.c_kept, space.c_next, space.c_zend
+    _stable_order(space.c_pref, space.c_order)
+    for k in space.c_order:
+        if not (c_ok[k] or (smooth and c_kept[k])):
+            break
+        if c_ok[k] or keeps(enclose, M, C, T, cands, tr, zr, c_ok[k], c_next[k], space.end_lo[k], space.end_hi[k],
+                             c_zend[k], c_kept[k], space.work, space.work_box):
+            return k
+    return -1
+
+
+@njit(inline="always")
+def _choose(enclose, M, C, T, cands, smooth, tr, zr, t_next, space):
+    """Every candidate judged: the rule's choice among them (:meth:`ValueFilter.filter`'s score), its next value
+    and badness. A passing candidate's next value decides among the passing ones, read only where it can decide
+    (the switch rule's least, :func:`~softreach.filters.judge.least_next`); a failing one's badness only where
+    no passing one is chosen (:func:`~softreach.filters.judge.badness`)."""
+    J = cands.shape[0]
+    work, end_lo, end_hi = space.work, space.end_lo, space.end_hi
+    c_ok, c_next, c_bad, c_zend, c_kept = space.c_ok, space.c_next, space.c_bad, space.c_zend, space.c_kept
+    c_score, c_dist, c_pref, c_pick = space.c_score, space.c_dist, space.c_pref, space.c_pick
+    for k in range(J):
+        c_pick[k] = c_ok[k] and c_next[k] == np.inf
+        if c_pick[k] and smooth:
+            c_next[k] = next_value(T, t_next, end_lo[k], end_hi[k], c_zend[k], zr, work)
+    if not smooth:
+        least_next(T, t_next, end_lo, end_hi, zr, work, c_pick, c_next, c_zend, space.c_low)
+    for k in range(J):
+        c_bad[k] = c_next[k]
+        if smooth:
+            c_pref[k] = c_dist[k] if (c_ok[k] or c_kept[k]) else np.inf
+        else:
+            c_pref[k] = c_next[k] if c_ok[k] else np.inf
+    keeps_j = _keeping(enclose, M, C, T, cands, smooth, tr, zr, space)
+    floor = np.inf
+    for k in range(J):
+        if k == keeps_j:
+            c_score[k] = c_dist[k] if smooth else c_next[k]
+        elif c_ok[k]:
+            c_score[k] = SMOOTH_PASSES_ONLY + c_dist[k] if smooth else PASSES_ONLY + min(c_next[k], NEXT_CAP)
+        else:
+            continue
+        floor = min(floor, c_score[k])
+    badness(T, t_next, end_lo, end_hi, zr, work, c_ok, space.c_in, space.c_bounded, space.c_proven, c_kept,
+             space.c_c1, c_zend, keeps_j, floor >= LOWEST_BAD, c_bad, c_score, space.c_low, space.c_tie)
+    best = np.argmin(c_score)
+    return best, c_next[best], c_bad[best]
+
+
+@njit(inline="always")
+def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, best, best_next, best_bad, lam, space,
+                  new_plans):
+    """:func:`~softreach.filters.plans.follow_plans` of row ``r``: where no candidate passes, the landing cells'
+    plan (the one being followed, else the state's own cell's); then, where the choice's end is not proven safe,
+    the safe cells'. Writes the plan's candidate into ``space.act`` and the plan into ``new_plans[r]``; returns
+    ``(best, best_next, best_bad, lam, any_ok)``."""
+    J = cands.shape[0]
+    for game in (PLAN_LAND, PLAN_SAFE):
+        if game == PLAN_LAND:
+            weak, cells, plan_cells = not any_ok, C.land, C.land_plan
+        else:
+            weak, cells, plan_cells = C.has_safe and best_bad >= RANK_SAFE, C.safe, C.safe_plan
+        if not weak:
+            continue
+        pj, pk = -1, 0
+        follow = False
+        if has_plans:
+            pj, pk = plans[r, 0], plans[r, 1]
+            follow = pk > 0 and 0 <= pj < J and plans[r, 2] == game
+        if follow:
+            jj, left = pj, pk - 1
+        else:
+            cj, ck = plan_row(cells, plan_cells[0], plan_cells[1], tr, xr)
+            # (a candidate index past the set can only come from a damaged file: no plan, never a wild read)
+            if not (0 <= cj < J and cover_row(cells, tr, xr, xr, zr)):
+                continue
+            jj, left = cj, ck - 1
+        best, best_next = jj, space.c_next[jj]
+        for i in range(cands.shape[1]):
+            space.act[i] = cands[jj, i]
+        lam = 0.0  # the plan's candidate itself is applied, not a blend towards the policy's action
+        best_bad = -1.0 if game == PLAN_LAND else RANK_PROVEN
+        new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = jj, left, game
+        if game == PLAN_LAND:
+            any_ok = True
+    return best, best_next, best_bad, lam, any_ok
+
+
 # numba's reference counting (_nrt) is off in the decision and the kernels it calls: they allocate nothing (their
 # work space is the caller's, decision_space), and with it on, every array that a call or an unpacking binds costs
 # two calls (a fifth of the box maximum's time: docs/filters.md, "How")
@@ -86,19 +212,15 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, action, t
     """The decision for every row (:meth:`ValueFilter.filter`) by the ``"switch"`` rule, or with ``smooth`` by the
     ``"smooth"`` rule with ``iterations`` bisection steps, in the work space ``space`` (:func:`decision_space`); see
     the module docstring. Without ``diagnostics`` the certificate at the state and the next one of a passing
-    policy action, which decide nothing, are not read: both are NaN. ``action``: the control box's centre and
-    half-width and the candidates normalised (:meth:`ValueFilter.blend`)."""
-    a_mid, a_half, cands_q = action
-    N, n = x.shape
+    policy action, which decide nothing, are not read: both are NaN. ``M``, ``C``, ``T``, ``action``: the model's
+    side, the cells, the table and the control box's map (:mod:`softreach.filters.compiled_args`)."""
+    N = x.shape[0]
     J, m = cands.shape
-    safe, has_safe, land, safe_plan, land_plan = C[0], C[1], C[2], C[3], C[4]
-    W, z_top, z_floor, V, has_V, S, has_S = T
-    (work, work_box, end_lo, end_hi, c_ok, c_next, c_bad, c_zend, c_kept, c_score, c_dist, c_pref, act, point, c_in,
-     c_bounded, c_proven, c_c1, c_pick, c_low, c_tie, c_order, _) = space
+    work, end_lo, end_hi, act, point = space.work, space.end_lo, space.end_hi, space.act, space.point
     for r in range(N):
         tr, xr, zr = t[r], x[r], z[r]
-        value[r] = (certificate_row(W, z_top, z_floor, V, has_V, tr, xr, zr, point, work[6], work[7]) if diagnostics
-                    else np.nan)
+        value[r] = (certificate_row(T.W, T.z_top, T.z_floor, T.V, T.has_V, tr, xr, zr, point, work.scratch_W,
+                                    work.scratch_V) if diagnostics else np.nan)
         new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = -1, 0, 0
         # one call of judge serves every action a row tries, since each inlined copy costs seconds of the first
         # compilation: step 0 the policy's action (Lookahead.passes), steps 1 to J every candidate
@@ -111,14 +233,7 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, action, t
             slot = s - 1 if 1 <= s <= J else J
             if s > J:
                 mid = 0.5 * (lo + hi)
-            for i in range(m):
-                if s == 0:
-                    act[i] = pol[r, i]
-                elif s <= J:
-                    act[i] = cands[s - 1, i]
-                else:
-                    act[i] = a_mid[i] + a_half[i] * (cands_q[best, i] + mid * ((pol[r, i] - a_mid[i]) / a_half[i]
-                                                                              - cands_q[best, i]))
+            _try(s, J, act, action, cands, pol, r, best, mid)
             a_ok, a_lands, a_bounded, a_in, a_kept, a_proven, a_c1, a_zend, t_next = judge(
                 enclose, M, C, tr, xr, xr, zr, act, end_lo[slot], end_hi[slot], work)
             a_next = -np.inf if a_lands else np.inf
@@ -129,114 +244,43 @@ def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, action, t
             # a passing action keeps: the call of keeps, with its large tuples, is skipped
             if s == 0:
                 if a_ok or keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J], end_hi[J], a_zend, a_kept,
-                                  work, work_box):
+                                  work, space.work_box):
                     for i in range(m):
                         applied[r, i] = pol[r, i]
-                    reason[r], nxt[r], certified[r], blend[r] = _PASS, a_next if diagnostics else np.nan, True, 1.0
+                    reason[r], nxt[r], certified[r], blend[r] = PASS, a_next if diagnostics else np.nan, True, 1.0
                     chosen[r] = np.nan
                     passed = True
                     break
                 continue
             if s > J:
                 if any_ok and (a_ok or keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J], end_hi[J],
-                                              a_zend, a_kept, work, work_box)):
+                                              a_zend, a_kept, work, space.work_box)):
                     lo, best_next = mid, a_next
                 else:
                     hi = mid
                 continue
-            # a candidate: its table values are read below, only where they can decide
+            # a candidate: its table values are read in _choose, only where they can decide
             j = s - 1
-            c_ok[j], c_next[j], c_zend[j], c_kept[j] = a_ok, a_next, a_zend, a_kept
-            c_in[j], c_bounded[j], c_proven[j], c_c1[j] = a_in, a_bounded, a_proven, a_c1
+            space.c_ok[j], space.c_next[j], space.c_zend[j], space.c_kept[j] = a_ok, a_next, a_zend, a_kept
+            space.c_in[j], space.c_bounded[j], space.c_proven[j], space.c_c1[j] = a_in, a_bounded, a_proven, a_c1
             any_ok = any_ok or a_ok
-            d = 0.0
-            for i in range(m):
-                q = (cands[j, i] - pol[r, i]) / a_half[i]
-                d += q * q
-            c_dist[j] = math.sqrt(d)
-            if s < J:
-                continue
-            # every candidate judged. A passing one's next value decides among the passing ones: by the switch
-            # rule the least decides, read only where it can be the least (least_next)
-            for k in range(J):
-                c_pick[k] = c_ok[k] and c_next[k] == np.inf
-                if c_pick[k] and smooth:
-                    c_next[k] = next_value(T, t_next, end_lo[k], end_hi[k], c_zend[k], zr, work)
-            if not smooth:
-                least_next(T, t_next, end_lo, end_hi, zr, work, c_pick, c_next, c_zend, c_low)
-            for k in range(J):
-                c_bad[k] = c_next[k]
-                if smooth:
-                    c_pref[k] = c_dist[k] if (c_ok[k] or c_kept[k]) else np.inf
-                else:
-                    c_pref[k] = c_next[k] if c_ok[k] else np.inf
-            # whether it keeps is asked in the rule's order of preference (lowest next certificate, or nearest the
-            # policy's action) up to the first that does
-            keeps_j = -1
-            _stable_order(c_pref, c_order)
-            for k in c_order:
-                if not (c_ok[k] or (smooth and c_kept[k])):
-                    break
-                if c_ok[k] or keeps(enclose, M, C, T, cands, tr, zr, c_ok[k], c_next[k], end_lo[k], end_hi[k],
-                                     c_zend[k], c_kept[k], work, work_box):
-                    keeps_j = k
-                    break
-            floor = np.inf
-            for k in range(J):
-                if k == keeps_j:
-                    c_score[k] = c_dist[k] if smooth else c_next[k]
-                elif c_ok[k]:
-                    c_score[k] = 10.0 + c_dist[k] if smooth else 5e5 + min(c_next[k], 1e5)
-                else:
-                    continue
-                floor = min(floor, c_score[k])
-            badness(T, t_next, end_lo, end_hi, zr, work, c_ok, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend,
-                     keeps_j, floor >= LOWEST_BAD, c_bad, c_score, c_low, c_tie)
-            best = np.argmin(c_score)
-            best_next, best_bad = c_next[best], c_bad[best]
+            space.c_dist[j] = _distance(cands, j, pol, r, action.half)
+            if s == J:
+                best, best_next, best_bad = _choose(enclose, M, C, T, cands, smooth, tr, zr, t_next, space)
         if passed:
             continue
         lam = lo
-        for i in range(m):
-            act[i] = a_mid[i] + a_half[i] * (cands_q[best, i] + lam * ((pol[r, i] - a_mid[i]) / a_half[i]
-                                                                       - cands_q[best, i]))
-        # the plans (follow_plans): landing cells first, then safe cells
-        for game in (_PLAN_LAND, _PLAN_SAFE):
-            if game == _PLAN_LAND:
-                weak, cells, plan_cells = not any_ok, land, land_plan
-            else:
-                weak, cells, plan_cells = has_safe and best_bad >= 1e6, safe, safe_plan
-            if not weak:
-                continue
-            pj, pk = -1, 0
-            follow = False
-            if has_plans:
-                pj, pk = plans[r, 0], plans[r, 1]
-                follow = pk > 0 and 0 <= pj < J and plans[r, 2] == game
-            if follow:
-                jj, left = pj, pk - 1
-            else:
-                cj, ck = plan_row(cells, plan_cells[0], plan_cells[1], tr, xr)
-                # (a candidate index past the set can only come from a damaged file: no plan, never a wild read)
-                if not (0 <= cj < J and cover_row(cells, tr, xr, xr, zr)):
-                    continue
-                jj, left = cj, ck - 1
-            best, best_next = jj, c_next[jj]
-            for i in range(m):
-                act[i] = cands[jj, i]
-            lam = 0.0  # the plan's candidate itself is applied, not a blend towards the policy's action
-            best_bad = -1.0 if game == _PLAN_LAND else 0.9e6
-            new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = jj, left, game
-            if game == _PLAN_LAND:
-                any_ok = True
+        _blend(act, action, best, lam, pol, r)
+        best, best_next, best_bad, lam, any_ok = _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok,
+                                                               best, best_next, best_bad, lam, space, new_plans)
         bounded = best_bad < np.inf
         for i in range(m):
             applied[r, i] = act[i] if bounded else fallback[i]
             chosen[r, i] = cands[best, i]
         nxt[r], certified[r], blend[r] = best_next, any_ok, lam
-        reason[r] = ((_BLEND if lam > 0 else _OPTIMAL) if any_ok else _UNCERTIFIED) if bounded else _FALLBACK
-        if not on_table(W, tr, xr, max(zr, 0.0), point, work):
-            reason[r] = _OUTSIDE
+        reason[r] = ((BLEND if lam > 0 else OPTIMAL) if any_ok else UNCERTIFIED) if bounded else FALLBACK
+        if not on_table(T.W, tr, xr, max(zr, 0.0), point, work):
+            reason[r] = OUTSIDE
 
 
 def _writable(v: np.ndarray) -> np.ndarray:
@@ -262,18 +306,18 @@ class CompiledDecision:
         self.enclose = held_box_address(model)
         # the sets over boxes: the lookahead's compiled set maxima (its _corner_max), called by address too
         set_address, set_params = la.set_kernel
-        self.M = (np.asarray(model.held_box_params, dtype=np.float64), la.eps, set_params, set_address, t_lo, t_hi,
-                  np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon, frozen(la.slack), la.first_check,
-                  la.budget_slack, la.exact_env)
+        self.M = Motion(np.asarray(model.held_box_params, dtype=np.float64), la.eps, set_params, set_address, t_lo,
+                        t_hi, np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon, frozen(la.slack),
+                        la.first_check, la.budget_slack, la.exact_env)
         safe, land = vf.safe_cells, vf.landing_cells
         some = safe if safe is not None else land
-        self.C = (some.kernel_args, safe is not None, land.kernel_args, some.plan_args, land.plan_args)
+        self.C = Cells(some.kernel_args, safe is not None, land.kernel_args, some.plan_args, land.plan_args)
         W_args = la.table_args
         has_S = "V_safe" in la.fields
-        self.T = W_args + ((kernel_field(*la.fields["V_safe"]) if has_S else W_args[3]), has_S)
+        self.T = TableArgs(*W_args, kernel_field(*la.fields["V_safe"]) if has_S else W_args[3], has_S)
         self.cands = frozen(np.ascontiguousarray(la.candidates, dtype=np.float64))
-        self.action = (frozen(np.ascontiguousarray(la.a_mid)), frozen(np.ascontiguousarray(la.a_half)),
-                       frozen(np.ascontiguousarray(exact_normalized(self.cands, la.a_mid, la.a_half))))
+        self.action = ActionMap(frozen(np.ascontiguousarray(la.a_mid)), frozen(np.ascontiguousarray(la.a_half)),
+                                frozen(np.ascontiguousarray(exact_normalized(self.cands, la.a_mid, la.a_half))))
         self.fallback = frozen(np.asarray(vf.fallback_action, dtype=np.float64))
         self.no_plans = np.zeros((1, 3), np.int64)
         # one work space per thread: decide_rows writes into it
@@ -361,7 +405,7 @@ class CompiledDecision:
         t, x, z = (_writable(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z))
         space = self._space()
         start_plan_rows(self.enclose, self.M, self.C, self.cands, int(periods), t, x, z,
-                        _writable(np.ascontiguousarray(second, dtype=np.bool_)), out, space[0], space[-1])
+                        _writable(np.ascontiguousarray(second, dtype=np.bool_)), out, space.work, space.boxes)
         return out
 
     def __getstate__(self) -> dict:
@@ -372,7 +416,7 @@ class CompiledDecision:
         self.__dict__.update(state)
         self._local = threading.local()
 
-    def _space(self) -> tuple:
+    def _space(self) -> DecisionSpace:
         """This thread's work space for :func:`decide_rows`, made at its first call."""
         space = getattr(self._local, "space", None)
         if space is None:

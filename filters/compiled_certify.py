@@ -15,8 +15,9 @@ import numpy as np
 
 from softreach.reach.jit import njit
 from softreach.reach.kernels import certificate_row, cover_row
+from softreach.reach.ranks import LOWEST_BAD
 
-from .judge import LOWEST_BAD, badness, judge_once, next_value, on_table
+from .judge import badness, judge_once, next_value, on_table
 
 
 @njit(nogil=True, _nrt=False)
@@ -28,15 +29,13 @@ def certify_rows(enclose, M, C, T, cands, t, x, z, ok, nxt, value, inside, in_ce
     (:func:`~softreach.filters.judge.badness`)."""
     N = x.shape[0]
     J = cands.shape[0]
-    W, z_top, z_floor, V, has_V = T[0], T[1], T[2], T[3], T[4]
-    work, end_lo, end_hi, c_ok, c_next, c_bad, c_zend, c_kept, c_score = (space[0], space[2], space[3], space[4],
-                                                                           space[5], space[6], space[7], space[8],
-                                                                           space[9])
-    point, c_in, c_bounded, c_proven, c_c1, c_low, c_tie = (space[13], space[14], space[15], space[16], space[17],
-                                                           space[19], space[20])
+    work, end_lo, end_hi, point = space.work, space.end_lo, space.end_hi, space.point
+    c_ok, c_next, c_bad, c_zend, c_kept = space.c_ok, space.c_next, space.c_bad, space.c_zend, space.c_kept
+    c_score, c_in, c_bounded, c_proven, c_c1 = space.c_score, space.c_in, space.c_bounded, space.c_proven, space.c_c1
     for r in range(N):
         tr, xr, zr = t[r], x[r], z[r]
-        value[r] = certificate_row(W, z_top, z_floor, V, has_V, tr, xr, zr, point, work[6], work[7])
+        value[r] = certificate_row(T.W, T.z_top, T.z_floor, T.V, T.has_V, tr, xr, zr, point, work.scratch_W,
+                                   work.scratch_V)
         t_next = tr
         least, best = np.inf, -1
         for j in range(J):
@@ -54,9 +53,9 @@ def certify_rows(enclose, M, C, T, cands, t, x, z, ok, nxt, value, inside, in_ce
             # no passing candidate is below every failing one's badness: the badness decides
             # (np.int64, np.bool_: bare literals would compile badness once more, for their literal types)
             badness(T, t_next, end_lo, end_hi, zr, work, c_ok, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend,
-                    np.int64(-1), np.bool_(True), c_bad, c_score, c_low, c_tie)
+                    np.int64(-1), np.bool_(True), c_bad, c_score, space.c_low, space.c_tie)
             best = np.argmin(c_score)
         # a failing candidate's next value is +inf (Lookahead.assess): none of its end states is certified
         ok[r], nxt[r] = c_ok[best], c_next[best]
-        inside[r] = on_table(W, tr, xr, max(zr, 0.0), point, work)
-        in_cells[r] = cover_row(C[2], tr, xr, xr, zr)
+        inside[r] = on_table(T.W, tr, xr, max(zr, 0.0), point, work)
+        in_cells[r] = cover_row(C.land, tr, xr, xr, zr)

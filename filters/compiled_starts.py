@@ -10,10 +10,8 @@ import math
 
 from softreach.reach.jit import njit
 
-from .judge import judge_once
-
-# the owner of a plan that ends in the landing cells (:data:`~softreach.filters.plans.PLAN_LAND`)
-_PLAN_LAND = 1
+from .judge import judge_once, period
+from .plans import PLAN_LAND
 
 
 @njit(_nrt=False)
@@ -21,13 +19,14 @@ def _hold_period(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work):
     """One period of ``a`` held from the box ``[lo, hi]`` at budget ``z``, by :func:`judge`: ``(passes, goes on,
     z_end)``: whether it passes (or surely lands), and whether it kept ``C1`` and the budget with a finite end box,
     which then replaces ``[lo, hi]``. Not inlined: the start-plan searches call it from two loops."""
-    ok, lands, _, _, kept, _, _, z_end, _ = judge_once(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work)
+    v = judge_once(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work)
+    kept = v.kept
     for i in range(len(e_lo)):
         kept = kept and math.isfinite(e_lo[i]) and math.isfinite(e_hi[i])
     if kept:
         for i in range(len(e_lo)):
             lo[i], hi[i] = e_lo[i], e_hi[i]
-    return ok or lands, kept, z_end
+    return v.ok or v.lands, kept, v.z_end
 
 
 @njit(_nrt=False)
@@ -35,7 +34,7 @@ def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, 
     """:func:`~softreach.filters.plans._segment` of one row, each period by :func:`judge` (which reads no table):
     ``(candidate, periods, once)``, candidate ``-1`` where none."""
     n = len(lo0)
-    dt = M[6][len(M[6]) - 1]
+    dt = period(M)
     best, best_j, once = periods + 1, -1, False
     for j in range(cands.shape[0]):
         for i in range(n):
@@ -62,11 +61,11 @@ def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, 
 @njit(nogil=True, _nrt=False)
 def start_plan_rows(enclose, M, C, cands, periods, t, x, z, second, out, work, boxes):
     """:func:`~softreach.filters.plans.start_plans` row by row, the same searches in the same order: per row
-    ``out[r]`` its ``(START_SEGMENTS, 3)`` segments, in the work space ``work`` and ``boxes`` (:func:`~softreach.filters.compiled.
-    decision_space`'s first and last entries)."""
+    ``out[r]`` its ``(START_SEGMENTS, 3)`` segments, in the work space ``work`` and ``boxes``
+    (:func:`~softreach.filters.compiled.decision_space`'s)."""
     N, n = x.shape
     J = cands.shape[0]
-    dt = M[6][len(M[6]) - 1]
+    dt = period(M)
     lo, hi, e_lo, e_hi, c_lo, c_hi, c_elo, c_ehi = (boxes[0], boxes[1], boxes[2], boxes[3], boxes[4], boxes[5],
                                                     boxes[6], boxes[7])
     for r in range(N):
@@ -78,7 +77,7 @@ def start_plan_rows(enclose, M, C, cands, periods, t, x, z, second, out, work, b
         if once:
             continue
         if j1 >= 0:
-            out[r, 0, 0], out[r, 0, 1], out[r, 0, 2] = j1, k1, _PLAN_LAND
+            out[r, 0, 0], out[r, 0, 1], out[r, 0, 2] = j1, k1, PLAN_LAND
             continue
         if not second[r]:
             continue
@@ -97,6 +96,6 @@ def start_plan_rows(enclose, M, C, cands, periods, t, x, z, second, out, work, b
                                          e_hi, work)
                 if j2 >= 0:
                     best1 = k
-                    out[r, 0, 0], out[r, 0, 1], out[r, 0, 2] = j, k, _PLAN_LAND
-                    out[r, 1, 0], out[r, 1, 1], out[r, 1, 2] = j2, k2, _PLAN_LAND
+                    out[r, 0, 0], out[r, 0, 1], out[r, 0, 2] = j, k, PLAN_LAND
+                    out[r, 1, 0], out[r, 1, 1], out[r, 1, 2] = j2, k2, PLAN_LAND
                     break

@@ -40,6 +40,7 @@ import numpy as np
 from softreach.reach import Table, TableError
 from softreach.reach.blocks import default_threads
 from softreach.reach.lookahead import Lookahead, exact_normalized
+from softreach.reach.ranks import NEXT_CAP, PASSES_ONLY, SMOOTH_PASSES_ONLY
 
 from .compiled import CompiledDecision
 from .plans import (NO_PLAN, PLAN_LAND, PLAN_SAFE, START_SEGMENTS, check_plans, follow_plans, resolve_cells,
@@ -320,10 +321,11 @@ class ValueFilter:
             # switch: a candidate after which a passing action exists again (by its next certificate), else one
             # that passes (the next state may then be a dead end), else the least bad, C1 first; smooth: the
             # passing candidate closest to the policy's action, by the same preference
-            score = np.where(cand_keeps, cand_next, np.where(cand_ok, 5e5 + np.minimum(cand_next, 1e5), cand_bad))
+            score = np.where(cand_keeps, cand_next,
+                             np.where(cand_ok, PASSES_ONLY + np.minimum(cand_next, NEXT_CAP), cand_bad))
             if self.rule == "smooth":
                 dist = np.linalg.norm((la.candidates[None, :, :] - pol[rows][:, None, :]) / self.a_half, axis=2)
-                score = np.where(cand_keeps, dist, np.where(cand_ok, 10.0 + dist, cand_bad))
+                score = np.where(cand_keeps, dist, np.where(cand_ok, SMOOTH_PASSES_ONLY + dist, cand_bad))
             j = np.argmin(score, axis=1)
             best = la.candidates[j]
             best_next = cand_next[np.arange(len(rows)), j]

@@ -25,9 +25,23 @@ import numpy as np
 from softreach.reach.jit import njit
 from softreach.reach.kernels import MAX_NODES, box_max_row, cover_row, point_value
 from softreach.reach.model_kernels import SET_INDEX, call_held_box, call_set_max
+from softreach.reach.ranks import (LOWEST_BAD, NEXT_CAP, RANK_LEAVES_C1, RANK_OVERSPENT, RANK_PROVEN, RANK_SAFE,
+                                  RANK_UNSAFE, TIE_INF, TIE_OVERSPEND)
+
+from .compiled_args import Verdict
 
 # the sets' indices in the model's set-maximum kernel
 _TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_INDEX["soft_constraint"]
+
+# LOWEST_BAD (softreach.reach.ranks) is read here by the decision's callers and tests
+__all__ = ["LOWEST_BAD", "badness", "judge", "judge_once", "keeps", "least_next", "next_value", "on_table",
+           "read_least"]
+
+
+@njit(inline="always")
+def period(M):
+    """The control period ``dt`` of :class:`~softreach.filters.compiled_args.Motion` ``M``: its last edge."""
+    return M.edges[len(M.edges) - 1]
 
 
 @njit(inline="always")
@@ -42,9 +56,9 @@ def _widen(lo, hi, slack):
 def _checked_c1(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
     """:meth:`Lookahead.checked_c1`: the largest ``c1`` over the tube and over the widened box of the states from
     the environment's first check instant on (``lo``, ``hi``: work space)."""
-    params, set_params, sets, slack, first = M[0], M[2], M[3], M[9], M[10]
+    params, set_params, sets, slack, first = M.params, M.set_params, M.set_address, M.slack, M.first_check
     c1 = call_set_max(sets, set_params, _HARD, tube_lo, tube_hi)
-    if not M[12]:  # no allowance (Lookahead.exact_env): the tube alone
+    if not M.exact_env:  # no allowance: the tube alone
         return c1
     call_held_box(enclose, params, x_lo, x_hi, a, min(first, length), length, lo, hi)
     _widen(lo, hi, slack)
@@ -57,10 +71,10 @@ def _checked_c1(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
 def _may_spend(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
     """:meth:`Lookahead.may_spend`: whether the tube, or the widened box of the states from half the first
     sub-step on, may leave ``C2`` (``lo``, ``hi``: work space)."""
-    params, set_params, sets, slack, first = M[0], M[2], M[3], M[9], M[10]
+    params, set_params, sets, slack, first = M.params, M.set_params, M.set_address, M.slack, M.first_check
     if not call_set_max(sets, set_params, _SOFT, tube_lo, tube_hi) <= 0:
         return True
-    if not M[12]:  # no allowance (Lookahead.exact_env): the tube alone
+    if not M.exact_env:  # no allowance: the tube alone
         return False
     call_held_box(enclose, params, x_lo, x_hi, a, min(0.5 * first, length), length, lo, hi)
     _widen(lo, hi, slack)
@@ -71,7 +85,8 @@ def _may_spend(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
 def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
     """:meth:`Lookahead._budget_spent` over the pieces ``[edges[j], edges[j + 1]]`` of a held action's motion, each
     piece's box widened, and the rounding allowance added where the charge is positive."""
-    params, eps, set_params, sets, slack, budget_slack = M[0], M[1], M[2], M[3], M[9], M[11]
+    params, eps, set_params, sets = M.params, M.eps, M.set_params, M.set_address
+    slack, budget_slack = M.slack, M.budget_slack
     P = len(edges) - 1
     length = edges[P]
     out = 0.0
@@ -88,7 +103,7 @@ def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
     target inside ``C2``, the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``. Not
     inlined into :func:`judge`: asked only of actions that do not pass and whose motion meets the target, it would
     add to the first compilation more than its call costs."""
-    params, set_params, sets, slack = M[0], M[2], M[3], M[9]
+    params, set_params, sets, slack = M.params, M.set_params, M.set_address, M.slack
     for j in range(check_edges.shape[0]):
         edges = check_edges[j]
         s = edges[len(edges) - 1]
@@ -114,14 +129,12 @@ def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
 
 @njit(inline="always")
 def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
-    """What :meth:`Lookahead.assess` decides without the table, for one row: ``(ok, lands, bounded, in_c1, kept,
-    proven, c1, z_end, t_next)``; writes the end box into ``end_lo``, ``end_hi``. ``ok``: the action passes by the
-    cells; ``lands``: every run surely lands inside the period; ``proven``: its end keeps inside the safe cells."""
-    params, set_params, sets, slack = M[0], M[2], M[3], M[9]
-    target_lo, target_hi, edges, horizon = M[4], M[5], M[6], M[8]
-    check_edges = M[7]
-    safe, has_safe, land = C[0], C[1], C[2]
-    tube_lo, tube_hi, lo, hi, box_lo, box_hi = work[0], work[1], work[2], work[3], work[4], work[5]
+    """What :meth:`Lookahead.assess` decides without the table, for one row: a
+    :class:`~softreach.filters.compiled_args.Verdict`; writes the end box into ``end_lo``, ``end_hi``."""
+    params, slack = M.params, M.slack
+    target_lo, target_hi, edges, horizon = M.target_lo, M.target_hi, M.edges, M.horizon
+    safe, has_safe, land = C.safe, C.has_safe, C.land
+    tube_lo, tube_hi, lo, hi = work.tube_lo, work.tube_hi, work.lo, work.hi
     n = len(x_lo)
     P = len(edges) - 1
     dt = edges[P]
@@ -148,8 +161,8 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
         meets = meets and tube_hi[i] >= target_lo[i] and tube_lo[i] <= target_hi[i]
     lands = False
     if not ok and bounded and in_time and meets:
-        lands = _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, box_lo[:n], box_hi[:n])
-    return ok, lands, bounded, in_c1, kept, safe_end and has_safe, c1, z_end, t_next
+        lands = _lands(enclose, M, x_lo, x_hi, z, a, M.check_edges, lo, hi, work.box_lo[:n], work.box_hi[:n])
+    return Verdict(ok, lands, bounded, in_c1, kept, safe_end and has_safe, c1, z_end, t_next)
 
 
 @njit(_nrt=False)
@@ -163,8 +176,8 @@ def judge_once(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
 def next_value(T, t_next, end_lo, end_hi, z_end, z_hi, work):
     """The worst certificate over a period's end box, the budget between ``z_end`` and ``z_hi`` (``+inf`` where
     the table has no number): :meth:`Lookahead.assess`'s next value of an action whose motion keeps ``C1``."""
-    W, z_top, z_floor, V, has_V = T[0], T[1], T[2], T[3], T[4]
-    box_lo, box_hi, scratch_W, scratch_V = work[4], work[5], work[6], work[7]
+    W, z_top, z_floor, V, has_V = T.W, T.z_top, T.z_floor, T.V, T.has_V
+    box_lo, box_hi, scratch_W, scratch_V = work.box_lo, work.box_hi, work.scratch_W, work.scratch_V
     n = len(end_lo)
     z_lo = max(z_end, z_floor)
     for i in range(n):
@@ -185,29 +198,28 @@ def next_value(T, t_next, end_lo, end_hi, z_end, z_hi, work):
 @njit(inline="always")
 def _safe_end(T, t_next, end_lo, end_hi, work):
     """Whether the safe value ``V_safe`` (where the table has it) is at most 0 over a period's end box."""
-    S, has_S = T[5], T[6]
-    if not has_S:
+    S, scratch = T.S, work.scratch_V
+    if not T.has_S:
         return True
     # the value at the box's corner is at most the box's maximum (up to rounding, which the tolerance covers)
-    corner = point_value(S, t_next, end_lo, work[7][2], work[7][8])
+    corner = point_value(S, t_next, end_lo, scratch[2], scratch[8])
     if corner > _ROUNDING * max(1.0, abs(corner)):
         return False
-    return box_max_row(S, t_next, end_lo, end_hi, MAX_NODES, work[7]) <= 0
+    return box_max_row(S, t_next, end_lo, end_hi, MAX_NODES, scratch) <= 0
 
 
 @njit(inline="always")
 def next_floor(T, t_next, end_lo, z_end, work):
     """A lower bound of :func:`next_value` over the box from ``end_lo`` (``-inf`` where it has none): the
     certificate at the box's lower corner and lowest budget, which the box maximum's lattice holds."""
-    W, z_floor, V, has_V = T[0], T[2], T[3], T[4]
-    point = work[4]
+    point, scratch_W, scratch_V = work.box_lo, work.scratch_W, work.scratch_V
     n = len(end_lo)
     for i in range(n):
         point[i] = end_lo[i]
-    point[n] = max(z_end, z_floor)
-    low = point_value(W, t_next, point, work[6][2], work[6][8])
-    if has_V and z_end >= 0:
-        low = min(low, point_value(V, t_next, end_lo, work[7][2], work[7][8]))
+    point[n] = max(z_end, T.z_floor)
+    low = point_value(T.W, t_next, point, scratch_W[2], scratch_W[8])
+    if T.has_V and z_end >= 0:
+        low = min(low, point_value(T.V, t_next, end_lo, scratch_V[2], scratch_V[8]))
     return -np.inf if math.isnan(low) else low
 
 
@@ -243,7 +255,8 @@ def read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, belo
 @njit(_nrt=False)
 def least_next(T, t_next, end_lo, end_hi, z_hi, work, pick, c_next, c_zend, c_low):
     """:func:`next_value` of the candidates ``pick`` (whose ``c_next`` is ``+inf``) where it can be the least of
-    theirs (:func:`read_least`), while the least is below ``1e5``, where it wins any score
+    theirs (:func:`read_least`), while the least is below :data:`~softreach.reach.ranks.NEXT_CAP`, where it wins
+    any score
     (:mod:`softreach.filters.compiled`); each not read gets its lower bound, above the least. A candidate whose
     bound is ``+inf`` is off the grid, where its value is ``+inf`` too, as ``c_next`` holds."""
     # the least so far: of those not picked (one that surely lands has -inf)
@@ -253,44 +266,44 @@ def least_next(T, t_next, end_lo, end_hi, z_hi, work, pick, c_next, c_zend, c_lo
         if not pick[k]:
             least = min(least, c_next[k])
     # np.bool_: a bare False is a literal type, and read_least would be compiled once for each literal
-    read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, 1e5, np.bool_(False), c_next)
+    read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, NEXT_CAP, np.bool_(False), c_next)
 
 
 @njit(inline="always")
 def _rank(bounded, in_c1, proven, is_safe, kept, c1):
     """The badness of an action that does not pass, but for its tie (:func:`_tie`): first those whose end is
     proven safe, then those the safe value keeps, then the rest; those that keep the budget before those that do
-    not; an action that leaves ``C1`` by how far. Ranks lie at least ``1e5`` apart, more than any tie."""
+    not; an action that leaves ``C1`` by how far (:mod:`softreach.reach.ranks`)."""
     if not bounded:
         return np.inf
     if not in_c1:
-        return 5e6 + max(c1, 0.0)
-    return 0.9e6 if proven else (1e6 if is_safe else 3e6) + (0.0 if kept else 1e6)
+        return RANK_LEAVES_C1 + max(c1, 0.0)
+    return RANK_PROVEN if proven else (RANK_SAFE if is_safe else RANK_UNSAFE) + (0.0 if kept else RANK_OVERSPENT)
 
 
 @njit(inline="always")
 def _tie(nxt, z_end):
     """Within a rank, the lower next certificate first (mapped into ``(-0.5, 0.5)``), then the smaller overspend."""
-    return math.atan(1e12 if nxt == np.inf else nxt) / math.pi + 1e3 * max(-z_end, 0.0)
+    return math.atan(TIE_INF if nxt == np.inf else nxt) / math.pi + TIE_OVERSPEND * max(-z_end, 0.0)
 
 
 @njit(_nrt=False)
 def keeps(enclose, M, C, T, cands, t, z, ok, nxt, end_lo, end_hi, z_end, kept, work, work_box):
     """:meth:`Lookahead.keeps` with landing cells: a row that passes keeps; one whose period keeps ``C1`` and the
     budget keeps when some candidate passes from its whole end box (:meth:`Lookahead.keeps_certified`)."""
-    horizon = M[8]
-    dt = M[6][len(M[6]) - 1]
+    horizon = M.horizon
+    dt = period(M)
     if ok:
         return True
     if not (kept and not t + dt >= horizon - 1e-9 * max(1.0, horizon) and nxt > -np.inf):
         return False
-    e_lo, e_hi = work_box[0], work_box[1]
+    e_lo, e_hi = work_box.lo, work_box.hi
     z = max(z_end, 0.0)
     for j in range(cands.shape[0]):
         if not _may_pass(enclose, M, C, t + dt, end_lo, end_hi, z, cands[j], e_lo, e_hi, work):
             continue
-        ok, lands = judge(enclose, M, C, t + dt, end_lo, end_hi, z, cands[j], e_lo, e_hi, work)[:2]
-        if ok or lands:
+        v = judge(enclose, M, C, t + dt, end_lo, end_hi, z, cands[j], e_lo, e_hi, work)
+        if v.ok or v.lands:
             return True
     return False
 
@@ -300,12 +313,12 @@ def _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     """Whether :func:`judge` can find that ``a`` passes or surely lands, asked first as it costs a third of it:
     it passes only where the landing cells cover its end box at the budget left, at most ``z`` (a cell that covers
     at some budget covers at more), and it lands only where its motion meets the target."""
-    params, target_lo, target_hi, edges, horizon = M[0], M[4], M[5], M[6], M[8]
-    tube_lo, tube_hi = work[0], work[1]
-    dt = edges[len(edges) - 1]
+    params, target_lo, target_hi, edges, horizon = M.params, M.target_lo, M.target_hi, M.edges, M.horizon
+    tube_lo, tube_hi = work.tube_lo, work.tube_hi
+    dt = period(M)
     call_held_box(enclose, params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
-    _widen(end_lo, end_hi, M[9])
-    if cover_row(C[2], min(t + dt, horizon), end_lo, end_hi, z):
+    _widen(end_lo, end_hi, M.slack)
+    if cover_row(C.land, min(t + dt, horizon), end_lo, end_hi, z):
         return True
     call_held_box(enclose, params, x_lo, x_hi, a, edges[0], dt, tube_lo, tube_hi)
     meets = True
@@ -314,20 +327,15 @@ def _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     return meets
 
 
-#: below this score no candidate that fails can be chosen: its badness is at least its best rank, 0.9e6, less half
-#: (:func:`_rank`, :func:`_tie`)
-LOWEST_BAD = 0.9e6 - 1.0
-
-
 @njit(_nrt=False)
 def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend, keeps_j,
              contest, c_bad, c_score, c_low, c_tie):
     """The badness and score of every candidate that fails (:meth:`Lookahead.assess`), the table read only where
     it can decide: a failing candidate is chosen only where ``contest`` (no other scores below
-    :data:`LOWEST_BAD`), and then from the lowest rank; the smooth rule's failing candidate that keeps
-    (``keeps_j``) is chosen, and its badness decides the safe plans. Every other failing one gets its rank alone,
-    at least ``1e5`` above the lowest rank's badness, so that the choice is the one the exact badness makes.
-    ``c_low``, ``c_tie``: work space of one float a candidate."""
+    :data:`~softreach.reach.ranks.LOWEST_BAD`), and then from the lowest rank; the smooth rule's failing candidate
+    that keeps (``keeps_j``) is chosen, and its badness decides the safe plans. Every other failing one gets its
+    rank alone, at least :data:`~softreach.reach.ranks.NEXT_CAP` above the lowest rank's badness, so that the
+    choice is the one the exact badness makes. ``c_low``, ``c_tie``: work space of one float a candidate."""
     J = len(c_ok)
     if keeps_j >= 0 and not c_ok[keeps_j]:
         k = keeps_j
@@ -363,12 +371,13 @@ def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_prov
 def on_table(W, t, x, z, point, work):
     """:meth:`Table.inside` of a ``W_eps`` table: the interpolant of ``W_eps`` is finite at ``(t, x, z)`` (a budget
     above the grid is read at its top)."""
-    times, glo = W[1], W[3]
+    # a field's (values, times, shape, glo, ghi, ...) (softreach.reach.box_max.kernel_field)
+    times, glo, ghi = W[1], W[3], W[4]
     n = len(x)
     if not (t >= times[0] - 1e-9 and t <= times[-1] + 1e-9) or not z >= glo[n]:
         return False
     for a in range(n):
         point[a] = x[a]
-    point[n] = min(z, W[4][n])
+    point[n] = min(z, ghi[n])
     # the interpolant at a point is the box maximum of a box of no width, by the same arithmetic
-    return math.isfinite(point_value(W, t, point, work[6][2], work[6][8]))
+    return math.isfinite(point_value(W, t, point, work.scratch_W[2], work.scratch_W[8]))

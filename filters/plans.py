@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from softreach.reach.cell_certificate import CellCertificate, cell_key, cached
+from softreach.reach.ranks import RANK_PROVEN, RANK_SAFE
 
 try:  # torch is a base dependency, but keep numpy-only use possible
     import torch
@@ -83,7 +84,8 @@ def follow_plans(vf: Any, plans: np.ndarray | None, new_plans: np.ndarray, rows:
     any_ok = any_ok.copy()
     J = len(vf.lookahead.candidates)
     for game, cells in ((PLAN_LAND, vf.landing_cells), (PLAN_SAFE, vf.safe_cells)):
-        weak = np.nonzero(~any_ok if game == PLAN_LAND else best_bad >= 1e6)[0]
+        # safe cells' plans where the choice's end is not proven safe (its badness is not RANK_PROVEN's)
+        weak = np.nonzero(~any_ok if game == PLAN_LAND else best_bad >= RANK_SAFE)[0]
         if cells is None or not len(weak):
             continue
         r = rows[weak]
@@ -98,7 +100,7 @@ def follow_plans(vf: Any, plans: np.ndarray | None, new_plans: np.ndarray, rows:
         jj = np.where(follow, pj, cj)[use]
         applied[weak[use]] = best[weak[use]] = vf.lookahead.candidates[jj]
         best_next[weak[use]] = cand_next[weak[use], jj]
-        best_bad[weak[use]] = -1.0 if game == PLAN_LAND else 0.9e6
+        best_bad[weak[use]] = -1.0 if game == PLAN_LAND else RANK_PROVEN
         new_plans[r[use]] = np.stack([jj, np.where(follow, pk - 1, ck - 1)[use], np.full(int(use.sum()), game)],
                                      axis=1)
         if game == PLAN_LAND:

@@ -21,7 +21,7 @@ def _number(v: Any) -> bool:
 
 
 def check_box(owner: str, box: Any, *, field: str, strict: bool = False, unbounded: bool = False,
-              axis_names: Sequence[str] = ()) -> None:
+              axis_names: Sequence[str] = (), why: str = "") -> None:
     """Raise a one-line ``ValueError`` naming ``owner``, ``field`` and the bad values unless ``box`` is a pair
     ``(lower, upper)`` of equally long sequences of real numbers with ``lower <= upper`` on every axis.
 
@@ -31,6 +31,7 @@ def check_box(owner: str, box: Any, *, field: str, strict: bool = False, unbound
         zero width is otherwise allowed (an input held fixed, a start fixed along an axis)
     :param unbounded: allow ``-inf`` lower and ``+inf`` upper ends (a box that only bounds some axes); NaN never
     :param axis_names: names of the axes, for the message (indices where not given)
+    :param why: what needs the width, added to a message about a zero width
     """
     where = f"{owner}: {field}"
     if isinstance(box, (str, bytes)) or not isinstance(box, (Sequence, np.ndarray)) or len(box) != 2:
@@ -55,7 +56,7 @@ def check_box(owner: str, box: Any, *, field: str, strict: bool = False, unbound
             rule = "lower < upper" if strict else "lower <= upper"
             raise ValueError(f"{where} needs {rule} on every axis; {axis} has lower {lo!r} > upper {hi!r} in {box!r}"
                              if lo > hi else f"{where} needs {rule} on every axis; {axis} has zero width "
-                             f"[{lo!r}, {hi!r}] in {box!r}")
+                             f"[{lo!r}, {hi!r}] in {box!r}" + (f": {why}" if why else ""))
 
 
 def box_check(field: str, *, states: bool = False, optional: bool = False, **options: Any
@@ -74,6 +75,17 @@ def box_check(field: str, *, states: bool = False, optional: bool = False, **opt
         check_box(model_label(obj), value, field=field, axis_names=names, **options)
 
     return check
+
+
+def check_action_box(obj: Any) -> None:
+    """Where actions are normalised (an environment's action space ``[-1, 1]``, the safety filter's map of it,
+    :func:`~softreach.reach.lookahead.action_map`), the control box needs a width on every axis: ``q = (u - mid) /
+    half``. The model's own check (``Dynamics._CHECKS``) allows a zero width, which a solve alone can use (an
+    input held fixed); this check refuses it with a one-line ``ValueError`` naming the model, the axis and its
+    bounds."""
+    check_box(model_label(obj), obj.control_bounds, field="control_bounds", strict=True,
+              why="an environment and the safety filter map actions to [-1, 1] by the box's half-width; give the "
+                  "axis a width or leave that input out of the model")
 
 
 def check_horizon(obj: Any, value: Any) -> None:

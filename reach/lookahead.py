@@ -49,11 +49,13 @@ import numpy as np
 
 from .horizon import exact_before_horizon, in_window
 from .box_max import box_max, kernel_field
+from .boxes import check_action_box
 from .dynamics import row_time
 from .interpolation import interpolate
 from .kernels import certificate_rows
 from .landing import lands_within, meets_target
 from .model_kernels import SET_INDEX, held_boxes, set_max_address, set_max_rows
+from .ranks import RANK_LEAVES_C1, RANK_OVERSPENT, RANK_PROVEN, RANK_SAFE, RANK_UNSAFE, TIE_INF, TIE_OVERSPEND
 
 
 #: the fields that say how much budget suffices, in the order a table's is picked
@@ -66,6 +68,7 @@ UNIT_ROUNDOFF = 2.0 ** -53
 def action_map(model: Any) -> tuple[np.ndarray, np.ndarray]:
     """The centre and half-width of the model's control box: the environments apply the normalised action ``q``
     as ``mid + half * q`` (binary64), :mod:`softreach.envs.actions`."""
+    check_action_box(model)
     lo, hi = (np.asarray(b, dtype=np.float64) for b in model.control_bounds)
     return 0.5 * (lo + hi), 0.5 * (hi - lo)
 
@@ -507,21 +510,22 @@ class Lookahead:
         if "V_safe" in self.fields and len(ranked):
             S, St, Sg = self.fields["V_safe"]
             safe[ranked] = box_max(S, St, Sg, t_next[ranked], end_lo[ranked], end_hi[ranked]) <= 0
-        # ranks, lower is better: passing, by next value (<= 0) < 1e6 safe, budget kept < 2e6 safe, overspent
-        # < 3e6 budget kept < 4e6 overspent < 5e6 + how far C1 may be left < inf (not bounded); within a rank
-        # the next value, then the overspend, breaks ties
+        # ranks, lower is better (softreach.reach.ranks): passing, by next value < proven safe end < safe end,
+        # budget kept < safe end, overspent < budget kept < overspent < how far C1 may be left < inf (not
+        # bounded); within a rank the next value, then the overspend, breaks ties
         near = meets_target(self, tube_lo, tube_hi)
         lands = lands_within(self, t, x, z, a, x_hi, ~passing & bounded & in_time & near)
         passing |= lands
         ok |= lands
         nxt = np.where(lands, -np.inf, nxt)
-        tie = np.arctan(np.nan_to_num(nxt, posinf=1e12)) / np.pi + 1e3 * np.maximum(-z_end, 0.0)
+        tie = np.arctan(np.nan_to_num(nxt, posinf=TIE_INF)) / np.pi + TIE_OVERSPEND * np.maximum(-z_end, 0.0)
         # an action ending in safe cells ranks before every other that does not pass (safe cells prove C1 and the
         # budget for good); without them V_safe and the budget rank them
         proven = safe_end & kept if self.safe_cells is not None else np.zeros(len(x), bool)
-        rank = np.where(proven, 0.9e6, np.where(safe, 1e6, 3e6) + np.where(kept | lands, 0.0, 1e6))
+        rank = np.where(proven, RANK_PROVEN,
+                        np.where(safe, RANK_SAFE, RANK_UNSAFE) + np.where(kept | lands, 0.0, RANK_OVERSPENT))
         bad = np.where(passing, nxt, np.where(in_c1, rank + tie, np.inf))
-        bad = np.where(bounded & ~in_c1 & ~lands, 5e6 + np.maximum(c1, 0.0), bad)
+        bad = np.where(bounded & ~in_c1 & ~lands, RANK_LEAVES_C1 + np.maximum(c1, 0.0), bad)
         nxt = np.where(ok, nxt, np.inf)
         out = (passing, nxt, bad)
         return out + (end_lo, end_hi, z_end, kept | lands) if ends else out

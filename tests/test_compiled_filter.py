@@ -8,7 +8,7 @@ import itertools
 import numpy as np
 import pytest
 
-from softreach.filters import ValueFilter
+from softreach.filters import PASS, ValueFilter
 from softreach.filters.plans import start_plans
 from softreach.reach import get_model, sets
 from softreach.reach.model_kernels import SET_INDEX, set_max_address, set_max_rows
@@ -91,7 +91,7 @@ def test_compiled_filter_decides_as_the_numpy_filter(pointmass_held_table, rule)
     np.testing.assert_array_equal(applied, expect)
     _same(info, expect_info)
     # both kinds of rows occur, so both paths were compared
-    assert 0.05 < (info["reason"] == 0).mean() < 0.95
+    assert 0.05 < (info["reason"] == PASS).mean() < 0.95
     for i in range(0, len(x), 40):  # one row at a time: the call a SafetyFilter.step makes
         one, one_info = fast.filter(t[i], x[i], z[i], a[i])
         np.testing.assert_array_equal(one, applied[i])
@@ -105,7 +105,7 @@ def test_without_diagnostics_the_same_decisions(pointmass_held_table, rule):
     fast, slow = _pair(pointmass_held_table, rule)
     t, x, z, a = _draws(1500 if rule == "switch" else 300, 9)
     applied, info = fast.filter(t, x, z, a)
-    passed = info["reason"] == 0
+    passed = info["reason"] == PASS
     assert 0.05 < passed.mean() < 0.95
     for vf in (fast, slow):
         lean, lean_info = vf.filter(t, x, z, a, diagnostics=False)
@@ -284,7 +284,7 @@ def test_compiled_glider_filter_decides_as_the_numpy_filter(glider_held_table, r
     expect, expect_info = slow.filter(t, x, z, a)
     np.testing.assert_array_equal(applied, expect)
     _same(info, expect_info)
-    assert 0.05 < (info["reason"] == 0).mean() < 0.95
+    assert 0.05 < (info["reason"] == PASS).mean() < 0.95
     for i in range(0, len(x), 50):
         one, one_info = fast.filter(t[i], x[i], z[i], a[i])
         np.testing.assert_array_equal(one, applied[i])

@@ -5,7 +5,7 @@ in both action conventions, for both rules; and inputs it does not take still re
 import numpy as np
 import pytest
 
-from softreach.filters import ValueFilter
+from softreach.filters import AFTER_HORIZON, BLEND, OPTIMAL, OUTSIDE, PASS, UNCERTIFIED, ValueFilter
 from softreach.filters.single import filter_one
 
 
@@ -67,7 +67,7 @@ def test_one_plain_row_is_the_batched_decision(pointmass_held_table, rule):
                 _identical(vf.filter(t[i], x[i], z[i], act, normalized=normalized, diagnostics=diagnostics), expect)
                 reasons.add(int(got[1]["reason"]))
     # rows that pass, that are replaced, uncertified, off the table and after the horizon were all compared
-    assert {0, 2 if rule == "switch" else 1, 3, 4, 7} <= reasons, reasons
+    assert {PASS, OPTIMAL if rule == "switch" else BLEND, OUTSIDE, AFTER_HORIZON, UNCERTIFIED} <= reasons, reasons
     # one compiled code serves one row and a batch (a second would be a second compilation of about 40 s)
     from softreach.filters.compiled import decide_rows
 

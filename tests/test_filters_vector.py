@@ -9,7 +9,7 @@ import gymnasium as gym
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import softreach.envs  # noqa: F401  (registers the environments)
-from softreach.filters import SafetyFilter, ValueFilter, VecSafetyFilter
+from softreach.filters import AFTER_HORIZON, SafetyFilter, ValueFilter, VecSafetyFilter
 
 ENV_ID = "softreach/PointMassLanding-v0"
 KEYS = ("filter_active", "filter_reason", "certified", "lookahead", "value")
@@ -53,7 +53,7 @@ def test_a_stale_decision_is_not_used(pointmass_held_table):
     base = env.unwrapped
     a = np.array([0.2], dtype=np.float32)
     applied, dec = vf.filter(base.time, base.state, base.budget, a, normalized=True)
-    bogus = {**dec, "active": True, "reason": 4}
+    bogus = {**dec, "active": True, "reason": AFTER_HORIZON}
     env.expect(np.array([0.9], dtype=np.float32), np.array([-1.0]), bogus)  # for another action
     _, _, _, _, info = env.step(a)
     np.testing.assert_allclose(info["applied_action"], np.clip(applied, -1, 1))

@@ -1,0 +1,172 @@
+"""What the compiled decision reads, by name: the model's side of the one-period test, the cells, the table, the
+control box's map, the verdict on one action and the work space (:mod:`softreach.filters.compiled`,
+:mod:`softreach.filters.judge`).
+
+Each is a :class:`typing.NamedTuple`: numba compiles a field read by name to the same code as one by position, and
+keeps caching the functions that take them (their type names the class, which is found again by its module).
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+
+
+class Motion(NamedTuple):
+    """The model's side of the one-period test (:class:`~softreach.reach.lookahead.Lookahead`)."""
+
+    #: the model's ``held_box_params``: the parameters its compiled enclosure reads
+    params: np.ndarray
+    #: the ``h_eps`` width with which the environment drains the budget
+    eps: float
+    #: the parameters of the model's compiled set maxima
+    set_params: Any
+    #: the address of the model's compiled set maxima (:func:`~softreach.reach.model_kernels.call_set_max`)
+    set_address: int
+    #: the target box's lower and upper corners (``-inf`` / ``+inf`` where the model has none)
+    target_lo: np.ndarray
+    target_hi: np.ndarray
+    #: the instants ``0, dt / P, ..., dt`` that cut the period into the budget's ``P`` pieces: the last is ``dt``
+    edges: np.ndarray
+    #: per landing check instant ``s`` (a row), the instants that cut ``[0, s]`` into the same number of pieces
+    check_edges: np.ndarray
+    #: the table's horizon ``T`` [s]
+    horizon: float
+    #: the rounding allowance that widens every box compared with a set or a cell, per state axis
+    slack: np.ndarray
+    #: the environment's first check instant inside a period [s]
+    first_check: float
+    #: the budget's rounding allowance, added to a positive charge
+    budget_slack: float
+    #: the environment computes as the test assumes (:attr:`Lookahead.exact_env`): the allowances apply
+    exact_env: bool
+
+
+class Cells(NamedTuple):
+    """The cells the decision uses (:class:`~softreach.reach.cell_certificate.CellCertificate`'s kernel
+    arguments)."""
+
+    #: the safe cells' kernel arguments (the landing cells' where there are no safe cells: then unused)
+    safe: tuple
+    #: whether there are safe cells
+    has_safe: bool
+    #: the landing cells' kernel arguments
+    land: tuple
+    #: the safe cells' plans (``plan_args``; the landing cells' where there are no safe cells)
+    safe_plan: tuple
+    #: the landing cells' plans
+    land_plan: tuple
+
+
+class TableArgs(NamedTuple):
+    """A ``W_eps`` table's fields as the compiled code reads them (:func:`~softreach.reach.kernels.
+    certificate_row`, :func:`~softreach.reach.box_max.kernel_field`)."""
+
+    #: ``W_eps`` over the state and the budget
+    W: tuple
+    #: the budget grid's top and bottom [s]
+    z_top: float
+    z_floor: float
+    #: ``V`` (``W`` again where the table has none)
+    V: tuple
+    has_V: bool
+    #: the safe value ``V_safe`` (``V`` again where the table has none)
+    S: tuple
+    has_S: bool
+
+
+class ActionMap(NamedTuple):
+    """The control box's map (:func:`~softreach.reach.lookahead.action_map`) and the candidates in it."""
+
+    #: the control box's centre and half-width: an environment applies ``mid + half * q``
+    mid: np.ndarray
+    half: np.ndarray
+    #: the candidates normalised, each mapped back exactly (:func:`~softreach.reach.lookahead.exact_normalized`)
+    cands_q: np.ndarray
+
+
+class Verdict(NamedTuple):
+    """What :func:`~softreach.filters.judge.judge` finds of one held action without reading the table."""
+
+    #: the action passes by the cells
+    ok: bool
+    #: every run surely lands inside the period
+    lands: bool
+    #: the enclosure bounds the motion (finite boxes)
+    bounded: bool
+    #: the motion keeps ``C1`` and the period ends by the horizon
+    in_c1: bool
+    #: ``in_c1`` and the budget is kept
+    kept: bool
+    #: its end keeps inside the safe cells
+    proven: bool
+    #: the largest ``c1`` over the motion
+    c1: float
+    #: the budget at the period's end
+    z_end: float
+    #: the period's end, at most the horizon
+    t_next: float
+
+
+class Work(NamedTuple):
+    """One row's work space of the one-period test and the table's reads."""
+
+    #: the box of the period's whole motion
+    tube_lo: np.ndarray
+    tube_hi: np.ndarray
+    #: a box of part of the motion
+    lo: np.ndarray
+    hi: np.ndarray
+    #: a box over the state and the budget (one longer than the state)
+    box_lo: np.ndarray
+    box_hi: np.ndarray
+    #: the box maximum's scratch for ``W_eps`` (over the state and the budget) and ``V`` / ``V_safe``
+    #: (:func:`~softreach.reach.kernels.box_scratch`)
+    scratch_W: tuple
+    scratch_V: tuple
+
+
+class Box(NamedTuple):
+    """A box's lower and upper corners."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+
+
+class DecisionSpace(NamedTuple):
+    """The work space of :func:`~softreach.filters.compiled.decide_rows`: the compiled loops allocate nothing.
+    ``c_*`` hold one entry per candidate."""
+
+    work: Work
+    #: the end box of a candidate judged from a whole end box (:func:`~softreach.filters.judge.keeps`)
+    work_box: Box
+    #: ``(J + 1, n)``: each candidate's end box, and the policy's (or the bisection's) in the last row
+    end_lo: np.ndarray
+    end_hi: np.ndarray
+    #: passes, its next value, its badness, its end budget, whether it keeps ``C1`` and the budget
+    c_ok: np.ndarray
+    c_next: np.ndarray
+    c_bad: np.ndarray
+    c_zend: np.ndarray
+    c_kept: np.ndarray
+    #: the rule's score, the normalised distance to the policy's action, the order of preference's key
+    c_score: np.ndarray
+    c_dist: np.ndarray
+    c_pref: np.ndarray
+    #: the action being judged
+    act: np.ndarray
+    #: a point over the state and the budget
+    point: np.ndarray
+    #: the verdict's ``in_c1``, ``bounded``, ``proven`` and ``c1``
+    c_in: np.ndarray
+    c_bounded: np.ndarray
+    c_proven: np.ndarray
+    c_c1: np.ndarray
+    #: candidates whose next value is to be read; lower bounds; ties; the order of preference
+    c_pick: np.ndarray
+    c_low: np.ndarray
+    c_tie: np.ndarray
+    c_order: np.ndarray
+    #: ``(8, n)``: the start-plan search's boxes (:func:`~softreach.filters.compiled_starts.start_plan_rows`)
+    boxes: np.ndarray

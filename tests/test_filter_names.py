@@ -1,0 +1,113 @@
+"""The filter's numbers and arguments by name (issue 37): the reason codes and the rank offsets each have one home
+(:mod:`softreach.filters.reasons`, :mod:`softreach.reach.ranks`) whose order leaves room for every tie, the
+compiled code reads its arguments by name, and a control box that an environment or the filter normalises by
+has a width on every axis."""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import pytest
+
+from softreach.filters import reasons
+from softreach.reach import ranks
+
+ROOT = Path(__file__).resolve().parents[1]
+#: the filter's sources: the filters package and the numpy one-period test
+SOURCES = sorted((ROOT / "filters").glob("*.py")) + [ROOT / "reach" / "lookahead.py"]
+#: a kept budget's tie lies in (-0.5, 0.5): atan(next) / pi (reach/ranks.py)
+TIE = 0.5
+
+
+def test_ranks_leave_room_for_every_tie():
+    """The badness of a failing action is its rank plus its tie; the filter's choices rely on the ranks' order
+    surviving any tie of a budget-kept action, and on every passing score lying below every failing one."""
+    r = ranks
+    # each kind of failing action, in the order the filter prefers them; the overspent ones add RANK_OVERSPENT
+    order = [r.RANK_PROVEN, r.RANK_SAFE, r.RANK_SAFE + r.RANK_OVERSPENT, r.RANK_UNSAFE,
+             r.RANK_UNSAFE + r.RANK_OVERSPENT, r.RANK_LEAVES_C1]
+    for lower, upper in zip(order, order[1:]):
+        assert upper - lower >= r.NEXT_CAP > 2 * TIE, (lower, upper)
+    # a passing candidate that does not keep scores at most PASSES_ONLY + NEXT_CAP: below any failing badness
+    assert r.PASSES_ONLY + r.NEXT_CAP < r.LOWEST_BAD < r.RANK_PROVEN - TIE
+    # a keeping candidate's next value below NEXT_CAP comes before a passing-only one's score
+    assert r.NEXT_CAP <= r.PASSES_ONLY - r.NEXT_CAP
+    # the safe cells' plans are asked where the choice is not proven: badness >= RANK_SAFE exactly then
+    assert r.RANK_PROVEN + TIE < r.RANK_SAFE - TIE
+    # the smooth rule: a distance in the normalised box is at most 2 sqrt(m); SMOOTH_PASSES_ONLY is above it
+    for m in (1, 2, 3):
+        assert 2 * math.sqrt(m) < r.SMOOTH_PASSES_ONLY
+    assert math.atan(r.TIE_INF) / math.pi < TIE
+
+
+def test_reason_codes_are_distinct_and_named():
+    codes = [reasons.PASS, reasons.BLEND, reasons.OPTIMAL, reasons.OUTSIDE, reasons.AFTER_HORIZON, reasons.FALLBACK,
+             reasons.UNCERTIFIED]
+    assert len(set(codes)) == len(codes) and set(reasons.REASONS) == set(codes)
+
+
+def _code(path: Path) -> str:
+    """The file's code without comments and docstrings' prose lines (which may cite numbers)."""
+    return "\n".join(line.split("#")[0] for line in path.read_text().splitlines())
+
+
+def test_no_source_writes_a_rank_offset_or_a_reason_code_of_its_own():
+    offsets = re.compile(r"(?<![\w.])(0\.9e6|1e6|3e6|5e6|5e5|1e5|1e12)(?![\w.])")
+    defines = re.compile(r"^\s*_?(PASS|BLEND|OPTIMAL|OUTSIDE|AFTER_HORIZON|FALLBACK|UNCERTIFIED|PLAN_LAND|PLAN_SAFE)"
+                         r"(\s*,\s*_?\w+)*\s*=", re.M)
+    for path in SOURCES:
+        code = _code(path)
+        assert not offsets.findall(code), (path.name, offsets.findall(code))
+        homes = {"reasons.py": {"PASS", "BLEND", "OPTIMAL", "OUTSIDE", "AFTER_HORIZON", "FALLBACK", "UNCERTIFIED"},
+                 "plans.py": {"PLAN_LAND", "PLAN_SAFE"}}
+        found = {m.group(1) for m in defines.finditer(code)}
+        assert found <= homes.get(path.name, set()), (path.name, found)
+
+
+def test_compiled_code_reads_its_arguments_by_name():
+    positional = re.compile(r"\b(M|C|T|space|work|work_box|action)\[\d")
+    for name in ("compiled.py", "compiled_certify.py", "compiled_starts.py", "judge.py"):
+        code = _code(ROOT / "filters" / name)
+        assert not positional.findall(code), (name, positional.findall(code))
+
+
+# ----------------------------------------------------------------------------------- a control axis of no width
+
+def _cart_with_a_fixed_input():
+    """The cart of docs/models.md with a second control, a push held at 0.5 m/s^2 (a box of zero width there)."""
+    from cart_motion import CartMotion
+
+    from softreach.reach import Model
+    from softreach.reach.dynamics import ControlAndDisturbanceAffine
+
+    class FixedPushCart(CartMotion, Model, ControlAndDisturbanceAffine):
+        default_shape = (11, 11)
+        default_budget_points = 5
+        control_period = 0.05
+        start_box = ((-1.5, -0.5), (1.5, 0.5))
+        start_budget = (0.0, 1.0)
+        control_bounds = ((-6.0, 0.5), (2.0, 0.5))
+        disturbance_bounds = ((-0.5,), (0.5,))
+
+        def control_matrix(self, t, x):
+            return [[0, 0], [1.0, 1.0]]
+
+    return FixedPushCart()
+
+
+def test_a_control_axis_of_no_width_is_refused_where_actions_are_normalised():
+    """A solve may hold an input fixed (the model's own check allows it), but an environment's action space and
+    the filter's map divide by the half-width: both refuse the box at once, naming the axis and its bounds, instead
+    of a division by zero at the first step."""
+    from softreach.reach.lookahead import action_map
+    from softreach.reach.registry import make_env
+
+    model = _cart_with_a_fixed_input()  # accepted as a model
+    words = r"'cart'.*control_bounds.*axis 1 has zero width \[0\.5, 0\.5\].*half-width"
+    with pytest.raises(ValueError, match=words) as info:
+        make_env(model)
+    assert "\n" not in str(info.value)
+    with pytest.raises(ValueError, match=words):
+        action_map(model)
