@@ -77,11 +77,27 @@ def _loops(ndim: int, first: str, indent: int, skip: int | None = None) -> tuple
     return lines, pad
 
 
+def parameters(dynamics: Any) -> list[float]:
+    """The values a compiled step reads at every call instead of baking them in: ``dynamics.kernel_parameters()``
+    where the dynamics has them (the held action of :class:`~softreach.reach.held.HeldControl`), else none."""
+    get = getattr(dynamics, "kernel_parameters", None)
+    return [float(v) for v in get()] if get is not None else []
+
+
+def parameter_array(dynamics: Any, dtype: Any) -> np.ndarray:
+    """:func:`parameters` as the kernels' ``params`` argument (one unused entry where there are none: a typed
+    array either way)."""
+    return np.array(parameters(dynamics) or [0.0], dtype=dtype)
+
+
 def rate_body(op: Any, width: int) -> tuple[list[str], str, str]:
     """The rate at node ``(i0, i1, ...)`` as straight-line code: ``(lines, rate, speed)``, the lines reading the
     stencil of every axis from the padded ``up`` (ghost width ``W``), the coordinates ``x<a>v``, the steps ``h<a>``,
-    ``inv<a> = 1 / h<a>`` and ``t``; ``rate`` and ``speed`` the expressions of the node's rate and CFL speed. The
-    CPU loops here and the GPU kernels (:mod:`softreach.reach.gpu`) put the same lines in their own loops."""
+    ``inv<a> = 1 / h<a>``, ``t`` and the :func:`parameters` ``p<i>``; ``rate`` and ``speed`` the expressions of the
+    node's rate and CFL speed. The CPU loops here and the GPU kernels (:mod:`softreach.reach.gpu`) put the same
+    lines in their own loops."""
+    import contextlib
+
     D = op.grid.ndim
     fn = SCHEMES[op.settings.scheme][1]
     tape = Tape()
@@ -96,16 +112,21 @@ def rate_body(op: Any, width: int) -> tuple[list[str], str, str]:
         rights.append(dp)
     xs = [tape.var(f"x{a}v") for a in range(D)]
     hs = [tape.var(f"h{a}") for a in range(D)]
-    out, speed = op.numerical_hamiltonian(tape.var("t"), xs, hs, lefts, rights)
+    n = len(parameters(op.dynamics))
+    given = op.dynamics.parameters_as([tape.var(f"p{i}") for i in range(n)]) if n else contextlib.nullcontext()
+    with given:
+        out, speed = op.numerical_hamiltonian(tape.var("t"), xs, hs, lefts, rights)
+    loads = [f"p{i} = params[{i}]" for i in range(n)] + loads
     return loads + tape.lines, tape.value(out), tape.value(speed)
 
 
 def _rate_source(op: Any, width: int) -> list[str]:
-    """``rate_rows(lo, hi, up, out, xs..., inv, h, t, speed, acc)``: the rate and the CFL speed at rows ``lo:hi``."""
+    """``rate_rows(lo, hi, up, out, xs..., inv, h, t, params, speed, acc)``: the rate and the CFL speed at rows
+    ``lo:hi``."""
     D = op.grid.ndim
     body, out, speed = rate_body(op, width)
     args = ", ".join(f"x{a}" for a in range(D))
-    src = [f"@nb.njit(**_JIT)", f"def rate_rows(lo, hi, up, out, {args}, inv, h, t, speed, acc):", f"    W = {width}"]
+    src = [f"@nb.njit(**_JIT)", f"def rate_rows(lo, hi, up, out, {args}, inv, h, t, params, speed, acc):", f"    W = {width}"]
     src += [f"    n{a} = out.shape[{a}]" for a in range(D)]
     src += [f"    inv{a} = inv[{a}]" for a in range(D)] + [f"    h{a} = h[{a}]" for a in range(D)]
     # the largest speed of a row is kept per node of the last axis: a running maximum in one variable would keep
@@ -323,7 +344,7 @@ class FusedStepper:
     def _rate(self, t: float) -> float:
         k = self.kernels
         self.rows(k.rate_rows, self.u.shape[0], self.up, self.r, *self.xs, self.inv, self.h, self.u.dtype.type(t),
-                  self.speed, self.acc)
+                  parameter_array(self.op.dynamics, self.u.dtype), self.speed, self.acc)
         if not np.isfinite(self.acc.sum(dtype=np.float64)):
             return float("nan")
         return float(self.speed.max())
@@ -360,7 +381,7 @@ class FusedStepper:
 def fused_stepper(op: Any, settings: Any) -> FusedStepper | None:
     """A :class:`FusedStepper` for ``op``, or ``None`` where its code cannot be compiled pointwise (:class:`Unsupported`)
     or numba cannot compile it."""
-    if settings.device != "cpu" or getattr(op.dynamics, "fused_kernel", True) is False:
+    if settings.device != "cpu":
         return None
     try:
         return FusedStepper(op, settings)

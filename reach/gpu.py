@@ -42,7 +42,7 @@ import numpy as np
 
 from . import backend as B
 from .derivatives import SCHEMES
-from .fused import _index, ghost_body, kernel_dir, rate_body, stage_body, stage_pairs
+from .fused import _index, ghost_body, kernel_dir, parameter_array, rate_body, stage_body, stage_pairs
 from .trace import Unsupported
 
 #: threads per block of every kernel (a power of two: the speed's reduction halves it); the simulator runs each
@@ -91,7 +91,7 @@ def _rate_kernel(op: Any, width: int) -> list[str]:
     body, out, speed = rate_body(op, width)
     xs = ", ".join(f"x{a}" for a in range(D))
     node = ", ".join(f"i{b}" for b in range(D))
-    src = ["@cuda.jit(**_JIT)", f"def rate_all(up, out, {xs}, inv, h, t, speed, slot):", f"    W = {width}"]
+    src = ["@cuda.jit(**_JIT)", f"def rate_all(up, out, {xs}, inv, h, t, params, speed, slot):", f"    W = {width}"]
     src += [f"    n{a} = out.shape[{a}]" for a in range(D)]
     src += [f"    inv{a} = inv[{a}]" for a in range(D)] + [f"    h{a} = h[{a}]" for a in range(D)]
     src += ["    top = F(0.0)", "    k = cuda.grid(1)", "    while k < out.size:"]
@@ -258,6 +258,7 @@ class CudaStepper:
         self.xs = [B.asarray(x, "torch", settings.dtype, str(device)).reshape(-1).contiguous() for x in op.x]
         self.h = torch.tensor(op.dx, **f)
         self.inv = torch.tensor([1.0 / d for d in op.dx], **f)
+        self.params = torch.from_numpy(parameter_array(op.dynamics, np.dtype(settings.dtype))).to(device)
         self.speed = torch.zeros(2, **f)  # [0]: the first stage's CFL speed; [1]: the other stages', never read
         self.t, self.target, self.tol, self.dt = (torch.zeros(1, **f64) for _ in range(4))
         self.bad = torch.zeros(1, dtype=torch.int32, device=device)
@@ -275,7 +276,8 @@ class CudaStepper:
         table = RK_STAGES[settings.time_order]
         self._stages = [getattr(k, names[(a, b)])[self.blocks, block] for a, b, _ in table]
         d = self._device
-        self._rate_args = (d(self.up), d(self.r), *map(d, self.xs), d(self.inv), d(self.h), self.t0, d(self.speed))
+        self._rate_args = (d(self.up), d(self.r), *map(d, self.xs), d(self.inv), d(self.h), self.t0, d(self.params),
+                           d(self.speed))
         self._stage_args = tuple(map(d, (self.u, self.up, self.r, self.l, self.c, self.dt)))
         self._clock_args = (d(self.speed), d(self.t), d(self.target), d(self.tol), float(settings.cfl), d(self.dt),
                             d(self.bad))
@@ -311,6 +313,7 @@ class CudaStepper:
         from .device_loop import march_in_batches
 
         self._load(u)
+        self.params.copy_(B.torch.from_numpy(parameter_array(self.op.dynamics, np.dtype(self.settings.dtype))))
         self.t.fill_(t)
         self.target.fill_(target)
         self.tol.fill_(1e-12 * max(1.0, abs(target)))

@@ -13,12 +13,14 @@ commits first and cannot react inside a period). The minimum runs over a finite 
 certifies is certified by one of those candidates.
 
 Every sub-solve uses the same schemes, dissipation and projection as the continuous solve
-(:func:`softreach.reach.solver.march`); only the Hamiltonian changes. The candidate action lives in 0-d tensors
-that are overwritten in place, so one compiled step serves every candidate and every period.
+(:func:`softreach.reach.solver.march`); only the Hamiltonian changes. The candidate action is an input of the
+compiled step (:meth:`HeldControl.kernel_parameters`), or lives in 0-d tensors overwritten in place for
+``torch.compile``, so one compiled step serves every candidate and every period.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import replace
 from typing import Any, Sequence
@@ -41,10 +43,6 @@ class HeldControl(Dynamics):
 
     :param dynamics: the game's dynamics (a model, or a model augmented with the budget)
     """
-
-    #: the held action changes between sub-solves in place (:meth:`set_control`): a compiled loop
-    #: (:mod:`softreach.reach.fused`) would keep the one it was compiled with, so the array code runs it
-    fused_kernel = False
 
     def __init__(self, dynamics: Dynamics):
         self.inner = dynamics
@@ -71,6 +69,21 @@ class HeldControl(Dynamics):
                 self._a[i].fill_(float(v))
             else:
                 self._a[i] = float(v)
+
+    def kernel_parameters(self) -> list[float]:
+        """The held action: compiled steps (:mod:`softreach.reach.fused`, :mod:`softreach.reach.gpu`) read it at
+        every call, so that one compiled step serves every candidate."""
+        return [float(v) for v in self._a]
+
+    @contextlib.contextmanager
+    def parameters_as(self, values: Sequence[Any]):
+        """Hold ``values`` (the compiled step's placeholders for :meth:`kernel_parameters`) while its code is
+        recorded."""
+        saved, self._a = self._a, list(values)
+        try:
+            yield
+        finally:
+            self._a = saved
 
     def _columns(self, t, x):
         b = [float(v) for v in self._b_mid]
@@ -144,7 +157,9 @@ def solve_held(problem: ReachAvoidProblem, grid: Grid, times: Sequence[float], s
     held = HeldControl(problem.dynamics)
     op = HamiltonianOperator(replace(problem, dynamics=held), grid, settings)
     held.bind(op.x[0])
-    stepper = Stepper(op, settings)
+    # hundreds of short marches (a period per candidate): compiled steps pay off on every grid here, where the
+    # continuous solve leaves small grids to the array code (solver.FUSED_MIN_NODES)
+    stepper = Stepper(op, settings if settings.compile is not None else replace(settings, compile=True))
     k0, u = initial_value(op, times, start, sink)
     for k in range(k0 - 1, -1, -1):
         best = None
