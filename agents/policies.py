@@ -83,9 +83,12 @@ def check_fits(policy: Any, env: Any, model: str, path: str | Path | None = None
                             if mine.shape != theirs.shape else f"{what} bounds differ from {model}'s environment's")
     if mismatch:
         origin = trained_for(policy, path)
+        name = f"policy {path}" if path is not None else "the policy"
+        if origin == model:  # the right model, another observation: a method's wrapper (PPO-Saute appends one)
+            raise ValueError(f"{name} was trained for {model} but does not fit its environment: "
+                             + "; ".join(mismatch) + " (load it with softreach.agents.safe_train.load_method_policy)")
         who = f"was trained for {origin}" if origin else "was trained for another model"
-        raise ValueError(f"{f'policy {path}' if path is not None else 'the policy'} {who}, not {model}: "
-                         + "; ".join(mismatch))
+        raise ValueError(f"{name} {who}, not {model}: " + "; ".join(mismatch))
 
 
 def _space(space: Any) -> str:

@@ -38,6 +38,12 @@ def test_train_method_saute_trains_and_its_policy_evaluates_on_the_plain_env(tmp
                  "--episodes", "2", "--starts", "env", "--quiet", "--json", str(tmp_path / "ev.json")]) == 0
     doc = json.loads((tmp_path / "ev.json").read_text())
     assert doc["aggregates"]["episodes"] == 2
+    from softreach.agents.envs import make_env
+    from softreach.agents.policies import check_fits, load_policy
+
+    with pytest.raises(ValueError, match="trained for pointmass but does not fit its environment: observations "
+                                         r"Box\(5,\) where pointmass's environment has Box\(4,\)"):
+        check_fits(load_policy(run / "model.zip"), make_env("pointmass"), "pointmass", run / "model.zip")
 
 
 def test_train_method_lag_names_its_default_folder(tmp_path, monkeypatch):
