@@ -36,10 +36,12 @@ def recipe(row: dict[str, Any]) -> str:
     return f"{name}, {'Q drawn per episode' if budget == 'default' else f'trained at Q = {budget}'}"
 
 
-def pooled_mean(rows: Sequence[dict[str, Any]], name: str, lower: float = -math.inf) -> dict[str, Any] | None:
+def pooled_mean(rows: Sequence[dict[str, Any]], name: str, lower: float = -math.inf,
+                upper: float = math.inf) -> dict[str, Any] | None:
     """The mean of every episode of ``rows`` with its Student-t 95 % interval, from each row's ``<name>_mean``,
     ``_std`` and ``_n`` (the pooled variance: within-row sums of squares plus the rows' spread about the pooled
-    mean); ``None`` without episodes."""
+    mean), cut to ``[lower, upper]`` where the quantity is bounded (as :func:`mean_ci`); ``None`` without
+    episodes."""
     parts = [(int(r[f"{name}_n"]), float(r[f"{name}_mean"]), float(r[f"{name}_std"] or 0.0)) for r in rows
              if r.get(f"{name}_n") not in (None, "", 0) and r.get(f"{name}_mean") not in (None, "")]
     n = sum(k for k, _, _ in parts)
@@ -52,7 +54,7 @@ def pooled_mean(rows: Sequence[dict[str, Any]], name: str, lower: float = -math.
 
     ss = sum((k - 1) * s * s + k * (v - m) ** 2 for k, v, s in parts)
     half = float(student.ppf(0.975, n - 1)) * math.sqrt(ss / (n - 1) / n)
-    return {"mean": m, "low": max(m - half, lower), "high": m + half, "n": n}
+    return {"mean": m, "low": max(m - half, lower), "high": min(m + half, upper), "n": n}
 
 
 def _num(x: Any) -> float | None:
@@ -63,12 +65,13 @@ def _rate(rows: Sequence[dict[str, Any]], name: str) -> tuple[int, int]:
     return (sum(int(r[f"{name}_count"]) for r in rows), sum(int(r[f"{name}_n"]) for r in rows))
 
 
-def _both(rows: Sequence[dict[str, Any]], name: str, digits: int, lower: float = -math.inf) -> str:
-    """``mean [episodes' interval] [seeds' interval]``."""
-    ep = pooled_mean(rows, name, lower)
+def _both(rows: Sequence[dict[str, Any]], name: str, digits: int, lower: float = -math.inf,
+          upper: float = math.inf) -> str:
+    """``mean [episodes' interval] [seeds' interval]``, both cut to ``[lower, upper]``."""
+    ep = pooled_mean(rows, name, lower, upper)
     if ep is None:
         return "—"
-    seeds = mean_ci([_num(r[f"{name}_mean"]) for r in rows], lower=lower)
+    seeds = mean_ci([_num(r[f"{name}_mean"]) for r in rows], lower=lower, upper=upper)
     f = f"{{:.{digits}f}}"
     return (f"{f.format(ep['mean'])} [{f.format(ep['low'])}, {f.format(ep['high'])}] "
             f"[{f.format(seeds['low'])}, {f.format(seeds['high'])}]")
@@ -128,7 +131,7 @@ def paired_lines(rows: list[dict[str, Any]]) -> list[str]:
                 f"{pair(_landed)} | {pair(lambda g: _count(g, 'hard_violation_rate'))} | "
                 f"{pair(lambda g: _count(g, 'over_budget_rate'))} | "
                 f"{pair(lambda g: _both(g, 'return', 1))} | "
-                f"{_both(on, 'control_effort', 3, 0.0) if on else '—'} | "
+                f"{_both(on, 'control_effort', 3, 0.0, 1.0) if on else '—'} | "
                 f"{_both(on, 'time_to_land', 3, 0.0) if on else '—'} | "
                 f"{f'{100 * np.mean(inter):.1f} %' if inter else '—'} | {_training(both[0])} |")
             first = False
@@ -153,7 +156,7 @@ def method_lines(rows: list[dict[str, Any]]) -> list[str]:
                 f"| {f'{wind}, {q}' if first else ''} | {name} | {'+ filter' if filt == 'on' else 'alone'} | "
                 f"{len({r['seed'] for r in rs})} | {_landed(rs)} | {_count(rs, 'hard_violation_rate')} | "
                 f"{_count(rs, 'over_budget_rate')} | {_both(rs, 'return', 1)} | "
-                f"{_both(rs, 'control_effort', 3, 0.0)} | {_both(rs, 'time_to_land', 3, 0.0)} | "
+                f"{_both(rs, 'control_effort', 3, 0.0, 1.0)} | {_both(rs, 'time_to_land', 3, 0.0)} | "
                 f"{f'{100 * np.mean(inter):.1f} %' if inter else '—'} | {_training(rs)} |")
             first = False
     return head + lines

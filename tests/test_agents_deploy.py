@@ -178,6 +178,7 @@ def test_method_table_pools_the_seeds_of_each_recipe_and_deployment():
     rows = [row("lag", "none", "default", "off", s, 18 + s, 2 - s, 3, 140.0 + s) for s in (0, 1)] + \
            [row("lag", "none", "default", "on", s, 20, 0, 0, 150.0) for s in (0, 1)] + \
            [row("plain", "switch", "0.3", "on", 0, 20, 0, 0, 155.0)]
+    rows[2]["control_effort_mean"], rows[3]["control_effort_mean"] = 0.2, 0.95  # two seeds far apart
     lines = method_lines(rows)
     assert len(lines) == 2 + 3
     lag_alone = next(x for x in lines if "PPO-Lagrangian, Q drawn per episode | alone" in x)
@@ -192,6 +193,9 @@ def test_method_table_pools_the_seeds_of_each_recipe_and_deployment():
     assert cells[3] == "2" and cells[4].startswith("92% [") and " / 100% [" in cells[4]
     assert cells[5] == "3/40 / 0/40" and cells[6] == "6/40 / 0/40" and cells[7].startswith("140.5 [")
     assert " / 150.0 [" in cells[7] and cells[-3] == "2.0 %"
+    # the effort is a mean squared normalised action, in [0, 1]: the seeds' t interval (0.575 +- 12.7 x 0.375)
+    # is cut there, as the episodes' is
+    assert cells[8].startswith("0.575 [") and cells[8].endswith("[0.000, 1.000]")
     cells = [c.strip() for c in next(x for x in paired if "switch" in x).split("|")]
     assert cells[4].startswith("— / 100%") and cells[5] == "— / 0/20"
     assert method_lines([]) == paired_lines([]) == []
