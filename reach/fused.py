@@ -245,11 +245,15 @@ def kernel_source(op: Any, dtype: str) -> str:
 
 
 def load_kernels(op: Any, dtype: str) -> Any:
-    """The compiled module of ``op``'s loops, written into :func:`kernel_dir` under the hash of its text (once: numba
-    keys its cache on the file's time stamp) and imported from there."""
-    text = kernel_source(op, dtype)
-    digest = hashlib.sha256(text.encode()).hexdigest()[:20]
-    name = f"softreach_kernel_{digest}"
+    """The compiled module of ``op``'s loops (:func:`load_source`)."""
+    return load_source(kernel_source(op, dtype), "softreach_kernel_")
+
+
+def load_source(text: str, prefix: str) -> Any:
+    """Generated kernel source as a module, written into :func:`kernel_dir` under ``prefix`` and the digest of its
+    text (once: numba keys its cache on the file's time stamp, and keeps the compiled code beside it) and imported
+    from there."""
+    name = prefix + hashlib.sha256(text.encode()).hexdigest()[:20]
     if name in sys.modules:
         return sys.modules[name]
     folder = kernel_dir()

@@ -31,18 +31,14 @@ the kernels there, without a GPU.
 
 from __future__ import annotations
 
-import hashlib
-import importlib.util
 import math
-import os
-import sys
 from typing import Any
 
 import numpy as np
 
 from . import backend as B
 from .derivatives import SCHEMES
-from .fused import _index, ghost_body, kernel_dir, parameter_array, rate_body, stage_body, stage_pairs
+from .fused import _index, ghost_body, load_source, parameter_array, rate_body, stage_body, stage_pairs
 from .trace import Unsupported
 
 #: threads per block of every kernel (a power of two: the speed's reduction halves it); the simulator runs each
@@ -195,25 +191,9 @@ def kernel_source(op: Any, dtype: str) -> str:
 
 
 def load_kernels(op: Any, dtype: str) -> Any:
-    """The module of ``op``'s kernels, written under the digest of its text into the CPU loops' folder
-    (:func:`~softreach.reach.fused.kernel_dir`) and imported from there (numba-cuda caches the compiled kernels
-    beside it)."""
-    text = kernel_source(op, dtype)
-    name = "softreach_cuda_" + hashlib.sha256(text.encode()).hexdigest()[:20]
-    if name in sys.modules:
-        return sys.modules[name]
-    folder = kernel_dir()
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{name}.py"
-    if not path.exists() or path.read_text() != text:
-        tmp = folder / f".{name}.{os.getpid()}.tmp"
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
+    """The module of ``op``'s kernels, kept beside the CPU loops (:func:`~softreach.reach.fused.load_source`;
+    numba-cuda caches the compiled kernels beside it)."""
+    return load_source(kernel_source(op, dtype), "softreach_cuda_")
 
 
 def _block() -> int:
