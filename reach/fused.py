@@ -59,7 +59,7 @@ def kernel_dir() -> Path:
     return cache_root() / "kernels"
 
 
-def _index(ndim: int, axis: int | None, expr: str, pad: str) -> str:
+def padded_index(ndim: int, axis: int | None, expr: str, pad: str) -> str:
     """``up[...]`` index: node ``i_b + pad`` along every axis, ``expr`` along ``axis``."""
     return ", ".join(expr if b == axis else f"i{b}{pad}" for b in range(ndim))
 
@@ -104,7 +104,7 @@ def rate_body(op: Any, width: int) -> tuple[list[str], str, str]:
     loads, lefts, rights = [], [], []
     for a in range(D):
         for m in range(2 * width + 1):
-            loads.append(f"u{a}_{m} = up[{_index(D, a, f'i{a} + {m}', ' + W')}]")
+            loads.append(f"u{a}_{m} = up[{padded_index(D, a, f'i{a} + {m}', ' + W')}]")
         for m in range(2 * width):
             loads.append(f"d{a}_{m} = (u{a}_{m + 1} - u{a}_{m}) * inv{a}")
         dm, dp = fn([tape.var(f"d{a}_{m}") for m in range(2 * width)])
@@ -182,7 +182,7 @@ def _stage_sources(op: Any, width: int) -> tuple[list[str], dict[tuple[float, fl
     D = op.grid.ndim
     src, names = [], {}
     node = ", ".join(f"i{b}" for b in range(D))
-    inner = _index(D, None, "", " + W")
+    inner = padded_index(D, None, "", " + W")
     for k, (a, b) in enumerate(stage_pairs()):
         lines, v = stage_body(a, b)
         names[(a, b)] = f"stage_{k}"
@@ -207,7 +207,7 @@ def _ghost_sources(op: Any, width: int) -> list[str]:
         src += [f"    n{d} = up.shape[{d}] - 2 * W" for d in range(D)]
         loops, pad = _loops(D, "", 4, skip=a)
         src += loops
-        at = lambda e: f"up[{_index(D, a, e, ' + W')}]"  # noqa: E731
+        at = lambda e: f"up[{padded_index(D, a, e, ' + W')}]"  # noqa: E731
         n = f"n{a}"
         if rule == "periodic":
             for g in range(width):

@@ -38,7 +38,7 @@ import numpy as np
 
 from . import backend as B
 from .derivatives import SCHEMES
-from .fused import _index, ghost_body, load_source, parameter_array, rate_body, stage_body, stage_pairs
+from .fused import ghost_body, load_source, padded_index, parameter_array, rate_body, stage_body, stage_pairs
 from .trace import Unsupported
 
 #: threads per block of every kernel (a power of two: the speed's reduction halves it); the simulator runs each
@@ -109,7 +109,7 @@ def _rate_kernel(op: Any, width: int) -> list[str]:
 def _stage_kernels(op: Any, width: int) -> tuple[list[str], dict[tuple[float, float], str]]:
     D = op.grid.ndim
     node = ", ".join(f"i{b}" for b in range(D))
-    inner = _index(D, None, "", " + W")
+    inner = padded_index(D, None, "", " + W")
     src, names = [], {}
     for k, (a, b) in enumerate(stage_pairs()):
         lines, v = stage_body(a, b)
@@ -138,7 +138,7 @@ def _ghost_kernel(op: Any, width: int) -> list[str]:
         count = " * ".join(f"n{d}" for d in range(D) if d != a) or "1"
         src += [f"    lines{a} = {count}", f"    while k < {start} + lines{a}:"]
         src += _node_index(D, f"k - ({start})", skip=a)
-        at = lambda e, a=a: f"up[{_index(D, a, e, ' + W')}]"  # noqa: E731
+        at = lambda e, a=a: f"up[{padded_index(D, a, e, ' + W')}]"  # noqa: E731
         n, rule = f"n{a}", op.boundaries[a]
         if rule == "periodic":
             for g in range(width):
