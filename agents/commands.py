@@ -203,8 +203,8 @@ def run_train(args: argparse.Namespace) -> int:
     print(f"trained {res.timesteps - before} steps in {res.wall_time_s:.0f} s "
           f"({(res.timesteps - before) / max(res.wall_time_s, 1e-9):.0f} steps/s)"
           + (f", resumed from {spec.resume} at step {before}: {res.timesteps} in all" if spec.resume else ""))
-    print(f"training episodes: {safety['episodes']}, landed {safety['landed']}, hard violations "
-          f"{safety['hard_violations']}, over Q {safety['over_budget']} (train/training_safety.json)")
+    print(f"training episodes of these {safety['steps']:,} steps: {safety['episodes']}, landed {safety['landed']}, "
+          f"hard violations {safety['hard_violations']}, over Q {safety['over_budget']} (training_safety.json)")
     print(f"policy: {res.model_path}" + (f"  best: {res.best_model_path}" if res.best_model_path else ""))
     print(f"evaluate: softreach evaluate {args.model} --policy {res.model_path}"
           + (f" --filter {args.filter}" if args.filter else "") + " --plots " + str(res.out_dir / "plots"))
