@@ -33,7 +33,7 @@ def test_train_method_saute_trains_and_its_policy_evaluates_on_the_plain_env(tmp
     cfg = json.loads((run / "config.json").read_text())
     assert cfg["method"]["name"] == "saute" and cfg["method"]["saute_scale"] == pytest.approx(0.06)
     safety = json.loads((run / "training_safety.json").read_text())
-    assert safety["steps"] >= 128 and "training episodes:" in out
+    assert safety["steps"] >= 128 and f"training episodes of these {safety['steps']:,} steps: {safety['episodes']}," in out
     assert main(["evaluate", "pointmass", "--policy", str(run / "model.zip"), "--budget", "0.06", "--wind", "random",
                  "--episodes", "2", "--starts", "env", "--quiet", "--json", str(tmp_path / "ev.json")]) == 0
     doc = json.loads((tmp_path / "ev.json").read_text())
