@@ -39,7 +39,7 @@ from softreach.reach.lookahead import exact_normalized
 from softreach.reach.model_kernels import held_box_address
 from softreach.reach.ranks import LOWEST_BAD, NEXT_CAP, PASSES_ONLY, RANK_PROVEN, RANK_SAFE, SMOOTH_PASSES_ONLY
 
-from .compiled_args import ActionMap, Box, Cells, DecisionSpace, Motion, TableArgs, Work
+from .compiled_args import ActionMap, Box, Cells, DecisionSpace, Motion, TableArgs, Work, named, named_space, plain
 from .compiled_certify import certify_rows
 from .compiled_starts import start_plan_rows
 from .judge import badness, judge, keeps, least_next, next_value, on_table
@@ -207,13 +207,16 @@ def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, best, best_
 # work space is the caller's, decision_space), and with it on, every array that a call or an unpacking binds costs
 # two calls (a fifth of the box maximum's time: docs/filters.md, "How")
 @njit(nogil=True, _nrt=False)
-def decide_rows(enclose, M, C, T, cands, fallback, smooth, iterations, action, t, x, z, pol, plans, has_plans,
-                diagnostics, applied, reason, value, nxt, certified, chosen, blend, new_plans, space):
+def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterations, a_args, t, x, z, pol, plans,
+                has_plans, diagnostics, applied, reason, value, nxt, certified, chosen, blend, new_plans, space_args):
     """The decision for every row (:meth:`ValueFilter.filter`) by the ``"switch"`` rule, or with ``smooth`` by the
     ``"smooth"`` rule with ``iterations`` bisection steps, in the work space ``space`` (:func:`decision_space`); see
     the module docstring. Without ``diagnostics`` the certificate at the state and the next one of a passing
-    policy action, which decide nothing, are not read: both are NaN. ``M``, ``C``, ``T``, ``action``: the model's
-    side, the cells, the table and the control box's map (:mod:`softreach.filters.compiled_args`)."""
+    policy action, which decide nothing, are not read: both are NaN. ``m_args``, ``c_args``, ``t_args``, ``a_args``
+    and ``space_args``: the model's side, the cells, the table, the control box's map and the work space as plain
+    tuples (:mod:`softreach.filters.compiled_args`)."""
+    M, C, T, action = named(m_args, c_args, t_args, a_args)
+    space = named_space(space_args)
     N = x.shape[0]
     J, m = cands.shape
     work, end_lo, end_hi, act, point = space.work, space.end_lo, space.end_hi, space.act, space.point
@@ -320,6 +323,8 @@ class CompiledDecision:
                                 frozen(np.ascontiguousarray(exact_normalized(self.cands, la.a_mid, la.a_half))))
         self.fallback = frozen(np.asarray(vf.fallback_action, dtype=np.float64))
         self.no_plans = np.zeros((1, 3), np.int64)
+        #: the same as the compiled entry points take them (compiled_args.plain)
+        self.args = plain((self.M, self.C, self.T, self.action))
         # one work space per thread: decide_rows writes into it
         self._local = threading.local()
 
@@ -380,8 +385,9 @@ class CompiledDecision:
         """:func:`decide_rows` of ``rows`` (``t, x, z, pol, plans`` and the eight outputs) in this thread's work
         space."""
         vf = self.filter
-        decide_rows(self.enclose, self.M, self.C, self.T, self.cands, self.fallback, vf.rule == "smooth",
-                    vf.smooth_iterations, self.action, *rows[:5], has_plans, diagnostics, *rows[5:], self._space())
+        M, C, T, action = self.args
+        decide_rows(self.enclose, M, C, T, self.cands, self.fallback, vf.rule == "smooth", vf.smooth_iterations,
+                    action, *rows[:5], has_plans, diagnostics, *rows[5:], self._space()[1])
 
     def certify(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple:
         """:func:`~softreach.filters.compiled_certify.certify_rows` for ``N`` rows: ``(ok, next_value, value,
@@ -391,9 +397,11 @@ class CompiledDecision:
         nxt, value = np.empty(N), np.empty(N)
         t, x, z = (_writable(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z))
 
+        M, C, T, _ = self.args
+
         def run(lo: int, hi: int) -> None:
-            certify_rows(self.enclose, self.M, self.C, self.T, self.cands, t[lo:hi], x[lo:hi], z[lo:hi], ok[lo:hi],
-                         nxt[lo:hi], value[lo:hi], inside[lo:hi], in_cells[lo:hi], self._space())
+            certify_rows(self.enclose, M, C, T, self.cands, t[lo:hi], x[lo:hi], z[lo:hi], ok[lo:hi], nxt[lo:hi],
+                         value[lo:hi], inside[lo:hi], in_cells[lo:hi], self._space()[1])
 
         run_in_blocks(run, N, self.filter.threads)
         return ok, nxt, value, inside, in_cells
@@ -403,9 +411,10 @@ class CompiledDecision:
         """:func:`start_plan_rows` for ``N`` rows: the ``(N, segments, 3)`` plans."""
         out = np.empty((len(x), segments, 3), np.int64)
         t, x, z = (_writable(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z))
-        space = self._space()
-        start_plan_rows(self.enclose, self.M, self.C, self.cands, int(periods), t, x, z,
-                        _writable(np.ascontiguousarray(second, dtype=np.bool_)), out, space.work, space.boxes)
+        space = self._space()[0]
+        M, C, _, _ = self.args
+        start_plan_rows(self.enclose, M, C, self.cands, int(periods), t, x, z,
+                        _writable(np.ascontiguousarray(second, dtype=np.bool_)), out, plain(space.work), space.boxes)
         return out
 
     def __getstate__(self) -> dict:
@@ -416,10 +425,11 @@ class CompiledDecision:
         self.__dict__.update(state)
         self._local = threading.local()
 
-    def _space(self) -> DecisionSpace:
-        """This thread's work space for :func:`decide_rows`, made at its first call."""
+    def _space(self) -> tuple[DecisionSpace, tuple]:
+        """This thread's work space for :func:`decide_rows`, made at its first call, named and as a plain tuple."""
         space = getattr(self._local, "space", None)
         if space is None:
             J, m = self.cands.shape
-            space = self._local.space = decision_space(self.filter.lookahead.n, m, J)
+            named_one = decision_space(self.filter.lookahead.n, m, J)
+            space = self._local.space = (named_one, plain(named_one))
         return space

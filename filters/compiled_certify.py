@@ -17,16 +17,20 @@ from softreach.reach.jit import njit
 from softreach.reach.kernels import certificate_row, cover_row
 from softreach.reach.ranks import LOWEST_BAD
 
+from .compiled_args import Cells, Motion, TableArgs, named_space
 from .judge import badness, judge_once, next_value, on_table
 
 
 @njit(nogil=True, _nrt=False)
-def certify_rows(enclose, M, C, T, cands, t, x, z, ok, nxt, value, inside, in_cells, space):
+def certify_rows(enclose, m_args, c_args, t_args, cands, t, x, z, ok, nxt, value, inside, in_cells, space_args):
     """Per row: ``ok`` and ``nxt`` of the best candidate, ``value`` the certificate at the state, ``inside`` on the
     table (at the budget ``max(z, 0)``), ``in_cells`` in a landing cell; in the work space ``space``
     (:func:`~softreach.filters.compiled.decision_space`). Every passing candidate's next value is read: the
     least of them decides unless it lies above every failing one's badness, which is then read where it can decide
-    (:func:`~softreach.filters.judge.badness`)."""
+    (:func:`~softreach.filters.judge.badness`). The arguments as :func:`~softreach.filters.compiled.decide_rows`
+    takes them."""
+    M, C, T = Motion(*m_args), Cells(*c_args), TableArgs(*t_args)
+    space = named_space(space_args)
     N = x.shape[0]
     J = cands.shape[0]
     work, end_lo, end_hi, point = space.work, space.end_lo, space.end_hi, space.point

@@ -10,6 +10,7 @@ import math
 
 from softreach.reach.jit import njit
 
+from .compiled_args import Cells, Motion, Work
 from .judge import judge_once, period
 from .plans import PLAN_LAND
 
@@ -59,10 +60,12 @@ def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, 
 
 
 @njit(nogil=True, _nrt=False)
-def start_plan_rows(enclose, M, C, cands, periods, t, x, z, second, out, work, boxes):
+def start_plan_rows(enclose, m_args, c_args, cands, periods, t, x, z, second, out, work_args, boxes):
     """:func:`~softreach.filters.plans.start_plans` row by row, the same searches in the same order: per row
     ``out[r]`` its ``(START_SEGMENTS, 3)`` segments, in the work space ``work`` and ``boxes``
-    (:func:`~softreach.filters.compiled.decision_space`'s)."""
+    (:func:`~softreach.filters.compiled.decision_space`'s); the model's side, the cells and ``work`` as plain
+    tuples (:mod:`softreach.filters.compiled_args`)."""
+    M, C, work = Motion(*m_args), Cells(*c_args), Work(*work_args)
     N, n = x.shape
     J = cands.shape[0]
     dt = period(M)
