@@ -78,7 +78,7 @@ def plot_trajectories(result, out: str | Path, table=None, max_episodes: int = 4
     if n == 2:
         fig, ax = plt.subplots(figsize=(7.5, 6))
         if table is not None:
-            from softreach.reach.plotting import _colour, contour_level, _set_region
+            from softreach.reach.cli.plotting import _colour, contour_level, _set_region
 
             axes = table.state_axes("W_eps")
             _set_region(ax, model, axes, model.hard_constraint, 0.0, colors=[(1.0, 0.85, 0.85)])

@@ -7,7 +7,7 @@
 * :func:`safety_filter` wraps an environment in :class:`~softreach.filters.SafetyFilter`, computing the
   filter's margin field once per table and sharing it between environments (one margin field is several
   seconds of work and up to a few hundred MB; a vectorised training run holds many environments).
-* :func:`sample_inside`, :func:`paper_starts` (:mod:`softreach.reach.starts`, the pickers the plots use too),
+* :func:`sample_inside`, :func:`paper_starts` (:mod:`softreach.reach.tables.starts`, the pickers the plots use too),
   :func:`sample_uniform`: the start distributions of ``softreach evaluate --starts inside|paper|uniform``.
 """
 
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from softreach.reach import Table, load_table
-from softreach.reach.starts import paper_starts, sample_inside  # noqa: F401  (the start distributions, re-exported)
+from softreach.reach.tables.starts import paper_starts, sample_inside  # noqa: F401  (the start distributions, re-exported)
 
 def as_table(table: Table | str | Any) -> Table:
     """A loaded :class:`Table` (``table`` itself, or the file it names)."""

@@ -70,7 +70,7 @@ def certified_region(vf: ValueFilter, table, budgets: list[float], continuous=No
                      chunk: int = 20000) -> list[dict[str, Any]]:
     """Certified measure per budget beside the table's (and the continuous table's) ``RA~_Q``.
 
-    A grid reads ``RA~_Q`` at ``max(Q, r)``, ``r`` half a budget cell (:meth:`~softreach.reach.query.Table.set_mask`:
+    A grid reads ``RA~_Q`` at ``max(Q, r)``, ``r`` half a budget cell (:meth:`~softreach.reach.tables.query.Table.set_mask`:
     ``W_eps(t, x, 0) >= 0`` everywhere). Where that is above ``Q`` the row also gives the filter's region at that
     same budget (``reference_budget``, ``certified_at_reference_budget``); at ``Q = 0`` it gives the classical set
     ``{V <= 0}`` of each table with ``V`` (``classical_set``, ``continuous_classical_set``), which ``RA~_0`` equals
@@ -125,7 +125,7 @@ def sampled_region(vf: ValueFilter, table, budgets: list[float], continuous=None
                    seed: int = 0) -> list[dict[str, Any]]:
     """The region by states drawn uniformly over the hard-constraint box at ``t = 0``, where grid nodes (which
     :func:`certified_region` counts, each for its whole cell) weigh the sets' boundaries as much as their inside:
-    the share of the states in each table's ``RA~_Q`` (:meth:`~softreach.reach.query.Table.contains`, the rule of
+    the share of the states in each table's ``RA~_Q`` (:meth:`~softreach.reach.tables.query.Table.contains`, the rule of
     its ``set_mask`` at the states; at ``Q = 0`` also its classical set ``{V <= 0}``) that the filter certifies."""
     lo, hi = (np.asarray(v, dtype=float) for v in vf.model.hard_box)
     x = np.random.default_rng(seed).uniform(lo, hi, size=(n, len(lo)))

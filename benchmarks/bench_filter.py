@@ -39,7 +39,7 @@ of passes and interventions is a realistic one.
 
 Evaluation (``--skip-eval`` to leave it out): a uniformly random policy, filtered by each rule, from the grid nodes
 with ``W_eps(0, x, Q) <= -margin`` for ``Q`` in ``{0.06, 0.3, 0.6}``, under the table's adversarial wind, a random
-switching wind and the two constant extremes (``reach.simulate.rollout``, dt = 0.01 s). Reported per rule: the
+switching wind and the two constant extremes (``reach.sim.simulate.rollout``, dt = 0.01 s). Reported per rule: the
 share of runs that land, that leave ``C1`` and that overspend (budget used above ``Q + dt``), the intervention rate
 (steps where the applied action differs from the policy's) and the mean ``|applied - policy|`` [m/s^2]; and, for
 reference, the same policy without a filter.
@@ -60,7 +60,7 @@ import numpy as np
 
 from softreach.filters import ValueFilter
 from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
-from softreach.reach.simulate import constant, random_switching, rollout, table_disturbance
+from softreach.reach.sim.simulate import constant, random_switching, rollout, table_disturbance
 
 DT = 0.01
 

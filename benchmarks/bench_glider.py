@@ -15,10 +15,10 @@ Protocol of ``report`` (the soundness part; the same for every table):
 
 * starts: states drawn uniformly from the table's state box (seeded), kept where
   ``W_eps(0, x, max(Q, r)) <= -margin`` (``r`` is the table's budget resolution, the level that
-  :meth:`~softreach.reach.query.Table.set_mask` uses for ``Q = 0``), up to ``--starts`` per ``Q``;
+  :meth:`~softreach.reach.tables.query.Table.set_mask` uses for ``Q = 0``), up to ``--starts`` per ``Q``;
 * each start flies from ``t = 0`` with budget ``Q`` under a W-derived control (the paper's gradient control
   ``a*``, and optionally :func:`lookahead_control`; zero-order hold over ``--dt`` with 4 RK4 substeps,
-  :func:`softreach.reach.simulate.rollout`) against each of the winds: the table's
+  :func:`softreach.reach.sim.simulate.rollout`) against each of the winds: the table's
   worst case, constant tailwind (+10 kN), constant headwind (-10 kN), calm, and random bang-bang switching
   every 0.5 s and every 0.1 s;
 * counted: hard-constraint violations (``c1 > 0`` at any substep), failures to land by the horizon, budget
@@ -91,7 +91,7 @@ def cmd_solve(args: argparse.Namespace) -> dict[str, Any]:
 # ---------------------------------------------------------------------------------------------- report
 def set_numbers(table, budgets: Sequence[float] = BUDGETS, times: Sequence[float] = (0.0,)) -> dict[str, Any]:
     """Highest verified altitude and measure of ``RA~_Q`` (and of the classical ``RA``) at each time."""
-    from softreach.reach.plotting_nd import highest_node
+    from softreach.reach.cli.plotting_nd import highest_node
 
     out: dict[str, Any] = {}
     for t in times:
@@ -114,7 +114,7 @@ def set_numbers(table, budgets: Sequence[float] = BUDGETS, times: Sequence[float
 
 def winds(model, seed: int = 0) -> dict[str, Any]:
     """The wind sequences of the protocol (the table's worst case is added by :func:`soundness`)."""
-    from softreach.reach.simulate import constant, random_switching
+    from softreach.reach.sim.simulate import constant, random_switching
 
     w = model.disturbance_bounds[1][0]
     return {"tailwind": constant([w]), "headwind": constant([-w]), "calm": constant([0.0]),
@@ -127,7 +127,7 @@ def lookahead_control(table, lookahead: float = 0.1, n_alpha: int = 27):
     ``n_alpha`` angles and the two ends of the wind box (one explicit Euler step of ``L`` seconds).
 
     The paper's control is ``argmin_alpha max_F grad W . f`` with the gradient from central differences over
-    one grid cell (:func:`softreach.reach.simulate.table_control`). Near the top of the sets, where the 10 s
+    one grid cell (:func:`softreach.reach.sim.simulate.table_control`). Near the top of the sets, where the 10 s
     horizon binds, that one drifts away from the flight-path limit and runs out of time; this one compares
     values a step ahead instead of a smoothed gradient (docs/glider.md, "Soundness").
     """
@@ -192,8 +192,8 @@ def soundness(table, budgets: Sequence[float] = BUDGETS, n_starts: int = 60, mar
               dt: float = 0.01, seed: int = 0, pilot: int = 20, wind_names: Sequence[str] | None = None,
               policy: str = "gradient") -> dict[str, Any]:
     """Closed-loop check of the sets (module docstring, "Protocol"); ``policy``: ``gradient`` (the paper's
-    ``a*``, :func:`softreach.reach.simulate.table_control`) or ``lookahead`` (:func:`lookahead_control`)."""
-    from softreach.reach.simulate import rollout, table_control, table_disturbance
+    ``a*``, :func:`softreach.reach.sim.simulate.table_control`) or ``lookahead`` (:func:`lookahead_control`)."""
+    from softreach.reach.sim.simulate import rollout, table_control, table_disturbance
 
     model = table.model
     ctrl = table_control(table) if policy == "gradient" else lookahead_control(table)

@@ -1,4 +1,4 @@
-"""Seconds for one :func:`softreach.reach.simulate.rollout` of many point-mass states.
+"""Seconds for one :func:`softreach.reach.sim.simulate.rollout` of many point-mass states.
 
 Usage::
 
@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from softreach.reach.models import get_model
-from softreach.reach.simulate import random_switching, rollout
+from softreach.reach.sim.simulate import random_switching, rollout
 
 
 def _control(t: float, x: np.ndarray, z: np.ndarray) -> np.ndarray:

@@ -81,7 +81,7 @@ def device_copy_gbs(device: str, mb: int = 1024, repeats: int = 10) -> float:
 def _soft_cli_worker(args) -> dict:
     """``softreach solve`` in this process, with the fused stepper's loops counted and timed."""
     from softreach.cli import main as cli_main
-    from softreach.reach import fused
+    from softreach.reach.numerics import fused
 
     stats = {"stages": 0, "nodes_stages": 0, "stepping_s": 0.0, "threads": None}
     FS = fused.FusedStepper
@@ -106,7 +106,7 @@ def _soft_cli_worker(args) -> dict:
     if args.device.startswith("cuda"):  # the GPU's kernels: a march is timed to its end on the device
         import torch
 
-        from softreach.reach import gpu
+        from softreach.reach.numerics import gpu
 
         CS = gpu.CudaStepper
 

@@ -8,10 +8,10 @@ one-period test and, for the point mass, the exact sets.
 
 Certified means ``ValueFilter.certify``: with the cells (``landing_cells``, proven) and with the table alone
 (``landing_cells=None``, by the interpolant), on states drawn uniformly over ``C1``. ``--exact-pointmass`` also
-counts the states of the exact continuous-time sets (``softreach.reach.exact_pointmass``), which hold every state
+counts the states of the exact continuous-time sets (``softreach.reach.numerics.exact_pointmass``), which hold every state
 any controller can land from, and the cells' states outside them (unsound; 0 expected).
 
-``--write-packaged`` (re)writes the cells the package ships (``reach/cells/``, the model's ``cell_shape``, for the
+``--write-packaged`` (re)writes the cells the package ships (``reach/proof/cells/``, the model's ``cell_shape``, for the
 filter's default ``target_checks`` 1 and the environment's sub-steps, or those of ``--checks``) from the table's
 candidates and period. The package ships the point mass's for 1 and 10, the glider's for its environment's 2 only
 (``--checks 2``: its pair of games took 16 min to build, beside another job).
@@ -27,8 +27,8 @@ import numpy as np
 
 from softreach.filters import ValueFilter
 from softreach.reach import load_table
-from softreach.reach.cell_certificate import PACKAGED, CellCertificate, cache_file, cell_key
-from softreach.reach.lookahead import Lookahead
+from softreach.reach.proof.cell_certificate import PACKAGED, CellCertificate, cache_file, cell_key
+from softreach.reach.proof.lookahead import Lookahead
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
             cells = vf.certify(t, x, q)[0]
             part = f"Q = {q:g}: {int(table_only.sum())} / {int(cells.sum())}"
             if args.exact_pointmass:
-                from softreach.reach.exact_pointmass import exact_member
+                from softreach.reach.numerics.exact_pointmass import exact_member
 
                 exact = np.asarray(exact_member(x[:, 0], x[:, 1], q, model.horizon - t), bool)
                 part += f" / {int(exact.sum())} / {int((cells & ~exact).sum())}"

@@ -20,7 +20,7 @@ from collections import Counter
 
 import numpy as np
 
-from softreach.reach.integrator import integrate_period
+from softreach.reach.sim.integrator import integrate_period
 from softreach.filters import ValueFilter
 from softreach.filters.audit import _policy, _wind, sample_starts
 from softreach.filters.core import REASONS

@@ -22,7 +22,7 @@ import sys
 import numpy as np
 
 from softreach.reach import load_table
-from softreach.reach.simulate import constant, rollout, table_control, table_disturbance
+from softreach.reach.sim.simulate import constant, rollout, table_control, table_disturbance
 
 
 def _nodes(table) -> np.ndarray:

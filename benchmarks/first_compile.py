@@ -1,5 +1,5 @@
 """How long the one-time compilations take on a machine that has not compiled yet: the numbers behind the notices
-``softreach solve`` (``reach.compute.COLD_COMPILE_S``) and the first filtered decision
+``softreach solve`` (``reach.numerics.compute.COLD_COMPILE_S``) and the first filtered decision
 (``agents.envs.FILTER_COMPILE_S``) print.
 
     OMP_NUM_THREADS=1 python benchmarks/first_compile.py torch    # the solver's torch.compile, empty cache
@@ -33,8 +33,8 @@ def torch_compile() -> None:
     os.environ["TORCHINDUCTOR_COMPILE_THREADS"] = "1"  # compile in this process: its CPU time is counted
     from torch._dynamo.callback import callback_handler
 
-    from softreach.reach import solver
-    from softreach.reach.commands import run_solve
+    from softreach.reach.numerics import solver
+    from softreach.reach.cli.commands import run_solve
     from softreach.cli import build_parser
 
     solver.CPU_ENGINE = "compile"

@@ -1,10 +1,10 @@
-"""On a GPU: the CUDA kernels (``reach/gpu.py``) against the CPU loops they share their node code with, and the time
+"""On a GPU: the CUDA kernels (``reach/numerics/gpu.py``) against the CPU loops they share their node code with, and the time
 stepping of a large grid alone.
 
     python benchmarks/gpu_check.py [--paper 300 300 200]
 
 1. Agreement: ``W_eps`` of the point mass and of the glider (WENO5, RK3, float32) marched from ``T`` over a fifth of
-   the horizon by the CUDA kernels and by the CPU loops (``reach/fused.py``); the largest difference of the values,
+   the horizon by the CUDA kernels and by the CPU loops (``reach/numerics/fused.py``); the largest difference of the values,
    relative to their largest magnitude, and how many nodes ``W <= 0`` differ.
 2. Stepping: the point mass's ``W_eps`` on the ``--paper`` grid from ``T`` to 0 with the kernels alone (no table, no
    process start): steps, kernel launches per step, milliseconds per step, and the bandwidth of 32 B per node and
@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from softreach.reach import Grid, budget_axis, get_model, soft_problem
-from softreach.reach.solver import HamiltonianOperator, SolverSettings, Stepper, march
+from softreach.reach.numerics.solver import HamiltonianOperator, SolverSettings, Stepper, march
 
 
 def _operator(name: str, shape: tuple[int, ...], device: str) -> tuple:

@@ -1,4 +1,4 @@
-"""Grade point-mass tables against the exact soft-constrained reach-avoid sets (``reach/exact_pointmass.py``).
+"""Grade point-mass tables against the exact soft-constrained reach-avoid sets (``reach/numerics/exact_pointmass.py``).
 
     python benchmarks/grade_pointmass.py TABLE.srt [TABLE.srt ...] [--budgets 0 0.06 0.3 0.6] [--t 0] [--json]
 
@@ -21,7 +21,7 @@ import numpy as np
 from scipy.ndimage import distance_transform_cdt
 
 from softreach.reach import load_table
-from softreach.reach.exact_pointmass import exact_mask, exact_q_min, grade
+from softreach.reach.numerics.exact_pointmass import exact_mask, exact_q_min, grade
 
 
 def _depths(table, q: float, t: float) -> tuple[int, int]:

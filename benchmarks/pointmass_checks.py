@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 from softreach.reach import Grid, SolverSettings, budget_axis, classical_problem, get_model, load_table, soft_problem, solve
-from softreach.reach.simulate import constant, random_switching, rollout, table_control, table_disturbance
+from softreach.reach.sim.simulate import constant, random_switching, rollout, table_control, table_disturbance
 
 
 def soundness(args) -> None:

@@ -39,7 +39,7 @@ PHASES = ("solve", "cells", "compile", "first step")
 def _child_cells(table_path: str) -> dict[str, Any]:
     from softreach.filters import ValueFilter
     from softreach.reach import load_table
-    from softreach.reach.cell_certificate import cache_dir
+    from softreach.reach.proof.cell_certificate import cache_dir
 
     before = set(p.name for p in cache_dir().glob("cells-*")) if cache_dir().exists() else set()
     t0 = time.perf_counter()

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from gymnasium.envs.registration import register, registry
 
-from softreach.reach.integrator import integrate_period, rk4_stages
+from softreach.reach.sim.integrator import integrate_period, rk4_stages
 
 from ._common import LandingEnv
 from .config import LandingConfig

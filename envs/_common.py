@@ -4,7 +4,7 @@
 The environments simulate the models of :mod:`softreach.reach.models` with the model objects themselves:
 the vector field is ``model.f``, the budget drains at ``model.violation_rate``, landing and crashing are read off
 ``model.target``, ``model.hard_constraint`` and ``model.soft_constraint``. Nothing here re-implements a model.
-The integrator (:mod:`softreach.reach.integrator`) advances one control period and ends it at the first sub-step
+The integrator (:mod:`softreach.reach.sim.integrator`) advances one control period and ends it at the first sub-step
 that lands or leaves ``C1``. The other parts are base classes from their own modules: the options
 (:class:`~softreach.envs.config.LandingConfig`), the action map (:mod:`softreach.envs.actions`), the winds
 (:mod:`softreach.envs.wind`) and drawing (:mod:`softreach.envs.display`).
@@ -22,7 +22,7 @@ import numpy as np
 import gymnasium as gym
 from gymnasium import spaces
 
-from softreach.reach.integrator import ScalarModel, episode_ends, integrate_period, scalar_model, stage_rates
+from softreach.reach.sim.integrator import ScalarModel, episode_ends, integrate_period, scalar_model, stage_rates
 from softreach.reach.problem import Model
 
 from .actions import ActionMapping
@@ -300,7 +300,7 @@ class LandingEnv(ActionMapping, WindInputs, Rendering, gym.Env):
                 info)
 
     def _event(self, t: float, x: list[float], rate: float) -> bool:
-        """Does the episode end at this sub-step end: :func:`~softreach.reach.integrator.episode_ends`, the
+        """Does the episode end at this sub-step end: :func:`~softreach.reach.sim.integrator.episode_ends`, the
         rollouts' rule (a model with a scalar fast path gets it bound to that at reset, ``_fast_event``)."""
         return bool(episode_ends(self.model, t, [np.float64(v) for v in x], rate))
 

@@ -81,7 +81,7 @@ def _as_float_list(name: str, value: Any, k: int, unit: str = "") -> list[float]
 
 
 def _table_type() -> type:
-    from softreach.reach.query import Table
+    from softreach.reach.tables.query import Table
 
     return Table
 

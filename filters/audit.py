@@ -1,7 +1,7 @@
 """An adversarial audit of the safety filter: policies and winds nobody tuned to, from certified starts and others.
 
 Each episode runs the filter at its control period and integrates with the environments' own integrator
-(:func:`softreach.reach.integrator.integrate_period`), but splits every period into ``pieces`` sub-intervals so that
+(:func:`softreach.reach.sim.integrator.integrate_period`), but splits every period into ``pieces`` sub-intervals so that
 the wind can switch *inside* a period; the hard constraint is checked at every sub-interval end (and the budget
 accounts for every crossing of ``C2``, as the environment does). Landing is checked where the environment
 checks it, at its sub-step ends (``ValueFilter.target_checks``), and the first event ends the episode. Counted
@@ -18,7 +18,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from softreach.reach.integrator import integrate_period
+from softreach.reach.sim.integrator import integrate_period
 
 from .core import PASS, ValueFilter
 from .plans import advance_plan

@@ -1,18 +1,18 @@
 """The filter's whole decision, compiled: one loop over the rows instead of hundreds of numpy calls a row.
 
-:class:`~softreach.filters.ValueFilter` decides by the one-period test of :mod:`softreach.reach.lookahead` and the
+:class:`~softreach.filters.ValueFilter` decides by the one-period test of :mod:`softreach.reach.proof.lookahead` and the
 plans of :mod:`softreach.filters.plans`; this module decides the same way, row by row in numba, where
 
 * the model gives its held-action enclosure and its sets' maxima over boxes compiled
   (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`, :attr:`~softreach.reach.problem.Model.
   set_max_kernel`): the point mass and the glider do,
 * the table holds ``W_eps`` (with ``V`` and ``V_safe`` if it has them) and the filter has landing cells (which then
-  decide what passes, :meth:`~softreach.reach.lookahead.Lookahead.assess`).
+  decide what passes, :meth:`~softreach.reach.proof.lookahead.Lookahead.assess`).
 
 Both rules are compiled, the ``"switch"`` rule and the ``"smooth"`` one with its bisection.
 
 Each step below names the numpy method it mirrors: the arithmetic is the same, in the same order, on the numbers
-of the same kernels (the enclosure, the set maxima, :mod:`softreach.reach.kernels` for the table and the cells), so
+of the same kernels (the enclosure, the set maxima, :mod:`softreach.reach.proof.kernels` for the table and the cells), so
 the decisions are equal, which ``tests/test_compiled_filter.py`` checks on thousands of rows of every kind. A change
 to the one-period test must be made in both. The test of one action is :mod:`softreach.filters.judge`, in parts,
 so that the table is read only where its values can decide: a candidate's next value where it passes; where none
@@ -31,13 +31,13 @@ from typing import Any
 
 import numpy as np
 
-from softreach.reach.blocks import run_in_blocks
-from softreach.reach.box_max import kernel_field
+from softreach.reach.proof.blocks import run_in_blocks
+from softreach.reach.proof.box_max import kernel_field
 from softreach.reach.jit import njit
-from softreach.reach.kernels import MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row
-from softreach.reach.lookahead import exact_normalized
-from softreach.reach.model_kernels import held_box_address
-from softreach.reach.ranks import LOWEST_BAD, NEXT_CAP, PASSES_ONLY, RANK_PROVEN, RANK_SAFE, SMOOTH_PASSES_ONLY
+from softreach.reach.proof.kernels import MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row
+from softreach.reach.proof.lookahead import exact_normalized
+from softreach.reach.proof.model_kernels import held_box_address
+from softreach.reach.proof.ranks import LOWEST_BAD, NEXT_CAP, PASSES_ONLY, RANK_PROVEN, RANK_SAFE, SMOOTH_PASSES_ONLY
 
 from .compiled_args import ActionMap, Box, Cells, DecisionSpace, Motion, TableArgs, Work, named, named_space, plain
 from .compiled_certify import certify_rows
@@ -289,7 +289,7 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
 def _writable(v: np.ndarray) -> np.ndarray:
     """``v``, or a copy where it is read-only. numba types an array by whether it is writable and compiles a loop
     once per type: the caller's rows reach the loops writable (tables and cells read-only,
-    :func:`~softreach.reach.kernels.frozen`), for one compilation. A copy costs only the rare read-only input; a
+    :func:`~softreach.reach.proof.kernels.frozen`), for one compilation. A copy costs only the rare read-only input; a
     read-only view of every input would cost every call."""
     return v if v.flags.writeable else v.copy()
 
@@ -305,7 +305,7 @@ class CompiledDecision:
                       else (np.asarray(tb[0], dtype=np.float64), np.asarray(tb[1], dtype=np.float64)))
         checks = np.stack([np.linspace(0.0, la.dt * j / la.target_checks, la.pieces + 1)
                            for j in range(1, la.target_checks + 1)])
-        #: the model's enclosure, called by address (:func:`~softreach.reach.model_kernels.held_box_address`)
+        #: the model's enclosure, called by address (:func:`~softreach.reach.proof.model_kernels.held_box_address`)
         self.enclose = held_box_address(model)
         # the sets over boxes: the lookahead's compiled set maxima (its _corner_max), called by address too
         set_address, set_params = la.set_kernel

@@ -22,7 +22,7 @@ from softreach.reach.jit import njit
 
 
 class Motion(NamedTuple):
-    """The model's side of the one-period test (:class:`~softreach.reach.lookahead.Lookahead`)."""
+    """The model's side of the one-period test (:class:`~softreach.reach.proof.lookahead.Lookahead`)."""
 
     #: the model's ``held_box_params``: the parameters its compiled enclosure reads
     params: np.ndarray
@@ -30,7 +30,7 @@ class Motion(NamedTuple):
     eps: float
     #: the parameters of the model's compiled set maxima
     set_params: Any
-    #: the address of the model's compiled set maxima (:func:`~softreach.reach.model_kernels.call_set_max`)
+    #: the address of the model's compiled set maxima (:func:`~softreach.reach.proof.model_kernels.call_set_max`)
     set_address: int
     #: the target box's lower and upper corners (``-inf`` / ``+inf`` where the model has none)
     target_lo: np.ndarray
@@ -52,7 +52,7 @@ class Motion(NamedTuple):
 
 
 class Cells(NamedTuple):
-    """The cells the decision uses (:class:`~softreach.reach.cell_certificate.CellCertificate`'s kernel
+    """The cells the decision uses (:class:`~softreach.reach.proof.cell_certificate.CellCertificate`'s kernel
     arguments)."""
 
     #: the safe cells' kernel arguments (the landing cells' where there are no safe cells: then unused)
@@ -68,8 +68,8 @@ class Cells(NamedTuple):
 
 
 class TableArgs(NamedTuple):
-    """A ``W_eps`` table's fields as the compiled code reads them (:func:`~softreach.reach.kernels.
-    certificate_row`, :func:`~softreach.reach.box_max.kernel_field`)."""
+    """A ``W_eps`` table's fields as the compiled code reads them (:func:`~softreach.reach.proof.kernels.
+    certificate_row`, :func:`~softreach.reach.proof.box_max.kernel_field`)."""
 
     #: ``W_eps`` over the state and the budget
     W: tuple
@@ -85,12 +85,12 @@ class TableArgs(NamedTuple):
 
 
 class ActionMap(NamedTuple):
-    """The control box's map (:func:`~softreach.reach.lookahead.action_map`) and the candidates in it."""
+    """The control box's map (:func:`~softreach.reach.proof.lookahead.action_map`) and the candidates in it."""
 
     #: the control box's centre and half-width: an environment applies ``mid + half * q``
     mid: np.ndarray
     half: np.ndarray
-    #: the candidates normalised, each mapped back exactly (:func:`~softreach.reach.lookahead.exact_normalized`)
+    #: the candidates normalised, each mapped back exactly (:func:`~softreach.reach.proof.lookahead.exact_normalized`)
     cands_q: np.ndarray
 
 
@@ -130,7 +130,7 @@ class Work(NamedTuple):
     box_lo: np.ndarray
     box_hi: np.ndarray
     #: the box maximum's scratch for ``W_eps`` (over the state and the budget) and ``V`` / ``V_safe``
-    #: (:func:`~softreach.reach.kernels.box_scratch`)
+    #: (:func:`~softreach.reach.proof.kernels.box_scratch`)
     scratch_W: tuple
     scratch_V: tuple
 

@@ -1,7 +1,7 @@
 """Whether states are certified, compiled: the numbers :meth:`~softreach.filters.ValueFilter.certify` needs of
 each row, by the decision's own parts (:mod:`softreach.filters.judge`) in the same arithmetic:
 
-* :meth:`~softreach.reach.lookahead.Lookahead.best_candidate`: the candidate of least badness (a passing one by its
+* :meth:`~softreach.reach.proof.lookahead.Lookahead.best_candidate`: the candidate of least badness (a passing one by its
   worst next certificate, else the least bad), whether it passes, and its next certificate (``+inf`` where it
   does not);
 * the certificate at the state, whether the state lies on the table and whether a landing cell holds it.
@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from softreach.reach.jit import njit
-from softreach.reach.kernels import certificate_row, cover_row
-from softreach.reach.ranks import LOWEST_BAD
+from softreach.reach.proof.kernels import certificate_row, cover_row
+from softreach.reach.proof.ranks import LOWEST_BAD
 
 from .compiled_args import Cells, Motion, TableArgs, named_space
 from .judge import badness, judge_once, next_value, on_table

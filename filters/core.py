@@ -4,7 +4,7 @@ What the user runs: the policy's action is held for the environment's control pe
 change at any instant, also inside the period and in answer to the filter. The filter therefore never judges an
 action by the value at the current state (the pointwise ``a*`` of a continuous-time table, held for ``dt``, can
 overshoot the constraint it is riding); it judges the *held* action by where one period of it can go
-(:class:`~softreach.reach.lookahead.Lookahead`):
+(:class:`~softreach.reach.proof.lookahead.Lookahead`):
 
 * the policy's action passes when holding it for one period provably keeps the state in ``C1`` and the budget
   non-negative (or surely lands), and: where the model bounds boxes of starts, some candidate passes again from
@@ -38,9 +38,9 @@ from typing import Any
 import numpy as np
 
 from softreach.reach import Table, TableError
-from softreach.reach.blocks import default_threads
-from softreach.reach.lookahead import Lookahead, exact_normalized
-from softreach.reach.ranks import NEXT_CAP, PASSES_ONLY, SMOOTH_PASSES_ONLY
+from softreach.reach.proof.blocks import default_threads
+from softreach.reach.proof.lookahead import Lookahead, exact_normalized
+from softreach.reach.proof.ranks import NEXT_CAP, PASSES_ONLY, SMOOTH_PASSES_ONLY
 
 from .compiled import CompiledDecision
 from .plans import (NO_PLAN, PLAN_LAND, PLAN_SAFE, START_SEGMENTS, check_plans, follow_plans, resolve_cells,
@@ -131,7 +131,7 @@ class ValueFilter:
         self.lookahead = Lookahead.from_table(table, self.model, self.dt, self.eps, margin=self.constant_margin or 0.0,
                                               target_checks=target_checks)
         self.target_checks = self.lookahead.target_checks
-        #: the cells that prove C1 and the budget, and landing by T (:mod:`softreach.reach.cell_certificate`);
+        #: the cells that prove C1 and the budget, and landing by T (:mod:`softreach.reach.proof.cell_certificate`);
         #: every applied action ends in them where the state is in them
         self.safe_cells = resolve_cells(self, safe_cells, "safe")
         self.landing_cells = resolve_cells(self, landing_cells, "land")
@@ -144,7 +144,7 @@ class ValueFilter:
         #: ``benchmarks/bench_filter.py`` times (1,024 rows: ``compiled_*`` against ``numpy_*``)
         self.compiled_max_rows = 10 ** 9
         #: threads that share a large batch of the compiled decision (blocks of at least
-        #: :data:`~softreach.reach.blocks.PARALLEL_MIN_ROWS` rows); 1: the calling thread alone. By default two
+        #: :data:`~softreach.reach.proof.blocks.PARALLEL_MIN_ROWS` rows); 1: the calling thread alone. By default two
         #: where the machine has them: ``benchmarks/bench_filter.py`` times 1,024 rows both ways
         self.threads = default_threads()
         #: up to this many rows, :meth:`filter` judges the policy's action and the candidates in one batch. 0: the
@@ -268,7 +268,7 @@ class ValueFilter:
             hold it, and whose plan, :data:`PLAN_LAND` or :data:`PLAN_SAFE`; :data:`NO_PLAN`: none)
         :param plan: the ``info["plan"]`` this filter returned at the previous step of the same runs (``None`` at the
             first): where no action ends in the landing cells the filter keeps following it, which is what makes
-            landing by ``T`` a proof (:mod:`softreach.reach.cell_certificate`)
+            landing by ``T`` a proof (:mod:`softreach.reach.proof.cell_certificate`)
         :param diagnostics: ``False`` leaves out what decides nothing, for batches that want only the actions
             (about twice as fast where most policy actions pass, ``benchmarks/bench_filter.py``): ``value`` is NaN,
             and so is ``lookahead`` where the policy's action passed. The applied actions and every other entry are

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 
 from softreach.reach import Table, TableError
-from softreach.reach.interpolation import Interpolant
+from softreach.reach.tables.interpolation import Interpolant
 
 
 class TableField(Interpolant):
-    """:class:`~softreach.reach.interpolation.Interpolant` of a table's ``W_eps`` with the gradient along the ``n``
+    """:class:`~softreach.reach.tables.interpolation.Interpolant` of a table's ``W_eps`` with the gradient along the ``n``
     state axes, kept in the layout that is fastest to query.
 
     The arithmetic is the engine's, so the numbers are :meth:`Table.value` and :meth:`Table.gradient`'s (state

@@ -1,4 +1,4 @@
-"""One held action judged, compiled: the one-period test of :meth:`~softreach.reach.lookahead.Lookahead.assess`
+"""One held action judged, compiled: the one-period test of :meth:`~softreach.reach.proof.lookahead.Lookahead.assess`
 for one row, in parts that :mod:`softreach.filters.compiled` calls only where their answer can decide.
 
 * :func:`judge` reads no table: the enclosures, ``C1``, the budget, the cells, whether the period surely lands;
@@ -8,7 +8,7 @@ for one row, in parts that :mod:`softreach.filters.compiled` calls only where th
   where none does; :func:`badness` reads the table for it only where the choice can depend on it.
 
 A value over a box is read only where a cheaper bound cannot settle the choice: the interpolant at the box's lower
-corner, a point of the box maximum's own lattice computed by the same arithmetic (:func:`~softreach.reach.kernels.
+corner, a point of the box maximum's own lattice computed by the same arithmetic (:func:`~softreach.reach.proof.kernels.
 point_value`), is at most the maximum. A safe end whose corner is above 0 is not safe; a candidate whose least
 possible next value (or badness) lies above another's exact one is not the least (:func:`read_least`). The choice
 is the one of reading every value.
@@ -23,9 +23,9 @@ import math
 import numpy as np
 
 from softreach.reach.jit import njit
-from softreach.reach.kernels import MAX_NODES, box_max_row, cover_row, point_value
-from softreach.reach.model_kernels import SET_INDEX, call_held_box, call_set_max
-from softreach.reach.ranks import (LOWEST_BAD, NEXT_CAP, RANK_LEAVES_C1, RANK_OVERSPENT, RANK_PROVEN, RANK_SAFE,
+from softreach.reach.proof.kernels import MAX_NODES, box_max_row, cover_row, point_value
+from softreach.reach.proof.model_kernels import SET_INDEX, call_held_box, call_set_max
+from softreach.reach.proof.ranks import (LOWEST_BAD, NEXT_CAP, RANK_LEAVES_C1, RANK_OVERSPENT, RANK_PROVEN, RANK_SAFE,
                                   RANK_UNSAFE, TIE_INF, TIE_OVERSPEND)
 
 from .compiled_args import Verdict
@@ -33,7 +33,7 @@ from .compiled_args import Verdict
 # the sets' indices in the model's set-maximum kernel
 _TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_INDEX["soft_constraint"]
 
-# LOWEST_BAD (softreach.reach.ranks) is read here by the decision's callers and tests
+# LOWEST_BAD (softreach.reach.proof.ranks) is read here by the decision's callers and tests
 __all__ = ["LOWEST_BAD", "badness", "judge", "judge_once", "keeps", "least_next", "next_value", "on_table",
            "read_least"]
 
@@ -99,7 +99,7 @@ def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
 
 @njit(_nrt=False)
 def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
-    """:func:`~softreach.reach.landing.lands_within` of one row: at some check instant ``s`` every run is in the
+    """:func:`~softreach.reach.proof.landing.lands_within` of one row: at some check instant ``s`` every run is in the
     target inside ``C2``, the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``. Not
     inlined into :func:`judge`: asked only of actions that do not pass and whose motion meets the target, it would
     add to the first compilation more than its call costs."""
@@ -255,7 +255,7 @@ def read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, belo
 @njit(_nrt=False)
 def least_next(T, t_next, end_lo, end_hi, z_hi, work, pick, c_next, c_zend, c_low):
     """:func:`next_value` of the candidates ``pick`` (whose ``c_next`` is ``+inf``) where it can be the least of
-    theirs (:func:`read_least`), while the least is below :data:`~softreach.reach.ranks.NEXT_CAP`, where it wins
+    theirs (:func:`read_least`), while the least is below :data:`~softreach.reach.proof.ranks.NEXT_CAP`, where it wins
     any score
     (:mod:`softreach.filters.compiled`); each not read gets its lower bound, above the least. A candidate whose
     bound is ``+inf`` is off the grid, where its value is ``+inf`` too, as ``c_next`` holds."""
@@ -273,7 +273,7 @@ def least_next(T, t_next, end_lo, end_hi, z_hi, work, pick, c_next, c_zend, c_lo
 def _rank(bounded, in_c1, proven, is_safe, kept, c1):
     """The badness of an action that does not pass, but for its tie (:func:`_tie`): first those whose end is
     proven safe, then those the safe value keeps, then the rest; those that keep the budget before those that do
-    not; an action that leaves ``C1`` by how far (:mod:`softreach.reach.ranks`)."""
+    not; an action that leaves ``C1`` by how far (:mod:`softreach.reach.proof.ranks`)."""
     if not bounded:
         return np.inf
     if not in_c1:
@@ -332,9 +332,9 @@ def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_prov
              contest, c_bad, c_score, c_low, c_tie):
     """The badness and score of every candidate that fails (:meth:`Lookahead.assess`), the table read only where
     it can decide: a failing candidate is chosen only where ``contest`` (no other scores below
-    :data:`~softreach.reach.ranks.LOWEST_BAD`), and then from the lowest rank; the smooth rule's failing candidate
+    :data:`~softreach.reach.proof.ranks.LOWEST_BAD`), and then from the lowest rank; the smooth rule's failing candidate
     that keeps (``keeps_j``) is chosen, and its badness decides the safe plans. Every other failing one gets its
-    rank alone, at least :data:`~softreach.reach.ranks.NEXT_CAP` above the lowest rank's badness, so that the
+    rank alone, at least :data:`~softreach.reach.proof.ranks.NEXT_CAP` above the lowest rank's badness, so that the
     choice is the one the exact badness makes. ``c_low``, ``c_tie``: work space of one float a candidate."""
     J = len(c_ok)
     if keeps_j >= 0 and not c_ok[keeps_j]:
@@ -371,7 +371,7 @@ def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_prov
 def on_table(W, t, x, z, point, work):
     """:meth:`Table.inside` of a ``W_eps`` table: the interpolant of ``W_eps`` is finite at ``(t, x, z)`` (a budget
     above the grid is read at its top)."""
-    # a field's (values, times, shape, glo, ghi, ...) (softreach.reach.box_max.kernel_field)
+    # a field's (values, times, shape, glo, ghi, ...) (softreach.reach.proof.box_max.kernel_field)
     times, glo, ghi = W[1], W[3], W[4]
     n = len(x)
     if not (t >= times[0] - 1e-9 and t <= times[-1] + 1e-9) or not z >= glo[n]:

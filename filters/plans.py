@@ -1,4 +1,4 @@
-"""The filter's use of the cell certificates (:mod:`softreach.reach.cell_certificate`): which cells a
+"""The filter's use of the cell certificates (:mod:`softreach.reach.proof.cell_certificate`): which cells a
 :class:`~softreach.filters.ValueFilter` uses, and the multi-period plans it follows where no single period ends
 in them.
 
@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from softreach.reach.cell_certificate import CellCertificate, cell_key, cached
-from softreach.reach.ranks import RANK_PROVEN, RANK_SAFE
+from softreach.reach.proof.cell_certificate import CellCertificate, cell_key, cached
+from softreach.reach.proof.ranks import RANK_PROVEN, RANK_SAFE
 
 try:  # torch is a base dependency, but keep numpy-only use possible
     import torch

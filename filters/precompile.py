@@ -23,7 +23,7 @@ def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
     """Make one decision, one certificate of a state and one start-plan search of the filter the environment
     wraps around ``table``.
 
-    :param table: a :class:`~softreach.reach.table.Table` (or its path)
+    :param table: a :class:`~softreach.reach.tables.table.Table` (or its path)
     :param period: the control period [s] (default: the table's)
     :return: ``model``, ``compiled`` (whether the model's filter has a compiled decision at all), ``seconds``,
         ``source`` (``"compiled"`` now, loaded from the ``"cache"``, or already in this ``"process"``) and

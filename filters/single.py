@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from softreach.reach.blocks import check_threads
-from softreach.reach.lookahead import exact_normalized
+from softreach.reach.proof.blocks import check_threads
+from softreach.reach.proof.lookahead import exact_normalized
 
 from .reasons import AFTER_HORIZON, PASS
 
@@ -74,7 +74,7 @@ def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, p
 
 
 def _normalized(vf: Any, u: list[float]) -> np.ndarray:
-    """:func:`~softreach.reach.lookahead.exact_normalized` of one physical action, in Python numbers where the
+    """:func:`~softreach.reach.proof.lookahead.exact_normalized` of one physical action, in Python numbers where the
     plain quotient maps back exactly (the usual case), as the batched path returns it."""
     out = []
     for v, mid, half in zip(u, vf.a_mid.tolist(), vf.a_half.tolist()):

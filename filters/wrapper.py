@@ -30,7 +30,7 @@ class SafetyFilter(gym.Wrapper):
     table's certificate; at the horizon that means landed. This holds as long as the filter never reports
     ``"uncertified"`` (a state between grid nodes from which no held action passes; ``docs/filters.md`` gives
     the audit's counts). The policy's own action passes whenever holding it for one period keeps the state
-    certified. See :mod:`softreach.filters.core` and :mod:`softreach.reach.lookahead`.
+    certified. See :mod:`softreach.filters.core` and :mod:`softreach.reach.proof.lookahead`.
 
     A ``gymnasium.Wrapper`` rather than an ``ActionWrapper``, because the filter needs the state, time and
     remaining budget, which it reads from ``env.unwrapped`` (``state``, ``time``, ``budget``); observations and

@@ -20,25 +20,25 @@ from typing import TYPE_CHECKING, Any
 #: public name -> the submodule that defines it; each loads on first use (PEP 562), so that importing one
 #: submodule (``softreach.reach.problem`` for the envs) does not import the solver and torch with it
 _EXPORTS = {
-    "SolveConfig": "compute", "solve_table": "compute",
-    "Grid": "grid", "budget_axis": "grid",
+    "SolveConfig": "numerics.compute", "solve_table": "numerics.compute",
+    "Grid": "numerics.grid", "budget_axis": "numerics.grid",
     "get_model": "models",
     "Model": "problem", "ReachAvoidProblem": "problem", "classical_problem": "problem", "soft_problem": "problem",
-    "Table": "query", "load_table": "query",
-    "SolverSettings": "solver", "solve": "solver",
-    "TableError": "table",
+    "Table": "tables.query", "load_table": "tables.query",
+    "SolverSettings": "numerics.solver", "solve": "numerics.solver",
+    "TableError": "tables.table",
 }
 
 __all__ = sorted(_EXPORTS)
 
 if TYPE_CHECKING:  # static readers see the names without the lazy indirection
-    from .compute import SolveConfig, solve_table
-    from .grid import Grid, budget_axis
+    from .numerics.compute import SolveConfig, solve_table
+    from .numerics.grid import Grid, budget_axis
     from .models import get_model
     from .problem import Model, ReachAvoidProblem, classical_problem, soft_problem
-    from .query import Table, load_table
-    from .solver import SolverSettings, solve
-    from .table import TableError
+    from .tables.query import Table, load_table
+    from .numerics.solver import SolverSettings, solve
+    from .tables.table import TableError
 
 
 def __getattr__(name: str) -> Any:

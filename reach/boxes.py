@@ -79,7 +79,7 @@ def box_check(field: str, *, states: bool = False, optional: bool = False, **opt
 
 def check_action_box(obj: Any) -> None:
     """Where actions are normalised (an environment's action space ``[-1, 1]``, the safety filter's map of it,
-    :func:`~softreach.reach.lookahead.action_map`), the control box needs a width on every axis: ``q = (u - mid) /
+    :func:`~softreach.reach.proof.lookahead.action_map`), the control box needs a width on every axis: ``q = (u - mid) /
     half``. The model's own check (``Dynamics._CHECKS``) allows a zero width, which a solve alone can use (an
     input held fixed); this check refuses it with a one-line ``ValueError`` naming the model, the axis and its
     bounds."""

@@ -173,7 +173,7 @@ class Dynamics(ABC):
     #: writing into ``lo``, ``hi`` the box of every state reachable at some time in ``[s0, s1]`` of a held period
     #: from every start in ``[x_lo, x_hi]`` (1-d arrays), for the numbers :attr:`held_box_params`. It must be what
     #: :meth:`held_enclosure_box` and :meth:`held_tube_pieces_box` compute
-    #: (:func:`~softreach.reach.model_kernels.held_boxes` runs it for them).
+    #: (:func:`~softreach.reach.proof.model_kernels.held_boxes` runs it for them).
     #: ``None``: the filter runs its numpy test only
     held_box_kernel: Any = None
     held_box_params: np.ndarray = np.zeros(0)

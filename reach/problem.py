@@ -28,7 +28,7 @@ import numpy as np
 from . import backend as B
 from .boxes import box_check, check_horizon, check_start_budget
 from .dynamics import Components, Dynamics
-from .model_kernels import box_params, boxes_set_max
+from .proof.model_kernels import box_params, boxes_set_max
 
 Array = B.Array
 
@@ -92,7 +92,7 @@ class Model(Dynamics):
     default_budgets: tuple[float, ...] = (0.0, 0.06, 0.3, 0.6)
     paper_budgets: tuple[float, ...] = (0.0, 0.3, 0.6)
     #: cells per state axis over :attr:`hard_box` of the certificates the filter solves on cells for a sampled-data
-    #: table (:mod:`softreach.reach.cell_certificate`; ``None``: none, the table alone certifies), and the plan
+    #: table (:mod:`softreach.reach.proof.cell_certificate`; ``None``: none, the table alone certifies), and the plan
     #: lengths [periods] of the landing game's cells
     cell_shape: tuple[int, ...] | None = None
     cell_holds: tuple[int, ...] = (1,)
@@ -139,10 +139,10 @@ class Model(Dynamics):
     def set_max_kernel(self) -> Any:
         """The largest value of each set function over a box of states, compiled: a numba ``njit`` function
         ``(params, which, lo, hi) -> float`` for the numbers :attr:`set_max_params`, ``which`` the set's index in
-        :data:`~softreach.reach.model_kernels.SET_INDEX`, ``lo``, ``hi`` 1-d arrays. It must be the largest value of
+        :data:`~softreach.reach.proof.model_kernels.SET_INDEX`, ``lo``, ``hi`` 1-d arrays. It must be the largest value of
         the (time-invariant) set function at the box's corners, which the safety filter's one-period test takes
         (:meth:`set_box_max`); ``tests/test_compiled_filter.py`` checks it for every model that gives one. The
-        default is :func:`~softreach.reach.model_kernels.boxes_set_max` where :attr:`set_boxes` are declared; ``None``:
+        default is :func:`~softreach.reach.proof.model_kernels.boxes_set_max` where :attr:`set_boxes` are declared; ``None``:
         the filter evaluates the set functions at the corners in numpy, and has no compiled decision."""
         return boxes_set_max if self.set_boxes else None
 
@@ -288,7 +288,7 @@ class ReachAvoidProblem:
 
     dynamics: Dynamics
     model: Model
-    kind: str  # "classical", "soft", "avoid" or "budget" (:mod:`softreach.reach.budget_surface`)
+    kind: str  # "classical", "soft", "avoid" or "budget" (:mod:`softreach.reach.numerics.budget_surface`)
     eps: float | None = None
     budget_scale: float = 1.0
 
@@ -328,7 +328,7 @@ class ReachAvoidProblem:
         return self.kind != "avoid"
 
     def boundaries(self, periodic: Sequence[bool], rule: str) -> list[Any]:
-        """The ghost-node rule of each grid axis (:func:`softreach.reach.derivatives.pad`): periodic axes wrap,
+        """The ghost-node rule of each grid axis (:func:`softreach.reach.numerics.derivatives.pad`): periodic axes wrap,
         the others take ``rule`` (the settings' ``"extrapolate_away"``: conservative where the edge value is
         positive, which :func:`check_edges` asks of every state axis).
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from softreach.reach.integrator import integrate_period
+from softreach.reach.sim.integrator import integrate_period
 
 
 def cell_boxes(cells, k: int):

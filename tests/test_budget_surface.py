@@ -1,4 +1,4 @@
-"""The budget surface ``Q_min(t, x)`` solved on the state grid (``reach/budget_surface.py``), graded against the exact
+"""The budget surface ``Q_min(t, x)`` solved on the state grid (``reach/numerics/budget_surface.py``), graded against the exact
 point-mass sets and against the ``W_eps`` table of the same state grid."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from scipy.ndimage import distance_transform_cdt
 
 from softreach.cli import main
 from softreach.reach import get_model, load_table
-from softreach.reach.compute import SolveConfig, hard_box_domain, solve_table
-from softreach.reach.exact_pointmass import exact_mask, exact_q_min, grade
-from softreach.reach.solver import SolverSettings
+from softreach.reach.numerics.compute import SolveConfig, hard_box_domain, solve_table
+from softreach.reach.numerics.exact_pointmass import exact_mask, exact_q_min, grade
+from softreach.reach.numerics.solver import SolverSettings
 
 BUDGETS = (0.0, 0.06, 0.3, 0.6)
 

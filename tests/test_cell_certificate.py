@@ -1,4 +1,4 @@
-"""The certificates solved on cells (``softreach.reach.cell_certificate``): sound against facts of the point mass
+"""The certificates solved on cells (``softreach.reach.proof.cell_certificate``): sound against facts of the point mass
 the cells are not built from (the exact continuous-time sets, the stopping distance), kept by their own plans under
 winds that switch inside the period, and kept by the filter against adversarial policies and winds."""
 
@@ -10,8 +10,8 @@ import pytest
 from softreach.filters import ValueFilter
 from softreach.filters.audit import Row, _policy, _wind, run_episode
 from softreach.reach import get_model
-from softreach.reach.cell_certificate import CellCertificate
-from softreach.reach.exact_pointmass import exact_member
+from softreach.reach.proof.cell_certificate import CellCertificate
+from softreach.reach.numerics.exact_pointmass import exact_member
 
 from cell_plans import cell_boxes, fly_plan_from_a_good_cell
 
@@ -52,7 +52,7 @@ def test_outside_the_soft_band_needs_budget(vf):
 
 @pytest.mark.parametrize("t", [0.0, 0.4, 0.8, 0.95])
 def test_landing_cells_lie_inside_the_exact_sets_and_grow_with_the_budget(vf, t):
-    # the exact continuous-time sets (closed form, reach/exact_pointmass.py) hold every state any controller can
+    # the exact continuous-time sets (closed form, reach/numerics/exact_pointmass.py) hold every state any controller can
     # land from; holding actions can only do less, so a landing cell outside them would be unsound
     rng = np.random.default_rng(1)
     x = rng.uniform([-15, 0], [15, 18], (20000, 2))

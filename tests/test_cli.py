@@ -79,7 +79,7 @@ def test_console_script_is_installed():
 
 
 def test_ctrl_c_keeps_the_work_and_the_rerun_resumes_with_the_whole_wall_time(tmp_path, capsys, monkeypatch):
-    from softreach.reach import table as table_mod
+    from softreach.reach.tables import table as table_mod
 
     out, js = tmp_path / "pm.srt", tmp_path / "pm.json"
     args = ["solve", "pointmass", "--grid", "21", "21", "--budget-points", "15", "--accuracy", "low",
@@ -110,7 +110,7 @@ def test_ctrl_c_keeps_the_work_and_the_rerun_resumes_with_the_whole_wall_time(tm
 def test_default_threads_follow_the_idle_cores(monkeypatch):
     import os
 
-    from softreach.reach.commands import idle_cores
+    from softreach.reach.cli.commands import idle_cores
 
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     monkeypatch.setattr(os, "cpu_count", lambda: 2)

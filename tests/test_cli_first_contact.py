@@ -73,7 +73,7 @@ def test_version(capsys):
 # ------------------------------------------------------------------------------------------------ solve, plot, compile
 
 def test_a_resumed_solve_says_it_resumed(tmp_path, capsys, monkeypatch):
-    from softreach.reach.table import TableWriter
+    from softreach.reach.tables.table import TableWriter
 
     out = tmp_path / "pm.srt"
     real = TableWriter.write_snapshot
@@ -323,7 +323,7 @@ def test_demo_seed_is_the_evaluation_seed_unless_eval_seed_is_given(monkeypatch,
 def test_a_first_torch_compile_announces_itself_once(tmp_path, monkeypatch, capsys):
     import torch
 
-    from softreach.reach import compute
+    from softreach.reach.numerics import compute
 
     monkeypatch.setattr(compute._CompileNotice, "said", False)
     empty = tmp_path / "inductor"

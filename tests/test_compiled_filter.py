@@ -11,7 +11,7 @@ import pytest
 from softreach.filters import PASS, ValueFilter
 from softreach.filters.plans import start_plans
 from softreach.reach import get_model, sets
-from softreach.reach.model_kernels import SET_INDEX, set_max_address, set_max_rows
+from softreach.reach.proof.model_kernels import SET_INDEX, set_max_address, set_max_rows
 from softreach.reach.registry import model_names
 
 SETS = ("target", "hard_constraint", "soft_constraint")
@@ -162,7 +162,7 @@ def test_badness_where_it_decides_is_the_numpy_badness(pointmass_held_table):
 
 
 def test_blocks_cover_every_row_once_and_raise_a_blocks_error():
-    from softreach.reach.blocks import PARALLEL_MIN_ROWS, run_in_blocks
+    from softreach.reach.proof.blocks import PARALLEL_MIN_ROWS, run_in_blocks
 
     for rows, threads, blocks in ((10, 4, 1), (2 * PARALLEL_MIN_ROWS - 1, 4, 1), (5 * PARALLEL_MIN_ROWS, 3, 3)):
         seen = []
@@ -185,7 +185,7 @@ def test_blocks_cover_every_row_once_and_raise_a_blocks_error():
 def test_threads_decide_as_one_thread(pointmass_held_table):
     """A batch cut into blocks for several threads (uneven block sizes, plans fed back, with and without the
     diagnostics) gives every row exactly what one thread gives it."""
-    from softreach.reach.blocks import PARALLEL_MIN_ROWS
+    from softreach.reach.proof.blocks import PARALLEL_MIN_ROWS
 
     one, many = ValueFilter(pointmass_held_table, 0.01), ValueFilter(pointmass_held_table, 0.01)
     one.threads, many.threads = 1, 3
@@ -386,7 +386,7 @@ def test_tables_and_inputs_made_in_this_process_reuse_the_compiled_decision(poin
     same loop."""
     from softreach.filters.compiled import decide_rows
     from softreach.reach import load_table
-    from softreach.reach.cell_certificate import CellCertificate
+    from softreach.reach.proof.cell_certificate import CellCertificate
 
     t, x, z, a = _draws(50, 3)
     loaded = ValueFilter(pointmass_held_table, pointmass_held_table.control_period)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from softreach.reach.derivatives import SCHEMES, upwind_derivatives
+from softreach.reach.numerics.derivatives import SCHEMES, upwind_derivatives
 
 EXPECTED_ORDER = {"first": 1, "eno2": 2, "weno3": 2, "weno5": 4}  # weno3 is 3rd order only where smooth enough
 
@@ -59,7 +59,7 @@ def test_unknown_scheme_and_too_short_axis_are_refused():
 
 
 def test_constant_and_per_end_ghost_rules():
-    from softreach.reach.derivatives import pad
+    from softreach.reach.numerics.derivatives import pad
 
     u = np.array([[3.0, 1.0, -1.0, -2.0]])
     ghosts = pad(u, 1, 2, ("extrapolate_away", "constant"))[0]

@@ -1,5 +1,5 @@
 """The model's held-period enclosure compared with simulated runs before a proof is built
-(:mod:`softreach.reach.enclosure_check`): the built-in models pass, wrong enclosures are refuted with the run that
+(:mod:`softreach.reach.proof.enclosure_check`): the built-in models pass, wrong enclosures are refuted with the run that
 leaves them (reproduced here by an independent integrator), and a model without the filter's extras is refused
 before any solve."""
 
@@ -15,10 +15,11 @@ from scipy.integrate import solve_ivp
 from cart_motion import CartMotion
 
 from softreach.reach import Model, SolveConfig, SolverSettings
-from softreach.reach import cell_certificate, cell_game, compute
-from softreach.reach.cell_certificate import CellCertificate
+from softreach.reach.numerics import compute
+from softreach.reach.proof import cell_certificate, cell_game
+from softreach.reach.proof.cell_certificate import CellCertificate
 from softreach.reach.dynamics import ControlAndDisturbanceAffine
-from softreach.reach.enclosure_check import (EnclosureCheck, EnclosureError, check_enclosure,
+from softreach.reach.proof.enclosure_check import (EnclosureCheck, EnclosureError, check_enclosure,
                                              check_model_for_filter, missing_extras)
 from softreach.reach.models import get_model
 from softreach.reach.models.pointmass import PointMass

@@ -14,7 +14,7 @@ import gymnasium as gym
 import softreach.envs  # noqa: F401  (registers the ids)
 import softreach.reach as reach
 from softreach.envs import GliderLandingEnv, PointMassLandingEnv
-from softreach.reach.integrator import integrate_period
+from softreach.reach.sim.integrator import integrate_period
 from softreach.reach.models import get_model
 
 PM = "softreach/PointMassLanding-v0"

@@ -16,8 +16,8 @@ import pytest
 
 import softreach.envs._common
 from softreach.envs import GliderLandingEnv, PointMassLandingEnv
-from softreach.reach import budget_quadrature as Q
-from softreach.reach.integrator import ScalarModel, integrate_period, scalar_model
+from softreach.reach.sim import budget_quadrature as Q
+from softreach.reach.sim.integrator import ScalarModel, integrate_period, scalar_model
 from softreach.reach import backend as B
 from softreach.reach import sets
 from softreach.reach.models import get_model

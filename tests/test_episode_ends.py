@@ -1,4 +1,4 @@
-"""One end-of-episode rule (``reach.integrator.episode_ends``) for the envs' sub-steps and the rollouts: a model's
+"""One end-of-episode rule (``reach.sim.integrator.episode_ends``) for the envs' sub-steps and the rollouts: a model's
 scalar fast path, its vectorised methods on one state and on a batch give the same answer at every state."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from softreach.reach import get_model
-from softreach.reach.integrator import episode_ends, scalar_model
+from softreach.reach.sim.integrator import episode_ends, scalar_model
 
 
 @pytest.mark.parametrize("name", ["pointmass", "glider", "dubins"])

@@ -1,4 +1,4 @@
-"""The exact point-mass reference (``reach/exact_pointmass.py``), checked by means that do not share its
+"""The exact point-mass reference (``reach/numerics/exact_pointmass.py``), checked by means that do not share its
 derivation, then used to grade a solved table.
 
 * the analytic ceiling from rest (spec §4);
@@ -18,7 +18,7 @@ import pytest
 from scipy.ndimage import distance_transform_cdt
 
 from softreach.reach import get_model
-from softreach.reach.exact_pointmass import exact_mask, exact_member, exact_q_min, grade, max_descent, speed_profile
+from softreach.reach.numerics.exact_pointmass import exact_mask, exact_member, exact_q_min, grade, max_descent, speed_profile
 from softreach.reach.models import PointMassParams
 
 from pointmass_ceiling import CEILING

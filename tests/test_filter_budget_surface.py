@@ -9,7 +9,7 @@ import pytest
 from softreach.filters import ValueFilter
 from softreach.filters.audit import POLICIES, audit
 from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
-from softreach.reach.interpolation import interpolate
+from softreach.reach.tables.interpolation import interpolate
 
 DT = 0.01
 

@@ -3,7 +3,7 @@
 There the table's certificate is a one-period game against the terminal value, whose interpolant between the
 node that lands within the period and the one that cannot promised landings no held action delivers: a hovering
 policy was let through until no action could land any more (a timeout from a certified state). The look-ahead
-now judges end boxes in the last ``exact_periods`` sample times by a witness (``softreach.reach.horizon``), so a
+now judges end boxes in the last ``exact_periods`` sample times by a witness (``softreach.reach.proof.horizon``), so a
 state certified in that window lands.
 """
 
@@ -16,7 +16,7 @@ import gymnasium as gym
 
 import softreach.envs  # noqa: F401  (registers the ids)
 from softreach.filters import SafetyFilter, ValueFilter
-import softreach.reach.lookahead as lookahead
+import softreach.reach.proof.lookahead as lookahead
 
 ENV_ID = "softreach/PointMassLanding-v0"
 

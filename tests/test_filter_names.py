@@ -1,5 +1,5 @@
 """The filter's numbers and arguments by name (issue 37): the reason codes and the rank offsets each have one home
-(:mod:`softreach.filters.reasons`, :mod:`softreach.reach.ranks`) whose order leaves room for every tie, the
+(:mod:`softreach.filters.reasons`, :mod:`softreach.reach.proof.ranks`) whose order leaves room for every tie, the
 compiled code reads its arguments by name, and a control box that an environment or the filter normalises by
 has a width on every axis."""
 
@@ -12,12 +12,12 @@ from pathlib import Path
 import pytest
 
 from softreach.filters import reasons
-from softreach.reach import ranks
+from softreach.reach.proof import ranks
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the filter's sources: the filters package and the numpy one-period test
-SOURCES = sorted((ROOT / "filters").glob("*.py")) + [ROOT / "reach" / "lookahead.py"]
-#: a kept budget's tie lies in (-0.5, 0.5): atan(next) / pi (reach/ranks.py)
+SOURCES = sorted((ROOT / "filters").glob("*.py")) + [ROOT / "reach" / "proof" / "lookahead.py"]
+#: a kept budget's tie lies in (-0.5, 0.5): atan(next) / pi (reach/proof/ranks.py)
 TIE = 0.5
 
 
@@ -101,7 +101,7 @@ def test_a_control_axis_of_no_width_is_refused_where_actions_are_normalised():
     """A solve may hold an input fixed (the model's own check allows it), but an environment's action space and
     the filter's map divide by the half-width: both refuse the box at once, naming the axis and its bounds, instead
     of a division by zero at the first step."""
-    from softreach.reach.lookahead import action_map
+    from softreach.reach.proof.lookahead import action_map
     from softreach.reach.registry import make_env
 
     model = _cart_with_a_fixed_input()  # accepted as a model

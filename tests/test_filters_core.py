@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from softreach.reach.integrator import integrate_period
+from softreach.reach.sim.integrator import integrate_period
 from softreach.filters import AFTER_HORIZON, BLEND, OPTIMAL, OUTSIDE, PASS, UNCERTIFIED, ValueFilter
 from softreach.reach import TableError, get_model, load_table
-from softreach.reach.interpolation import box_max, interpolate
+from softreach.reach.tables.interpolation import box_max, interpolate
 
 DT = 0.01
 
@@ -150,7 +150,7 @@ def test_box_max_of_wide_boxes_is_the_largest_node_of_the_cells_touched(pointmas
 
 
 def test_box_max_wraps_a_periodic_axis():
-    from softreach.reach.grid import Grid
+    from softreach.reach.numerics.grid import Grid
 
     g = Grid((0.0, 0.0), (2 * np.pi, 1.0), (16, 5), (True, False))
     th = g.lo[0] + g.spacing[0] * np.arange(16)

@@ -14,7 +14,7 @@ from softreach.filters import SafetyFilter, ValueFilter
 from softreach.filters.audit import POLICIES, Row, _policy, _wind, audit, run_episode
 from softreach.filters.plans import NO_PLAN, PLAN_LAND, advance_plan, start_plans
 from softreach.reach import get_model
-from softreach.reach.integrator import integrate_period
+from softreach.reach.sim.integrator import integrate_period
 
 DT = 0.01
 #: issue 10: starts where the earlier filter (pointwise a*, held) left C1 or overspent

@@ -14,7 +14,7 @@ import pytest
 import softreach.envs  # noqa: F401  (registers the environments)
 from softreach.filters import OPTIMAL, SafetyFilter, ValueFilter
 from softreach.reach import get_model
-from softreach.reach.lookahead import exact_normalized, representable, rk4_exact
+from softreach.reach.proof.lookahead import exact_normalized, representable, rk4_exact
 
 ENV = "softreach/PointMassLanding-v0"
 

@@ -1,7 +1,7 @@
-"""The glider's cell certificates (``softreach.reach.cell_certificate`` on its box-start interval enclosures): sound
+"""The glider's cell certificates (``softreach.reach.proof.cell_certificate`` on its box-start interval enclosures): sound
 against a fact of the glider the cells are not built from (how fast it can descend), kept by their own plans
 under winds that switch inside the 0.1 s period, and kept by the filter against adversarial policies and winds.
-The cells are the package's own (``reach/cells/``), the ones a user's filter reads."""
+The cells are the package's own (``reach/proof/cells/``), the ones a user's filter reads."""
 
 from __future__ import annotations
 

@@ -219,10 +219,10 @@ def test_a_rate_of_one_sign_keeps_the_start_exactly(model: Glider, dt: float):
 
 
 def test_a_large_batch_in_threads_is_the_batch_row_by_row(model: Glider, monkeypatch):
-    """A batch of more than :data:`~softreach.reach.model_kernels.ENCLOSE_MIN_ROWS` rows per thread is enclosed in
+    """A batch of more than :data:`~softreach.reach.proof.model_kernels.ENCLOSE_MIN_ROWS` rows per thread is enclosed in
     blocks, one a thread (``held_boxes``): every row's box is the one a single loop over the rows gives, bit for
     bit, and a row whose enclosure fails is NaN in both."""
-    from softreach.reach import model_kernels
+    from softreach.reach.proof import model_kernels
 
     rng = np.random.default_rng(3)
     x, a = random_inputs(model, rng, 2 * model_kernels.ENCLOSE_MIN_ROWS + 7)

@@ -16,7 +16,7 @@ import pytest
 
 from softreach.reach import SolveConfig, SolverSettings, TableError, load_table, solve_table
 from softreach.reach.models.glider import Glider
-from softreach.reach.simulate import constant, random_switching, rollout, table_control, table_disturbance
+from softreach.reach.sim.simulate import constant, random_switching, rollout, table_control, table_disturbance
 
 import torch
 
@@ -72,9 +72,9 @@ def test_compiled_step_has_no_graph_break():
     """torch.compile traces the glider's whole soft-constrained rate and TVD-RK step as one graph each."""
     import torch._dynamo as dynamo
 
-    from softreach.reach.grid import Grid, budget_axis
+    from softreach.reach.numerics.grid import Grid, budget_axis
     from softreach.reach.problem import soft_problem
-    from softreach.reach.solver import HamiltonianOperator, tvd_rk_step
+    from softreach.reach.numerics.solver import HamiltonianOperator, tvd_rk_step
 
     m = Glider()
     z_lo, z_hi, nz = budget_axis(m.horizon, 9)
@@ -205,7 +205,7 @@ def test_a_start_outside_every_set_fails_under_worst_case_wind(glider_table):
 
 # ------------------------------------------------------------------------------------------------ plot and CLI
 def test_pick_starts_lie_in_their_sets(glider_table):
-    from softreach.reach.plotting_nd import pick_starts
+    from softreach.reach.cli.plotting_nd import pick_starts
 
     starts = pick_starts(glider_table, BUDGETS)
     assert [q for _, q in starts] == list(BUDGETS)
@@ -218,7 +218,7 @@ def test_pick_starts_lie_in_their_sets(glider_table):
 
 
 def test_plot_sets_nd_writes_a_png(glider_table, tmp_path):
-    from softreach.reach.plotting_nd import plot_sets_nd
+    from softreach.reach.cli.plotting_nd import plot_sets_nd
 
     out = plot_sets_nd(glider_table, BUDGETS, tmp_path / "glider.png", dt=0.02, slices=[-1.5 * DEG])
     assert out.exists() and out.stat().st_size > 20_000

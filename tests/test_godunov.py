@@ -1,4 +1,4 @@
-"""Godunov's numerical Hamiltonian for separable Hamiltonians (``reach/solver.py``): which models get it, the flux's
+"""Godunov's numerical Hamiltonian for separable Hamiltonians (``reach/numerics/solver.py``): which models get it, the flux's
 consistency and monotonicity, and what it buys on the point mass against the exact reference."""
 
 from __future__ import annotations
@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from softreach.reach import get_model
-from softreach.reach.budget_surface import RunningCost
-from softreach.reach.exact_pointmass import exact_mask
-from softreach.reach.grid import Grid
-from softreach.reach.held import HeldControl
+from softreach.reach.numerics.budget_surface import RunningCost
+from softreach.reach.numerics.exact_pointmass import exact_mask
+from softreach.reach.numerics.grid import Grid
+from softreach.reach.numerics.held import HeldControl
 from softreach.reach.problem import BudgetAugmented, classical_problem
-from softreach.reach.solver import HamiltonianOperator, SolverSettings, godunov_hamiltonian, separable
+from softreach.reach.numerics.solver import HamiltonianOperator, SolverSettings, godunov_hamiltonian, separable
 
 
 def _grid_points(model, n=7):
@@ -111,7 +111,7 @@ def test_budget_surface_with_godunov_is_sound_and_tighter(tmp_path):
     """On the point mass at ``41 x 41``: no node claimed that the exact reference proves infeasible, at any budget,
     and at least every node that local Lax-Friedrichs claims (less viscosity along the rides of the limits)."""
     from softreach.reach import load_table
-    from softreach.reach.compute import SolveConfig, solve_table
+    from softreach.reach.numerics.compute import SolveConfig, solve_table
 
     claimed = {}
     for dissipation in ("local", "godunov"):
@@ -138,7 +138,7 @@ def test_w_eps_with_godunov_is_sound_to_one_cell_and_no_looser(pointmass_table, 
     from scipy.ndimage import distance_transform_cdt
 
     from softreach.reach import SolveConfig, load_table, solve_table
-    from softreach.reach.exact_pointmass import grade
+    from softreach.reach.numerics.exact_pointmass import grade
 
     path = tmp_path / "pm-godunov.srt"
     cfg = SolveConfig(shape=(41, 41), budget_points=45, snapshots=11,

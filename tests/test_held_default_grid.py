@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from softreach.cli import main
-from softreach.reach import compute
+from softreach.reach.numerics import compute
 
 
 @pytest.fixture

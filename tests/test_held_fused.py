@@ -9,8 +9,8 @@ from dataclasses import replace
 import numpy as np
 
 from softreach.reach import Grid, budget_axis, get_model, soft_problem
-from softreach.reach.held import HeldControl, solve_held
-from softreach.reach.solver import HamiltonianOperator, SolverSettings, Stepper, march
+from softreach.reach.numerics.held import HeldControl, solve_held
+from softreach.reach.numerics.solver import HamiltonianOperator, SolverSettings, Stepper, march
 
 
 def _setup():

@@ -44,7 +44,7 @@ def test_public_names_load_on_first_use():
         from softreach.reach import (Grid, Model, ReachAvoidProblem, SolveConfig, SolverSettings, Table, TableError,
                                      budget_axis, classical_problem, get_model, load_table, soft_problem, solve,
                                      solve_table)
-        from softreach.reach.compute import solve_table as defined
+        from softreach.reach.numerics.compute import solve_table as defined
         assert solve_table is defined and reach.solve_table is defined
         assert set(reach.__all__) <= set(dir(reach))
         try:

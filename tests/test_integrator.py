@@ -1,4 +1,4 @@
-"""One integrator behind the environments and the rollouts (:mod:`softreach.reach.integrator`).
+"""One integrator behind the environments and the rollouts (:mod:`softreach.reach.sim.integrator`).
 
 * the batched entry point (``N`` states at once) moves every state as the environments' own steps do, for every
   registered model (the point mass on its scalar fast path, the glider and the Dubins vehicle on the vectorised
@@ -6,7 +6,7 @@
 * the budget spent over a period that crosses the ``eps`` band of ``h_eps`` is its exact integral (the point
   mass's speed is linear in time, so ``h_eps`` is piecewise linear with kinks at known instants), where the
   plain RK4 sum of the stage rates is not;
-* :func:`~softreach.reach.simulate.rollout` and ``gymnasium.make("softreach/PointMassLanding-v0")`` give the same
+* :func:`~softreach.reach.sim.simulate.rollout` and ``gymnasium.make("softreach/PointMassLanding-v0")`` give the same
   trajectories, landing times, violations and budgets for the same actions and winds.
 """
 
@@ -20,10 +20,10 @@ import pytest
 import gymnasium as gym
 
 import softreach.envs  # noqa: F401  (registers the ids)
-from softreach.reach.integrator import episode_ends, integrate_batch, integrate_period, rk4_stages
+from softreach.reach.sim.integrator import episode_ends, integrate_batch, integrate_period, rk4_stages
 from softreach.reach.models import get_model
 from softreach.reach.registry import GENERIC_ENV_ID, env_id, model_names
-from softreach.reach.simulate import constant, rollout
+from softreach.reach.sim.simulate import constant, rollout
 
 
 def _env(name: str, **kwargs):

@@ -1,4 +1,4 @@
-"""One interpolation engine (``reach/interpolation.py``) behind ``Table`` and the filter's ``TableField``: both give
+"""One interpolation engine (``reach/tables/interpolation.py``) behind ``Table`` and the filter's ``TableField``: both give
 the numbers of an independent reference interpolant, agree with each other, and wrap or clamp the same way."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from softreach.filters import TableField
-from softreach.reach.grid import Grid
-from softreach.reach.interpolation import Interpolant, interpolate
-from softreach.reach.query import Table
+from softreach.reach.numerics.grid import Grid
+from softreach.reach.tables.interpolation import Interpolant, interpolate
+from softreach.reach.tables.query import Table
 
 
 def _reference(values, times, grid, t, x):
@@ -181,7 +181,7 @@ def test_the_compiled_snapshot_is_the_searchsorted_one(times):
     """The compiled decision's snapshot interval and weight (``kernels.snapshot``, which guesses the interval from
     evenly spaced snapshots before it walks) are those of ``np.searchsorted``, at every snapshot time, between them,
     around them by a rounding, and outside the span."""
-    from softreach.reach.kernels import snapshot
+    from softreach.reach.proof.kernels import snapshot
 
     rng = np.random.default_rng(3)
     t = np.concatenate([times, np.nextafter(times, -np.inf), np.nextafter(times, np.inf),

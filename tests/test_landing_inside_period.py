@@ -9,7 +9,7 @@ import pytest
 import gymnasium as gym
 
 import softreach.envs  # noqa: F401  (registers the ids)
-from softreach.reach.integrator import integrate_period
+from softreach.reach.sim.integrator import integrate_period
 from softreach.filters import SafetyFilter, ValueFilter
 from softreach.reach import get_model
 

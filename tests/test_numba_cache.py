@@ -46,7 +46,7 @@ def _compiled_modules() -> list[str]:
 
 def test_every_compiled_function_is_cached_by_the_package_cache():
     modules = _compiled_modules()
-    assert {"softreach.filters.compiled", "softreach.filters.judge", "softreach.reach.kernels",
+    assert {"softreach.filters.compiled", "softreach.filters.judge", "softreach.reach.proof.kernels",
             "softreach.reach.models.pointmass"} <= set(modules)
     found = 0
     for name in modules:
@@ -64,10 +64,10 @@ def test_every_compiled_function_is_cached_by_the_package_cache():
 
 def test_the_key_is_a_digest_of_every_package_source():
     expected = sorted({p.resolve() for folder in _package_folders().values() for p in folder.rglob("*.py")})
-    assert {ROOT / "reach/kernels.py", ROOT / "filters/judge.py", ROOT / "reach/models/glider.py",
+    assert {ROOT / "reach/proof/kernels.py", ROOT / "filters/judge.py", ROOT / "reach/models/glider.py",
             ROOT / "src/softreach/cli.py"} <= set(expected)
     assert jit.source_files() == expected
-    from softreach.reach.kernels import box_max_row
+    from softreach.reach.proof.kernels import box_max_row
     assert box_max_row._cache._impl.locator.get_source_stamp() == jit.source_stamp()
     jit.source_stamp.cache_clear()  # read the files again now (the stamp is computed once per process)
     assert jit.source_stamp() == jit.digest(expected)
@@ -75,7 +75,7 @@ def test_the_key_is_a_digest_of_every_package_source():
 
 def test_a_one_space_edit_of_any_source_changes_the_key(tmp_path):
     files = []
-    for rel in ("reach/kernels.py", "filters/judge.py", "reach/model_kernels.py"):
+    for rel in ("reach/proof/kernels.py", "filters/judge.py", "reach/proof/model_kernels.py"):
         dst = tmp_path / rel.replace("/", "_")
         dst.write_bytes((ROOT / rel).read_bytes())
         files.append(dst)

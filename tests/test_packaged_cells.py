@@ -1,4 +1,4 @@
-"""The cells the package ships (``reach/cells/``) are what a fresh build gives, and a filter on a new machine uses
+"""The cells the package ships (``reach/proof/cells/``) are what a fresh build gives, and a filter on a new machine uses
 them instead of building, through the memory-mapped cache."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from softreach.filters import ValueFilter
-from softreach.reach import cell_certificate, cell_game
-from softreach.reach.cell_certificate import PACKAGED, CellCertificate, cell_key
-from softreach.reach.lookahead import Lookahead
+from softreach.reach.proof import cell_certificate, cell_game
+from softreach.reach.proof.cell_certificate import PACKAGED, CellCertificate, cell_key
+from softreach.reach.proof.lookahead import Lookahead
 
 #: the point mass's files are rechecked here, and one is rebuilt (11 to 25 s each); the glider's take 16 min to
 #: build, and tests/test_glider_cells.py checks what they claim instead

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from softreach.reach import SolveConfig, get_model
-from softreach.reach.compute import validate
-from softreach.reach.derivatives import upwind_derivatives
-from softreach.reach.grid import Grid
-from softreach.reach.interpolation import box_max, interpolate
+from softreach.reach.numerics.compute import validate
+from softreach.reach.numerics.derivatives import upwind_derivatives
+from softreach.reach.numerics.grid import Grid
+from softreach.reach.tables.interpolation import box_max, interpolate
 from softreach.reach.problem import classical_problem
-from softreach.reach.solver import HamiltonianOperator, SolverSettings
+from softreach.reach.numerics.solver import HamiltonianOperator, SolverSettings
 
 
 def test_a_models_periodic_axis_reaches_both_grids():

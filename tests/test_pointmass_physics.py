@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from softreach.reach import Grid, SolveConfig, SolverSettings, classical_problem, get_model, load_table, solve, solve_table
-from softreach.reach.simulate import constant, random_switching, rollout, table_control, table_disturbance
+from softreach.reach.sim.simulate import constant, random_switching, rollout, table_control, table_disturbance
 
 from pointmass_ceiling import CEILING
 

@@ -31,7 +31,7 @@ def test_set_contour_is_not_a_staircase(pointmass_table):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from softreach.reach.plotting import contour_level
+    from softreach.reach.cli.plotting import contour_level
 
     axes = pointmass_table.state_axes("W_eps")
     X, Y = np.meshgrid(axes[0], axes[1], indexing="ij")

@@ -12,9 +12,9 @@ import pytest
 import gymnasium as gym
 
 import softreach.envs  # noqa: F401  (registers the ids)
-from softreach.reach.integrator import integrate_batch
+from softreach.reach.sim.integrator import integrate_batch
 from softreach.reach.models import get_model
-from softreach.reach.rk4 import rk4_stages
+from softreach.reach.sim.rk4 import rk4_stages
 
 
 def reference_rk4(f, t, x, a, b, h):

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from softreach.reach.dynamics import ControlAndDisturbanceAffine
-from softreach.reach.grid import Grid
+from softreach.reach.numerics.grid import Grid
 from softreach.reach.problem import Model, ReachAvoidProblem
-from softreach.reach.solver import SolverSettings, solve
+from softreach.reach.numerics.solver import SolverSettings, solve
 
 
 class Advection(Model, ControlAndDisturbanceAffine):
@@ -76,8 +76,8 @@ def test_torch_and_numpy_agree():
 def test_compiled_step_matches_eager(fused, monkeypatch):
     """Both compiled paths: the rate alone (small grids), and the whole step fused (``FUSED_STEP_NODES``)."""
     import torch  # noqa: F401
-    monkeypatch.setattr("softreach.reach.solver.FUSED_STEP_NODES", 0 if fused else 10**12)
-    monkeypatch.setattr("softreach.reach.solver.CPU_ENGINE", "compile")
+    monkeypatch.setattr("softreach.reach.numerics.solver.FUSED_STEP_NODES", 0 if fused else 10**12)
+    monkeypatch.setattr("softreach.reach.numerics.solver.CPU_ENGINE", "compile")
     eager = _advect(48, "eno2", 2, backend="torch", dtype="float32", compile=False)
     compiled = _advect(48, "eno2", 2, backend="torch", dtype="float32", compile=True)
     assert abs(eager - compiled) < 1e-5
@@ -130,8 +130,8 @@ def test_grid_validation():
 def test_compiled_soft_solve_has_no_graph_break(fused, monkeypatch):
     """A graph break sends every step back to eager Python and recompiles for each new time: ~25x slower."""
     import torch
-    monkeypatch.setattr("softreach.reach.solver.FUSED_STEP_NODES", 0 if fused else 10**12)
-    monkeypatch.setattr("softreach.reach.solver.CPU_ENGINE", "compile")
+    monkeypatch.setattr("softreach.reach.numerics.solver.FUSED_STEP_NODES", 0 if fused else 10**12)
+    monkeypatch.setattr("softreach.reach.numerics.solver.CPU_ENGINE", "compile")
     from torch._dynamo.utils import counters
 
     from softreach.reach import budget_axis, get_model, soft_problem

@@ -1,4 +1,4 @@
-"""The GPU's time step (reach/gpu.py) checked without a GPU, in numba-cuda's simulator: the same values as the CPU
+"""The GPU's time step (reach/numerics/gpu.py) checked without a GPU, in numba-cuda's simulator: the same values as the CPU
 loops it shares its node code with, the host loop's steps, a fixed number of kernel launches per step and one read of
 the device per batch of steps.
 
@@ -20,8 +20,8 @@ _PRELUDE = '''
 import json, math
 import numpy as np
 from softreach.reach import Grid, budget_axis, classical_problem, get_model, soft_problem
-from softreach.reach import device_loop, fused
-from softreach.reach.solver import HamiltonianOperator, SolverSettings, Stepper, march
+from softreach.reach.numerics import device_loop, fused
+from softreach.reach.numerics.solver import HamiltonianOperator, SolverSettings, Stepper, march
 
 def operator(problem, grid, **kw):
     st = SolverSettings(**{"dtype": "float32", **kw})

@@ -1,4 +1,4 @@
-"""The CPU time step as compiled loops (reach/fused.py) against the array code it is recorded from."""
+"""The CPU time step as compiled loops (reach/numerics/fused.py) against the array code it is recorded from."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import pytest
 
 from softreach.reach import Grid, SolverSettings, budget_axis, classical_problem, get_model, soft_problem, solve
 from softreach.reach.problem import ReachAvoidProblem
-from softreach.reach.fused import Rows
-from softreach.reach.solver import HamiltonianOperator, Stepper
-from softreach.reach.trace import Tape, Unsupported
+from softreach.reach.numerics.fused import Rows
+from softreach.reach.numerics.solver import HamiltonianOperator, Stepper
+from softreach.reach.numerics.trace import Tape, Unsupported
 
 import torch
 
@@ -25,7 +25,7 @@ def _soft_grid(n: int = 17, nz: int = 15):
 
 def _solve(problem, grid, times, engine, start=None, **settings):
     """March from ``times[-1]`` (the terminal value, or ``start``) to ``times[0]`` with the stepper's engine forced."""
-    from softreach.reach import solver as S
+    from softreach.reach.numerics import solver as S
 
     st = SolverSettings(**{"dtype": "float64", "compile": True, **settings})
     op = HamiltonianOperator(problem, grid, st)
@@ -95,7 +95,7 @@ def test_periodic_axis_and_per_end_rules():
 def test_the_solve_picks_the_fused_loops_on_a_cpu_and_keeps_each_result():
     """``compile=True`` on a CPU runs the loops; a value ``march`` returns is a copy, not the stepper's buffer,
     which the next march overwrites."""
-    from softreach.reach import solver as S
+    from softreach.reach.numerics import solver as S
 
     model, grid = _soft_grid()
     st = SolverSettings.from_accuracy("medium", compile=True)

@@ -1,5 +1,5 @@
 """The GPU's time loop checked on the CPU: no host synchronisation inside a step, one graph per step, and the same
-steps as the host loop (reach/device_loop.py)."""
+steps as the host loop (reach/numerics/device_loop.py)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from softreach.reach import Grid, SolverSettings, budget_axis, get_model, soft_problem
-from softreach.reach import solver as S
-from softreach.reach.device_loop import march_on_device, whole_step
+from softreach.reach.numerics import solver as S
+from softreach.reach.numerics.device_loop import march_on_device, whole_step
 
 import torch
 

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from softreach.agents import tables as agent_tables
-from softreach.reach import plotting, plotting_nd, starts
+from softreach.reach.cli import plotting, plotting_nd
+from softreach.reach.tables import starts
 
 
 def _nodes(table):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from softreach.reach import SolveConfig, SolverSettings, TableError, get_model, load_table, solve_table
-from softreach.reach.compute import validate
-from softreach.reach.table import MAGIC
+from softreach.reach.numerics.compute import validate
+from softreach.reach.tables.table import MAGIC
 
 MODEL = get_model("pointmass")
 SETTINGS = SolverSettings.from_accuracy("low", dtype="float32", compile=False)
@@ -83,7 +83,7 @@ def _solve_killed_then_resumed(cfg, field, tmp_path, monkeypatch):
     ref = tmp_path / "ref.srt"
     solve_table(MODEL, cfg, ref, progress=False)
     out = tmp_path / "run.srt"
-    from softreach.reach import table as table_mod
+    from softreach.reach.tables import table as table_mod
 
     original = table_mod.TableWriter.write_snapshot
     calls = {"n": 0}
@@ -114,7 +114,7 @@ def test_interrupted_solve_resumes_to_the_same_table(tmp_path, monkeypatch):
 
 def test_resume_with_other_settings_is_refused(tmp_path, monkeypatch):
     out = tmp_path / "run.srt"
-    from softreach.reach import table as table_mod
+    from softreach.reach.tables import table as table_mod
 
     def crash(self, field, k, value):
         raise KeyboardInterrupt

@@ -32,7 +32,7 @@ import numpy as np
 from .. import backend as B
 from .. import sets
 from ..dynamics import Components, ControlAndDisturbanceAffine
-from ..intervals import iv_cos_any, iv_sin_any, round_down, round_up
+from ..proof.intervals import iv_cos_any, iv_sin_any, round_down, round_up
 from ..problem import Model
 
 Array = B.Array
@@ -218,7 +218,7 @@ class Dubins(Model, ControlAndDisturbanceAffine):
 
         The heading is exact, ``theta(s) = theta_0 + u s``. The position moves by ``int_0^s v (cos, sin)(theta)``,
         which lies in ``s v`` times the range of ``(cos, sin)`` over every heading of the period (interval
-        bounds over any arc, :func:`~softreach.reach.intervals.iv_cos_any`), plus the wind's ``[-w s, w s]``.
+        bounds over any arc, :func:`~softreach.reach.proof.intervals.iv_cos_any`), plus the wind's ``[-w s, w s]``.
         """
         lo, hi = self.held_tube_pieces_box(t, x_lo, x_hi, a, dt, 1)
         end_lo, end_hi = self._held_box(x_lo, x_hi, a, dt, dt, dt)

@@ -29,7 +29,7 @@ from .. import backend as B
 from .. import sets
 from ..dynamics import Components
 from ..jit import njit
-from ..model_kernels import box_distance_max, box_params
+from ..proof.model_kernels import box_distance_max, box_params
 from ..problem import LANDING_WORDS, Model
 from .glider_enclosure import GliderHeldEnclosure
 from .glider_game import GliderGame
@@ -42,7 +42,7 @@ Array = B.Array
 
 @njit
 def _set_max(params, which, lo, hi):
-    """The largest value of the glider's set ``which`` (:data:`~softreach.reach.model_kernels.SET_INDEX`) over the box
+    """The largest value of the glider's set ``which`` (:data:`~softreach.reach.proof.model_kernels.SET_INDEX`) over the box
     ``[lo, hi]``: its box distance's, and for the target also the sink-rate term's, which is ``-V sin(gamma)``,
     bilinear in ``V`` and ``sin(gamma)`` with ``sin`` increasing on ``(-pi/2, pi/2)``: largest at a corner."""
     out = box_distance_max(params, 9 * which, lo, hi)
@@ -297,7 +297,7 @@ class Glider(GliderGame, GliderHeldEnclosure, Model):
     @property
     def set_max_params(self) -> np.ndarray:
         """:func:`_set_max`'s numbers: the three sets' box distances
-        (:func:`~softreach.reach.model_kernels.box_params`), then the sink-rate limit and scale."""
+        (:func:`~softreach.reach.proof.model_kernels.box_params`), then the sink-rate limit and scale."""
         p = self.params
         return np.concatenate([box_params(self._set_boxes(), 3), [p.max_sink_rate, p.sink_rate_scale]])
 

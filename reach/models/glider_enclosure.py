@@ -2,7 +2,7 @@
 (:meth:`GliderHeldEnclosure.held_enclosure`), in interval arithmetic; the safety filter's look-ahead reads them.
 
 The enclosure is one compiled kernel (:func:`held_box_kernel`, numba): the numpy methods run it row by row
-(:func:`~softreach.reach.model_kernels.held_boxes`), and the filter's compiled decision calls it by address
+(:func:`~softreach.reach.proof.model_kernels.held_boxes`), and the filter's compiled decision calls it by address
 (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`), so both read the same boxes."""
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from ..intervals import HALF_PI, ROUND_ABS, ROUND_REL
+from ..proof.intervals import HALF_PI, ROUND_ABS, ROUND_REL
 from ..jit import njit
-from ..model_kernels import held_boxes
+from ..proof.model_kernels import held_boxes
 from .glider_params import GliderParams
 
 #: inflation of a failed Picard candidate: relative to its width, and absolute (plus relative to |x|) so that a

@@ -11,7 +11,7 @@ import numpy as np
 from .. import sets
 from ..dynamics import ControlAndDisturbanceAffine
 from ..jit import njit
-from ..model_kernels import held_boxes
+from ..proof.model_kernels import held_boxes
 from ..problem import LANDING_WORDS, Model
 
 

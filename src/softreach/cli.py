@@ -14,7 +14,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"softreach {__version__}",
                         help="print the installed version and exit")
     sub = parser.add_subparsers(dest="command", required=True)
-    from softreach.reach.commands import add_commands
+    from softreach.reach.cli.commands import add_commands
 
     add_commands(sub)
     from softreach.filters.precompile import add_commands as add_filter_commands
@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except (ValueError, PermissionError, FileNotFoundError, RuntimeError) as exc:
         # bad input and unusable files: one clear line, no traceback
-        from softreach.reach.table import TableError
+        from softreach.reach.tables.table import TableError
 
         kind = "error" if not isinstance(exc, TableError) else "table error"
         print(f"softreach: {kind}: {exc}", file=sys.stderr)

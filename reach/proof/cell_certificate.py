@@ -1,0 +1,325 @@
+"""Certificates solved on cells for the held-action game: proofs, not interpolants.
+
+The table's certificate (:class:`~softreach.reach.proof.lookahead.Lookahead`) is an interpolant, which between grid
+nodes can promise slightly more than a held action delivers: a chain of certified steps can break. This module
+solves the sampled-data game again on *cells* and proves what it claims, by construction.
+
+Cells are boxes: the hard-constraint box ``C1`` (:attr:`~softreach.reach.problem.Model.hard_box`) cut into
+``shape`` state cells, times budget cells ``[j dz, (j + 1) dz]``. A **plan** is a candidate held action kept for
+``K`` periods (``K`` in ``holds``). A cell ``(c, j)`` is **good at sample time** ``t_k = k dt`` when some plan
+satisfies, from *every* state of the cell and for every wind signal (the model's box enclosures
+:meth:`~softreach.reach.dynamics.Dynamics.held_enclosure_box`, chained period by period):
+
+1. every period's motion stays in ``C1`` (the convex ``c1`` at the corners of each tube box);
+2. the budget spent, bounded as in the one-period test (pieces charged at their largest ``h_eps``) and summed
+   over the periods, leaves ``j dz - S >= 0``;
+3. every run surely lands at a check instant of one of the periods (then the episode ends), or every cell the
+   end box touches, at every budget the plan can leave, is good at ``t_{k+K}``, and ``k + K <= N``.
+
+Every box is widened, and every period that may spend is charged more, by the look-ahead's allowances for the
+environment's rounding (:func:`~softreach.reach.proof.lookahead.state_allowance`,
+:func:`~softreach.reach.proof.lookahead.budget_allowance`; the key records them), so that a cell's claim holds for the
+numbers the environment computes; the next period starts from the widened end box.
+
+Two games differ only at ``T``: in ``"safe"`` every cell inside ``C1`` is good there (stay in ``C1`` within the
+budget until ``T``, or land); in ``"land"`` none is (land by ``T``). More budget never hurts: if ``(c, j)`` is good
+so is ``(c, j + 1)`` (the same plan works, by induction from ``T``). So a cell column is stored as one number,
+``m_k[c]``, the lowest good budget index, and item 3 asks only ``j >= S / dz + max m_{k+K}`` over the touched
+state cells.
+
+**What it proves.** A state at ``t_k`` in a good cell has a plan (:meth:`CellCertificate.plan`) that keeps ``C1``
+and the budget and ends in a good cell (or landed), whatever the wind did. A controller that applies, at every
+step, either an action whose one-period end box is covered by good cells (:meth:`CellCertificate.covered`) or the
+next action of the plan it is following, never leaves ``C1``, never overspends, and (``"land"``) lands by ``T``,
+from any good start, for every wind signal. Only the enclosures and the box corners are used; the table is not.
+
+Plans longer than one period are what let a cell make progress at all where the motion of one period is shorter
+than the cell (the point mass near ``v = 0``): a one-period box from a whole cell overlaps that cell again, and
+would ask the cell to be good at every later time. Plans whose end box touches more than ``span_cap`` cells are
+not used (that only makes the certificate smaller).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import cell_game
+from .enclosure_check import check_model_for_filter
+from ..jit import cache_root
+from .kernels import budget_floor_rows, cover_rows, frozen, plan_rows, step_rows
+
+
+#: file format of :meth:`CellCertificate.save`
+FORMAT = "softreach-cell-certificate-1"
+#: the arrays of a cell certificate that scale with the cells (memory-mapped from a cache folder)
+_LARGE = ("m", "action", "hold")
+#: the games: stay in ``C1`` within the budget until ``T`` (or land), or land by ``T``
+GAMES = ("safe", "land")
+
+
+class CellCertificate:
+    """The lowest good budget index ``m[k, c]`` and a plan ``(action[k, c], hold[k, c])`` per sample time and cell.
+
+    :param lo, hi: the cell grid's box (the model's ``hard_box``)
+    :param m: ``(N + 1, *shape)`` int16, ``never`` where no budget suffices
+    :param action: ``(N + 1, *shape)`` int8 candidate index of the plan (``-1``: none)
+    :param hold: ``(N + 1, *shape)`` int8 periods the plan holds it
+    :param candidates: ``(J, m)`` physical held actions
+    :param dt, dz, horizon: control period, budget cell, horizon [s]
+    :param game: ``"safe"`` or ``"land"``
+    :param key: what the cells were built for (model parameters, period, ``h_eps`` width, candidates, ...)
+    """
+
+    def __init__(self, lo: Any, hi: Any, m: np.ndarray, action: np.ndarray, hold: np.ndarray, candidates: Any,
+                 dt: float, dz: float, horizon: float, game: str, key: dict[str, Any]):
+        if game not in GAMES:
+            raise ValueError(f"game must be one of {GAMES}, got {game!r}")
+        self.lo, self.hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+        self.m, self.action, self.hold = np.asarray(m), np.asarray(action), np.asarray(hold)
+        self.shape = self.m.shape[1:]
+        self.width = (self.hi - self.lo) / np.asarray(self.shape, dtype=np.float64)
+        self.candidates = np.asarray(candidates, dtype=np.float64)
+        self.dt, self.dz, self.horizon = float(dt), float(dz), float(horizon)
+        self.game = game
+        self.steps = self.m.shape[0] - 1
+        self.top = int(round(self.horizon / self.dz))  # no run spends more than the horizon: budgets above are equal
+        self.never = self.top + 1
+        self.key = dict(key)
+        #: what the compiled cover test (:func:`softreach.reach.proof.kernels.cover_row`) reads: one row of cells per
+        #: sample time (a memory map stays mapped), the grid, and the game's clock and budget cells
+        self.kernel_args = (frozen(np.asarray(self.m).reshape(self.steps + 1, -1)),
+                            frozen(np.asarray(self.shape, dtype=np.int64)), frozen(self.lo), frozen(self.hi),
+                            frozen(self.width), self.dt, self.dz, self.top, self.steps, self.horizon,
+                            self.game == "safe")
+        #: the plans, one row of cells per sample time, as :func:`softreach.reach.proof.kernels.plan_row` reads them
+        self.plan_args = (frozen(np.asarray(self.action).reshape(self.steps + 1, -1)),
+                          frozen(np.asarray(self.hold).reshape(self.steps + 1, -1)))
+
+    # ---------------------------------------------------------------- building
+    @classmethod
+    def build(cls, lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe",
+              holds: Any = (1,), span_cap: int = 32) -> "CellCertificate":
+        """Solve the cell game backwards from ``T`` for the look-ahead's model, period, ``h_eps`` and candidates
+        (:func:`softreach.reach.proof.cell_game.solve`).
+
+        :param lookahead: a :class:`~softreach.reach.proof.lookahead.Lookahead` (its enclosures and budget bound)
+        :param shape: cells per state axis over the model's ``hard_box``
+        :param dz: budget cell [s]; default a quarter of the period
+        :param game: ``"safe"`` or ``"land"`` (module docstring)
+        :param holds: the plan lengths, in periods
+        :param span_cap: the most cells a plan's end box may touch
+        """
+        la, model = lookahead, lookahead.model
+        key = cell_key(la, shape, dz, game, holds, span_cap)
+        if model.hard_box is None:
+            raise ValueError(f"{model.name} declares no hard_box; the cells tile it")
+        shape = tuple(key["shape"])
+        if len(shape) != model.state_dim or min(shape) < 1:
+            raise ValueError(f"shape must give {model.state_dim} positive cell counts, got {shape!r}")
+        holds = tuple(key["holds"])
+        if not holds or min(holds) < 1 or max(holds) > 127:
+            raise ValueError(f"holds must be periods in 1..127, got {holds!r}")
+        dt, T, dz = la.dt, la.horizon, key["dz"]
+        if not (math.isfinite(dz) and dz > 0):
+            raise ValueError(f"dz must be a positive number of seconds, got {dz!r}")
+        N = int(round(T / dt))
+        if not math.isclose(N * dt, T, rel_tol=1e-9):
+            raise ValueError(f"the horizon {T} s is not a whole number of periods {dt} s")
+        # the cells prove what the model's enclosure claims: compared with simulated runs first
+        check_model_for_filter(model, dt, "building the filter's cells", la.pieces, la.target_checks, cells=True,
+                               cell_width=(np.asarray(model.hard_box[1]) - model.hard_box[0]) / np.asarray(shape))
+        return cell_game.solve(cls, la, key)
+
+    # ---------------------------------------------------------------- cell arithmetic
+    def _cell_range(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """First and last cell index per axis a box ``[lo, hi]`` touches (closed cells), and whether it lies on
+        the grid. Off-grid boxes get a valid range and ``False``."""
+        with np.errstate(invalid="ignore"):
+            f = np.floor((lo - self.lo) / self.width)
+            g = np.floor((hi - self.lo) / self.width)
+        n = np.asarray(self.shape)
+        # a box reaching exactly the grid's upper end touches the last cell only
+        g = np.where(hi == self.hi, n - 1, g)
+        on = (np.isfinite(f) & np.isfinite(g) & (f >= 0) & (g <= n - 1)).all(axis=1)
+        f = np.clip(np.nan_to_num(f), 0, n - 1).astype(np.int64)
+        g = np.clip(np.nan_to_num(g), 0, n - 1).astype(np.int64)
+        return f, np.maximum(f, g), on
+
+    def _budget_index(self, spend: np.ndarray, needed: Any) -> np.ndarray:
+        """The lowest budget index ``j`` with ``j dz - spend >= needed dz``: the start budgets whose lowest end
+        budget still lies in a good cell of index ``needed``; ``never`` where no budget does (or the spend is not
+        finite)."""
+        needed = np.asarray(needed, dtype=np.int64)
+        spend = np.asarray(spend, dtype=np.float64)
+        finite = np.isfinite(spend)
+        s = np.where(finite, spend, 0.0)
+        j = np.ceil(np.minimum(s / self.dz + needed - 1e-12, self.never)).astype(np.int64)
+        # float guard: the condition itself, not its rearrangement, decides
+        j = np.where(j * self.dz - s >= needed * self.dz, j, j + 1)
+        return np.where(finite, np.minimum(np.maximum(j, 0), self.never), self.never)
+
+    def step_index(self, t: np.ndarray) -> np.ndarray:
+        """The sample index whose game covers time ``t`` (between samples, a model whose motion does not depend on
+        ``t``): ``"safe"`` takes ``floor(t / dt)``, whose plans keep ``C1`` until at least ``T``; ``"land"`` takes
+        ``ceil(t / dt)``, whose plans land by ``T`` at the latest."""
+        t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
+        out = np.empty(len(t), np.int64)
+        step_rows(t, self.dt, self.steps, self.game == "safe", out)
+        return out
+
+    def _budget_floor(self, z: np.ndarray) -> np.ndarray:
+        z = np.ascontiguousarray(z, dtype=np.float64).reshape(-1)
+        out = np.empty(len(z), np.int64)
+        budget_floor_rows(z, self.dz, self.top, out)
+        return out
+
+    # ---------------------------------------------------------------- queries
+    def contains(self, t: Any, x: Any, z: Any) -> np.ndarray:
+        """Is each state ``(t, x, z)`` in a good cell (``False`` off the grid, at a negative budget, after ``T``)?"""
+        x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+        return self.covered(t, x, x, z)
+
+    def covered(self, t_next: Any, end_lo: np.ndarray, end_hi: np.ndarray, z_end: Any) -> np.ndarray:
+        """Does a period end inside good cells: every cell the end box ``[end_lo, end_hi]`` touches at ``t_next``
+        good at the lowest end budget ``z_end`` (and so at every higher one)?"""
+        N = len(end_lo)
+        out = np.empty(N, bool)
+        if N:
+            t_next, z_end = (np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (N,)))
+                             for v in (t_next, z_end))
+            cover_rows(self.kernel_args, t_next, np.asarray(end_lo, dtype=np.float64),
+                       np.asarray(end_hi, dtype=np.float64), z_end, out)
+        return out
+
+    def plan(self, t: Any, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        """The stored plan of each state's cell: ``(candidate index, periods to hold it)``; ``(-1, 0)`` off the grid
+        or where no budget suffices. It is good for the state when :meth:`contains` says so."""
+        x = np.ascontiguousarray(np.atleast_2d(np.asarray(x, dtype=np.float64)))
+        t = np.ascontiguousarray(np.broadcast_to(np.asarray(t, dtype=np.float64), (len(x),)))
+        act, hold = np.empty(len(x), np.int64), np.empty(len(x), np.int64)
+        plan_rows(self.kernel_args, *self.plan_args, t, x, act, hold)
+        return act, hold
+
+    def fraction(self, k: int, z: float) -> float:
+        """The share of ``C1``'s cells good at sample ``k`` with budget ``z``."""
+        return float((self.m[k] <= self._budget_floor(np.array([float(z)]))[0]).mean())
+
+    # ---------------------------------------------------------------- files
+    def save(self, path: str | Path, compressed: bool = True) -> None:
+        """Write the cells: one numpy ``.npz`` (the key as JSON), or with ``compressed=False`` a folder of ``.npy``
+        arrays beside the rest, which :meth:`load` maps into memory instead of reading (what the cache keeps: the
+        pages a filter touches are read, and shared between processes)."""
+        small = dict(format=FORMAT, lo=self.lo, hi=self.hi, candidates=self.candidates, game=self.game,
+                     scalars=np.array([self.dt, self.dz, self.horizon]), key=json.dumps(self.key, sort_keys=True))
+        if compressed:
+            np.savez_compressed(path, **{name: getattr(self, name) for name in _LARGE}, **small)
+            return
+        path = Path(path)
+        path.mkdir()
+        for name in _LARGE:
+            np.save(path / f"{name}.npy", getattr(self, name))
+        np.savez(path / "meta.npz", **small)
+
+    @classmethod
+    def load(cls, path: str | Path, key: dict[str, Any] | None = None) -> "CellCertificate":
+        """Read cells written by :meth:`save` (a folder memory-mapped); with ``key``, refuse cells built for
+        anything else.
+
+        :raises ValueError: not a cell-certificate file, or built for another model, period, game or candidate set
+        """
+        path = Path(path)
+        folder = path.is_dir()
+        try:
+            with np.load(path / "meta.npz" if folder else path, allow_pickle=False) as f:
+                if str(f["format"]) != FORMAT:
+                    raise ValueError(f"format {str(f['format'])!r}, expected {FORMAT!r}")
+                stored = json.loads(str(f["key"]))
+                dt, dz, T = (float(v) for v in f["scalars"])
+                large = [np.load(path / f"{n}.npy", mmap_mode="r", allow_pickle=False) if folder else f[n]
+                         for n in _LARGE]
+                out = cls(f["lo"], f["hi"], *large, f["candidates"], dt, dz, T, str(f["game"]), stored)
+        except (OSError, KeyError, EOFError, ValueError) as err:
+            raise ValueError(f"{path} is not a readable cell-certificate file: {err}") from err
+        if key is not None and json.dumps(key, sort_keys=True) != json.dumps(stored, sort_keys=True):
+            raise ValueError(f"{path} was built for {stored}, not {key}")
+        return out
+
+
+def cell_key(lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe", holds: Any = (1,),
+             span_cap: int = 32) -> dict[str, Any]:
+    """What :meth:`CellCertificate.build` records for these arguments (the cache's key)."""
+    la, model = lookahead, lookahead.model
+    if game not in GAMES:
+        raise ValueError(f"game must be one of {GAMES}, got {game!r}")
+    key = {"model": model.name, "parameters": model.parameters(), "dt": la.dt, "eps": la.eps,
+           "horizon": la.horizon, "candidates": la.candidates.tolist(), "pieces": la.pieces,
+           "target_checks": la.target_checks, "shape": [int(v) for v in shape],
+           "dz": la.dt / 4 if dz is None else float(dz), "game": game,
+           "holds": sorted({int(h) for h in holds}), "span_cap": int(span_cap)}
+    if la.exact_env:  # the allowances for the environment's rounding (Lookahead.exact_env)
+        key["allowance"] = {"state": la.slack.tolist(), "budget": la.budget_slack, "c1_from": la.first_check,
+                            "spends_from": 0.5 * la.first_check}
+    return key
+
+
+def cache_dir() -> Path:
+    """Where built cells are kept: the package's cache folder (:func:`softreach.reach.jit.cache_root`:
+    ``$SOFTREACH_CACHE`` or ``~/.cache/softreach``)."""
+    return cache_root()
+
+
+#: cells shipped with the package for the default configurations, so that the first filter on a machine need not
+#: build them: the point mass at 0.01 s for ``target_checks`` 1 and its environment's 10 (``tests/test_packaged_
+#: cells.py`` rebuilds each and checks it equals the file), the glider at 0.1 s for its environment's 2, what
+#: :class:`~softreach.filters.SafetyFilter` asks (6 min to build; ``tests/test_glider_cells.py`` checks the files'
+#: claims). Rewritten by ``python benchmarks/cell_certificate.py --table TABLE --write-packaged [--checks N]``
+PACKAGED = Path(__file__).parent / "cells"
+
+
+def cache_file(key: dict[str, Any], folder: Path) -> Path:
+    """The file that holds the cells of ``key`` (:func:`cell_key`) in ``folder``."""
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
+    return folder / f"cells-{key['model']}-{key['game']}-{digest}.npz"
+
+
+def cached(lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe", holds: Any = (1,),
+           span_cap: int = 32) -> CellCertificate:
+    """The cells for this look-ahead, memory-mapped from a folder in :func:`cache_dir`; where there is none yet,
+    the package's own (:data:`PACKAGED`) or a build (once per model, period, ``h_eps`` width, candidate set, game
+    and shape) is written there first. A cache that cannot be written is skipped with a warning."""
+    key = cell_key(lookahead, shape, dz, game, holds, span_cap)
+    folder = cache_file(key, cache_dir()).with_suffix("")
+    if folder.is_dir():
+        try:
+            return CellCertificate.load(folder, key)
+        except ValueError as err:
+            warnings.warn(f"rebuilding the cells: {err}", stacklevel=2)
+            shutil.rmtree(folder, ignore_errors=True)
+    cells, packaged = None, cache_file(key, PACKAGED)
+    if packaged.is_file():
+        try:
+            cells = CellCertificate.load(packaged, key)
+        except ValueError as err:
+            warnings.warn(f"rebuilding the cells: {err}", stacklevel=2)
+    if cells is None:
+        cells = CellCertificate.build(lookahead, shape, dz, game, holds, span_cap)
+    tmp = folder.with_name(folder.name + f".{os.getpid()}.tmp")
+    try:
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        cells.save(tmp, compressed=False)
+        os.replace(tmp, folder)
+    except OSError as err:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if not folder.is_dir():  # (another process may have written it first)
+            warnings.warn(f"cells not cached ({err}); they are read or rebuilt again next time", stacklevel=2)
+            return cells
+    return CellCertificate.load(folder, key)

@@ -1,0 +1,210 @@
+"""The cell game solved backwards from ``T`` (:meth:`CellCertificate.build
+<softreach.reach.proof.cell_certificate.CellCertificate.build>`), and the same recursion asked again of a stored
+certificate (:func:`recheck`): the module docstring of :mod:`softreach.reach.proof.cell_certificate` states the game.
+
+A **plan step** is one candidate held from every cell for ``K`` periods, its boxes chained (:func:`plan_steps`);
+one step of the recursion (:func:`backward_step`) gives every cell the least budget index over the plan steps from
+the later samples. Both the solve and :func:`recheck` run that step, so a certificate that passes
+:func:`recheck` at every cell is the one the solve gives."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from .landing import lands_within, meets_target
+
+
+class _LastPlans:
+    """The plans' geometry of the last build, for the other game on the same cells (it is the same: only ``T``
+    differs). One entry, handed out once: it is large."""
+
+    def __init__(self):
+        self._key, self._plans = None, None
+
+    @staticmethod
+    def _norm(key: dict[str, Any]) -> str:
+        return json.dumps({k: v for k, v in key.items() if k != "game"}, sort_keys=True)
+
+    def get(self, key: dict[str, Any]):
+        plans = self._plans if self._key == self._norm(key) else None
+        self._key, self._plans = None, None
+        return plans
+
+    def put(self, key: dict[str, Any], plans: Any) -> None:
+        self._key, self._plans = self._norm(key), plans
+
+
+_SHARED = _LastPlans()
+
+
+def cell_boxes(cells: Any, flat: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The lower and upper corners of the cells ``flat`` (flat indices, the last axis fastest; all by default)."""
+    if flat is None:
+        flat = np.arange(int(np.prod(cells.shape)))
+    idx = np.stack(np.unravel_index(np.asarray(flat, dtype=np.int64), cells.shape), axis=-1)
+    return cells.lo + idx * cells.width, cells.lo + (idx + 1) * cells.width
+
+
+def solve(cls: type, lookahead: Any, key: dict[str, Any]) -> Any:
+    """The certificate of the game ``key`` (:func:`~softreach.reach.proof.cell_certificate.cell_key`) for the
+    look-ahead's model, period, ``h_eps`` and candidates; ``cls``: the certificate class."""
+    la, model = lookahead, lookahead.model
+    shape, holds, dz, game, span_cap = tuple(key["shape"]), tuple(key["holds"]), key["dz"], key["game"], key["span_cap"]
+    dt, T = la.dt, la.horizon
+    N = int(round(T / dt))
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in model.hard_box)
+    blank = np.zeros((1,) + shape, np.int8)
+    cells = cls(lo, hi, blank.astype(np.int16), blank, blank, la.candidates, dt, dz, T, game, {})
+    cell_lo, cell_hi = cell_boxes(cells)
+    C = len(cell_lo)
+    m = np.empty((N + 1, C), np.int16)
+    action = np.full((N + 1, C), -1, np.int8)
+    hold = np.zeros((N + 1, C), np.int8)
+    m[N] = terminal(cells, la, cell_lo, cell_hi)
+    plans = None
+    K_max = max(holds)
+    # minutes for a fine 3-d grid (the glider's): a bar on a terminal, nothing in logs (disable=None)
+    bar = tqdm(total=N + len(la.candidates), desc=f"{model.name} {game} cells", unit="step", disable=None,
+               leave=False)
+    for k in range(N - 1, -1, -1):
+        if model.time_invariant and k + K_max + 1 <= N and all(
+                np.array_equal(m[k + 1], m[k + 1 + d]) for d in range(1, K_max + 1)):
+            # the recursion reads the next K_max columns; they agree, so every earlier one is the same
+            m[:k + 1], action[:k + 1], hold[:k + 1] = m[k + 1], action[k + 1], hold[k + 1]
+            break
+        if plans is None or not model.time_invariant:
+            plans = _SHARED.get(key) if model.time_invariant else None
+            if plans is None:
+                plans = all_plan_steps(cells, la, k * dt, cell_lo, cell_hi, holds, span_cap, bar)
+                if model.time_invariant:
+                    _SHARED.put(key, plans)
+        bar.update(1)
+        m[k], action[k], hold[k] = backward_step(cells, plans, m, k, N, C)
+    bar.close()
+    return cls(lo, hi, m.reshape((N + 1,) + shape), action.reshape((N + 1,) + shape),
+               hold.reshape((N + 1,) + shape), la.candidates, dt, dz, T, game, key)
+
+
+def terminal(cells: Any, la: Any, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The cells' least good budget index at ``T``: 0 inside ``C1`` in the ``"safe"`` game, else ``never``."""
+    inside = la._corner_max(la.model.hard_constraint, np.full(len(lo), la.horizon), lo, hi) <= 0
+    return np.where(inside & (cells.game == "safe"), 0, cells.never)
+
+
+def all_plan_steps(cells: Any, la: Any, t0: float, lo: np.ndarray, hi: np.ndarray, holds: tuple, span_cap: int,
+                   bar: Any = None) -> list:
+    """:func:`plan_steps` of every candidate: ``(j, K, step)`` in the candidates' order."""
+    out = []
+    for j, a in enumerate(la.candidates):
+        out += [(j, K, g) for K, g in plan_steps(cells, la, t0, lo, hi, a, holds, span_cap)]
+        if bar is not None:
+            bar.update(1)
+    return out
+
+
+def backward_step(cells: Any, plans: list, m: np.ndarray, k: int, N: int, C: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One step of the recursion: the least good budget index at sample ``k`` of the ``C`` cells the plan steps
+    start from, and its plan (the first plan step with that index), from the later samples of ``m``
+    (``(N + 1, all cells)``)."""
+    never = cells.never
+    best = np.full(C, never, np.int64)
+    action = np.full(C, -1, np.int8)
+    hold = np.zeros(C, np.int8)
+    for j, K, (rows, spend, cols, starts, land_rows, land_need) in plans:
+        if k + K > N:
+            continue
+        # landing inside the plan needs no later cell: its budget index does not change with k
+        for r, need in ((land_rows, land_need),
+                        (rows, cells._budget_index(spend, np.maximum.reduceat(m[k + K][cols], starts)
+                                                   if len(rows) else np.zeros(0, np.int64)))):
+            better = need < best[r]
+            r = r[better]
+            best[r], action[r], hold[r] = need[better], j, K
+    out = np.minimum(best, never)
+    return out, np.where(out < never, action, -1), hold
+
+
+def recheck(cells: Any, lookahead: Any, flat: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The recursion asked again of a stored certificate at the cells ``flat`` (flat indices): ``(m, action,
+    hold)``, each ``(N + 1, len(flat))``, at every sample from the certificate's own later samples, and at ``T``
+    from the game. Where they equal the stored ones at every cell, the certificate is the one the solve gives.
+
+    :raises ValueError: the look-ahead is not the one the certificate was built for
+    """
+    from .cell_certificate import cell_key  # (that module imports this one)
+
+    key = cells.key
+    asked = cell_key(lookahead, key["shape"], key["dz"], key["game"], key["holds"], key["span_cap"])
+    if asked != key:
+        differ = {k: (asked.get(k), key.get(k)) for k in sorted(set(asked) | set(key)) if asked.get(k) != key.get(k)}
+        raise ValueError(f"the look-ahead is not the one the cells were built for: (look-ahead, cells) {differ}")
+    la, flat = lookahead, np.asarray(flat, dtype=np.int64)
+    N, C = cells.steps, len(flat)
+    m_all = np.asarray(cells.m).reshape(N + 1, -1)
+    lo, hi = cell_boxes(cells, flat)
+    m, action, hold = np.empty((N + 1, C), np.int64), np.full((N + 1, C), -1, np.int8), np.zeros((N + 1, C), np.int8)
+    m[N] = terminal(cells, la, lo, hi)
+    plans = None
+    for k in range(N - 1, -1, -1):
+        if plans is None or not la.model.time_invariant:
+            plans = all_plan_steps(cells, la, k * la.dt, lo, hi, tuple(key["holds"]), key["span_cap"])
+        m[k], action[k], hold[k] = backward_step(cells, plans, m_all, k, N, C)
+    return m, action, hold
+
+
+def plan_steps(cells: Any, la: Any, t0: float, lo: np.ndarray, hi: np.ndarray, a: np.ndarray, holds: tuple,
+               span_cap: int) -> list:
+    """One candidate held from every cell for ``max(holds)`` periods, the boxes chained: per plan length
+    ``K`` in ``holds``, whether every period so far keeps ``C1``, the budget bound, the cells the end box
+    touches (and whether they are few enough to use), and whether every run surely lands by then."""
+    model, C = la.model, len(lo)
+    acts = np.broadcast_to(a, (C, len(a)))
+    ok, spend, lands = np.ones(C, bool), np.zeros(C), np.zeros(C, bool)
+    out = []
+    for p in range(1, max(holds) + 1):
+        t = np.full(C, t0 + (p - 1) * la.dt)
+        tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure_box(float(t[0]), lo, hi, acts, la.dt)
+        ok &= np.isfinite(tube_lo).all(axis=1) & np.isfinite(tube_hi).all(axis=1)
+        # every box compared with a set or a cell holds the environment's states, rounding included (la.widen)
+        end_lo, end_hi = la.widen(end_lo, end_hi)
+        with np.errstate(invalid="ignore"):
+            ok &= la.checked_c1(t, lo, hi, acts, la.dt, tube_lo, tube_hi) <= 0
+            pieces = la.widen(*model.held_tube_pieces_box(float(t[0]), lo, hi, acts, la.dt, la.pieces))
+            charge = np.where(la.may_spend(t, lo, hi, acts, la.dt, tube_lo, tube_hi),
+                              la._budget_spent(t, pieces[0], pieces[1], la.dt), 0.0)
+            spend = spend + np.nan_to_num(charge, nan=np.inf)
+        # landing needs only the budget spent until the landing instant, at most the plan's bound so far
+        rows = ok & ~lands & meets_target(la, np.nan_to_num(tube_lo), np.nan_to_num(tube_hi))
+        lands |= lands_within(la, t, lo, np.full(C, np.inf), acts, hi, rows)
+        lo, hi = np.where(ok[:, None], end_lo, lo), np.where(ok[:, None], end_hi, hi)
+        if p in holds:
+            first, last, on = cells._cell_range(lo, hi)
+            rows = np.nonzero(ok & on & ((last - first + 1).prod(axis=1) <= span_cap))[0]
+            cols, starts = touched(cells.shape, first[rows], last[rows])
+            land_rows = np.nonzero(ok & lands)[0]
+            out.append((p, (rows, spend[rows], cols, starts, land_rows, cells._budget_index(spend[land_rows], 0))))
+    return out
+
+
+def touched(shape: tuple, first: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The flat indices of the cells ``first..last`` of every row, concatenated, and where each row's start:
+    ``np.maximum.reduceat(field.ravel()[cols], starts)`` is then every row's largest value."""
+    if len(first) == 0:
+        return np.zeros(0, np.int32), np.zeros(0, np.int64)
+    span = last - first + 1
+    count = span.prod(axis=1)
+    starts = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
+    row = np.repeat(np.arange(len(first)), count)
+    local = np.arange(int(count.sum())) - np.repeat(starts, count)
+    flat = np.zeros(len(local), np.int64)
+    for d in range(len(shape)):
+        # mixed radix over the row's own spans, the last axis fastest
+        stride = span[:, d + 1:].prod(axis=1)[row]
+        flat = flat * shape[d] + first[row, d] + (local // stride) % span[row, d]
+    return flat.astype(np.int32), starts

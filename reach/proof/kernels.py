@@ -1,0 +1,435 @@
+"""Compiled loops behind the safety filter's per-decision mechanisms (numba, one row at a time).
+
+A filter decision asks a few hundred tiny questions of a table and of the cells; numpy answers each with a dozen
+calls whose fixed cost dwarfs the arithmetic, so they are compiled here, once each, and both the numpy-facing
+functions and the compiled decision (:mod:`softreach.filters.compiled`) call them: the interpolant's maximum over a
+box (:func:`softreach.reach.proof.box_max.box_max`; the certificate at a state is the same with a box of no width), the
+cells' cover test and plans (:class:`~softreach.reach.proof.cell_certificate.CellCertificate`); a model's own compiled
+functions are called through :mod:`softreach.reach.proof.model_kernels`. Compiled code is cached on disk
+(:mod:`softreach.reach.jit`): the first process on a machine compiles it (with the decision; docs/filters.md
+"Speed" gives the time), later ones load it. Small functions that are handed the filter's large tuples of arrays are inlined
+(``inline="always"``): such a call costs more than their work. The box maximum's lattice is inlined into the box
+maximum, which halves the certificate's cost at a point; the box maximum itself is not inlined into its callers,
+which would triple the first compilation (57 s against 20 s). It and the cover test allocate nothing, so that the
+filter's decision runs them without numba's reference counting (``_nrt=False``, :mod:`softreach.filters.compiled`)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..jit import njit
+
+#: tolerance of the grid checks, in cell units, and of the time-span checks, in seconds
+#: (:data:`softreach.reach.tables.interpolation.TOL`)
+TOL = 1e-9
+#: the table's box maximum reads boxes with at most this many nodes per axis exactly (:func:`box_max`'s default)
+MAX_NODES = 3
+
+
+def frozen(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a``. numba types an array by whether it is writable, and compiles a loop once per
+    type: the tables and cells reach the loops read-only, whether loaded (a read-only memory map) or made in this
+    process, so that each loop compiles once, not once per origin."""
+    view = np.asarray(a).view()
+    view.flags.writeable = False
+    return view
+
+
+@njit(inline="always")
+def snapshot(times, t):
+    """``(k, wt)``: the snapshot interval ``[times[k], times[k + 1]]`` of ``t`` and the later snapshot's weight,
+    clamped to ``[0, 1]`` (:func:`softreach.reach.tables.interpolation.snapshot_pair`)."""
+    n_t = len(times)
+    if n_t == 1:
+        return 0, 0.0
+    t_first, t_last = times[0], times[n_t - 1]
+    if t_first <= t < t_last:
+        # the last snapshot at or before t (searchsorted's), found from where evenly spaced snapshots put it: a
+        # table's are, and the walk makes it exact for any others
+        k = min(int((t - t_first) / (t_last - t_first) * (n_t - 1)), n_t - 2)
+        while times[k] > t:
+            k -= 1
+        while times[k + 1] <= t:
+            k += 1
+    else:
+        k = np.searchsorted(times, t, side="right") - 1
+        k = min(max(k, 0), n_t - 2)
+    t0 = times[k]
+    wt = min(max((t - t0) / (times[k + 1] - t0), 0.0), 1.0)
+    return k, wt
+
+
+@njit(inline="always")
+def _node_offset(q, first, extent, shape, periodic):
+    """The flat index of the ``q``-th node (the last axis fastest) of the block of ``extent`` nodes from ``first``
+    along each axis: wrapped along a periodic axis, held at the grid's last node along another."""
+    off, stride = 0, 1
+    for a in range(len(shape) - 1, -1, -1):
+        node = first[a] + q % extent[a]
+        q //= extent[a]
+        node = node % shape[a] if periodic[a] else min(node, shape[a] - 1)
+        off += node * stride
+        stride *= shape[a]
+    return off
+
+
+@njit(inline="always")
+def _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first, count, buf_a, buf_b, coord_cell,
+                 coord_frac, axes, contrib):
+    """The interpolant's largest value on the lattice of a box (along each axis ``a`` its two ends and the
+    ``count[a]`` nodes from ``first[a]`` between them; one coordinate where the box has no width), which holds every
+    corner of every sub-box the grid cuts the box into. The interpolant is multilinear, so the lattice values are
+    the block of nodes around the box (blended between the two snapshots) contracted axis by axis with each
+    coordinate's two linear weights."""
+    D = len(shape)
+    dims, base, span, idx = axes[0], axes[1], axes[2], axes[3]
+    for a in range(D):
+        L = 1 if (count[a] == 0 and lo[a] == hi[a]) else count[a] + 2
+        span[a] = L
+        for p in range(L):
+            x = lo[a] if p == 0 else (hi[a] if p == L - 1 else glo[a] + h[a] * (first[a] + p - 1))
+            if periodic[a]:
+                S = ((x - glo[a]) * inv_h[a]) % shape[a]
+                low = math.floor(S)
+                coord_frac[a, p] = S - low
+                coord_cell[a, p] = int(low)
+            else:
+                S = min((min(max(x, glo[a]), ghi[a]) - glo[a]) * inv_h[a], shape[a] - 1.0)
+                coord_cell[a, p] = min(int(S), shape[a] - 2)
+                coord_frac[a, p] = S - coord_cell[a, p]
+        if periodic[a]:
+            # the cells along the lattice, unwrapped: each at least the previous (the box may cross the seam)
+            for p in range(1, L):
+                while coord_cell[a, p] < coord_cell[a, p - 1]:
+                    coord_cell[a, p] += shape[a]
+        base[a] = coord_cell[a, 0]
+        dims[a] = coord_cell[a, L - 1] + 2 - base[a]
+        # each block node's share of the flat index along this axis: wrapped, or held at the grid's last node
+        stride = 1
+        for b in range(a + 1, D):
+            stride *= shape[b]
+        for j in range(dims[a]):
+            node = base[a] + j
+            contrib[a, j] = (node % shape[a] if periodic[a] else min(node, shape[a] - 1)) * stride
+    # the block of nodes (the last axis fastest), blended in time; the flat index kept as a running sum
+    size = 1
+    off = 0
+    for a in range(D):
+        size *= dims[a]
+        idx[a] = 0
+        off += contrib[a, 0]
+    for q in range(size):
+        v = flat[k, off]
+        buf_a[q] = (1.0 - wt) * v + wt * flat[k + 1, off] if wt > 0.0 else v
+        a = D - 1
+        while a >= 0:
+            off -= contrib[a, idx[a]]
+            idx[a] += 1
+            if idx[a] < dims[a]:
+                off += contrib[a, idx[a]]
+                break
+            idx[a] = 0
+            off += contrib[a, 0]
+            a -= 1
+    # contract axis by axis: each lattice coordinate reads its cell's two nodes
+    src, dst = buf_a, buf_b
+    for a in range(D):
+        outer = 1
+        for b in range(a):
+            outer *= span[b]
+        inner = 1
+        for b in range(a + 1, D):
+            inner *= dims[b]
+        L = span[a]
+        n_a = dims[a]
+        for o in range(outer):
+            for p in range(L):
+                j = coord_cell[a, p] - base[a]
+                f = coord_frac[a, p]
+                s0 = (o * n_a + j) * inner
+                d0 = (o * L + p) * inner
+                for i in range(inner):
+                    dst[d0 + i] = (1.0 - f) * src[s0 + i] + f * src[s0 + inner + i]
+        src, dst = dst, src
+    total = 1
+    for a in range(D):
+        total *= span[a]
+    best = -np.inf
+    for q in range(total):
+        v = src[q]
+        if math.isnan(v):
+            return v
+        if v > best:
+            best = v
+    return best
+
+
+@njit
+def box_scratch(D, max_nodes):
+    """Work space of :func:`box_max_row` for ``D`` axes: a block of at most ``max_nodes + 3`` nodes per axis, and
+    each axis' lattice coordinates located, the block's extent and each node's share of the flat index, and a
+    point's block of nodes (:func:`point_value`)."""
+    return (np.empty(D, np.int64), np.empty(D, np.int64), np.empty((max_nodes + 3) ** D),
+            np.empty((max_nodes + 3) ** D), np.empty((D, max_nodes + 2), np.int64), np.empty((D, max_nodes + 2)),
+            np.empty((4, D), np.int64), np.empty((D, max_nodes + 3), np.int64), np.empty(1 << D, np.int64))
+
+
+@njit(_nrt=False)
+def box_max_row(field, t, lo, hi, max_nodes, scratch):
+    """The interpolant's maximum over the box ``[lo, hi]`` at time ``t``: exact where the box holds at most
+    ``max_nodes`` nodes along every axis, else the largest node value of the cells it touches at both snapshots
+    around ``t``; ``+inf`` for a box off the grid (:func:`softreach.reach.proof.box_max.box_max`).
+
+    :param field: ``(flat, times, shape, glo, ghi, h, inv_h, periodic)`` (the module docstring)
+    :param scratch: :func:`box_scratch`
+    """
+    flat, times, shape, glo, ghi, h, inv_h, periodic = field
+    first, count, buf_a, buf_b, coord_cell, coord_frac, axes, contrib, _ = scratch
+    D = len(shape)
+    exact = True
+    for a in range(D):
+        s_lo = (lo[a] - glo[a]) / h[a]
+        s_hi = (hi[a] - glo[a]) / h[a]
+        if not periodic[a]:
+            tol = TOL * max(1.0, shape[a])
+            if not (s_lo >= -tol and s_hi <= shape[a] - 1 + tol):
+                return np.inf
+        first[a] = math.floor(s_lo) + 1  # the first node strictly above lo (or lo itself, once)
+        count[a] = max(math.ceil(s_hi) - first[a], 0)  # nodes strictly inside (lo, hi)
+        if count[a] > max_nodes:
+            exact = False
+    k, wt = snapshot(times, t)
+    if exact:
+        return _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first, count, buf_a, buf_b,
+                            coord_cell, coord_frac, axes, contrib)
+    # wide: the largest node of every cell the box touches, at both snapshots around t
+    k2 = min(k + 1, len(times) - 1) if wt > 0.0 else k
+    P = 1
+    for a in range(D):
+        i0 = math.floor((lo[a] - glo[a]) / h[a])
+        i1 = math.ceil((hi[a] - glo[a]) / h[a])
+        if not periodic[a]:
+            i0, i1 = max(i0, 0), min(i1, shape[a] - 1)
+        first[a] = i0
+        count[a] = min(i1 - i0 + 1, shape[a])
+        P *= count[a]
+    best = -np.inf
+    for p in range(P):
+        off = _node_offset(p, first, count, shape, periodic)
+        v0, v1 = flat[k, off], flat[k2, off]
+        if math.isnan(v0) or math.isnan(v1):
+            return np.nan
+        best = max(best, v0, v1)
+    return best
+
+
+@njit
+def box_max_rows(field, t, lo, hi, max_nodes, out):
+    """:func:`box_max_row` for every row."""
+    scratch = box_scratch(lo.shape[1], max_nodes)
+    for r in range(len(lo)):
+        out[r] = box_max_row(field, t[r], lo[r], hi[r], max_nodes, scratch)
+
+
+@njit(inline="always")
+def point_value(field, t, x, buf, node):
+    """The interpolant at the point ``x`` at time ``t``: :func:`box_max_row` of a box of no width (the same grid
+    check, the same arithmetic in the same order: each node blended in time, then the axes contracted from the
+    first), without its lattice and inlined, as the certificate at a state is asked on every row; ``+inf`` off the
+    grid. ``buf``, ``node``: work space of ``2 ** D`` floats and integers."""
+    flat, times, shape, glo, ghi, h, inv_h, periodic = field
+    D = len(shape)
+    for a in range(D):
+        if not periodic[a]:
+            s = (x[a] - glo[a]) / h[a]
+            tol = TOL * max(1.0, shape[a])
+            if not (s >= -tol and s <= shape[a] - 1 + tol):
+                return np.inf
+    k, wt = snapshot(times, t)
+    size = 1 << D
+    for q in range(size):
+        node[q] = 0
+    # the block's flat indices, the last axis fastest: each axis adds its lower or its upper node's share
+    stride = 1
+    for a in range(D - 1, -1, -1):
+        if periodic[a]:
+            cell = int(math.floor(((x[a] - glo[a]) * inv_h[a]) % shape[a]))
+            n0, n1 = cell % shape[a], (cell + 1) % shape[a]
+        else:
+            S = min((min(max(x[a], glo[a]), ghi[a]) - glo[a]) * inv_h[a], shape[a] - 1.0)
+            n0 = min(int(S), shape[a] - 2)
+            n1 = min(n0 + 1, shape[a] - 1)
+        bit = 1 << (D - 1 - a)
+        for q in range(size):
+            node[q] += (n1 if q & bit else n0) * stride
+        stride *= shape[a]
+    for q in range(size):
+        v = flat[k, node[q]]
+        buf[q] = (1.0 - wt) * v + wt * flat[k + 1, node[q]] if wt > 0.0 else v
+    n = size
+    for a in range(D):
+        if periodic[a]:
+            S = ((x[a] - glo[a]) * inv_h[a]) % shape[a]
+            f = S - math.floor(S)
+        else:
+            S = min((min(max(x[a], glo[a]), ghi[a]) - glo[a]) * inv_h[a], shape[a] - 1.0)
+            f = S - min(int(S), shape[a] - 2)
+        n //= 2
+        for i in range(n):
+            buf[i] = (1.0 - f) * buf[i] + f * buf[n + i]
+    return buf[0]
+
+
+@njit(inline="always")
+def certificate_row(W, z_top, z_floor, V, has_V, t, x, z, point, scratch_W, scratch_V):
+    """``D(t, x, z) = min(V~(t, x), W~(t, x, min(z, z_top)))`` (:meth:`~softreach.reach.proof.lookahead.Lookahead.
+    certificate`); ``+inf`` off the grid or the time span, at a budget below the table's (``W``) or a negative one
+    (``V``), or where not finite."""
+    times = W[1]
+    if not (t >= times[0] - TOL and t <= times[-1] + TOL):
+        return np.inf
+    n = len(x)
+    for a in range(n):
+        point[a] = x[a]
+    point[n] = min(z, z_top)
+    w = point_value(W, t, point, scratch_W[2], scratch_W[8])
+    out = w if (z >= z_floor and math.isfinite(w)) else np.inf
+    if has_V:
+        v = point_value(V, t, x, scratch_V[2], scratch_V[8])
+        if z >= 0 and math.isfinite(v):
+            out = min(out, v)
+    return out
+
+
+@njit
+def certificate_rows(W, z_top, z_floor, V, has_V, t, x, z, out):
+    """:func:`certificate_row` for every row."""
+    n = x.shape[1]
+    point = np.empty(n + 1)
+    scratch_W, scratch_V = box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES)
+    for r in range(len(x)):
+        out[r] = certificate_row(W, z_top, z_floor, V, has_V, t[r], x[r], z[r], point, scratch_W, scratch_V)
+
+
+@njit
+def step_index(t, dt, steps, safe):
+    """The sample index whose cell game covers time ``t`` (:meth:`~softreach.reach.proof.cell_certificate.
+    CellCertificate.step_index`): ``floor(t / dt)`` for the safe game, ``ceil(t / dt)`` for the landing game."""
+    r = t / dt
+    k = math.floor(r + 1e-9) if safe else math.ceil(r - 1e-9)
+    return min(max(k, 0), steps)
+
+
+@njit
+def budget_floor(z, dz, top):
+    """The budget cell whose lower end lies at or below ``z`` (at most ``top``); ``-1`` at a negative budget."""
+    if not z >= 0.0:
+        return -1
+    j = math.floor(min(z, top * dz) / dz + 1e-12)
+    if j * dz > z:  # float guard: the cell's lower end lies at or below z
+        j -= 1
+    return j
+
+
+@njit(inline="always")
+def _cell_span(lo, hi, clo, chi, width, n):
+    """The cells ``[first, last]`` that ``[lo, hi]`` touches along one axis of ``n`` cells (clamped to the grid),
+    and whether it lies on the grid along it."""
+    f = math.floor((lo - clo) / width)
+    g = math.floor((hi - clo) / width)
+    if hi == chi:
+        g = n - 1.0
+    on = math.isfinite(f) and math.isfinite(g) and f >= 0 and g <= n - 1
+    fi = int(min(max(f, 0.0), n - 1.0)) if math.isfinite(f) else 0
+    gi = int(min(max(g, 0.0), n - 1.0)) if math.isfinite(g) else 0
+    return fi, max(fi, gi), on
+
+
+@njit(inline="always")
+def cover_row(cells, t, lo, hi, z):
+    """Whether every cell the box ``[lo, hi]`` touches (closed cells; a box reaching the grid's upper end exactly
+    touches the last cell only) is good at sample time ``t`` with budget ``z``: on the grid, ``t`` not past the
+    horizon, and ``z``'s budget cell at least the largest lowest good budget index ``m`` of those cells. It
+    allocates nothing, so that the filter's kernels run without numba's reference counting (``_nrt=False``). The
+    cells are read as runs along the last axis (contiguous in ``m``), each run's start decoded from the other axes'
+    spans, which are computed again for each run (a box touches a few runs).
+
+    :param cells: :attr:`~softreach.reach.proof.cell_certificate.CellCertificate.kernel_args`
+    """
+    m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
+    D = len(shape)
+    on = True
+    runs = 1
+    run_lo, run_hi = 0, 0
+    for a in range(D):
+        fi, gi, on_a = _cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a])
+        on = on and on_a
+        if a == D - 1:
+            run_lo, run_hi = fi, gi
+        else:
+            runs *= gi - fi + 1
+    if not on or not t <= horizon + 1e-9 * dt:
+        return False
+    k = step_index(t, dt, steps, safe)
+    floor = budget_floor(z, dz, top)
+    # the first cell that needs more budget decides: a wide box need not read the rest
+    for p in range(runs):
+        rest = p
+        off = 0
+        stride = shape[D - 1]
+        for a in range(D - 2, -1, -1):
+            fi, gi, _ = _cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a])
+            span = gi - fi + 1
+            off += (fi + rest % span) * stride
+            rest //= span
+            stride *= shape[a]
+        for c in range(off + run_lo, off + run_hi + 1):
+            if int(m[k, c]) > floor:
+                return False
+    return True
+
+
+@njit(inline="always")
+def plan_row(cells, action, hold, t, x):
+    """The stored plan of the cell holding ``x`` at sample time ``t``: ``(candidate index, periods to hold it)``,
+    ``(-1, 0)`` off the grid or where no budget suffices (:meth:`~softreach.reach.proof.cell_certificate.CellCertificate.
+    plan`; ``action``, ``hold`` its ``plan_args``)."""
+    m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
+    off, stride = 0, 1
+    for a in range(len(shape) - 1, -1, -1):
+        fi, _, on = _cell_span(x[a], x[a], clo[a], chi[a], width[a], shape[a])
+        if not on:
+            return -1, 0
+        off += fi * stride
+        stride *= shape[a]
+    k = step_index(t, dt, steps, safe)
+    j = int(action[k, off])
+    return (j, int(hold[k, off])) if j >= 0 else (-1, 0)
+
+
+@njit
+def plan_rows(cells, action, hold, t, x, out_action, out_hold):
+    """:func:`plan_row` for every row."""
+    for r in range(len(x)):
+        out_action[r], out_hold[r] = plan_row(cells, action, hold, t[r], x[r])
+
+
+@njit
+def cover_rows(cells, t, lo, hi, z, out):
+    """:func:`cover_row` for every row."""
+    for r in range(len(lo)):
+        out[r] = cover_row(cells, t[r], lo[r], hi[r], z[r])
+
+
+@njit
+def step_rows(t, dt, steps, safe, out):
+    for r in range(len(t)):
+        out[r] = step_index(t[r], dt, steps, safe)
+
+
+@njit
+def budget_floor_rows(z, dz, top, out):
+    for r in range(len(z)):
+        out[r] = budget_floor(z[r], dz, top)

@@ -1,0 +1,605 @@
+"""The one-period look-ahead: does holding an action for one control period provably keep the state certified?
+
+The certificate is the table's interpolant ``D(t, x, z) = min(V~(t, x), W~(t, x, z))`` (``V~`` only with
+``z >= 0``): ``V <= 0`` lands without spending budget, ``W_eps <= 0`` lands spending at most ``z``. For a
+held action ``a`` and *every* disturbance signal in its box (switching at any instant, also in answer to ``a``),
+the model's :meth:`~softreach.reach.dynamics.Dynamics.held_enclosure` gives a box ``T`` holding the whole
+motion of the period and a box ``E`` holding its end point. The action is **admissible** when
+
+1. ``max_T c1 <= 0``: the motion stays in ``C1`` for the whole period. ``c1`` is convex (a box distance), so its
+   maximum over ``T`` is at a corner of ``T`` (a model with other sets bounds them itself,
+   :meth:`~softreach.reach.problem.Model.set_box_max`);
+2. ``z' = z - sum_j (dt / P) max_{T_j} h_eps >= 0``, ``T_j`` a box holding the motion over the ``j``-th of ``P``
+   equal pieces of the period (:meth:`~softreach.reach.dynamics.Dynamics.held_tube_pieces`): the budget
+   spent in the period, crossings of ``C2`` included, is at most that (``h_eps`` grows with ``c2``, also convex,
+   so each maximum is at a corner), and the budget never goes negative, with no allowance of a period;
+3. ``max_{E x [z', z]} D(t + dt, .) <= -margin``: every possible end state lies inside the certificate at the
+   next sample time.
+   The maximum of the interpolant over the box is exact (:func:`softreach.reach.tables.interpolation.box_max`), so no
+   interpolation allowance is needed: the certificate *is* the interpolant. ``margin`` (default 0) is an extra
+   tightening a user may ask for.
+
+The episode also ends when the target is reached *inside* a period, so an action also passes when every run
+surely lands at one of the environment's check instants (:mod:`softreach.reach.proof.landing`).
+
+Each box compared with a set or a cell holds the environment's own numbers, rounding included: it is widened by
+:func:`state_allowance` (``C1`` is asked of the exact tube and of the widened box from the environment's first
+check instant on, :meth:`Lookahead.checked_c1`), and a period that may spend is charged :func:`budget_allowance`
+more. The candidates are actions an environment applies exactly (:func:`representable`).
+
+A budget-surface table (``softreach solve MODEL --held --budget-surface``) gives the same test with
+``W~(t, x, z)`` replaced by ``Q~_min(t, x) - min(z, T - t)``: its maximum over ``E x [z', z]`` is
+``max_E Q~_min - min(z', T - t)``, again exact for the interpolant, and ``+inf`` on every cell with a node where no
+budget suffices (there ``Q_min`` is infinite, stored at a cap, and nothing says where between nodes feasibility
+ends).
+
+At the horizon the table holds the terminal value ``max(c1, c2, -kappa z, g)``, whose interpolant is ``<= 0``
+only inside the target (it is convex, and a multilinear interpolant of a convex function lies above it): a chain
+of admissible actions from ``t = 0`` therefore ends landed by ``T``. ``Q_min``'s terminal value is ``0`` on the
+target inside ``C2`` and capped elsewhere, so ``Q~_min - 0 <= 0`` holds only in cells whose every node is in
+the target inside ``C2``: inside it, where the target is convex.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any
+
+import numpy as np
+
+from .horizon import exact_before_horizon, in_window
+from .box_max import box_max, kernel_field
+from ..boxes import check_action_box
+from ..dynamics import row_time
+from ..tables.interpolation import interpolate
+from .kernels import certificate_rows
+from .landing import lands_within, meets_target
+from .model_kernels import SET_INDEX, held_boxes, set_max_address, set_max_rows
+from .ranks import RANK_LEAVES_C1, RANK_OVERSPENT, RANK_PROVEN, RANK_SAFE, RANK_UNSAFE, TIE_INF, TIE_OVERSPEND
+
+
+#: the fields that say how much budget suffices, in the order a table's is picked
+BUDGET_FIELDS = ("W_eps", "Q_min")
+
+#: the unit roundoff of binary64, in which the environments integrate and the filter bounds
+UNIT_ROUNDOFF = 2.0 ** -53
+
+
+def action_map(model: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The centre and half-width of the model's control box: the environments apply the normalised action ``q``
+    as ``mid + half * q`` (binary64), :mod:`softreach.envs.actions`."""
+    check_action_box(model)
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in model.control_bounds)
+    return 0.5 * (lo + hi), 0.5 * (hi - lo)
+
+
+def exact_normalized(u: np.ndarray, mid: np.ndarray, half: np.ndarray, ulps: int = 4) -> np.ndarray:
+    """Normalised actions ``q`` in ``[-1, 1]`` (binary64) that the environments map back to exactly ``u``
+    (``mid + half * q == u``), where one lies within ``ulps`` units in the last place of ``(u - mid) / half``;
+    elsewhere that quotient (clipped). The filter judges physical actions; what it hands an environment must be
+    what it judged, not a neighbour one rounding away."""
+    u = np.asarray(u, dtype=np.float64)
+    q = np.minimum(np.maximum((u - mid) / half, -1.0), 1.0)
+    miss = mid + half * q != u
+    if not miss.any():
+        return q
+    out = q.copy()
+    for sign in (np.inf, -np.inf):
+        step = q.copy()
+        for _ in range(ulps):
+            step = np.nextafter(step, sign)
+            hit = miss & (np.abs(step) <= 1.0) & (mid + half * step == u)
+            out = np.where(hit, step, out)
+            miss &= ~hit
+    return out
+
+
+def representable(u: np.ndarray, mid: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """The physical actions an environment can apply exactly nearest ``u``: ``u`` itself where a normalised action
+    maps to it (:func:`exact_normalized`), else the image of the nearest normalised one. The filter's candidates
+    are these, so that the action it proves is the one the environment applies, bit for bit."""
+    return mid + half * exact_normalized(u, mid, half)
+
+
+def rk4_exact(model: Any, h: float, samples: int = 64) -> bool:
+    """Whether the environments' RK4 sub-step of ``h`` seconds is exact for the model's held motion, as step
+    doubling shows: from ``samples`` states across ``C1`` (the domain where the model has no hard box), with the
+    control and the disturbance at the corners and centres of their boxes, one sub-step and two of half its length
+    agree to within rounding (``64 u M``, :func:`state_allowance`'s magnitudes). They do for the point mass (its
+    motion under held inputs is quadratic in time); RK4's truncation error on a nonlinear model (the glider, Dubins)
+    is many orders above that."""
+    box = model.hard_box if model.hard_box is not None else model.domain
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in box)
+    x = np.random.default_rng(0).uniform(lo, hi, (samples, len(lo)))
+    M = 2.0 * np.maximum(*(np.abs(np.asarray(b, dtype=np.float64)) for b in model.domain))
+
+    def step(x0: np.ndarray, a: np.ndarray, b: np.ndarray, dt: float) -> np.ndarray:
+        def f(y: np.ndarray) -> np.ndarray:
+            out = model.f(0.0, list(y.T), list(a.T), list(b.T))
+            return np.stack([np.broadcast_to(np.asarray(c, dtype=np.float64), (len(y),)) for c in out], axis=1)
+        k1 = f(x0)
+        k2 = f(x0 + 0.5 * dt * k1)
+        k3 = f(x0 + 0.5 * dt * k2)
+        k4 = f(x0 + dt * k3)
+        return x0 + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+
+    def levels(bounds: Any) -> list[np.ndarray]:
+        b_lo, b_hi = (np.asarray(v, dtype=np.float64) for v in bounds)
+        return [b_lo, b_hi, 0.5 * (b_lo + b_hi)]
+
+    for a in levels(model.control_bounds):
+        for b in levels(model.disturbance_bounds):
+            A, B = np.tile(a, (samples, 1)), np.tile(b, (samples, 1))
+            one = step(x, A, B, h)
+            two = step(step(x, A, B, 0.5 * h), A, B, 0.5 * h)
+            if not (np.abs(one - two) <= 64 * UNIT_ROUNDOFF * M).all():
+                return False
+    return True
+
+
+def state_allowance(model: Any, checks: int) -> np.ndarray:
+    """How far, per state axis, the environment's state after a period may lie from the exact motion that the
+    model's enclosure bounds, by rounding alone: every box the filter compares with ``C1``, ``C2``, the target or
+    a cell edge is widened by it (the start of a period is the environment's own number, so it is exact).
+
+    Derivation. The environment advances a period by ``checks`` classical RK4 sub-steps in binary64 (unit roundoff
+    ``u``). Along axis ``i``, a sub-step forms three stage states ``x + c h k`` (2 roundings each), the weighted sum
+    ``k1 + 2 k2 + 2 k3 + k4`` (5), its product with ``h / 6`` (2) and the new state (1): at most 16 roundings,
+    each of a number at most ``M_i``, twice the largest ``|x_i|`` of the model's domain (a state the episode goes
+    on from lies in ``C1``, inside the domain; a stage state or a sub-step's increment lies within the domain's
+    extent of it). The stage states' errors (``2 u M_i`` each) reach the increment through ``f`` times ``h``, with
+    ``h L <= 1``: at most ``8 u M_i`` more. So ``24 u M_i`` a sub-step, ``24 checks u M_i`` a period; the
+    enclosures' own arithmetic (a few operations on such numbers) adds ``8 u M_i``. The allowance is
+    ``(24 checks + 8) u M_i``. It covers rounding only: where the environment's integrator is exact in real
+    arithmetic (the point mass's RK4, for its piecewise quadratic motion) it covers the whole difference; the
+    truncation error of RK4 on a nonlinear model (the glider) is not covered (``docs/filters.md``).
+    """
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in model.domain)
+    M = 2.0 * np.maximum(np.abs(lo), np.abs(hi))
+    return (24 * int(checks) + 8) * UNIT_ROUNDOFF * M
+
+
+def budget_allowance(dt: float, horizon: float, pieces: int, samples: int = 128) -> float:
+    """What every budget charge of a period adds for rounding [s], so that the filter's end budget is never above
+    the environment's (``z - cost`` in binary64, :mod:`softreach.reach.sim.integrator`).
+
+    Derivation (``u`` the unit roundoff; every rate ``h_eps`` lies in ``[0, 1]``, so every partial sum of a
+    period's cost is at most ``dt``, and every budget at most the horizon ``T``): the environment's cost of a
+    sub-step is Simpson's sum (8 roundings) or, at a kink, trapezoid sums over ``samples`` cells a level (at most
+    ``2 samples + 8`` roundings of numbers at most the sub-step), summed correctly rounded: at most
+    ``(2 samples + 8) u dt`` a period. The filter's charge, ``pieces`` products and sums: ``2 pieces u dt``. The
+    environment's subtraction ``z - cost``: ``u T``; the filter's own (or the cells' sum of a plan's charges and
+    the comparison with a budget cell's edge): ``3 u T``. So ``u ((2 samples + 8 + 2 pieces) dt + 4 T)``: a period
+    that may leave ``C2`` is charged that much more. A period whose widened box lies in ``C2`` costs exactly 0 in
+    the environment (every rate it reads is 0), and is charged nothing.
+    """
+    return UNIT_ROUNDOFF * ((2 * samples + 8 + 2 * int(pieces)) * float(dt) + 4.0 * float(horizon))
+
+
+class Lookahead:
+    """One-period admissibility of held actions against a table's certificate (see the module docstring).
+
+    :param fields: ``{"V": (values, times, grid), "W_eps": (...)}`` (``V`` optional), values ``(n_t, *grid)``
+    :param model: the model the table was solved for
+    :param dt: the control period [s]
+    :param eps: the ``h_eps`` width with which the environment drains the budget
+    :param candidates: ``(J, m)`` physical held actions the filter may fall back on
+    :param margin: extra tightening ``>= 0`` of the end-state condition (value units)
+    :param pieces: sub-intervals of the period for the budget bound (item 2)
+    :param target_checks: the instants per period at which the environment checks for landing (its sub-steps);
+        it must check at least there (the point-mass env has 10 sub-steps, the glider's 2)
+    :param exact_periods: how many of the last sample times before the horizon judge end boxes by a witness
+    """
+
+    def __init__(self, fields: dict[str, tuple[Any, np.ndarray, Any]], model: Any, dt: float, eps: float,
+                 candidates: Any, margin: float = 0.0, pieces: int = 4, target_checks: int = 1,
+                 exact_periods: int = 10):
+        self.model, self.dt, self.eps, self.margin = model, float(dt), float(eps), float(margin)
+        if not (isinstance(exact_periods, (int, np.integer)) and exact_periods >= 0):
+            raise ValueError(f"exact_periods must be an integer >= 0, got {exact_periods!r}")
+        #: end boxes at the last ``exact_periods`` sample times before the horizon are judged by a witness, not
+        #: by the table (:mod:`softreach.reach.proof.horizon`)
+        self.exact_periods = int(exact_periods)
+        self.pieces = int(pieces)
+        if not (isinstance(target_checks, (int, np.integer)) and target_checks >= 1):
+            raise ValueError(f"target_checks must be a positive integer, got {target_checks!r}")
+        self.target_checks = int(target_checks)
+        self.n = model.state_dim
+        #: the environment's sub-steps a period: it checks ``C1`` and landing at their ends, the first
+        #: :attr:`first_check` after the period's start (:class:`SafetyFilter` passes the environment's count as
+        #: ``target_checks``; a bare filter assumes the model's own ``substeps``)
+        self.checks = max(self.target_checks, int(getattr(model, "substeps", 1) or 1))
+        self.first_check = self.dt / self.checks
+        #: the environment's RK4 is exact for the model's motion (:func:`rk4_exact`): then the proof holds for the
+        #: environment's own numbers, with the allowances below and candidates it applies exactly. Elsewhere RK4's
+        #: truncation error, which no rounding allowance covers, is not covered, the proof is one about the exact
+        #: motion, and no allowance is applied (``docs/filters.md``, "Sound to the last bit")
+        self.exact_env = rk4_exact(model, self.first_check)
+        #: the outward allowances for the environment's rounding (:func:`state_allowance`, per state axis, and
+        #: :func:`budget_allowance`, a period's charge); zero where :attr:`exact_env` is not
+        self.slack = state_allowance(model, self.checks) if self.exact_env else np.zeros(model.state_dim)
+        self.fields = dict(fields)
+        #: the field that says how much budget suffices: ``W_eps`` on ``(x, z)``, or the budget surface ``Q_min``
+        self.budget_field = next((f for f in BUDGET_FIELDS if f in self.fields), None)
+        if self.budget_field is None:
+            raise ValueError("the one-period test needs W_eps or Q_min (the classical V alone does not say how much "
+                             "budget)")
+        b_values, b_times, b_grid = self.fields[self.budget_field]
+        self.z_top = b_grid.hi[-1] if self.budget_field == "W_eps" else np.inf
+        self.horizon = float(b_times[-1])
+        self.budget_slack = budget_allowance(self.dt, self.horizon, self.pieces) if self.exact_env else 0.0
+        #: a ``W_eps`` table's fields as the compiled certificate reads them (:func:`~softreach.reach.proof.kernels.
+        #: certificate_row`): ``(W, z_top, z_floor, V, has_V)``; ``None`` for a budget surface
+        self.table_args = None
+        if self.budget_field == "W_eps":
+            V = self.fields.get("V", self.fields["W_eps"])
+            self.table_args = (kernel_field(*self.fields["W_eps"]), float(self.z_top), float(b_grid.lo[-1]),
+                               kernel_field(*V), "V" in self.fields)
+        if self.budget_field == "Q_min":
+            # where no budget suffices (above the time left) Q_min is infinite, held at a cap: no interpolant
+            # between such a node and a feasible one says where feasibility ends, so every cell with such a corner
+            # is infeasible (its indicator's interpolant is positive there)
+            left = (self.horizon - np.asarray(b_times, dtype=np.float64)).reshape((-1,) + (1,) * b_grid.ndim)
+            self._no_budget = (np.asarray(b_values) > left + 1e-9).astype(np.float64)
+        self.corners = np.array(list(itertools.product((0, 1), repeat=self.n)), dtype=bool)  # (2^n, n)
+        #: the control box's map (:func:`action_map`), and the candidates as an environment applies them: each
+        #: one the image of a normalised action (:func:`representable`)
+        self.a_mid, self.a_half = action_map(model)
+        self.candidates = np.asarray(candidates, dtype=np.float64)
+        if self.exact_env:
+            self.candidates = representable(self.candidates, self.a_mid, self.a_half)
+        box = model.target_box
+        self.target_lo, self.target_hi = (None, None) if box is None else (np.asarray(box[0], float),
+                                                                            np.asarray(box[1], float))
+        from ..dynamics import Dynamics
+
+        #: cells that prove ``C1`` and the budget (``safe_cells``) and landing by ``T`` (``landing_cells``),
+        #: :class:`~softreach.reach.proof.cell_certificate.CellCertificate`: an admissible action must end in them. With
+        #: landing cells they, not the table, certify the end states. ``None``: not used
+        self.safe_cells = None
+        self.landing_cells = None
+        #: the model bounds boxes of starts: the filter can ask that the next state be certified again
+        self.box_support = type(model).held_enclosure_box is not Dynamics.held_enclosure_box
+        #: ``(address, params)`` of the model's compiled set maxima (:attr:`~softreach.reach.problem.Model.
+        #: set_max_kernel`), which :meth:`_corner_max` runs; ``None``: the set functions at the corners, in numpy
+        self.set_kernel = ((set_max_address(model), model.set_max_params)
+                           if getattr(model, "set_max_kernel", None) is not None else None)
+
+    @classmethod
+    def from_table(cls, table: Any, model: Any, dt: float, eps: float, margin: float = 0.0,
+                   target_checks: int = 1) -> "Lookahead":
+        """The test against a solved table's ``V`` and ``W_eps``, with the candidates it was solved with."""
+        fields = {name: (table.values(name), table.times(name), table.grid(name))
+                  for name in ("V", "W_eps", "Q_min", "V_safe") if name in table.header["fields"]}
+        budget = next((f for f in BUDGET_FIELDS if f in fields), None)
+        if budget is None:
+            raise ValueError(f"table {table.path} holds only the classical V; the filter needs W_eps or Q_min")
+        held = table.header["fields"][budget].get("held_controls")
+        return cls(fields, model, dt, eps, held if held else model.held_candidates(), margin,
+                   target_checks=target_checks)
+
+    # ---------------------------------------------------------------- the certificate
+    def certificate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """``D(t, x, z)``: ``+inf`` outside the table (unsafe), at a negative budget or after the horizon."""
+        if self.budget_field == "Q_min":
+            Q, Qt, Qg = self.fields["Q_min"]
+            q, inside = interpolate(Q, Qt, Qg, t, x)
+            none, _ = interpolate(self._no_budget, Qt, Qg, t, x)
+            out = np.where(inside & (z >= 0) & np.isfinite(q) & (none <= 0), q - self._usable(t, z), np.inf)
+        else:
+            out = np.empty(len(x))
+            certificate_rows(*self.table_args, np.ascontiguousarray(t, dtype=np.float64),
+                             np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64), out)
+            return out
+        if "V" in self.fields:
+            V, Vt, Vg = self.fields["V"]
+            v, vin = interpolate(V, Vt, Vg, t, x)
+            out = np.minimum(out, np.where(vin & (z >= 0) & np.isfinite(v), v, np.inf))
+        return out
+
+    def _usable(self, t: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """The budget a ``Q_min`` certificate may count on: at most the time left, since no run spends more
+        (``h_eps <= 1``). This changes nothing for the exact ``Q_min``; for its interpolant it makes ``Q~ - z <= 0``
+        at the horizon hold only between nodes with ``Q_min = 0`` (the target inside ``C2``), never between the
+        target and the capped nodes, so that a chain of passing actions still ends landed."""
+        return np.minimum(z, np.maximum(self.horizon - t, 0.0))
+
+    def _each_candidate(self, *rows: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Every row repeated once per candidate (contiguously), and the candidates tiled beside them."""
+        J = len(self.candidates)
+        N = len(rows[0])
+        return tuple(np.repeat(r, J, axis=0) for r in rows) + (np.tile(self.candidates, (N, 1)),)
+
+    def _corner_max(self, fn, t: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        # a model whose set functions are not convex along each axis (an obstacle disc) bounds them itself
+        bound = self.model.set_box_max(fn.__name__, row_time(t), lo, hi)
+        if bound is not None:
+            return np.asarray(bound, dtype=np.float64)
+        if self.set_kernel is not None and fn.__name__ in SET_INDEX:
+            out = np.empty(len(lo))
+            set_max_rows(*self.set_kernel, SET_INDEX[fn.__name__], np.ascontiguousarray(lo, dtype=np.float64),
+                         np.ascontiguousarray(hi, dtype=np.float64), out)
+            return out
+        N, C = len(lo), len(self.corners)
+        pts = np.where(self.corners[None, :, :], hi[:, None, :], lo[:, None, :]).reshape(N * C, self.n)
+        t_arg = row_time(t)
+        t_arg = t_arg if np.isscalar(t_arg) else np.repeat(t, C)
+        vals = np.asarray(fn(t_arg, [pts[:, i] for i in range(self.n)]), dtype=np.float64)
+        return np.broadcast_to(vals, (N * C,)).reshape(N, C).max(axis=1)
+
+    def _budget_spent(self, t: np.ndarray, piece_lo: np.ndarray, piece_hi: np.ndarray, length: float) -> np.ndarray:
+        """The budget bound of item 2 over ``length`` seconds cut in ``len(piece_lo)`` equal pieces: each piece
+        charged at the largest ``h_eps`` over its box (at a corner: ``c2`` is convex)."""
+        P, N = piece_lo.shape[0], piece_lo.shape[1]
+        # every piece of every row in one evaluation
+        t_all = t if np.isscalar(row_time(t)) else np.tile(t, P)
+        c2 = self._corner_max(self.model.soft_constraint, t_all, np.reshape(piece_lo, (P * N, -1)),
+                              np.reshape(piece_hi, (P * N, -1)))
+        charge = (length / P) * np.clip(c2 / self.eps, 0.0, 1.0).reshape(P, N).sum(axis=0)
+        # a charge for rounding wherever the environment's cost may be positive (budget_allowance)
+        return charge + np.where(charge > 0, self.budget_slack, 0.0)
+
+    def widen(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The boxes ``[lo, hi]`` grown on every side by the rounding allowance :attr:`slack`
+        (:func:`state_allowance`): they then hold the environment's states, not only the exact motion. The same
+        boxes where no allowance applies (:attr:`exact_env`)."""
+        if not self.exact_env:
+            return lo, hi
+        return lo - self.slack, hi + self.slack
+
+    def checked_c1(self, t: np.ndarray, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, length: float,
+                   tube_lo: np.ndarray, tube_hi: np.ndarray) -> np.ndarray:
+        """The largest ``c1`` over the motion of ``length`` seconds held from the boxes ``[x_lo, x_hi]``: over the
+        model's tube ``[tube_lo, tube_hi]`` (the exact motion, from the start on), and over the states from the
+        environment's first check instant (:attr:`first_check`) on, widened by the allowance: those are the
+        environment's own numbers, with its rounding, where it checks ``C1``. The start needs none: it is the
+        environment's number itself. A model without a compiled enclosure (:func:`~softreach.reach.proof.model_kernels.
+        held_boxes`) has its whole tube widened."""
+        c1 = self._corner_max(self.model.hard_constraint, t, tube_lo, tube_hi)
+        if not self.exact_env:
+            return c1
+        moved = self._moved(x_lo, x_hi, a, self.first_check, length, tube_lo, tube_hi)
+        return np.maximum(c1, self._corner_max(self.model.hard_constraint, t, *moved))
+
+    def may_spend(self, t: np.ndarray, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, length: float,
+                  tube_lo: np.ndarray, tube_hi: np.ndarray) -> np.ndarray:
+        """Where the environment's cost of the motion of ``length`` seconds may be positive: where the model's tube
+        may leave ``C2``, or the widened box of the states from half the first sub-step on (the first RK4 stage
+        states the environment computes, :func:`state_allowance`) may. Elsewhere every rate the environment
+        reads is 0 (the start is its own number), so its cost is exactly 0 and the period is charged nothing."""
+        soft = self.model.soft_constraint
+        inside = self._corner_max(soft, t, tube_lo, tube_hi) <= 0
+        if not self.exact_env:
+            return ~inside
+        moved = self._moved(x_lo, x_hi, a, 0.5 * self.first_check, length, tube_lo, tube_hi)
+        return ~(inside & (self._corner_max(soft, t, *moved) <= 0))
+
+    def _moved(self, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, s0: float, length: float,
+               tube_lo: np.ndarray, tube_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The box of the states from ``s0`` to ``length`` into the period, widened (:meth:`widen`); the whole tube
+        widened for a model without a compiled enclosure."""
+        if getattr(self.model, "held_box_kernel", None) is not None:
+            return self.widen(*held_boxes(self.model, x_lo, x_hi, a, min(s0, length), length))
+        return self.widen(tube_lo, tube_hi)
+
+    def _enclose(self, t: np.ndarray, x: np.ndarray, a: np.ndarray, dt: float | None = None):
+        t0 = row_time(t)
+        dt = self.dt if dt is None else dt
+        try:
+            return self.model.held_enclosure(t0, x, a, dt), np.ones(len(x), bool)
+        except ValueError:
+            # a row the model cannot bound (it would leave the model's domain): inadmissible, the others go on
+            boxes = [np.full((len(x), self.n), np.nan) for _ in range(4)]
+            ok = np.zeros(len(x), bool)
+            for r in range(len(x)):
+                try:
+                    one = self.model.held_enclosure(t0 if np.isscalar(t0) else t0[r], x[r:r + 1], a[r:r + 1], dt)
+                except ValueError:
+                    continue
+                for b, o in zip(boxes, one):
+                    b[r] = o[0]
+                ok[r] = True
+            return tuple(np.where(ok[:, None], b, x) for b in boxes), ok
+
+    # ---------------------------------------------------------------- one period
+    def check(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Admissibility of holding ``a`` for one period from each row.
+
+        :param t: ``(N,)`` times; ``x``: ``(N, n)`` states; ``z``: ``(N,)`` budgets; ``a``: ``(N, m)`` physical
+        :return: ``(admissible, next_value)``: ``next_value`` is the largest certificate over the possible end
+            states (``+inf`` where the motion may leave ``C1``, overspend the budget, or leave the table)
+        """
+        ok, nxt, _ = self.assess(t, x, z, a)
+        return ok, nxt
+
+    def assess(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray, x_hi: np.ndarray | None = None,
+               z_hi: np.ndarray | None = None, ends: bool = False, exact: bool = True):
+        """:meth:`check` plus a ``badness`` per row that ranks actions where none passes: first those that keep the
+        period in ``C1`` (then the least overspend, then the lowest next certificate), then the rest by how far
+        they may leave ``C1``. Safety comes before the budget, the budget before landing on time.
+
+        With ``x_hi`` (and ``z_hi``) the rows are boxes of states ``[x, x_hi] x [z, z_hi]``, and an action passes
+        when it passes from every state of the box (:meth:`Dynamics.held_enclosure_box`). End boxes in the last
+        :attr:`exact_periods` sample times before the horizon are judged by a witness, not by the table
+        (:mod:`softreach.reach.proof.horizon`; ``exact=False`` reads the table there too, as the witness search does).
+
+        :return: ``(admissible, next_value, badness)``; ``badness == next_value`` where the action passes
+            (``-inf`` where every run surely lands inside the period); with
+            ``ends=True`` also the end box, the lowest end budget and whether the period surely keeps ``C1`` and
+            the budget (or lands) ``(end_lo, end_hi, z_end, kept)``
+        """
+        if len(x) == 0:
+            empty = (np.zeros(0, bool), np.zeros(0), np.zeros(0))
+            return (empty + (np.zeros((0, self.n)), np.zeros((0, self.n)), np.zeros(0), np.zeros(0, bool)) if ends
+                    else empty)
+        if x_hi is None:
+            (tube_lo, tube_hi, end_lo, end_hi), bounded = self._enclose(t, x, a)
+        else:
+            tube_lo, tube_hi, end_lo, end_hi = self.model.held_enclosure_box(row_time(t), x, x_hi, a, self.dt)
+            bounded = np.isfinite(tube_lo).all(axis=1) & np.isfinite(tube_hi).all(axis=1)
+        z_top = z if z_hi is None else z_hi
+        c1 = self.checked_c1(t, x, x if x_hi is None else x_hi, a, self.dt, tube_lo, tube_hi)
+        # budget: piece j of the period is charged at the largest violation rate over a box holding every state
+        # of that piece, so a short excursion out of C2 costs only its pieces, and never less than the
+        # environment's exact integral of h_eps
+        if bounded.all() and x_hi is None:
+            piece_lo, piece_hi = self.model.held_tube_pieces(row_time(t), x, a, self.dt, self.pieces)
+        elif bounded.all():
+            piece_lo, piece_hi = self.model.held_tube_pieces_box(row_time(t), x, x_hi, a, self.dt, self.pieces)
+        else:
+            piece_lo = np.broadcast_to(tube_lo, (self.pieces,) + tube_lo.shape)
+            piece_hi = np.broadcast_to(tube_hi, (self.pieces,) + tube_hi.shape)
+        # every box compared with a set or a cell from here on holds the environment's states (widen)
+        piece_lo, piece_hi = self.widen(piece_lo, piece_hi)
+        end_lo, end_hi = self.widen(end_lo, end_hi)
+        # a period whose whole box lies in C2 spends nothing: its pieces are charged only where it may leave C2
+        spends = np.nonzero(self.may_spend(t, x, x if x_hi is None else x_hi, a, self.dt, tube_lo, tube_hi))[0]
+        z_end = np.array(np.broadcast_to(z, (len(x),)), dtype=np.float64)
+        if len(spends):
+            t_s = t[spends] if np.ndim(t) else t
+            z_end[spends] -= self._budget_spent(t_s, piece_lo[:, spends], piece_hi[:, spends], self.dt)
+        t_next = t + self.dt
+        in_time = t_next <= self.horizon + 1e-9 * max(1.0, self.horizon)
+        t_next = np.minimum(t_next, self.horizon)
+        kept = bounded & (c1 <= 0) & (z_end >= 0) & in_time
+        in_c1 = bounded & (c1 <= 0) & in_time
+        # with cells an action is admissible only when its end box lies in them: safe cells keep C1 and the budget
+        # for good, landing cells also land by T, whatever the table promises (:mod:`.cell_certificate`)
+        safe_end = kept.copy()
+        if self.safe_cells is not None:
+            r = np.nonzero(kept)[0]
+            safe_end[r] = self.safe_cells.covered(t_next[r], end_lo[r], end_hi[r], z_end[r])
+        covered = safe_end.copy()
+        if self.landing_cells is not None:
+            r = np.nonzero(safe_end)[0]
+            covered[r] = self.landing_cells.covered(t_next[r], end_lo[r], end_hi[r], z_end[r])
+        ok = kept & covered
+        nxt = np.full(len(x), np.inf)
+        rows = np.nonzero(in_c1)[0]
+        if len(rows) and self.budget_field == "Q_min":
+            # Q~ - z over the end box and the budgets [z_end, z]: largest at the lowest budget
+            Q, Qt, Qg = self.fields["Q_min"]
+            best = box_max(Q, Qt, Qg, t_next[rows], end_lo[rows], end_hi[rows]) - self._usable(t_next[rows],
+                                                                                               z_end[rows])
+            none = box_max(self._no_budget, Qt, Qg, t_next[rows], end_lo[rows], end_hi[rows])
+            best = np.where(none > 0, np.inf, best)
+        elif len(rows):
+            W, Wt, Wg = self.fields["W_eps"]
+            # rows that overspend are valued at the lowest budget (for ranking them only; they never pass)
+            z_lo = np.maximum(z_end[rows], Wg.lo[-1])
+            lo = np.concatenate([end_lo[rows], z_lo[:, None]], axis=1)
+            hi = np.concatenate([end_hi[rows], np.maximum(np.minimum(z_top[rows], self.z_top), z_lo)[:, None]],
+                                axis=1)
+            best = box_max(W, Wt, Wg, t_next[rows], lo, hi)
+        if len(rows):
+            if "V" in self.fields:
+                V, Vt, Vg = self.fields["V"]
+                v = box_max(V, Vt, Vg, t_next[rows], end_lo[rows], end_hi[rows])
+                best = np.minimum(best, np.where(z_end[rows] >= 0, v, np.inf))
+            nxt[rows] = np.where(np.isnan(best), np.inf, best)
+            if exact and self.landing_cells is None:
+                nxt[rows] = exact_before_horizon(self, t_next[rows], end_lo[rows], end_hi[rows], z_end[rows],
+                                                 z_top[rows], nxt[rows])
+        # where no action passes, the hard constraint comes first: an action whose end box lies where C1 can
+        # still be kept until T (V_safe <= 0, the held game of staying in C1) beats one that keeps only the budget
+        # (only ranks actions that do not pass, so it is asked of those alone)
+        # landing cells prove the end states certified; without them the table's interpolant must say so
+        passing = ok.copy() if self.landing_cells is not None else ok & (nxt <= -self.margin)
+        safe = in_c1.copy()
+        ranked = np.nonzero(in_c1 & ~passing)[0]
+        if "V_safe" in self.fields and len(ranked):
+            S, St, Sg = self.fields["V_safe"]
+            safe[ranked] = box_max(S, St, Sg, t_next[ranked], end_lo[ranked], end_hi[ranked]) <= 0
+        # ranks, lower is better (softreach.reach.proof.ranks): passing, by next value < proven safe end < safe end,
+        # budget kept < safe end, overspent < budget kept < overspent < how far C1 may be left < inf (not
+        # bounded); within a rank the next value, then the overspend, breaks ties
+        near = meets_target(self, tube_lo, tube_hi)
+        lands = lands_within(self, t, x, z, a, x_hi, ~passing & bounded & in_time & near)
+        passing |= lands
+        ok |= lands
+        nxt = np.where(lands, -np.inf, nxt)
+        tie = np.arctan(np.nan_to_num(nxt, posinf=TIE_INF)) / np.pi + TIE_OVERSPEND * np.maximum(-z_end, 0.0)
+        # an action ending in safe cells ranks before every other that does not pass (safe cells prove C1 and the
+        # budget for good); without them V_safe and the budget rank them
+        proven = safe_end & kept if self.safe_cells is not None else np.zeros(len(x), bool)
+        rank = np.where(proven, RANK_PROVEN,
+                        np.where(safe, RANK_SAFE, RANK_UNSAFE) + np.where(kept | lands, 0.0, RANK_OVERSPENT))
+        bad = np.where(passing, nxt, np.where(in_c1, rank + tie, np.inf))
+        bad = np.where(bounded & ~in_c1 & ~lands, RANK_LEAVES_C1 + np.maximum(c1, 0.0), bad)
+        nxt = np.where(ok, nxt, np.inf)
+        out = (passing, nxt, bad)
+        return out + (end_lo, end_hi, z_end, kept | lands) if ends else out
+
+    def passes(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray):
+        """What the filter asks of the policy's action. Where the model bounds boxes of starts: the period keeps
+        ``C1`` and the budget, and one candidate passes the one-period test again from every possible end state,
+        so the next state is certified whatever the wind did (its ``D`` may be positive: the interpolant is
+        conservative there). Elsewhere: the one-period test. On the last period the end states must be certified
+        (``D <= 0``), and an action that surely lands needs nothing more. With landing cells, certified means in
+        them: the end box lies in landing cells, or one candidate's period ends in them from all of it.
+
+        :return: ``(admissible, next_value, badness, keeps)``; ``keeps`` implies that the period keeps ``C1`` and
+            the budget, not that every end state has ``D <= 0`` (``next_value`` may be positive)
+        """
+        ok, nxt, bad, end_lo, end_hi, z_end, kept = self.assess(t, x, z, a, ends=True)
+        keeps = self.keeps(t, z, ok, nxt, end_lo, end_hi, z_end, kept)
+        return ok, nxt, bad, keeps
+
+    def keeps(self, t: np.ndarray, z: np.ndarray, ok: np.ndarray, nxt: np.ndarray, end_lo: np.ndarray,
+              end_hi: np.ndarray, z_end: np.ndarray, kept: np.ndarray) -> np.ndarray:
+        """The ``keeps`` of :meth:`passes`, from :meth:`assess` with ``ends=True`` (its outputs for the same rows)."""
+        keeps = ok.copy()
+        last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
+        if self.box_support and self.landing_cells is not None:
+            # an end box not all in landing cells still keeps the chain when one candidate's period ends in
+            # them from every state of it: the next state is then certified (ValueFilter.certify), whatever the
+            # wind did
+            rows = np.nonzero(kept & ~ok & ~last & (nxt > -np.inf))[0]
+            keeps[rows] = self.keeps_certified(t[rows] + self.dt, end_lo[rows], end_hi[rows], z_end[rows], z[rows])
+        elif self.box_support:
+            # a run that surely lands needs no next step; on the last period the end states must be certified.
+            # Otherwise the end box need not lie in {D <= 0}: that a candidate passes from every end state is
+            # what keeps the chain going, and it holds also where the interpolant is conservative (D > 0)
+            todo = kept & ~last & (nxt > -np.inf)
+            # an end box in the witness window with a witness keeps already: the witness's first candidate passes
+            # from the whole box, and the greedy search from its end box is the rest of the same witness
+            witnessed = todo & in_window(self, t + self.dt) & (nxt <= -self.margin)
+            keeps[witnessed] = True
+            rows = np.nonzero(todo & ~witnessed)[0]
+            keeps[rows] = self.keeps_certified(t[rows] + self.dt, end_lo[rows], end_hi[rows], z_end[rows], z[rows])
+        return keeps
+
+    def keeps_certified(self, t: np.ndarray, end_lo: np.ndarray, end_hi: np.ndarray, z_lo: np.ndarray,
+                        z_hi: np.ndarray) -> np.ndarray:
+        """Does some candidate pass the test from *every* state of each box at ``t`` (the end box of a period)?
+        Then whatever the wind did, the state after the period is certified. ``False`` where the model gives no
+        box enclosure or the box is off the table's time span.
+
+        :return: ``(N,)`` bool
+        """
+        N, J = len(end_lo), len(self.candidates)
+        if N == 0:
+            return np.zeros(0, bool)
+        z_lo = np.maximum(z_lo, 0.0)
+        tt, lo, zl, hi, zh, a = self._each_candidate(t, end_lo, z_lo, end_hi, z_hi)
+        try:
+            ok, _, _ = self.assess(tt, lo, zl, a, x_hi=hi, z_hi=zh)
+        except NotImplementedError:
+            return np.zeros(N, bool)
+        return ok.reshape(N, J).any(axis=1)
+
+    def best_candidate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The candidate held action with the lowest worst-case next certificate, per row.
+
+        :return: ``(action (N, m), admissible (N,), next_value (N,))``
+        """
+        N, J = len(x), len(self.candidates)
+        ok, nxt, bad = self.assess(*self._each_candidate(t, x, z))
+        j = np.argmin(bad.reshape(N, J), axis=1)
+        rows = np.arange(N)
+        return self.candidates[j], ok.reshape(N, J)[rows, j], nxt.reshape(N, J)[rows, j]
+
+    def admissible_candidates(self, t: np.ndarray, x: np.ndarray, z: np.ndarray):
+        """``(admissible, next_value, badness)``, each ``(N, J)``, of every candidate at every row."""
+        N, J = len(x), len(self.candidates)
+        return tuple(o.reshape(N, J) for o in self.assess(*self._each_candidate(t, x, z)))
