@@ -13,8 +13,8 @@ commits first and cannot react inside a period). The minimum runs over a finite 
 certifies is certified by one of those candidates.
 
 Every sub-solve uses the same schemes, dissipation and projection as the continuous solve
-(:func:`softreach.reach.numerics.solver.march`); only the Hamiltonian changes. The candidate action is an input of the
-compiled step (:meth:`HeldControl.kernel_parameters`), or lives in 0-d tensors overwritten in place for
+(:func:`softreach.reach.numerics.solver.march`); only the Hamiltonian changes. The candidate action is an input of
+the compiled step (:meth:`HeldControl.kernel_parameters`), or lives in 0-d tensors overwritten in place for
 ``torch.compile``, so one compiled step serves every candidate and every period.
 """
 
@@ -71,8 +71,8 @@ class HeldControl(Dynamics):
                 self._a[i] = float(v)
 
     def kernel_parameters(self) -> list[float]:
-        """The held action: compiled steps (:mod:`softreach.reach.numerics.fused`, :mod:`softreach.reach.numerics.gpu`) read it at
-        every call, so that one compiled step serves every candidate."""
+        """The held action: compiled steps (:mod:`softreach.reach.numerics.fused`,
+        :mod:`softreach.reach.numerics.gpu`) read it at every call, so that one compiled step serves every candidate."""
         return [float(v) for v in self._a]
 
     @contextlib.contextmanager
