@@ -1,17 +1,19 @@
 #!/usr/bin/env bash
-# The whole GPU comparison of issue 40 in one go (softreach and hj_reachability, every row), under 8 minutes on one
-# H100 or H200 (the per-row limits add up to 7.5 minutes): prints the device, then one table per row (bench_solver.py: whole `softreach solve` process against the
-# peer's solve, same accuracy preset, horizon and projection; cold = empty compile caches, warm = from them).
+# The whole GPU comparison of issue 40 in one go (softreach and hj_reachability, every row) on one H100 or H200: the
+# per-row limits add up to 8.2 minutes. It prints the device, the CUDA kernels against the CPU loops
+# (gpu_check.py), then one table per row (bench_solver.py: whole `softreach solve` process against the peer's solve,
+# same accuracy preset, horizon and projection; cold = empty compile caches, warm = from them).
 #
-# On the lent GPU machine (its python3 holds CUDA torch, JAX and numba; nothing can be fetched there), from the repo
-# root, with the peer's wheel carried (.whl/, made here by
+# The lent machine's python3 holds CUDA torch, JAX, numba and numba-cuda; nothing can be fetched there. Carry the
+# wheels it lacks in .whl/, made here by
 # `pip download --no-deps --only-binary=:all: --python-version 3.12 -d .whl hj-reachability==0.7.0 gymnasium==1.4.0
-# farama-notifications stable-baselines3==2.9.2`):
+# farama-notifications stable-baselines3==2.9.2`, and send a frozen copy so that uncommitted edits cannot travel:
 #
-#     bash benchmarks/gpu_compare.sh            # run tool: carry [".whl"], timeout_s 540
+#     mkdir -p .snap && git archive HEAD | tar -x -C .snap && rm .snap/reach/proof/cells/*.npz && cp -r .whl .snap/   # .snap ignored
+#     run tool: `cd .snap && bash benchmarks/gpu_compare.sh 2>&1 | tee $OUT/all.log`, carry [".snap"], timeout_s 540
 #
-# Each row has its own time limit, so that one slow row cannot take the others with it. Logs go to $OUT (or
-# /tmp/gpu_compare) as well as to the terminal; on the lent machine: `bash benchmarks/gpu_compare.sh 2>&1 | tee $OUT/all.log`.
+# Each row has its own time limit, so that one slow row cannot take the others with it. Per-row logs go to
+# $GPU_LOG (default /tmp/gpu_compare) as well as to the terminal.
 set -u
 export PYTHONUNBUFFERED=1
 LOG=${GPU_LOG:-/tmp/gpu_compare}
@@ -50,8 +52,8 @@ EOF
 
 # the CUDA kernels against the CPU loops, and the stepping of the paper grid alone
 echo "=== gpu_check ($(date -u +%T))"
-timeout 150 env SOFTREACH_CACHE=$CACHE/check $PY benchmarks/gpu_check.py 2>&1 | tee "$LOG/gpu_check.txt" \
-  || echo "!!! gpu_check: failed or over 150 s"
+timeout 90 env SOFTREACH_CACHE=$CACHE/check $PY benchmarks/gpu_check.py 2>&1 | tee "$LOG/gpu_check.txt" \
+  || echo "!!! gpu_check: failed or over 90 s"
 
 B="$PY benchmarks/bench_solver.py --device cuda --peer-python $PY --threads 1 --cache-dir $CACHE --accuracy very_high"
 row() {  # row NAME SECONDS ARGS...
@@ -59,17 +61,17 @@ row() {  # row NAME SECONDS ARGS...
   echo "=== $name ($(date -u +%T))"
   timeout "$limit" $B "$@" 2>&1 | tee "$LOG/$name.txt" || echo "!!! $name: failed or over ${limit} s"
 }
-row pointmass_W_101 100 --grid 101 101 --budget-points 111           # cold + warm + peer
-row pointmass_V_101 45 --grid 101 101 --game V --no-cold             # V compiled by the row above
-row paper_W_300 120 --grid 300 300 --budget-points 200               # cold + warm + peer
-row paper_V_300 45 --grid 300 300 --game V --no-cold
+row pointmass_W_101 90 --grid 101 101 --budget-points 111           # cold + warm + peer
+row pointmass_V_101 40 --grid 101 101 --game V --no-cold             # V compiled by the row above
+row paper_W_300 110 --grid 300 300 --budget-points 200               # cold + warm + peer
+row paper_V_300 40 --grid 300 300 --game V --no-cold
 
 # the glider: softreach only (the peer has no model of it), whole process, warm after one cold run of each
 for what in W V; do
   extra=$([ $what = V ] && echo --classical)
   for run in cold warm; do
     t0=$(date +%s.%N)
-    timeout 60 env SOFTREACH_CACHE=$CACHE/cache TRITON_CACHE_DIR=$CACHE/triton \
+    timeout 30 env SOFTREACH_CACHE=$CACHE/cache TRITON_CACHE_DIR=$CACHE/triton \
       $PY -m softreach.cli solve glider --device cuda --quiet --no-resume --out /tmp/glider.srt $extra \
       >"$LOG/glider_${what}_${run}.txt" 2>&1 || echo "!!! glider $what $run failed"
     echo "glider default $what ($run): $(awk -v a="$t0" -v b="$(date +%s.%N)" 'BEGIN{printf "%.1f", b - a}') s whole process" \
