@@ -2,19 +2,20 @@
 synchronisation inside a step.
 
 Why CUDA kernels written from the recorded node code, and not ``torch.compile``: the step's arithmetic is already
-recorded as straight-line code per node for the CPU loops (:mod:`softreach.reach.numerics.fused`: the derivative scheme, the
-model's numerical Hamiltonian, the projection, the stages, the ghost rule). The same lines compiled by numba-cuda
-give one kernel for the rate of a stage, one for the stage value and one for the ghost layers, each a few seconds to
-compile once and cached on disk beside the CPU loops' source, where ``torch.compile`` re-traces the whole WENO step in
-every process and launches dozens of kernels per step.
+recorded as straight-line code per node for the CPU loops (:mod:`softreach.reach.numerics.fused`: the derivative
+scheme, the model's numerical Hamiltonian, the projection, the stages, the ghost rule). The same lines compiled by
+numba-cuda give one kernel for the rate of a stage, one for the stage value and one for the ghost layers, compiled
+once per model, scheme and float type and cached on disk beside the CPU loops' source, where ``torch.compile``
+re-traces the whole step in every process.
 
-A step is ``3 + 2 x stages + 1`` launches and no read by the host:
+A step of ``k`` stages is ``3 k + 1`` launches and no read by the host:
 
 1. ``rate_all`` (stage 0): the rate at every node and, reduced per block and then by one atomic maximum, the CFL
    speed into ``speed[0]``; a non-finite rate or speed makes the speed infinite.
-2. ``clock``: one thread takes the step's length by the host loop's rule (:func:`softreach.reach.numerics.solver.march`,
-   float64: ``dt = remaining / max(1, ceil(remaining / (cfl / speed) - 1e-9))``, ``dt = 0`` once ``t`` is within
-   ``tol`` of the target), moves the device time ``t`` and resets ``speed``; an infinite speed sets ``bad``.
+2. ``clock``: one thread takes the step's length by the host loop's rule
+   (:func:`softreach.reach.numerics.solver.march`, float64:
+   ``dt = remaining / max(1, ceil(remaining / (cfl / speed) - 1e-9))``, ``dt = 0`` once ``t`` is within ``tol`` of
+   the target), moves the device time ``t`` and resets ``speed``; an infinite speed sets ``bad``.
 3. per stage: ``rate_all`` (stages after the first, speed into a slot nobody reads), ``stage_<k>`` (the projected
    stage value into the padded copy and, at the last stage, into the value) and ``ghosts`` (every axis's ghost
    layers, one kernel).
@@ -286,7 +287,7 @@ class CudaStepper:
                 self._rate(*self._rate_args, 1)
             stage(*self._stage_args, i == last)
             self._ghosts(self._up)
-        self.launches += 2 + 3 * len(self._stages) - 1
+        self.launches += 3 * len(self._stages) + 1
 
     def march(self, t: float, u: Any, target: float, progress: Any = None) -> Any:
         """:func:`~softreach.reach.numerics.solver.march` on the device: ``u`` at ``t`` stepped back to ``target``."""
