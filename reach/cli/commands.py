@@ -103,10 +103,8 @@ def idle_cores() -> int | None:
     """Torch threads for a CPU solve: one per core that the load average leaves idle, at least one; ``None``
     (torch's own choice) when ``OMP_NUM_THREADS`` is set.
 
-    torch starts one thread per core and synchronises them at every kernel, so one busy core stalls them all:
-    on the shared 2-core machine with one other job running, the default point-mass solve took 64 s with two
-    threads and 34 s with one (``/usr/bin/time softreach solve pointmass --threads N``); on an idle machine two
-    threads are about 1.5 times faster than one (README, "Threads").
+    Threads that synchronise at every step wait for the slowest, so one busy core stalls them all: on a loaded
+    machine one thread is the faster, on an idle one every core is (docs/solver.md, "Threads", measures both).
     """
     import os
 
