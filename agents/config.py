@@ -71,7 +71,15 @@ class SACConfig:
     :param gamma: discount
     :param train_freq: environment steps (per environment) between updates
     :param gradient_steps: gradient steps per update
-    :param ent_coef: ``"auto"`` (learned) or a number
+    :param ent_coef: ``"auto"`` (learned, starting at 1), ``"auto_<init>"`` (learned, starting at ``<init>``) or
+        a number. The entropy bonus is paid per step in the learner's reward units (``reward_scale``)
+    :param target_entropy: the entropy the learned coefficient steers to, ``"auto"`` (``-action_dim``) or a number
+    :param n_steps: ``n``-step returns in the critic's target (1: SAC's one-step target)
+    :param use_sde: generalised state-dependent exploration (gSDE) instead of independent Gaussian noise per step
+    :param horizon_terminal: store the step that reaches the horizon ``T`` as terminal (no bootstrap past it). The
+        observation carries the time left, so ``T`` ends the decision process; SB3's default (``False``) treats
+        the time-limit truncation as a cut-off episode and bootstraps from ``Q`` at a time left of 0, a state
+        no transition starts from
     :param net_arch: hidden layers of the actor and of each critic
     :param action_label: what the replay buffer stores as the action of a transition: ``"policy"`` (the
         policy's own action; the filter is part of the environment) or ``"applied"`` (the action the filter let
@@ -87,6 +95,10 @@ class SACConfig:
     train_freq: int = 1
     gradient_steps: int = 1
     ent_coef: str | float = "auto"
+    target_entropy: str | float = "auto"
+    n_steps: int = 1
+    use_sde: bool = False
+    horizon_terminal: bool = False
     net_arch: tuple[int, ...] = (128, 128)
     action_label: str = "policy"
 
@@ -192,7 +204,10 @@ def algo_kwargs(cfg: PPOConfig | SACConfig) -> dict[str, Any]:
             "learning_rate": cfg.learning_rate, "buffer_size": cfg.buffer_size,
             "learning_starts": cfg.learning_starts, "batch_size": cfg.batch_size, "tau": cfg.tau,
             "gamma": cfg.gamma, "train_freq": cfg.train_freq, "gradient_steps": cfg.gradient_steps,
-            "ent_coef": cfg.ent_coef, "policy_kwargs": {"net_arch": list(cfg.net_arch)},
+            "ent_coef": cfg.ent_coef, "target_entropy": cfg.target_entropy, "n_steps": cfg.n_steps,
+            "use_sde": cfg.use_sde,
+            "replay_buffer_kwargs": {"handle_timeout_termination": not cfg.horizon_terminal},
+            "policy_kwargs": {"net_arch": list(cfg.net_arch)},
         }
     raise TypeError(f"expected a PPOConfig or SACConfig, got {type(cfg).__name__}")
 
