@@ -78,12 +78,12 @@ def plot_trajectories(result, out: str | Path, table=None, max_episodes: int = 4
     if n == 2:
         fig, ax = plt.subplots(figsize=(7.5, 6))
         if table is not None:
-            from softreach.reach.cli.plotting import _colour, contour_level, _set_region
+            from softreach.reach.cli.plotting import budget_colour, contour_level, shade_set
 
             axes = table.state_axes("W_eps")
-            _set_region(ax, model, axes, model.hard_constraint, 0.0, colors=[(1.0, 0.85, 0.85)])
-            _set_region(ax, model, axes, model.soft_constraint, 0.0, colors=[(0.95, 0.9, 0.78)])
-            X, Y, g = _set_region(ax, model, axes, model.target, 0.0, colors=[(0.6, 0.6, 0.6)])
+            shade_set(ax, model, axes, model.hard_constraint, 0.0, colors=[(1.0, 0.85, 0.85)])
+            shade_set(ax, model, axes, model.soft_constraint, 0.0, colors=[(0.95, 0.9, 0.78)])
+            X, Y, g = shade_set(ax, model, axes, model.target, 0.0, colors=[(0.6, 0.6, 0.6)])
             handles += [Line2D([], [], color=(1.0, 0.85, 0.85), lw=8, label="hard C1"),
                         Line2D([], [], color=(0.95, 0.9, 0.78), lw=8, label="soft C2"),
                         Line2D([], [], color=(0.6, 0.6, 0.6), lw=8, label=model.words.target)]
@@ -92,8 +92,8 @@ def plot_trajectories(result, out: str | Path, table=None, max_episodes: int = 4
             for i, b in enumerate(budgets):
                 level = contour_level(table.set_level(0.0, float(b)))
                 if level.min() <= 0:
-                    ax.contour(X, Y, level, levels=[0.0], colors=[_colour(i)], linewidths=2)
-                    handles.append(Line2D([], [], color=_colour(i), lw=2, label=f"RA~ Q={b:g} (t=0)"))
+                    ax.contour(X, Y, level, levels=[0.0], colors=[budget_colour(i)], linewidths=2)
+                    handles.append(Line2D([], [], color=budget_colour(i), lw=2, label=f"RA~ Q={b:g} (t=0)"))
         for tr in traces:
             c = OUTCOME_COLOURS[_outcome(tr)]
             ax.plot(tr.x[:, 0], tr.x[:, 1], color=c, lw=1, alpha=0.8)

@@ -11,15 +11,22 @@ import numpy as np
 PAPER_COLOURS = [(0.4, 0.8, 1.0), (0.0, 0.0, 0.5), (0.0, 0.5, 0.0), (0.4, 0.0, 0.6)]
 
 
-def _colour(i: int):
-    if i < len(PAPER_COLOURS):
-        return PAPER_COLOURS[i]
+def budget_colour(i: int, palette: Sequence = PAPER_COLOURS):
+    """The colour of the ``i``-th budget's set in a figure: ``palette[i]`` (the paper's colours by default), then
+    matplotlib's colour cycle, so a figure of more budgets than the paper's still tells them apart."""
+    if i < len(palette):
+        return palette[i]
     import matplotlib.pyplot as plt
 
     return plt.rcParams["axes.prop_cycle"].by_key()["color"][i % 10]
 
 
-def _set_region(ax, model, axes, fn, t, **kw):
+def shade_set(ax, model, axes: Sequence[np.ndarray], fn, t: float, **kw) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fill where ``fn(t, [X, Y]) <= 0`` (one of ``model``'s set functions: ``hard_constraint``, ``soft_constraint``,
+    ``target``) on the grid of the two state axes ``axes``; ``kw`` goes to ``contourf`` (e.g. ``colors``).
+
+    :return: ``(X, Y, values)``, the node coordinates and the set function on them, for contours drawn over it
+    """
     X, Y = np.meshgrid(axes[0], axes[1], indexing="ij")
     vals = np.asarray(fn(t, [X, Y]), dtype=float)
     ax.contourf(X, Y, vals, levels=[vals.min() - 1, 0], **kw)
@@ -64,9 +71,9 @@ def plot_sets_2d(table, budgets: Sequence[float], out: str | Path, t: float = 0.
     fig, axs = plt.subplots(1, 2 if with_traj else 1, figsize=(11 if with_traj else 6.5, 5.5),
                             gridspec_kw={"width_ratios": [1.6, 1]} if with_traj else None, squeeze=False)
     ax = axs[0, 0]
-    _set_region(ax, model, axes, model.hard_constraint, t, colors=[(1.0, 0.8, 0.8)])
-    _set_region(ax, model, axes, model.soft_constraint, t, colors=[(0.93, 0.85, 0.7)])
-    X, Y, g = _set_region(ax, model, axes, model.target, t, colors=[(0.6, 0.6, 0.6)])
+    shade_set(ax, model, axes, model.hard_constraint, t, colors=[(1.0, 0.8, 0.8)])
+    shade_set(ax, model, axes, model.soft_constraint, t, colors=[(0.93, 0.85, 0.7)])
+    X, Y, g = shade_set(ax, model, axes, model.target, t, colors=[(0.6, 0.6, 0.6)])
     ax.contour(X, Y, g, levels=[0], colors="k", linewidths=1)
     handles = [Line2D([], [], color=(1.0, 0.8, 0.8), lw=8, label="hard C1 (allowed; outside is a crash)"),
                Line2D([], [], color=(0.93, 0.85, 0.7), lw=8, label="soft C2 (outside costs budget)"),
@@ -75,10 +82,10 @@ def plot_sets_2d(table, budgets: Sequence[float], out: str | Path, t: float = 0.
     x0 = np.asarray(starts, dtype=float).reshape(len(starts), -1) if with_traj else np.zeros((0, 2))
     qs = np.asarray(list(start_budgets) or [0.0] * len(x0), dtype=float)
     for i, q in enumerate(budgets):
-        ax.contour(X, Y, contour_level(table.set_level(t, q)), levels=[0.0], colors=[_colour(i)], linewidths=2,
+        ax.contour(X, Y, contour_level(table.set_level(t, q)), levels=[0.0], colors=[budget_colour(i)], linewidths=2,
                    zorder=2)
         no_path = with_traj and not np.any(qs == q)
-        handles.append(Line2D([], [], color=_colour(i), lw=2,
+        handles.append(Line2D([], [], color=budget_colour(i), lw=2,
                               label=f"RA~ Q={q:g}" + (" (no start given: no path)" if no_path else "")))
     if "V" in table.fields:
         # on top: RA and RA~_0 nearly coincide (Prop. 3), and the dashes must stay visible over the Q = 0 line
@@ -96,7 +103,7 @@ def plot_sets_2d(table, budgets: Sequence[float], out: str | Path, t: float = 0.
         bax.axhline(0, color="0.6", lw=0.8, zorder=0)
         words = model.words
         for j in range(len(x0)):
-            c = _colour(budgets.index(qs[j]) if qs[j] in budgets else j)
+            c = budget_colour(budgets.index(qs[j]) if qs[j] in budgets else j)
             n = ro.steps[j] + 1
             # a black underlay keeps a path visible where it runs along the outline drawn in its own colour
             ax.plot(ro.x[:n, j, 0], ro.x[:n, j, 1], color="k", lw=3.2, zorder=4)

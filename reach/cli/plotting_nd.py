@@ -24,20 +24,14 @@ from typing import Sequence
 
 import numpy as np
 
+from .plotting import budget_colour
+
 #: the paper's colours for Q = 0, 5, 10 (Fig. 6-9), then matplotlib's cycle
 PAPER_COLOURS = [(0.4, 0.8, 1.0), (0.0, 0.5, 0.0), (0.4, 0.0, 0.6)]
 HARD_COLOUR = (1.0, 0.8, 0.8)
 SOFT_COLOUR = (1.0, 0.87, 0.68)
 TARGET_COLOUR = (0.55, 0.55, 0.55)
 SLICE_STYLES = [":", "-.", (0, (5, 1)), (0, (1, 1)), (0, (3, 1, 1, 1))]
-
-
-def _colour(i: int):
-    if i < len(PAPER_COLOURS):
-        return PAPER_COLOURS[i]
-    import matplotlib.pyplot as plt
-
-    return plt.rcParams["axes.prop_cycle"].by_key()["color"][i % 10]
 
 
 def highest_node(table, mask: np.ndarray, axis: int = 0) -> float | None:
@@ -178,8 +172,8 @@ def plot_sets_nd(table, budgets: Sequence[float], out: str | Path, t: float = 0.
         _fill(ax, X, Y, hard, HARD_COLOUR, zorder=0)
         _fill(ax, X, Y, soft, SOFT_COLOUR, zorder=0)
         level = table.set_level(t, q)
-        _fill(ax, X, Y, proj(level), _colour(k), alpha=0.55, zorder=2)
-        _outline(ax, X, Y, proj(level), colors=[_colour(k)], linewidths=1.5, zorder=3)
+        _fill(ax, X, Y, proj(level), budget_colour(k, PAPER_COLOURS), alpha=0.55, zorder=2)
+        _outline(ax, X, Y, proj(level), colors=[budget_colour(k, PAPER_COLOURS)], linewidths=1.5, zorder=3)
         _fill(ax, X, Y, target, TARGET_COLOUR, zorder=4)
         if classical is not None:
             _outline(ax, X, Y, classical, colors="k", linestyles="--", linewidths=1.0, zorder=5)
@@ -212,7 +206,7 @@ def plot_sets_nd(table, budgets: Sequence[float], out: str | Path, t: float = 0.
         bax = axs[0, -1]
         for j, (x0j, qj) in enumerate(runs):
             k = next((i for i, q in enumerate(budgets) if q >= qj - 1e-12), 0)
-            c = _colour(k)
+            c = budget_colour(k, PAPER_COLOURS)
             steps = int(ro.steps[j]) + 1
             path = ro.x[:steps, j]
             ax = axs[0, k]
