@@ -12,7 +12,8 @@ from softreach.reach import SolveConfig, get_model
 from softreach.reach.numerics.compute import validate
 from softreach.reach.numerics.derivatives import upwind_derivatives
 from softreach.reach.numerics.grid import Grid
-from softreach.reach.tables.interpolation import box_max, interpolate
+from softreach.reach.proof.box_max import box_max
+from softreach.reach.tables.interpolation import interpolate
 from softreach.reach.problem import classical_problem
 from softreach.reach.numerics.solver import HamiltonianOperator, SolverSettings
 

@@ -15,7 +15,7 @@ motion of the period and a box ``E`` holding its end point. The action is **admi
    so each maximum is at a corner), and the budget never goes negative, with no allowance of a period;
 3. ``max_{E x [z', z]} D(t + dt, .) <= -margin``: every possible end state lies inside the certificate at the
    next sample time.
-   The maximum of the interpolant over the box is exact (:func:`softreach.reach.tables.interpolation.box_max`), so no
+   The maximum of the interpolant over the box is exact (:func:`softreach.reach.proof.box_max.box_max`), so no
    interpolation allowance is needed: the certificate *is* the interpolant. ``margin`` (default 0) is an extra
    tightening a user may ask for.
 

@@ -400,6 +400,4 @@ def interpolate(values: Any, times: np.ndarray, grid: Grid, t: np.ndarray, x: np
     return engine.raw(loc), loc.inside
 
 
-from ..proof.box_max import box_max  # noqa: E402  (the filter's exact box maximum, imported from here)
-
-__all__ = ["Interpolant", "Location", "TOL", "box_max", "geometry", "interpolate", "snapshot_pair"]
+__all__ = ["Interpolant", "Location", "TOL", "geometry", "interpolate", "snapshot_pair"]
