@@ -7,13 +7,10 @@ from __future__ import annotations
 import json
 
 import numpy as np
-
 import pytest
 
-pytest.importorskip("stable_baselines3")
-
-from softreach.agents.sweep import SweepSpec  # noqa: E402
-from softreach.cli import main  # noqa: E402
+from softreach.agents.sweep import SweepSpec
+from softreach.cli import main
 
 TINY = {"run": {"eval_freq": 0, "checkpoint_freq": 0}, "ppo": {"n_steps": 64, "batch_size": 64, "n_epochs": 1}}
 
