@@ -88,6 +88,7 @@ def test_pickle_mid_episode_continues_identically(env_cls):
     clone.close()
 
 
+@pytest.mark.process
 def test_sync_and_async_vector_envs_agree_and_autoreset():
     actions = np.random.default_rng(1).uniform(-1, 1, (120, 3, 1)).astype(np.float32)
     results = {}
@@ -111,6 +112,7 @@ def test_sync_and_async_vector_envs_agree_and_autoreset():
             np.testing.assert_array_equal(u, v)
 
 
+@pytest.mark.process
 def test_async_vector_env_with_spawn_context():
     """A fresh interpreter per worker: the spec's entry point must import and register the package itself."""
     venv = gym.make_vec(GL, num_envs=2, vectorization_mode="async", vector_kwargs={"context": "spawn"})

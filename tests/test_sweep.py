@@ -73,6 +73,7 @@ def local_sweep(tmp_path_factory, pointmass_table_path):
     return spec, out, res, check_table(res, spec, out), lines
 
 
+@pytest.mark.process
 def test_local_sweep_table_failure_and_resume(local_sweep, pointmass_table_path):
     spec, out, res, rows, lines = local_sweep
     assert (res["runs"], res["skipped"], res["ran"]) == (2, 0, 2)
@@ -262,6 +263,7 @@ def test_docs_sweep_file_loads():
     assert all(r.run_overrides["eval_freq"] == 10000 for r in runs)
 
 
+@pytest.mark.process
 def test_cli_exit_status_when_a_run_fails(tmp_path, pointmass_table_path, capsys):
     from softreach.cli import main
 
