@@ -45,13 +45,13 @@ def box(x: Sequence[Array], lo: Sequence[float], hi: Sequence[float], scale: Seq
         if scale is not None:
             if s > 0:
                 term = term / s
-            else:  # not a valid scale; kept as it always computed
+            else:  # s <= 0 is no valid scale: each side divided by s, then the larger (no check here)
                 term = _max_terms((l - xi) / s if l != -INF else None, (xi - h) / s if h != INF else None)
         out = term if out is None else B.maximum(out, term)
     if out is None:
         raise ValueError("box() needs at least one finite bound")
     if scale is None and not (type(out) is _ndarray and out.dtype.kind == "f"):
-        out = out / 1.0  # the default scale 1: integer inputs give a float result, as before
+        out = out / 1.0  # the default scale 1: integer inputs give a float result, as with a scale
     return out
 
 

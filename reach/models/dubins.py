@@ -104,8 +104,7 @@ class Dubins(Model, ControlAndDisturbanceAffine):
     forms of :class:`~softreach.reach.dynamics.ControlAndDisturbanceAffine`.
 
     Default grid: ``x, y in [-4.5, 4.5]`` m (the arena and half a metre beyond), ``theta in [-pi, pi)``,
-    41 x 41 x 32 nodes and 17 budget nodes (about a minute for ``softreach solve dubins`` on one core of the
-    loaded 2-core machine: 69 s measured with 21 budget nodes).
+    41 x 41 x 32 nodes and 17 budget nodes (docs/models.md times ``softreach solve dubins`` on this grid).
     Horizon 7 s, speed 1 m/s, turn rate up to 1 rad/s, wind up to 0.1 m/s per axis; the environment steps
     0.1 s periods and starts west of the obstacle, heading roughly east (:attr:`start_box`).
     """

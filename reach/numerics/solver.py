@@ -328,9 +328,8 @@ def march(stepper: "Stepper", t: float, u: Array, target: float, progress: Any =
 
 
 #: grids from this many nodes fuse the whole Runge-Kutta step into one compiled graph; smaller ones compile only the
-#: rate and combine the stages eagerly. Compiling the step as well costs about 16 s on an empty compile cache
-#: (``300 x 300`` budget surface: 43 s against 27 s) and gains nothing there once cached (13.1-14.0 s both ways);
-#: at ``600 x 600`` it gains 18 % per run (56 s against 68 s); one thread, 2-core machine
+#: rate and combine the stages eagerly: fusing the step costs compile time on a first run and gains per step only on
+#: large grids (docs/budget_surface.md, "The first run on a machine", times both with the command)
 FUSED_STEP_NODES = 250_000
 
 

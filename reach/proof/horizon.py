@@ -12,7 +12,7 @@ decide. A witness proves the box certified; its absence says "not certified", wh
 
 A witness's first action passes from the state reached, and its end box carries the rest; the next decision
 searches again from that state's own end box and may choose differently (nothing remembers the witness), so this
-makes the chain hold in practice, not by proof. Before the window the table decides as before.
+makes the chain hold in practice, not by proof. Before the window the table's certificate decides.
 """
 
 from __future__ import annotations
