@@ -139,18 +139,10 @@ class ValueFilter:
         #: the decision compiled (:mod:`softreach.filters.compiled`), where the model, the table and the cells allow;
         #: ``None``: numpy only
         self.compiled = CompiledDecision.for_filter(self)
-        #: batches of more rows than this run the numpy decision even where :attr:`compiled` exists (both decide
-        #: the same). By default none does: the compiled decision is the faster at every batch size
-        #: ``benchmarks/bench_filter.py`` times (1,024 rows: ``compiled_*`` against ``numpy_*``)
-        self.compiled_max_rows = 10 ** 9
         #: threads that share a large batch of the compiled decision (blocks of at least
         #: :data:`~softreach.reach.proof.blocks.PARALLEL_MIN_ROWS` rows); 1: the calling thread alone. By default two
         #: where the machine has them: ``benchmarks/bench_filter.py`` times 1,024 rows both ways
         self.threads = default_threads()
-        #: up to this many rows, :meth:`filter` judges the policy's action and the candidates in one batch. 0: the
-        #: policy's action first, the candidates only where it fails. From certified states with a random policy
-        #: (6 % interventions) that is the faster one: median 2.1 ms a decision against 2.7 ms with 8
-        self.joint_rows = 0
 
     # ---------------------------------------------------------------- conversions
     def physical(self, action: Any) -> np.ndarray:
@@ -184,7 +176,7 @@ class ValueFilter:
         :return: ``(certified (N,), reasons, best next certificate (N,))``; reasons from :data:`CERTIFY_REASONS`
         """
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
-        if self.compiled is not None and len(xs) <= self.compiled_max_rows:
+        if self.compiled is not None:
             ok, nxt, value, inside, in_cells = self.compiled.certify(tt, xs, zz)
         else:
             value = self.lookahead.certificate(tt, xs, zz)
@@ -287,28 +279,16 @@ class ValueFilter:
         plans = check_plans(plan, N)
         pol = self.physical(act) if normalized else np.minimum(np.maximum(act, self.a_lo), self.a_hi)
         la = self.lookahead
-        J = len(la.candidates)
-        if self.compiled is not None and N <= self.compiled_max_rows:
+        if self.compiled is not None:
             applied, reason, value, nxt, ok, chosen, blend, new_plans = self.compiled(tt, xs, zz, pol, plans,
                                                                                       diagnostics)
             rows = np.zeros(0, np.int64)
         else:
             new_plans = np.tile(np.array(NO_PLAN, np.int64), (N, 1))
             value = la.certificate(tt, xs, zz) if diagnostics else np.full(N, np.nan)
-            if N <= self.joint_rows:
-                # few rows: the policy's action and every candidate in one batch. The cost of a call is mostly
-                # fixed overhead, so one call that may judge candidates needlessly beats a second call when needed
-                acts = np.concatenate([pol[:, None, :], np.broadcast_to(la.candidates, (N, J, self.m))], axis=1)
-                both = la.passes(np.repeat(tt, J + 1), np.repeat(xs, J + 1, axis=0), np.repeat(zz, J + 1),
-                                 acts.reshape(N * (J + 1), self.m))
-                both = [o.reshape(N, J + 1) for o in both]
-                nxt, ok = both[1][:, 0].copy(), both[3][:, 0].copy()
-                rows = np.nonzero(~ok)[0]
-                cand = tuple(o[rows, 1:] for o in both)
-            else:
-                _, nxt, _, ok = la.passes(tt, xs, zz, pol)
-                rows = np.nonzero(~ok)[0]
-                cand = self._candidates(tt[rows], xs[rows], zz[rows], pol[rows]) if len(rows) else None
+            _, nxt, _, ok = la.passes(tt, xs, zz, pol)
+            rows = np.nonzero(~ok)[0]
+            cand = self._candidates(tt[rows], xs[rows], zz[rows], pol[rows]) if len(rows) else None
             if not diagnostics:
                 nxt = np.full(N, np.nan)  # the rows replaced below get their chosen action's
             applied = pol.copy()

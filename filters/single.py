@@ -28,7 +28,7 @@ _SCALARS = (float, int, np.floating, np.integer)
 
 def _plain(vf: Any, t: Any, x: Any, z: Any, action: Any, plan: Any) -> bool:
     """Whether the inputs are of the kind this module decides (the module docstring)."""
-    return (vf.compiled is not None and vf.compiled_max_rows >= 1
+    return (vf.compiled is not None
             and type(x) is np.ndarray and x.shape == (vf.n,) and x.dtype.kind == "f"
             and type(action) is np.ndarray and action.shape == (vf.m,) and action.dtype.kind == "f"
             and isinstance(t, _SCALARS) and isinstance(z, _SCALARS)

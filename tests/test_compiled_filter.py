@@ -75,7 +75,6 @@ def _same(info_a, info_b):
 
 def _pair(table, rule="switch"):
     fast = ValueFilter(table, 0.01, rule=rule)
-    fast.compiled_max_rows = 10 ** 9  # every batch compiled, however large: the comparison is the point
     slow = ValueFilter(table, 0.01, rule=rule)
     slow.compiled = None
     return fast, slow
@@ -268,7 +267,6 @@ def test_compiled_glider_filter_decides_as_the_numpy_filter(glider_held_table, r
     fast = ValueFilter(glider_held_table, 0.1, rule=rule, target_checks=checks)
     slow = ValueFilter(glider_held_table, 0.1, rule=rule, target_checks=checks)
     slow.compiled = None
-    fast.compiled_max_rows = 10 ** 9
     assert fast.compiled is not None
     n = 600 if rule == "switch" else 150
     t, x, z, a = _glider_draws(fast.model, n, 9)
@@ -334,7 +332,6 @@ def test_certify_compiled_as_in_numpy(which, pointmass_held_table, glider_held_t
     t[:k], x[:k], z[:k] = 0.0, xc[cells][:k], zc[cells][:k]
     if which == "pointmass":
         x[k::13, 1] = 21.0  # above the grid
-    fast.compiled_max_rows = 10 ** 9
     assert fast.compiled is not None
     got = fast.certify(t, x, z)
     compiled, fast.compiled = fast.compiled, None

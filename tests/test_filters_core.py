@@ -419,20 +419,24 @@ def test_the_safety_value_keeps_c1_where_braking_can(pointmass_held_table):
     assert np.all(S[V <= -0.05] <= 0)
 
 
+@pytest.mark.parametrize("path", ["compiled", "numpy"])
 @pytest.mark.parametrize("rule", ["switch", "smooth"])
-def test_one_batch_and_two_stage_decisions_agree(pointmass_held_table, rule):
-    """Judged with every candidate in one batch (``joint_rows``) or the policy first and the candidates' ``keeps``
-    in order of preference: the same decisions."""
+def test_a_row_is_decided_alone_as_in_a_batch(pointmass_held_table, rule, path):
+    """A row's decision does not depend on the batch around it: 120 rows decided at once and each alone give the
+    same actions and ``info``, on the compiled decision (the batch and the one-row entry) and on the numpy one (its
+    candidates' ``keeps`` asked only of the rows whose policy action fails, in the rule's order of preference)."""
     vf = ValueFilter(pointmass_held_table, DT, target_checks=10, rule=rule)
+    if path == "numpy":
+        vf.compiled = None
+    assert (vf.compiled is not None) == (path == "compiled")
     rng = np.random.default_rng(11)
     N = 120
     x = np.c_[rng.uniform(-15, 15, N), rng.uniform(0, 18, N)]
     z, t, a = rng.uniform(0, 0.6, N), rng.uniform(0, 0.95, N), rng.uniform(-60, 60, (N, 1))
-    vf.joint_rows = 8
-    batch, info = vf.filter(t, x, z, a)  # two stages
+    batch, info = vf.filter(t, x, z, a)
     assert 0 < info["active"].sum() < N
     for i in range(N):
-        one, one_info = vf.filter(t[i], x[i], z[i], a[i])  # one batch
+        one, one_info = vf.filter(t[i], x[i], z[i], a[i])
         assert np.array_equal(one, batch[i])
         for key in ("reason", "lookahead", "certified", "optimal_action"):
             assert np.array_equal(one_info[key], info[key][i], equal_nan=True), key
