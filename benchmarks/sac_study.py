@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import time
 from pathlib import Path
@@ -114,17 +115,32 @@ def run_one(name: str, seed: int, timesteps: int, out: Path, eval_freq: int = 10
     return result
 
 
+def _last_logged(run_dir: Path, key: str) -> float:
+    """The last value of ``key`` in the run's ``progress.csv`` (SB3's logger), NaN if never logged."""
+    import csv
+
+    value = math.nan
+    with open(run_dir / "progress.csv", newline="") as f:
+        for row in csv.DictReader(f):
+            if row.get(key):
+                value = float(row[key])
+    return value
+
+
 def table(out: Path) -> str:
+    """The markdown table of every finished run under ``out`` (``ent_coef``: the learned entropy coefficient at
+    the end, to set against the learner's rewards per step, ``reward_scale`` times the environment's)."""
     rows = [json.loads(p.read_text()) for p in sorted(out.glob("*/result.json"))]
     order = list(CONFIGS)
     rows.sort(key=lambda r: (r["timesteps"], order.index(r["config"]) if r["config"] in order else 99, r["seed"]))
     lines = ["| config | seed | steps | periodic evaluations: landed (20 ep. every 10k) | final: landed, hard "
-             "violations, return (100 ep.) | wall |", "|---|---|---|---|---|---|"]
+             "violations, return (100 ep.) | ent_coef at the end | wall |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         ev = " ".join(f"{x:.0%}" for x in r["eval_landed"])
         f = r["final"]
+        alpha = _last_logged(out / f"{r['config']}-s{r['seed']}-{r['timesteps']}", "train/ent_coef")
         lines.append(f"| {r['config']} | {r['seed']} | {r['timesteps'] // 1000}k | {ev} | {f['landed']:.0%}, "
-                     f"{f['hard_violations']:.0%}, {f['return']:.1f} | {r['wall_s']:.0f} s |")
+                     f"{f['hard_violations']:.0%}, {f['return']:.1f} | {alpha:.2g} | {r['wall_s']:.0f} s |")
     return "\n".join(lines)
 
 
