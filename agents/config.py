@@ -7,8 +7,10 @@ checkpoints, reward scale). :func:`defaults` returns the defaults of a model and
 
 The point-mass PPO defaults were chosen so that ``softreach train pointmass`` finishes in about five minutes
 on a 2-core CPU and lands most episodes (measured numbers: ``docs/agents.md``). The glider defaults are the
-same settings; the SAC defaults are wired up but not tuned (at 60k steps SAC did not learn to land the point
-mass).
+same settings. The SAC defaults keep Stable-Baselines3's entropy, discount and update settings;
+``benchmarks/sac_study.py`` compares them with the fields of :class:`SACConfig` that decide whether SAC learns
+to land (the entropy coefficient's start, gradient steps per environment step, the horizon stored as terminal;
+``docs/agents.md``, "SAC").
 """
 
 from __future__ import annotations
