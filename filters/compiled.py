@@ -126,7 +126,10 @@ def _keeping(enclose, M, C, T, cands, smooth, tr, zr, space):
     return -1
 
 
-@njit(inline="always")
+# called, not inlined, as _follow_plans: each runs once for a row whose policy action does not pass, and numba's
+# typing of one function takes more than linear time in its length, so that the parts compiled alone compile in less
+# time than all in one (softreach.filters.judge, "Inlined or called")
+@njit(_nrt=False)
 def _choose(enclose, M, C, T, cands, smooth, tr, zr, t_next, space):
     """Every candidate judged: the rule's choice among them (:meth:`ValueFilter.filter`'s score), its next value
     and badness. A passing candidate's next value decides among the passing ones, read only where it can decide
@@ -164,12 +167,12 @@ def _choose(enclose, M, C, T, cands, smooth, tr, zr, t_next, space):
     return best, c_next[best], c_bad[best]
 
 
-@njit(inline="always")
-def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, best, best_next, best_bad, lam, space,
+@njit(_nrt=False)
+def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, best, best_next, best_bad, lam, act, c_next,
                   new_plans):
     """:func:`~softreach.filters.plans.follow_plans` of row ``r``: where no candidate passes, the landing cells'
     plan (the one being followed, else the state's own cell's); then, where the choice's end is not proven safe,
-    the safe cells'. Writes the plan's candidate into ``space.act`` and the plan into ``new_plans[r]``; returns
+    the safe cells'. Writes the plan's candidate into ``act`` and the plan into ``new_plans[r]``; returns
     ``(best, best_next, best_bad, lam, any_ok)``."""
     J = cands.shape[0]
     for game in (PLAN_LAND, PLAN_SAFE):
@@ -192,9 +195,9 @@ def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, best, best_
             if not (0 <= cj < J and cover_row(cells, tr, xr, xr, zr)):
                 continue
             jj, left = cj, ck - 1
-        best, best_next = jj, space.c_next[jj]
+        best, best_next = jj, c_next[jj]
         for i in range(cands.shape[1]):
-            space.act[i] = cands[jj, i]
+            act[i] = cands[jj, i]
         lam = 0.0  # the plan's candidate itself is applied, not a blend towards the policy's action
         best_bad = -1.0 if game == PLAN_LAND else RANK_PROVEN
         new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = jj, left, game
@@ -274,8 +277,11 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
             continue
         lam = lo
         _blend(act, action, best, lam, pol, r)
-        best, best_next, best_bad, lam, any_ok = _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok,
-                                                               best, best_next, best_bad, lam, space, new_plans)
+        # np.int64, np.bool_: typed before the loop's types settle, a literal 0 or False would compile
+        # _follow_plans once more
+        best, best_next, best_bad, lam, any_ok = _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans,
+                                                               np.bool_(any_ok), np.int64(best), best_next, best_bad,
+                                                               lam, act, space.c_next, new_plans)
         bounded = best_bad < np.inf
         for i in range(m):
             applied[r, i] = act[i] if bounded else fallback[i]
@@ -318,7 +324,9 @@ class CompiledDecision:
         W_args = la.table_args
         has_S = "V_safe" in la.fields
         self.T = TableArgs(*W_args, kernel_field(*la.fields["V_safe"]) if has_S else W_args[3], has_S)
-        self.cands = frozen(np.ascontiguousarray(la.candidates, dtype=np.float64))
+        # a private writable copy: a candidate row then has the type of the action being judged (a work array),
+        # and the one-period test (judge) compiles once for both
+        self.cands = np.array(la.candidates, dtype=np.float64, order="C")
         self.action = ActionMap(frozen(np.ascontiguousarray(la.a_mid)), frozen(np.ascontiguousarray(la.a_half)),
                                 frozen(np.ascontiguousarray(exact_normalized(self.cands, la.a_mid, la.a_half))))
         self.fallback = frozen(np.asarray(vf.fallback_action, dtype=np.float64))

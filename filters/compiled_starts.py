@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from softreach.reach.jit import njit
 
 from .compiled_args import Cells, Motion, Work
@@ -15,11 +17,12 @@ from .judge import judge_once, period
 from .plans import PLAN_LAND
 
 
-@njit(_nrt=False)
+@njit(inline="always")
 def _hold_period(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work):
     """One period of ``a`` held from the box ``[lo, hi]`` at budget ``z``, by :func:`judge`: ``(passes, goes on,
     z_end)``: whether it passes (or surely lands), and whether it kept ``C1`` and the budget with a finite end box,
-    which then replaces ``[lo, hi]``. Not inlined: the start-plan searches call it from two loops."""
+    which then replaces ``[lo, hi]``. Inlined: a few lines around :func:`~softreach.filters.judge.judge_once`, which
+    a function of its own would only link and optimise once more."""
     v = judge_once(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work)
     kept = v.kept
     for i in range(len(e_lo)):
@@ -74,8 +77,9 @@ def start_plan_rows(enclose, m_args, c_args, cands, periods, t, x, z, second, ou
     for r in range(N):
         for g in range(out.shape[1]):
             out[r, g, 0], out[r, g, 1], out[r, g, 2] = -1, 0, 0
-        j1, k1, once = _segment_row(enclose, M, C, cands, periods, t[r], x[r], x[r], z[r], True, lo, hi, e_lo, e_hi,
-                                    work)
+        # np.bool_: a bare True or False is a literal type, for which _segment_row would compile once each
+        j1, k1, once = _segment_row(enclose, M, C, cands, periods, t[r], x[r], x[r], z[r], np.bool_(True), lo, hi,
+                                    e_lo, e_hi, work)
         # a row some candidate passes from at once is certified by one period: it needs no plan
         if once:
             continue
@@ -95,8 +99,8 @@ def start_plan_rows(enclose, m_args, c_args, cands, periods, t, x, z, second, ou
                 if not goes:
                     break
                 tt = tt + dt
-                j2, k2, _ = _segment_row(enclose, M, C, cands, periods - k, tt, c_lo, c_hi, zz, False, lo, hi, e_lo,
-                                         e_hi, work)
+                j2, k2, _ = _segment_row(enclose, M, C, cands, periods - k, tt, c_lo, c_hi, zz, np.bool_(False), lo,
+                                         hi, e_lo, e_hi, work)
                 if j2 >= 0:
                     best1 = k
                     out[r, 0, 0], out[r, 0, 1], out[r, 0, 2] = j, k, PLAN_LAND

@@ -14,6 +14,17 @@ possible next value (or badness) lies above another's exact one is not the least
 is the one of reading every value.
 
 Each mirrors the numpy method it names, with the same arithmetic in the same order.
+
+Inlined or called: numba inlines a function (``inline="always"``) by copying its body into every caller, where the
+copy is typed and optimised again, so that each copy adds to the first compilation; a call hands over every field of
+the large tuples of arrays, which costs more than the work of the small functions here. So a function that a loop
+over rows or candidates runs is inlined into that loop (:func:`judge` into the decision's loop and into
+:func:`keeps`, :func:`next_value` into each loop that reads next values), and each loop is a function of its own,
+called once a row (:func:`keeps`, :func:`badness`, :func:`least_next`, :func:`read_least`). What runs once for a row
+that does not pass is called (:func:`on_table`), and the searches outside the decision (a state's certificate, the
+start plans) call :func:`judge_once`. And since numba's typing of one function takes more than linear time in its
+length, a part of the decision that runs at most once a row is a function of its own where it is large
+(:mod:`softreach.filters.compiled`'s ``_choose`` and ``_follow_plans``).
 """
 
 from __future__ import annotations
@@ -101,8 +112,7 @@ def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
 def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
     """:func:`~softreach.reach.proof.landing.lands_within` of one row: at some check instant ``s`` every run is in the
     target inside ``C2``, the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``. Not
-    inlined into :func:`judge`: asked only of actions that do not pass and whose motion meets the target, it would
-    add to the first compilation more than its call costs."""
+    inlined into :func:`judge`: it is asked only of actions that do not pass and whose motion meets the target."""
     params, set_params, sets, slack = M.params, M.set_params, M.set_address, M.slack
     for j in range(check_edges.shape[0]):
         edges = check_edges[j]
@@ -167,8 +177,8 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
 
 @njit(_nrt=False)
 def judge_once(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
-    """:func:`judge`, not inlined: for the searches outside the decision (a state's certificate, the start plans),
-    each of whose inlined copies would add seconds to the first compilation."""
+    """:func:`judge`, compiled once, for the searches outside the decision (a state's certificate, the start plans;
+    the module docstring)."""
     return judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work)
 
 
@@ -367,7 +377,7 @@ def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_prov
             c_score[k] = c_bad[k]
 
 
-@njit(inline="always")
+@njit(_nrt=False)
 def on_table(W, t, x, z, point, work):
     """:meth:`Table.inside` of a ``W_eps`` table: the interpolant of ``W_eps`` is finite at ``(t, x, z)`` (a budget
     above the grid is read at its top)."""

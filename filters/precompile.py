@@ -1,9 +1,9 @@
 """The filter's compiled decision, compiled ahead of its first use: ``softreach compile TABLE``.
 
-The first decision a machine makes compiles :mod:`softreach.filters.compiled` (about 40 s, docs/filters.md
-"Speed"), and the first reset the start's certificate (:mod:`softreach.filters.compiled_certify`, about 15 s
-more), into the package's compiled-code cache (:mod:`softreach.reach.jit`: ``$NUMBA_CACHE_DIR``, else ``numba/``
-in ``$SOFTREACH_CACHE`` or ``~/.cache/softreach``), which every later process loads in a fraction of a second.
+The first decision a machine makes compiles :mod:`softreach.filters.compiled`, and the first reset the start's
+certificate (:mod:`softreach.filters.compiled_certify`; ``benchmarks/first_compile.py filter`` measures both),
+into the package's compiled-code cache (:mod:`softreach.reach.jit`: ``$NUMBA_CACHE_DIR``, else ``numba/`` in
+``$SOFTREACH_CACHE`` or ``~/.cache/softreach``), which every later process loads in a fraction of a second.
 Made on purpose, that compilation does not stall an episode, and environment processes started together (a
 vector of environments, an SB3 ``SubprocVecEnv``) do not each compile at once. One table of each model and
 period is enough: every table of the same value type (``float32`` or ``float64``) shares the compiled decision,

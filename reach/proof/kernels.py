@@ -10,7 +10,7 @@ functions are called through :mod:`softreach.reach.proof.model_kernels`. Compile
 "Speed" gives the time), later ones load it. Small functions that are handed the filter's large tuples of arrays are inlined
 (``inline="always"``): such a call costs more than their work. The box maximum's lattice is inlined into the box
 maximum, which halves the certificate's cost at a point; the box maximum itself is not inlined into its callers,
-which would triple the first compilation (57 s against 20 s). It and the cover test allocate nothing, so that the
+which would triple the first compilation. It and the cover test allocate nothing, so that the
 filter's decision runs them without numba's reference counting (``_nrt=False``, :mod:`softreach.filters.compiled`)."""
 
 from __future__ import annotations
