@@ -212,10 +212,10 @@ def run_train(args: argparse.Namespace) -> int:
 
 
 def train_notes(spec: Any) -> list[str]:
-    """What ``softreach train`` says before it starts: a filter table that certifies nothing (solved in continuous
-    time, or for another control period), and a step count SB3 will round up (its whole rollouts)."""
-    import math
-
+    """What ``softreach train`` says before it starts: a filter table that certifies nothing (a model without cells
+    and a table solved in continuous time, or for another control period), and a step count SB3 will round up (its
+    whole rollouts)."""
+    from softreach.filters.plans import certifies
     from softreach.reach import load_table
     from softreach.reach.models import get_model
 
@@ -228,8 +228,9 @@ def train_notes(spec: Any) -> list[str]:
     for option, path in (("--filter", spec.filter), ("--eval-filter", spec.eval_filter)):
         if path is None:
             continue
-        got = load_table(path).control_period
-        if got is None or not math.isclose(got, period):
+        table = load_table(path)
+        got = table.control_period
+        if not certifies(table, period):
             solved = "in continuous time" if got is None else f"for a control period of {got:g} s"
             notes.append(f"warning: {option} {path} was solved {solved}, not for the sampled-data game at the "
                          f"environment's {period:g} s: its filter certifies no state, so it intervenes without the "

@@ -62,9 +62,10 @@ class CertifiedStarts(gym.Wrapper):
         filt = unwrap_filter(env)
         if filt is None:
             raise TypeError("CertifiedStarts needs a SafetyFilter in the wrapper stack (it certifies the starts)")
-        if not filt.value_filter.sampled:
+        if not filt.value_filter.certifiable:
             raise ValueError(f"table {filt.table.path} was not solved for the sampled-data game at this control "
-                             f"period (softreach solve MODEL --held): it certifies no start")
+                             f"period (softreach solve MODEL --held) and the model has no cells: it certifies no "
+                             f"start")
         self.filter = filt
         self.rng = np.random.default_rng()
 

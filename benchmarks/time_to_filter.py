@@ -3,10 +3,13 @@
     OMP_NUM_THREADS=1 python benchmarks/time_to_filter.py                       # point mass, its default grid
     OMP_NUM_THREADS=1 python benchmarks/time_to_filter.py --grid 51 51 --budget-points 56 --out t.json
     OMP_NUM_THREADS=1 python benchmarks/time_to_filter.py --model glider --runs cold
+    OMP_NUM_THREADS=1 python benchmarks/time_to_filter.py --table-kind continuous --grid 51 51 --budget-points 56
 
 Phases, each in a fresh Python process (its wall time counts the interpreter's start and imports, as a user's would):
 
-1. ``solve``: ``softreach solve MODEL --held [--grid ...] [--budget-points ...] --threads N`` (the held table);
+1. ``solve``: ``softreach solve MODEL --held [--grid ...] [--budget-points ...] --threads N`` (the held table;
+   ``--table-kind continuous``: without ``--held``, a table of the continuous-time game, which ranks candidates as
+   well where the model's cells prove);
 2. ``cells``: ``ValueFilter(table, dt, target_checks=model.substeps)``, the filter ``SafetyFilter`` builds: its
    safe and landing cells are unpacked from the package, loaded from the cache or built;
 3. ``compile``: ``softreach compile TABLE`` (``filters.precompile``): the decision's, the certificate's and the
@@ -45,17 +48,23 @@ def _child_cells(table_path: str) -> dict[str, Any]:
     t0 = time.perf_counter()
     table = load_table(table_path)
     model = table.model
-    vf = ValueFilter(table, float(table.control_period), target_checks=int(getattr(model, "substeps", 1) or 1))
+    vf = ValueFilter(table, _period(table), target_checks=int(getattr(model, "substeps", 1) or 1))
     seconds = time.perf_counter() - t0
     after = set(p.name for p in cache_dir().glob("cells-*")) if cache_dir().exists() else set()
     return {"seconds": seconds, "has_cells": vf.landing_cells is not None, "compiled": vf.compiled is not None,
             "new_cell_files": sorted(after - before)}
 
 
+def _period(table: Any) -> float:
+    """The filter's control period: the table's, or the model's for a table of the continuous-time game."""
+    return float(table.control_period if table.control_period is not None else table.model.control_period)
+
+
 def _child_compile(table_path: str) -> dict[str, Any]:
     from softreach.filters.precompile import precompile
+    from softreach.reach import load_table
 
-    r = precompile(table_path)
+    r = precompile(table_path, _period(load_table(table_path)))
     return {"seconds": r["seconds"], "source": r["source"], "compiled": r["compiled"]}
 
 
@@ -87,7 +96,7 @@ def _child_region(table_path: str, budgets: list[float], n: int) -> dict[str, An
     from softreach.reach import load_table
 
     table = load_table(table_path)
-    dt, checks = float(table.control_period), int(getattr(table.model, "substeps", 1) or 1)
+    dt, checks = _period(table), int(getattr(table.model, "substeps", 1) or 1)
     out: dict[str, Any] = {}
     for name, kw in (("cells", {}), ("table_alone", {"safe_cells": None, "landing_cells": None})):
         t0 = time.perf_counter()
@@ -134,7 +143,8 @@ def run_once(args: argparse.Namespace, cache: Path, table: Path) -> list[dict[st
     """Every phase once with the caches in ``cache``; one row per phase."""
     env = _env(cache, args.threads)
     me = [sys.executable, os.path.abspath(__file__)]
-    solve = ["softreach", "solve", args.model, "--held", "--quiet", "--threads", str(args.threads), "--out", str(table)]
+    held = ["--held"] if args.table_kind == "held" else []
+    solve = ["softreach", "solve", args.model, *held, "--quiet", "--threads", str(args.threads), "--out", str(table)]
     if args.grid:
         solve += ["--grid", *map(str, args.grid)]
     if args.budget_points:
@@ -160,6 +170,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                                                                      "softreach solve's)")
     ap.add_argument("--budget-points", type=int, default=None, help="budget nodes (default: softreach solve's)")
     ap.add_argument("--threads", type=int, default=1, help="threads of every phase (default 1)")
+    ap.add_argument("--table-kind", choices=("held", "continuous"), default="held",
+                    help="the table solved: of the sampled-data game (--held, default) or of the continuous-time "
+                         "game (ranks as well where the model's cells prove)")
     ap.add_argument("--runs", nargs="+", choices=("cold", "warm"), default=["cold", "warm"],
                     help="cold (empty caches) then warm (the same caches again); default both")
     ap.add_argument("--cache", default=None, help="cache folder to use (default: a new empty one)")
@@ -186,8 +199,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         raise SystemExit(f"--grid sizes must be >= 2, got {args.grid}")
     cache = Path(args.cache) if args.cache else Path(tempfile.mkdtemp(prefix="softreach-ttf-"))
     cache.mkdir(parents=True, exist_ok=True)
-    table = Path(args.table) if args.table else cache / f"{args.model.rpartition(':')[2]}-held.srt"
-    out: dict[str, Any] = {"model": args.model, "grid": args.grid or "default", "budget_points":
+    table = Path(args.table) if args.table else cache / f"{args.model.rpartition(':')[2]}-{args.table_kind}.srt"
+    out: dict[str, Any] = {"model": args.model, "table_kind": args.table_kind, "grid": args.grid or "default", "budget_points":
                            args.budget_points or "default", "threads": args.threads, "cache": str(cache),
                            "cpus": os.cpu_count(), "runs": {}}
     for run in ([] if args.region_only else args.runs):

@@ -14,11 +14,13 @@ overshoot the constraint it is riding); it judges the *held* action by where one
   passes the same test: with ``rule="switch"`` the one whose worst next certificate is lowest, with
   ``rule="smooth"`` the point closest to the policy's action on the segment from such a candidate.
 
-A state is **certified** when some candidate passes. From a certified start every step keeps the next state
-inside the certificate; the table solved for the sampled-data game (``softreach solve MODEL --held``) is what
-makes a candidate exist there again (its value is the minimum over the same candidates, held, against a wind
-free at every instant), and the audit (``benchmarks/audit_filter.py``) counts the rare states where none does
-(reason ``"uncertified"``). With a continuous-time table the same checks run, but nothing is certified.
+A state is **certified** when some candidate passes. Where the model has cells
+(:mod:`softreach.reach.proof.cell_certificate`), passing means ending in the landing cells, which proves the
+guarantee, and the table (continuous-time or sampled-data) only ranks the candidates. For a model without cells,
+the table solved for the sampled-data game (``softreach solve MODEL --held``) is what makes a candidate exist again
+after a certified step (its value is the minimum over the same candidates, held, against a wind free at every
+instant), and the audit (``benchmarks/audit_filter.py``) counts the rare states where none does (reason
+``"uncertified"``); with a continuous-time table the same checks run there, but nothing is certified.
 
 Where the model gives its enclosure and set maxima compiled, :class:`ValueFilter` runs this same decision compiled,
 row by row (:mod:`softreach.filters.compiled`, :attr:`ValueFilter.compiled`); the numpy code below is the
@@ -62,8 +64,10 @@ CERTIFY_REASONS = ("certified", "table_not_sampled", "outside_table", "after_hor
 class ValueFilter:
     """The safety filter's core: one table, one control period, one rule.
 
-    :param table: a table with ``V`` and ``W_eps`` or the budget surface ``Q_min``; certification needs one solved
-        for this control period (``softreach solve MODEL --held``, with ``--budget-surface`` for ``Q_min``)
+    :param table: a table with ``V`` and ``W_eps`` or the budget surface ``Q_min``. Where the model has cells
+        (:attr:`~softreach.reach.problem.Model.cell_shape`) they certify and the table only ranks candidates, so any
+        table of the model serves (``softreach solve MODEL``); otherwise certification needs one solved for this
+        control period (``softreach solve MODEL --held``, with ``--budget-surface`` for ``Q_min``)
     :param dt: the control period [s] over which every action is held
     :param margin: extra tightening ``>= 0`` of the next-state condition (``D <= -margin``), value units;
         ``None`` means 0: the test is exact for the interpolant and needs none
@@ -136,6 +140,9 @@ class ValueFilter:
         self.safe_cells = resolve_cells(self, safe_cells, "safe")
         self.landing_cells = resolve_cells(self, landing_cells, "land")
         self.lookahead.safe_cells, self.lookahead.landing_cells = self.safe_cells, self.landing_cells
+        #: a step can be certified: the landing cells prove it (the table, solved for this period or in continuous
+        #: time, then only ranks candidates), or, for a model without cells, the table was solved for this period
+        self.certifiable = self.landing_cells is not None or self.sampled
         #: the decision compiled (:mod:`softreach.filters.compiled`), where the model, the table and the cells allow;
         #: ``None``: numpy only
         self.compiled = CompiledDecision.for_filter(self)
@@ -189,7 +196,7 @@ class ValueFilter:
         after = tt >= self.lookahead.horizon - 1e-9
         reasons = []
         for i in range(len(xs)):
-            if not self.sampled:
+            if not self.certifiable:
                 reasons.append("table_not_sampled")
             elif after[i]:
                 reasons.append("after_horizon")
@@ -341,7 +348,7 @@ class ValueFilter:
             chosen = self.normalized(chosen)
         margin = np.full(N, self.constant_margin or 0.0)
         info = {"value": value, "margin": margin, "active": active, "reason": reason, "optimal_action": chosen,
-                "blend": blend, "lookahead": nxt, "certified": ok & ~after & self.sampled}
+                "blend": blend, "lookahead": nxt, "certified": ok & ~after & self.certifiable}
         if single:
             applied = applied[0]
             info = {k: v[0] for k, v in info.items()}

@@ -10,6 +10,7 @@ at the next step: the state is then inside the box chain the plan was proven for
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 import numpy as np
@@ -30,25 +31,40 @@ PLAN_LAND = 1
 PLAN_SAFE = 2
 
 
+def has_cells(model: Any) -> bool:
+    """Whether the filter builds cells for ``model`` by default: it declares ``cell_shape`` and bounds boxes of
+    starts (:meth:`~softreach.reach.dynamics.Dynamics.held_enclosure_box`)."""
+    from softreach.reach.dynamics import Dynamics
+
+    return (getattr(model, "cell_shape", None) is not None
+            and type(model).held_enclosure_box is not Dynamics.held_enclosure_box)
+
+
+def certifies(table: Any, dt: float) -> bool:
+    """Whether a filter of ``table`` at the control period ``dt`` (default cells) can certify: the model has cells,
+    which prove whatever table ranks the candidates, or the table was solved for the sampled-data game at ``dt``
+    (:attr:`~softreach.filters.ValueFilter.certifiable`)."""
+    period = table.control_period
+    return has_cells(table.model) or (period is not None and math.isclose(period, dt, rel_tol=1e-9, abs_tol=0.0))
+
+
 def resolve_cells(vf: Any, cells: Any, game: str) -> CellCertificate | None:
     """The cells a filter uses for ``game``: ``"auto"`` builds them (or reads the cache) where the model declares
-    ``cell_shape``, bounds boxes of starts and the table was solved for the filter's period; ``None`` none; a
-    :class:`CellCertificate` is checked against the filter (model, period, ``h_eps``, candidates, checks)."""
+    ``cell_shape`` and bounds boxes of starts; ``None`` none; a :class:`CellCertificate` is checked against the
+    filter (model, period, ``h_eps``, candidates, checks). The cells read no table: one solved in continuous time
+    serves as well as one of the sampled-data game."""
     name = "safe_cells" if game == "safe" else "landing_cells"
     la = vf.lookahead
     if isinstance(cells, str) and cells == "auto":
-        shape = vf.model.cell_shape
-        if not (vf.sampled and shape is not None and la.box_support):
+        if not has_cells(vf.model):
             return None
-        return cached(la, shape, game=game, holds=vf.model.cell_holds)
+        return cached(la, vf.model.cell_shape, game=game, holds=vf.model.cell_holds)
     if cells is None:
         return None
     if not isinstance(cells, CellCertificate):
         raise TypeError(f"{name} must be 'auto', None or a CellCertificate, got {type(cells).__name__}")
     if cells.game != game:
         raise ValueError(f"{name} must be cells of the {game!r} game, got {cells.game!r}")
-    if not vf.sampled:
-        raise ValueError(f"{name} need a table solved for the control period {vf.dt} s")
     want = cell_key(la, cells.shape, cells.dz, game, cells.key.get("holds", (1,)), cells.key.get("span_cap", 32))
     if json.dumps(cells.key, sort_keys=True) != json.dumps(want, sort_keys=True):
         raise ValueError(f"{name} built for {cells.key}, not for this filter's {want}")

@@ -250,15 +250,21 @@ def test_resume_refuses_another_models_run(tmp_path, capsys):
     assert "that run trained glider with ppo, this one pointmass with ppo" in _one_line_error(capsys)
 
 
-def test_train_warns_of_a_continuous_time_filter_and_of_rounded_steps(tiny_table, tmp_path):
+def test_train_warns_of_a_filter_that_certifies_nothing_and_of_rounded_steps(tiny_table, monkeypatch):
     from softreach.agents.commands import train_notes
     from softreach.agents.train import TrainSpec
+    from softreach.filters import plans
 
+    # the point mass has cells, which certify whatever table ranks the candidates: nothing to warn of the table
     notes = train_notes(TrainSpec(filter=str(tiny_table), timesteps=256, n_envs=8))
-    assert len(notes) == 2
-    assert "solved in continuous time" in notes[0] and "softreach solve pointmass --held" in notes[0]
-    assert "n_steps x n_envs = 256 x 8 = 2,048 steps, so --timesteps 256 trains 2,048 steps" in notes[1]
+    assert len(notes) == 1
+    assert "n_steps x n_envs = 256 x 8 = 2,048 steps, so --timesteps 256 trains 2,048 steps" in notes[0]
     assert train_notes(TrainSpec(timesteps=4096, n_envs=8)) == []
+    # a model without cells: a table solved in continuous time certifies nothing, and train says so
+    monkeypatch.setattr(plans, "has_cells", lambda model: False)
+    notes = train_notes(TrainSpec(filter=str(tiny_table), timesteps=4096, n_envs=8))
+    assert len(notes) == 1
+    assert "solved in continuous time" in notes[0] and "softreach solve pointmass --held" in notes[0]
 
 
 @pytest.mark.parametrize("algo,asked,n_envs", [("ppo", 20, 2), ("sac", 5, 2)])
@@ -355,8 +361,12 @@ def test_a_first_filtered_decision_announces_its_compile(monkeypatch, capsys, ti
     assert envs.filter_code_cached() in (True, False)  # numba's cache is readable here
     monkeypatch.setattr(envs, "_announced", False)
     monkeypatch.setattr(envs, "filter_code_cached", lambda: False)
-    # a filter without compiled code (this continuous-time table's) has nothing to compile: no word
-    envs.make_env("pointmass", filter_table=str(tiny_table)).close()
+    # a filter without compiled code (this continuous-time table's without cells) has nothing to compile: no word
+    from softreach.filters import plans
+
+    with monkeypatch.context() as m:
+        m.setattr(plans, "has_cells", lambda model: False)
+        envs.make_env("pointmass", filter_table=str(tiny_table)).close()
     assert "numba" not in capsys.readouterr().err
 
     def with_compiled_filter(env, table, rule, margin):

@@ -72,15 +72,23 @@ def test_audit_from_certified_starts_never_leaves_c1_nor_overspends(vf):
     assert sum(r.hard_violations + r.overspends for r in raw) > len(raw)
 
 
-def test_continuous_budget_surface_table_is_filtered_but_not_certified(tmp_path_factory):
+def test_continuous_budget_surface_table_certifies_only_with_the_cells(tmp_path_factory, vf):
+    """A budget surface solved in continuous time: the cells certify with it what they certify with the held one
+    (they read no table); without the cells it certifies nothing, and the one-period test still filters."""
     table = _solve(tmp_path_factory, "pointmass-qmin.srt", None)
-    vf = ValueFilter(table, DT)
-    certified, reason, _ = vf.certify(0.0, [0.0, 5.0], 0.3)
+    starts = np.random.default_rng(5).uniform([-15, 0], [15, 18], (500, 2))
+    with_cells = ValueFilter(table, DT, target_checks=get_model("pointmass").substeps)
+    assert with_cells.certifiable and not with_cells.sampled
+    ok = with_cells.certify(0.0, starts, 0.3)[0]
+    np.testing.assert_array_equal(ok, vf.certify(0.0, starts, 0.3)[0])
+    assert 0 < ok.sum() < len(starts)
+    bare = ValueFilter(table, DT, safe_cells=None, landing_cells=None)
+    certified, reason, _ = bare.certify(0.0, [0.0, 5.0], 0.3)
     assert not certified and reason == "table_not_sampled"
     # the one-period test still runs on it: full thrust down, held, is replaced where it would leave the set
     x = np.random.default_rng(2).uniform([-15, 0], [15, 18], (2000, 2))
     x = x[table.contains(0.0, x, 0.3)]
-    applied, info = vf.filter(0.0, x, 0.3, np.full((len(x), 1), -60.0))
+    applied, info = bare.filter(0.0, x, 0.3, np.full((len(x), 1), -60.0))
     assert 0 < info["active"].sum() < len(x)
     assert np.isfinite(applied).all()
 

@@ -299,10 +299,25 @@ def test_certify_start_adds_only_starts_plans_to_certify(vfilter, pointmass_held
     assert empty[0].shape == (0,) and empty[0].dtype == bool and empty[3].shape == (0, 2, 3)
 
 
-def test_a_continuous_table_filters_but_certifies_nothing(pointmass_table):
-    vf = ValueFilter(pointmass_table, DT)
-    ok, why, _ = vf.certify(0.0, [[0.0, 3.0]], 0.3)
-    assert not ok[0] and why[0] == "table_not_sampled"
+def test_the_cells_not_the_table_decide_what_is_certified(pointmass_table, pointmass_held_table):
+    """Where the model has cells they prove and the table only ranks: a table solved in continuous time certifies
+    exactly the states that one of the sampled-data game on the same grid does. Without the cells it certifies
+    nothing: a continuous-time table is no proof for held actions."""
+    x = np.random.default_rng(3).uniform([-15.0, 0.0], [15.0, 18.0], (1500, 2))
+    cont, held = ValueFilter(pointmass_table, DT), ValueFilter(pointmass_held_table, DT)
+    assert cont.certifiable and not cont.sampled and cont.landing_cells is not None
+    counts = []
+    for t in (0.0, 0.5, 0.9):
+        for q in (0.0, 0.3):
+            ok_cont, ok_held = cont.certify(t, x, q)[0], held.certify(t, x, q)[0]
+            np.testing.assert_array_equal(ok_cont, ok_held)
+            counts.append(int(ok_cont.sum()))
+    assert min(counts) > 0 and max(counts) < len(x), counts
+    bare = ValueFilter(pointmass_table, DT, safe_cells=None, landing_cells=None)
+    ok, why, _ = bare.certify(0.0, [[0.0, 3.0]], 0.3)
+    assert not bare.certifiable and not ok[0] and why[0] == "table_not_sampled"
+    _, info = bare.filter(0.0, [[0.0, 3.0]], 0.3, [[0.0]])
+    assert not info["certified"].any()
 
 
 def test_nonfinite_table_values_are_unsafe(pointmass_held_table):

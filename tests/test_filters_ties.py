@@ -235,16 +235,34 @@ def test_starts_bisected_onto_the_certified_edge(vf, q):
     assert runs >= 18
 
 
-def test_continuous_table_certifies_no_step(pointmass_table):
-    """Issue 39 item 6: with a continuous-time table ``reset`` says ``certified=False`` ("table_not_sampled"); the
-    steps agree with it (the table is not a proof for held actions) while the filter still decides."""
-    env = SafetyFilter(gym.make(ENV, wind="random"), pointmass_table)
+def test_a_continuous_table_with_the_cells_keeps_every_promise(pointmass_table):
+    """The cells prove and the table only ranks candidates, so a table solved in continuous time certifies as well:
+    runs from starts bisected onto its certified edge, under policies that dive, climb or act at random and winds
+    at both extremes or random, are certified at every step, keep C1 and the budget and land."""
+    vf = ValueFilter(pointmass_table, 0.01, target_checks=get_model("pointmass").substeps)
+    assert not vf.sampled and vf.certifiable
+    starts = _edge_starts(vf, 0.3, 0.0, speeds=(-8.0, 0.0, 3.0))
+    assert len(starts) >= 2, starts
+    for v, y in starts:
+        for k, action in enumerate((-1.0, 1.0, lambda rng: float(rng.uniform(-1, 1)))):
+            for wind_value in (-10.0, 10.0):
+                _sound(*_episode(vf, (v, y), 0.3, 0.0, action, wind_value=wind_value, seed=k))
+        _sound(*_episode(vf, (v, y), 0.3, 0.0, lambda rng: float(rng.uniform(-1, 1)), wind="random", seed=7))
+
+
+def test_a_continuous_table_without_cells_certifies_no_step(pointmass_table):
+    """Without cells a continuous-time table is no proof for held actions: ``reset`` says ``certified=False``
+    ("table_not_sampled"), the steps agree, and the filter still decides."""
+    vf = ValueFilter(pointmass_table, 0.01, safe_cells=None, landing_cells=None)
+    env = SafetyFilter(gym.make(ENV, wind="random"), value_filter=vf)
     _, info = env.reset(seed=0, options={"state": [-2.0, 4.0], "budget": 0.3})
     assert not info["certified"] and info["certified_reason"] == "table_not_sampled"
     reasons = set()
     for _ in range(30):
         _, _, terminated, truncated, info = env.step(env.action_space.sample())
         assert info["certified"] is False
+        if info["filter_reason"] == "pass":  # without cells a pass is the table's: its next value certifies
+            assert info["lookahead"] <= -info["margin"], info["lookahead"]
         reasons.add(info["filter_reason"])
         if terminated or truncated:
             break
