@@ -207,9 +207,10 @@ def certifier(table, env) -> Any:
         from softreach.filters import ValueFilter
 
         vf = ValueFilter(table, float(env.unwrapped.dt), model=env.unwrapped.model)
-    if not vf.sampled:
-        raise ValueError(f"--starts certified needs a table of the sampled-data game (softreach solve MODEL --held); "
-                         f"{table.path} was solved in continuous time, so no start is certified with it")
+    if not vf.certifiable:
+        raise ValueError(f"--starts certified needs a model with cells or a table of the sampled-data game (softreach "
+                         f"solve MODEL --held); {table.path} was solved in continuous time and the model has no "
+                         f"cells, so no start is certified with it")
     return vf
 
 

@@ -226,6 +226,7 @@ def train(spec: TrainSpec, *, model_class: Any = None, wrap_env: Any = None, cal
 
     from .callbacks import FilterEvalCallback, progress_callback
 
+    from softreach.filters.plans import certifies
     from softreach.reach.models import get_model
 
     run, algo_cfg, env_settings = resolve(spec)
@@ -240,9 +241,9 @@ def train(spec: TrainSpec, *, model_class: Any = None, wrap_env: Any = None, cal
 
     # the periodic evaluations run the deployed closed loop: the filter the policy will fly under
     eval_filt = as_table(spec.eval_filter) if spec.eval_filter else filt
-    # a table of the sampled-data game at the env's period certifies starts; a continuous-time one does not
-    period = None if eval_filt is None else eval_filt.control_period
-    sampled = period is not None and math.isclose(period, get_model(spec.model).control_period)
+    # a filter certifies starts where the model has cells, or with a table of the sampled-data game at the env's
+    # period (filters.plans.certifies)
+    sampled = eval_filt is not None and certifies(eval_filt, get_model(spec.model).control_period)
 
     def env_fn(rank: int, learner: bool, filtered: bool = True, table=None):
         use = (table if table is not None else filt) if filtered else None

@@ -35,7 +35,7 @@ def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
     from .compiled import decide_rows
     from .compiled_certify import certify_rows
     from .compiled_starts import start_plan_rows
-    from .plans import START_SEGMENTS
+    from .plans import START_SEGMENTS, has_cells
 
     if not hasattr(table, "model"):
         table = load_table(table)
@@ -44,8 +44,10 @@ def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
         raise ValueError(f"softreach compile needs a W_eps table (softreach solve {model.name} --held); "
                          f"{table.path} holds only the classical V")
     if period is None and table.control_period is None:
-        raise ValueError(f"softreach compile needs a table of the sampled-data game (softreach solve {model.name} "
-                         f"--held) or --period SECONDS; {table.path} was solved in continuous time")
+        if not has_cells(model):
+            raise ValueError(f"softreach compile needs a table of the sampled-data game (softreach solve "
+                             f"{model.name} --held) or --period SECONDS; {table.path} was solved in continuous time")
+        period = model.control_period  # the cells certify; the table only ranks, at the env's period
     dt = float(period if period is not None else table.control_period)
     hits, misses = (sum(c.values()) for c in (decide_rows.stats.cache_hits, decide_rows.stats.cache_misses))
     t0 = time.perf_counter()

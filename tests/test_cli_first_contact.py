@@ -99,7 +99,14 @@ def test_a_resumed_solve_says_it_resumed(tmp_path, capsys, monkeypatch):
     assert "resuming the interrupted solve" not in std.err and "(resumed:" not in std.out
 
 
-def test_compile_says_which_table_it_needs(tiny_table, capsys):
+def test_compile_says_which_table_it_needs(tiny_table, capsys, monkeypatch):
+    # the point mass has cells: a continuous-time table ranks for them, at the model's control period
+    assert main(["compile", str(tiny_table)]) == 0
+    assert "pointmass's filter" in capsys.readouterr().out
+    # a model without cells needs the sampled-data game's table (or the period to filter at)
+    from softreach.filters import plans
+
+    monkeypatch.setattr(plans, "has_cells", lambda model: False)
     assert main(["compile", str(tiny_table)]) == 2
     err = _one_line_error(capsys)
     assert "softreach solve pointmass --held" in err and str(tiny_table) in err and "continuous time" in err

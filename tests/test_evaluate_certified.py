@@ -40,10 +40,18 @@ def test_filtered_from_certified_starts_is_safe(pointmass_held_table, wind):
     assert raw.aggregates["hard_violation_rate"]["count"] + raw.aggregates["over_budget_rate"]["count"] > 0
 
 
-def test_certified_starts_need_a_sampled_data_table(pointmass_table_path):
+def test_certified_starts_need_cells_or_a_sampled_data_table(pointmass_table_path, monkeypatch):
+    from softreach.filters import plans
+    from softreach.reach import load_table
+
+    # the point mass has cells, which certify whatever table ranks: a continuous-time table gives certified starts
+    spec = EvalSpec(policy="random", table=str(pointmass_table_path), budget=0.3, episodes=2, starts="certified")
+    starts = np.array([r["start_state"] for r in evaluate(spec).episodes])
+    assert ValueFilter(load_table(pointmass_table_path), 0.01).certify(0.0, starts, 0.3)[0].all()
+    # a model without cells needs a table of the sampled-data game
+    monkeypatch.setattr(plans, "has_cells", lambda model: False)
     with pytest.raises(ValueError, match="--held"):
-        evaluate(EvalSpec(policy="random", table=str(pointmass_table_path), budget=0.3, episodes=1,
-                          starts="certified"))
+        evaluate(spec)
 
 
 def test_certified_starts_wrapper(pointmass_held_table):
