@@ -7,9 +7,14 @@ deterministic episodes every 10k steps, the training's own ``EvalCallback``), an
 ``model.zip`` on 100 episodes (deterministic, the environment's own starts and random gusts, episode seeds
 ``10**6 + i``, the same for every run), with the wall time.
 
-    OMP_NUM_THREADS=1 python benchmarks/sac_study.py run default alpha01 --seeds 0 --timesteps 50000
+    OMP_NUM_THREADS=1 python benchmarks/sac_study.py run default alpha01 alpha01_rr1 --timesteps 50000
+    OMP_NUM_THREADS=1 python benchmarks/sac_study.py run full --seeds 0 1 2 --timesteps 50000
+    OMP_NUM_THREADS=1 python benchmarks/sac_study.py run full --seeds 0 1 --timesteps 100000
     python benchmarks/sac_study.py table                       # the table of every finished run
     python benchmarks/sac_study.py list                        # the configurations and what they change
+
+The rows ``full_*`` past ``full`` (gamma, n-step returns, scaled observations, ``learning_starts``, gSDE, target
+entropy) are defined for the next steps of the study.
 
 A finished run (``<out>/<config>-s<seed>-<steps>/result.json``) is skipped when asked again, so a killed sweep
 goes on where it stopped.
