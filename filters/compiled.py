@@ -126,10 +126,7 @@ def _keeping(enclose, M, C, T, cands, smooth, tr, zr, space):
     return -1
 
 
-# called, not inlined, as _follow_plans: each runs once for a row whose policy action does not pass, and numba's
-# typing of one function takes more than linear time in its length, so that the parts compiled alone compile in less
-# time than all in one (softreach.filters.judge, "Inlined or called")
-@njit(_nrt=False)
+@njit(inline="always")
 def _choose(enclose, M, C, T, cands, smooth, tr, zr, t_next, space):
     """Every candidate judged: the rule's choice among them (:meth:`ValueFilter.filter`'s score), its next value
     and badness. A passing candidate's next value decides among the passing ones, read only where it can decide
@@ -167,6 +164,9 @@ def _choose(enclose, M, C, T, cands, smooth, tr, zr, t_next, space):
     return best, c_next[best], c_bad[best]
 
 
+# called, not inlined: it runs once for a row whose policy action does not pass, and numba's typing of one function
+# takes more than linear time in its length, so that it compiles in less time alone than inside decide_rows
+# (softreach.filters.judge, "Inlined or called")
 @njit(_nrt=False)
 def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, best, best_next, best_bad, lam, act, c_next,
                   new_plans):
@@ -288,7 +288,7 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
             chosen[r, i] = cands[best, i]
         nxt[r], certified[r], blend[r] = best_next, any_ok, lam
         reason[r] = ((BLEND if lam > 0 else OPTIMAL) if any_ok else UNCERTIFIED) if bounded else FALLBACK
-        if not on_table(T.W, tr, xr, max(zr, 0.0), point, work):
+        if not on_table(T.W, tr, xr, max(zr, 0.0), point, work.scratch_W):
             reason[r] = OUTSIDE
 
 

@@ -61,5 +61,5 @@ def certify_rows(enclose, m_args, c_args, t_args, cands, t, x, z, ok, nxt, value
             best = np.argmin(c_score)
         # a failing candidate's next value is +inf (Lookahead.assess): none of its end states is certified
         ok[r], nxt[r] = c_ok[best], c_next[best]
-        inside[r] = on_table(T.W, tr, xr, max(zr, 0.0), point, work)
+        inside[r] = on_table(T.W, tr, xr, max(zr, 0.0), point, work.scratch_W)
         in_cells[r] = cover_row(C.land, tr, xr, xr, zr)

@@ -23,8 +23,8 @@ over rows or candidates runs is inlined into that loop (:func:`judge` into the d
 called once a row (:func:`keeps`, :func:`badness`, :func:`least_next`, :func:`read_least`). What runs once for a row
 that does not pass is called (:func:`on_table`), and the searches outside the decision (a state's certificate, the
 start plans) call :func:`judge_once`. And since numba's typing of one function takes more than linear time in its
-length, a part of the decision that runs at most once a row is a function of its own where it is large
-(:mod:`softreach.filters.compiled`'s ``_choose`` and ``_follow_plans``).
+length, a part of the decision that runs at most once a row is a function of its own where it is large and its arguments
+few (:mod:`softreach.filters.compiled`'s ``_follow_plans``).
 """
 
 from __future__ import annotations
@@ -378,9 +378,10 @@ def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_prov
 
 
 @njit(_nrt=False)
-def on_table(W, t, x, z, point, work):
+def on_table(W, t, x, z, point, scratch):
     """:meth:`Table.inside` of a ``W_eps`` table: the interpolant of ``W_eps`` is finite at ``(t, x, z)`` (a budget
-    above the grid is read at its top)."""
+    above the grid is read at its top); ``scratch``: ``W``'s work space (:func:`~softreach.reach.proof.kernels.
+    box_scratch`)."""
     # a field's (values, times, shape, glo, ghi, ...) (softreach.reach.proof.box_max.kernel_field)
     times, glo, ghi = W[1], W[3], W[4]
     n = len(x)
@@ -390,4 +391,4 @@ def on_table(W, t, x, z, point, work):
         point[a] = x[a]
     point[n] = min(z, ghi[n])
     # the interpolant at a point is the box maximum of a box of no width, by the same arithmetic
-    return math.isfinite(point_value(W, t, point, work.scratch_W[2], work.scratch_W[8]))
+    return math.isfinite(point_value(W, t, point, scratch[2], scratch[8]))
