@@ -184,8 +184,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--region-only", action="store_true",
                     help="no runs: only --region on the table already in --cache")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
-    ap.add_argument("--table", default=None, help="the held table's file (default: in the cache folder); with "
-                                                   "--region-only, an existing held table")
+    ap.add_argument("--table", default=None, help="the table's file (default: in the cache folder); with "
+                                                   "--region-only, an existing table")
     args = ap.parse_args(argv)
     if args.child:
         fn = {"cells": lambda: _child_cells(args.table), "compile": lambda: _child_compile(args.table),
@@ -211,7 +211,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     g = load_table(str(table)).grid("W_eps")
     out["table_grid"] = [int(n) for n in g.shape]
     runs = list(out["runs"])
-    print(f"\n{args.model}, held table {' x '.join(map(str, out['table_grid']))} (state x budget), "
+    print(f"\n{args.model}, {args.table_kind} table {' x '.join(map(str, out['table_grid']))} (state x budget), "
           f"{args.threads} thread(s), {os.cpu_count()} CPUs; wall seconds of each phase's process "
           f"(load average at its start -> end), and its CPU seconds")
     print(f"{'phase':<11} " + " ".join(f"{r + ' wall (load), CPU':>36}" for r in runs))
@@ -228,7 +228,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                "--region", *map(str, args.region or [0.0, 0.3, 0.6])]
         wall, out["region"], load = _run_phase(cmd, _env(cache, args.threads))
         print(f"\ncertified at t = 0, {args.states:,} states uniform over C1 ({wall:.0f} s, load {load[0]:.1f}): "
-              f"certified / in the held table's RA~_Q, filter with cells | table alone")
+              f"certified / in the table's RA~_Q, filter with cells | table alone")
         for rc, ra in zip(out["region"]["cells"], out["region"]["table_alone"]):
             print(f"  Q = {rc['Q']:<4g} cells {rc['certified']:6d} ({100 * rc['certified'] / rc['states']:.1f} %), "
                   f"{rc['certified_in_held']} / {rc['in_held']} of RA~_Q | table alone {ra['certified']:6d} "
