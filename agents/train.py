@@ -243,11 +243,11 @@ def train(spec: TrainSpec, *, model_class: Any = None, wrap_env: Any = None, cal
     eval_filt = as_table(spec.eval_filter) if spec.eval_filter else filt
     # a filter certifies starts where the model has cells, or with a table of the sampled-data game at the env's
     # period (filters.plans.certifies)
-    sampled = eval_filt is not None and certifies(eval_filt, get_model(spec.model).control_period)
+    certifying = eval_filt is not None and certifies(eval_filt, get_model(spec.model).control_period)
 
     def env_fn(rank: int, learner: bool, filtered: bool = True, table=None):
         use = (table if table is not None else filt) if filtered else None
-        deployed = table is not None and sampled
+        deployed = table is not None and certifying
         name = ("train" if filtered else "pretrain") if learner else ("deployed" if deployed else "eval")
         def thunk():
             # the deployed loop is measured where the filter's guarantee holds: from the starts it certifies

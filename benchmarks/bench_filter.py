@@ -17,7 +17,7 @@ use). Each latency is the mean time per call over many calls, on fixed random in
   both again for the actions alone (``diagnostics=False``: ``info["value"]`` and a passing action's
   ``info["lookahead"]`` left out).
 * the same for the smooth rule, for torch tensors (CPU) in and out, for the same filter forced to its compiled
-  decision at every batch size (``compiled_*``, what ``ValueFilter.compiled_max_rows`` allows by default) and
+  decision at every batch size (``compiled_*``, what ``ValueFilter`` does wherever it has one) and
   without it (``numpy_*``: ``ValueFilter.compiled = None``, the numpy path every model without a compiled
   enclosure takes), also for batches of 16 and 128 certified rows, where the two could cross; in the calling thread
   alone (``one_thread_*``: ``ValueFilter.threads = 1``) beside the default threads, at 256, 512 and 1,024 rows,
@@ -91,11 +91,10 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
     switch = ValueFilter(table, DT)
     smooth = ValueFilter(table, DT, rule="smooth")
     # the same decisions in numpy alone, side by side (where the model has no compiled enclosure, both are numpy),
-    # and compiled at every batch size whatever ValueFilter.compiled_max_rows says
+    # and compiled at every batch size, as ValueFilter decides wherever it has the compiled decision
     numpy_only = ValueFilter(table, DT)
     numpy_only.compiled = None
     compiled_only = ValueFilter(table, DT)
-    compiled_only.compiled_max_rows = 10 ** 9
     # and in the calling thread alone (ValueFilter.threads = 1), beside the default threads
     one_thread = ValueFilter(table, DT)
     one_thread.threads = 1

@@ -46,7 +46,7 @@ from softreach.reach.proof.ranks import NEXT_CAP, PASSES_ONLY, SMOOTH_PASSES_ONL
 
 from .compiled import CompiledDecision
 from .plans import (NO_PLAN, PLAN_LAND, PLAN_SAFE, START_SEGMENTS, check_plans, follow_plans, resolve_cells,
-                    start_plans)
+                    solved_for, start_plans)
 from .reasons import (AFTER_HORIZON, BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, REASONS,
                       UNCERTIFIED)
 from .single import filter_one
@@ -129,9 +129,8 @@ class ValueFilter:
             if fb.shape != (self.m,) or not np.all(np.isfinite(fb)):
                 raise ValueError(f"fallback_action must be {self.m} finite physical value(s), got {fallback_action!r}")
             self.fallback_action = np.clip(fb, self.a_lo, self.a_hi)
-        period = table.control_period
-        #: the table was solved for the sampled-data game at this period: certification is possible
-        self.sampled = period is not None and math.isclose(period, self.dt, rel_tol=1e-9, abs_tol=0.0)
+        #: the table was solved for the sampled-data game at this period
+        self.sampled = solved_for(table, self.dt)
         self.lookahead = Lookahead.from_table(table, self.model, self.dt, self.eps, margin=self.constant_margin or 0.0,
                                               target_checks=target_checks)
         self.target_checks = self.lookahead.target_checks

@@ -40,12 +40,17 @@ def has_cells(model: Any) -> bool:
             and type(model).held_enclosure_box is not Dynamics.held_enclosure_box)
 
 
+def solved_for(table: Any, dt: float) -> bool:
+    """Whether ``table`` was solved for the sampled-data game at the control period ``dt``."""
+    period = table.control_period
+    return period is not None and math.isclose(period, dt, rel_tol=1e-9, abs_tol=0.0)
+
+
 def certifies(table: Any, dt: float) -> bool:
     """Whether a filter of ``table`` at the control period ``dt`` (default cells) can certify: the model has cells,
     which prove whatever table ranks the candidates, or the table was solved for the sampled-data game at ``dt``
     (:attr:`~softreach.filters.ValueFilter.certifiable`)."""
-    period = table.control_period
-    return has_cells(table.model) or (period is not None and math.isclose(period, dt, rel_tol=1e-9, abs_tol=0.0))
+    return has_cells(table.model) or solved_for(table, dt)
 
 
 def resolve_cells(vf: Any, cells: Any, game: str) -> CellCertificate | None:
