@@ -34,10 +34,9 @@ PLAN_SAFE = 2
 def has_cells(model: Any) -> bool:
     """Whether the filter builds cells for ``model`` by default: it declares ``cell_shape`` and bounds boxes of
     starts (:meth:`~softreach.reach.dynamics.Dynamics.held_enclosure_box`)."""
-    from softreach.reach.dynamics import Dynamics
+    from softreach.reach.dynamics import bounds_boxes
 
-    return (getattr(model, "cell_shape", None) is not None
-            and type(model).held_enclosure_box is not Dynamics.held_enclosure_box)
+    return getattr(model, "cell_shape", None) is not None and bounds_boxes(model)
 
 
 def solved_for(table: Any, dt: float) -> bool:

@@ -199,6 +199,12 @@ class Dynamics(ABC):
         return np.broadcast_to(lo, (pieces,) + lo.shape), np.broadcast_to(hi, (pieces,) + hi.shape)
 
 
+
+def bounds_boxes(model: Any) -> bool:
+    """Whether ``model`` bounds the motion from boxes of starts (it gives its own :meth:`Dynamics.held_enclosure_box`):
+    what the filter's cells and its "the next state is certified again" rule need."""
+    return type(model).held_enclosure_box is not Dynamics.held_enclosure_box
+
 def _unstack(x: Array) -> list[Array]:
     return [x[..., i] for i in range(x.shape[-1])]
 

@@ -96,14 +96,14 @@ def missing_extras(model: Any, cells: bool) -> list[str]:
 
     :param cells: the proof on cells is asked for (they bound boxes of starts)
     """
-    from ..dynamics import Dynamics
+    from ..dynamics import Dynamics, bounds_boxes
 
     out = []
     if type(model).held_enclosure is Dynamics.held_enclosure:
         out.append("held_enclosure(t, x, a, dt) -> (tube_lo, tube_hi, end_lo, end_hi): boxes, each (N, n), holding "
                    "every state of the period [0, dt] and its end, from the states x (N, n) with the actions "
                    "a (N, m) held, for every wind signal")
-    if cells and type(model).held_enclosure_box is Dynamics.held_enclosure_box:
+    if cells and not bounds_boxes(model):
         out.append("held_enclosure_box(t, x_lo, x_hi, a, dt) -> (tube_lo, tube_hi, end_lo, end_hi): the same from "
                    "every start in the boxes [x_lo, x_hi] (the cells bound whole cells)")
     if cells and model.hard_box is None:
@@ -219,11 +219,11 @@ def _durations(dt: float, checks: int) -> list[float]:
 def _claims(model: Any, t0: float, b_lo: np.ndarray, b_hi: np.ndarray, x0: np.ndarray, a: np.ndarray,
             dt: float, pieces: int, checks: int, cells: bool) -> list[tuple[str, float, float, float, bool, Any]]:
     """Every box the filter may read for these runs: ``(name, period, s0, s1, from_box, (lo, hi))``."""
-    from ..dynamics import Dynamics
+    from ..dynamics import bounds_boxes
     from .model_kernels import held_boxes
 
     out = []
-    box_methods = cells or type(model).held_enclosure_box is not Dynamics.held_enclosure_box
+    box_methods = cells or bounds_boxes(model)
     for D in _durations(dt, checks):
         edges = np.linspace(0.0, D, pieces + 1)
         tube_lo, tube_hi, end_lo, end_hi = _point_enclosure(model, t0, x0, a, D)

@@ -251,7 +251,7 @@ class Lookahead:
         box = model.target_box
         self.target_lo, self.target_hi = (None, None) if box is None else (np.asarray(box[0], float),
                                                                             np.asarray(box[1], float))
-        from ..dynamics import Dynamics
+        from ..dynamics import bounds_boxes
 
         #: cells that prove ``C1`` and the budget (``safe_cells``) and landing by ``T`` (``landing_cells``),
         #: :class:`~softreach.reach.proof.cell_certificate.CellCertificate`: an admissible action must end in them. With
@@ -259,7 +259,7 @@ class Lookahead:
         self.safe_cells = None
         self.landing_cells = None
         #: the model bounds boxes of starts: the filter can ask that the next state be certified again
-        self.box_support = type(model).held_enclosure_box is not Dynamics.held_enclosure_box
+        self.box_support = bounds_boxes(model)
         #: ``(address, params)`` of the model's compiled set maxima (:attr:`~softreach.reach.problem.Model.
         #: set_max_kernel`), which :meth:`_corner_max` runs; ``None``: the set functions at the corners, in numpy
         self.set_kernel = ((set_max_address(model), model.set_max_params)
