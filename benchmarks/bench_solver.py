@@ -142,6 +142,10 @@ def _soft_cli_worker(args) -> dict:
         raise SystemExit(rc)
     summary = json.loads(Path(str(out) + ".json").read_text())
     stats["threads"] = summary.get("threads")
+    if args.device.startswith("cuda"):  # what the solve's tensors held on the GPU at most (the CUDA context aside)
+        import torch
+
+        stats["gpu_peak_mb"] = torch.cuda.max_memory_allocated() / 2**20
     return {"solver": "softreach", "summary": summary, **stats, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
@@ -317,7 +321,8 @@ def compare(args) -> None:
             bws = f"{bw:6.1f} {bw / gbs:7.0%}" if r["stages"] else f"{'-':>6s} {'-':>7s}"  # the array code ran
             print(f"{'softreach':16s} {r['run']:5s} {r['threads']!s:>7s} {r['process_s']:11.1f} {solve_s:9.1f} "
                   f"{r['stepping_s']:12.1f} {bws} {r['peak_rss_mb']:8.0f} {ra0:7.2f} "
-                  f"{s['classical_measure']:7.2f} {r['load']:>5s}")
+                  f"{s['classical_measure']:7.2f} {r['load']:>5s}"
+                  + (f"  GPU peak {r['gpu_peak_mb']:.0f} MiB" if "gpu_peak_mb" in r else ""))
         else:
             print(f"{'hj_reachability':16s} {'-':5s} {'-':>7s} {r['process_s']:11.1f} {r['wall_s']:9.1f} {'-':>12s} "
                   f"{'-':>6s} {'-':>7s} {r['peak_rss_mb']:8.0f} {r.get('ra0_measure', float('nan')):7.2f} "

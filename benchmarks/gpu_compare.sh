@@ -52,14 +52,21 @@ EOF
 
 # the CUDA kernels against the CPU loops, and the stepping of the paper grid alone
 echo "=== gpu_check ($(date -u +%T))"
+# (the rows need the kernels: where they fail, stop here and keep the rest of a short loan for a second try)
+set -o pipefail
 timeout 90 env SOFTREACH_CACHE=$CACHE/check $PY benchmarks/gpu_check.py 2>&1 | tee "$LOG/gpu_check.txt" \
-  || echo "!!! gpu_check: failed or over 90 s"
+  || { echo "!!! gpu_check: failed or over 90 s; no rows run"; exit 1; }
+set +o pipefail
 
 B="$PY benchmarks/bench_solver.py --device cuda --peer-python $PY --threads 1 --cache-dir $CACHE --accuracy very_high"
-row() {  # row NAME SECONDS ARGS...
+row() {  # row NAME SECONDS ARGS...; the GPU memory in use (every process, CUDA contexts included) sampled meanwhile
   local name=$1 limit=$2; shift 2
   echo "=== $name ($(date -u +%T))"
+  nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 100 >"$LOG/$name.mem" 2>/dev/null &
+  local smi=$!
   timeout "$limit" $B "$@" 2>&1 | tee "$LOG/$name.txt" || echo "!!! $name: failed or over ${limit} s"
+  kill $smi 2>/dev/null; wait $smi 2>/dev/null
+  echo "$name: most GPU memory in use while it ran (nvidia-smi, every process): $(sort -n "$LOG/$name.mem" | tail -1) MiB"
 }
 row pointmass_W_101 90 --grid 101 101 --budget-points 111           # cold + warm + peer
 row pointmass_V_101 40 --grid 101 101 --game V --no-cold             # V compiled by the row above
