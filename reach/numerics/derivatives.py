@@ -91,10 +91,15 @@ def weno5(d: list[Array]) -> tuple[Array, Array]:
     return _weno5_side(d[0], d[1], d[2], d[3], d[4]), _weno5_side(d[5], d[4], d[3], d[2], d[1])
 
 
+SIXTH = 1.0 / 6.0
+
+
 def _weno5_side(v1: Array, v2: Array, v3: Array, v4: Array, v5: Array) -> Array:
-    phi1 = v1 / 3 - 7 * v2 / 6 + 11 * v3 / 6
-    phi2 = -v2 / 6 + 5 * v3 / 6 + v4 / 3
-    phi3 = v3 / 3 + 5 * v4 / 6 - v5 / 6
+    # the three parabolas' values over their common denominator, times its reciprocal: a division by a constant
+    # costs a GPU or a CPU core several times a product
+    phi1 = (2 * v1 - 7 * v2 + 11 * v3) * SIXTH
+    phi2 = (-v2 + 5 * v3 + 2 * v4) * SIXTH
+    phi3 = (2 * v3 + 5 * v4 - v5) * SIXTH
     s1 = 13.0 / 12 * (v1 - 2 * v2 + v3) ** 2 + 0.25 * (v1 - 4 * v2 + 3 * v3) ** 2
     s2 = 13.0 / 12 * (v2 - 2 * v3 + v4) ** 2 + 0.25 * (v2 - v4) ** 2
     s3 = 13.0 / 12 * (v3 - 2 * v4 + v5) ** 2 + 0.25 * (3 * v3 - 4 * v4 + v5) ** 2
