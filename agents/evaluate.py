@@ -201,7 +201,8 @@ def certifier(table, env) -> Any:
     :raises ValueError: the table was not solved for the sampled-data game (nothing is certified with it)
     """
     filt = unwrap_filter(env)
-    if filt is not None and filt.table is table:
+    # the same file: a table loaded again for each evaluation of a sweep meets the filter core shared since the first
+    if filt is not None and (filt.table is table or Path(filt.table.path).resolve() == Path(table.path).resolve()):
         vf = filt.value_filter
     else:
         from softreach.filters import ValueFilter

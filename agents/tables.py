@@ -97,18 +97,23 @@ _FILTER_CACHE: dict[tuple, Any] = {}
 def safety_filter(env: Any, table: Table | str, rule: str = "switch", margin: float | None = None) -> Any:
     """``SafetyFilter(env, table, margin, rule)``, with the filter's core shared between calls.
 
-    The first call for a table file, control period, rule and margin builds the
+    The first call for a table file, control period, rule, margin and number of landing checks builds the
     :class:`~softreach.filters.ValueFilter` (and its margin field); later calls pass it as ``value_filter=``. Each
     wrapper keeps its own episode statistics; the shared core holds only the table and the margin field.
+
+    The core checks landing at the environment's ``n_substeps`` instants per period, as the core
+    :class:`~softreach.filters.SafetyFilter` builds for itself: the same decisions, and the cells the package
+    ships (the glider's are for its 2 checks; with 1 they would be built first, minutes and gigabytes).
     """
     from softreach.filters import SafetyFilter, ValueFilter
 
     table = as_table(table)
     dt = float(env.unwrapped.dt)
-    key = (str(Path(table.path).resolve()), dt, rule, margin)
+    checks = int(getattr(env.unwrapped, "n_substeps", 1))
+    key = (str(Path(table.path).resolve()), dt, rule, margin, checks)
     core = _FILTER_CACHE.get(key)
     if core is None:
-        core = ValueFilter(table, dt, margin=margin, rule=rule, model=env.unwrapped.model)
+        core = ValueFilter(table, dt, margin=margin, rule=rule, model=env.unwrapped.model, target_checks=checks)
         if len(_FILTER_CACHE) >= 4:  # keep at most a few margin fields alive
             _FILTER_CACHE.pop(next(iter(_FILTER_CACHE)))
         _FILTER_CACHE[key] = core
