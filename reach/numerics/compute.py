@@ -19,7 +19,7 @@ from ..problem import Model, avoid_problem, check_edges, classical_problem, soft
 from .budget_surface import budget_problem, solve_budget_surface
 from .held import consistency_gaps, make_consistent, solve_held
 from .solver import SolverSettings, solve
-from ..tables.table import TableWriter
+from ..tables.table import BackgroundWrites, TableWriter
 
 DEFAULT_BUDGETS = (0.0, 0.06, 0.3, 0.6)
 
@@ -190,6 +190,7 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
         problems["W_eps"] = (sp, aug)
     header = {"model": model.metadata(), "fields": fields}
     writer = TableWriter(out, header, resume=resume)
+    writes = BackgroundWrites()
     resumed = _announce_resume(writer, problems)
     walls: dict[str, float] = {}
     # the first torch.compile on a machine takes a minute or more at 0 %: say so when it starts
@@ -211,15 +212,19 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
             before = float(spec.get("wall_s", 0.0))
             t0 = time.perf_counter()
 
-            def sink(kk, tt, u, _n=name, _spec=spec, _before=before, _t0=t0, _grid=grid):
-                _spec["wall_s"] = _before + time.perf_counter() - _t0
-                writer.write_snapshot(_n, kk, u)
+            def store(kk, values, _n=name, _grid=grid):
+                writer.write_snapshot(_n, kk, values)
                 # the certificates only: Q_min >= 0 (its ghosts, extrapolated away from zero, only rise), and
                 # V_safe ranks the fallback where nothing is certified, promising nothing (C1 may be unbounded,
                 # as the glider's is above)
                 if _n in ("V", "W_eps"):
-                    check_edges(_n, B.to_numpy(u), _grid.periodic, _grid.names or model.state_names,
-                                model.state_dim)
+                    check_edges(_n, values, _grid.periodic, _grid.names or model.state_names, model.state_dim)
+
+            def sink(kk, tt, u, _spec=spec, _before=before, _t0=t0):
+                values = _host_copy(u)
+                writes.wait()  # the header changes only while no write is in flight
+                _spec["wall_s"] = _before + time.perf_counter() - _t0
+                writes.submit(store, kk, values)
             if held:
                 solve_held(problem, grid, times, cfg.settings, np.asarray(controls), start=start, progress=bar,
                            sink=sink)
@@ -231,6 +236,7 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
                                          classical=lambda kk: writer.read_snapshot("V", kk))
                 else:
                     solve(problem, grid, times, cfg.settings, start=start, progress=bar, sink=sink)
+            writes.wait()
             walls[name] = before + time.perf_counter() - t0
             if bar is not None:
                 bar.close()
@@ -255,7 +261,10 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
         path = writer.finalize()
     finally:
         notices.close()
-        writer.close()
+        try:
+            writes.close()
+        finally:
+            writer.close()
     from ..tables.query import load_table
 
     table = load_table(path, verify_checksum=False)
@@ -267,6 +276,15 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
     summary["control_period"] = cfg.control_period
     summary["resumed"] = resumed
     return summary
+
+
+def _host_copy(u: Any) -> np.ndarray:
+    """A snapshot as float32 on the host that the solver will not overwrite while it is written: a device's copy, or
+    a copy of a CPU array (which may be the stepper's own buffer)."""
+    values = B.to_numpy(u)
+    if getattr(u, "is_cuda", False):
+        return np.ascontiguousarray(values, dtype="<f4")
+    return np.array(values, dtype="<f4", copy=True, order="C")
 
 
 def _announce_resume(writer: TableWriter, problems: dict[str, Any]) -> bool:

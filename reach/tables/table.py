@@ -17,8 +17,10 @@ import hashlib
 import json
 import math
 import os
+import threading
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -61,6 +63,9 @@ class TableWriter:
 
     def __init__(self, path: str | os.PathLike, header: dict[str, Any], *, resume: bool = True):
         self.path = Path(path)
+        # the file and the header are shared by the solver's thread and the snapshots' writer
+        # (:class:`BackgroundWrites`): one operation at a time
+        self._lock = threading.RLock()
         self.partial = self.path.with_name(self.path.name + ".partial")
         offset = end = _data_start()
         for spec in header["fields"].values():
@@ -101,8 +106,9 @@ class TableWriter:
     def read_snapshot(self, field: str, k: int) -> np.ndarray:
         spec = self.header["fields"][field]
         n = int(np.prod(spec["shape"][1:]))
-        self._f.seek(spec["offset"] + 4 * n * k)
-        data = np.frombuffer(self._f.read(4 * n), dtype="<f4")
+        with self._lock:
+            self._f.seek(spec["offset"] + 4 * n * k)
+            data = np.frombuffer(self._f.read(4 * n), dtype="<f4")
         return data.reshape(spec["shape"][1:]).copy()
 
     def write_snapshot(self, field: str, k: int, value: Any) -> None:
@@ -115,34 +121,38 @@ class TableWriter:
             raise ValueError(f"snapshot of shape {arr.shape} for field {field!r} with grid {spec['shape'][1:]}")
         if not np.isfinite(arr).all():
             raise FloatingPointError(f"the solver produced non-finite values in {field!r} at t={spec['times'][k]}")
-        self._f.seek(spec["offset"] + arr.nbytes * k)
-        self._f.write(arr.tobytes())
-        self._f.flush()
-        os.fsync(self._f.fileno())
-        spec["done"][k] = True
-        self._write_header()
+        with self._lock:
+            self._f.seek(spec["offset"] + arr.nbytes * k)
+            self._f.write(arr.data)
+            self._f.flush()
+            os.fsync(self._f.fileno())
+            spec["done"][k] = True
+            self._write_header()
 
     def set(self, **entries: Any) -> None:
         """Add or replace top-level header entries (e.g. a solve summary)."""
-        self.header.update(entries)
-        self._write_header()
+        with self._lock:
+            self.header.update(entries)
+            self._write_header()
 
     def finalize(self) -> Path:
         """Checksum every block, mark the table complete and move it to its final path."""
-        for name, spec in self.header["fields"].items():
-            if not all(spec["done"]):
-                raise TableError(f"field {name!r} is missing snapshots; cannot finalize")
-            spec["sha256"] = _sha256(self._f, spec["offset"], 4 * int(np.prod(spec["shape"])))
-        self.header["complete"] = True
-        self.header["softreach_version"] = _version()
-        self._write_header()
-        self._f.close()
-        os.replace(self.partial, self.path)
+        with self._lock:
+            for name, spec in self.header["fields"].items():
+                if not all(spec["done"]):
+                    raise TableError(f"field {name!r} is missing snapshots; cannot finalize")
+                spec["sha256"] = _sha256(self._f, spec["offset"], 4 * int(np.prod(spec["shape"])))
+            self.header["complete"] = True
+            self.header["softreach_version"] = _version()
+            self._write_header()
+            self._f.close()
+            os.replace(self.partial, self.path)
         return self.path
 
     def close(self) -> None:
-        if not self._f.closed:
-            self._f.close()
+        with self._lock:
+            if not self._f.closed:
+                self._f.close()
 
     def _write_header(self) -> None:
         blob = json.dumps(self.header, sort_keys=True).encode()
@@ -151,6 +161,34 @@ class TableWriter:
         self._f.seek(0)
         self._f.write(MAGIC + len(blob).to_bytes(8, "little") + blob + b" " * (HEADER_CAPACITY - len(blob)))
         self._f.flush()
+
+
+class BackgroundWrites:
+    """Runs the writing of snapshots on one thread while the solver computes the next: on a GPU the step does not
+    wait for the disk, and on a CPU the disk's waits leave the cores to the solver. At most one write is in flight,
+    so at most one snapshot is held twice; :meth:`wait` returns when it is on disk and raises what it raised."""
+
+    def __init__(self) -> None:
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="softreach-write")
+        self._pending: Future | None = None
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> None:
+        """Run ``fn(*args)`` on the writer's thread, after the write in flight (if any) has finished."""
+        self.wait()
+        self._pending = self._pool.submit(fn, *args)
+
+    def wait(self) -> None:
+        """Until the write in flight is done; its exception, if any, is raised here."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            pending.result()
+
+    def close(self) -> None:
+        """Finish the write in flight (also on Ctrl-C: a finished snapshot is never lost) and stop the thread."""
+        try:
+            self.wait()
+        finally:
+            self._pool.shutdown(wait=True)
 
 
 def _identity(header: dict[str, Any]) -> dict[str, Any]:
