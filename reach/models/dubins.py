@@ -32,7 +32,9 @@ import numpy as np
 from .. import backend as B
 from .. import sets
 from ..dynamics import Components, ControlAndDisturbanceAffine
-from ..proof.intervals import iv_cos_any, iv_sin_any, round_down, round_up
+from ..jit import njit
+from ..proof.intervals import cos_range, down, sin_range, up
+from ..proof.model_kernels import SET_INDEX, held_boxes, set_max_address, set_max_rows
 from ..problem import Model
 
 Array = B.Array
@@ -49,6 +51,59 @@ def _sin(v: Any) -> Any:
 
 def _sqrt(v: Any) -> Any:
     return math.sqrt(v) if isinstance(v, (int, float)) else B.namespace(v).sqrt(v)
+
+
+@njit
+def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
+    """The box of every state at some time in ``[s0, s1]`` of a period with the turn rate ``a[0]`` held, from every
+    start in ``[x_lo, x_hi]`` and any wind signal, written into ``lo`` and ``hi``; ``params`` is ``(speed,
+    wind_max)``. The heading is exact, ``theta(s) = theta_0 + u s``. The position moves by
+    ``int_0^s v (cos, sin)(theta)``, which lies in ``s v`` times the range of ``(cos, sin)`` over every heading of
+    ``[0, s1]`` (:func:`~softreach.reach.proof.intervals.cos_range`), plus the wind's ``[-w s, w s]``; every end
+    rounded outwards."""
+    speed, wind, u = params[0], params[1], a[0]
+    h_lo = down(x_lo[2] + min(0.0, u * s1))
+    h_hi = up(x_hi[2] + max(0.0, u * s1))
+    for axis in range(2):
+        r_lo, r_hi = cos_range(h_lo, h_hi) if axis == 0 else sin_range(h_lo, h_hi)
+        # s * [r_lo, r_hi] over s in [s0, s1]: the extremes are at the interval's ends
+        move_lo = speed * min(s0 * r_lo, s1 * r_lo) - wind * s1
+        move_hi = speed * max(s0 * r_hi, s1 * r_hi) + wind * s1
+        lo[axis] = down(x_lo[axis] + down(move_lo))
+        hi[axis] = up(x_hi[axis] + up(move_hi))
+    lo[2] = down(x_lo[2] + min(u * s0, u * s1))
+    hi[2] = up(x_hi[2] + max(u * s0, u * s1))
+
+
+@njit(inline="always")
+def _disc_max(cx, cy, radius, lo, hi):
+    """The largest value of ``radius - |p - c|`` over the box: at the nearest point of the box, the centre clipped
+    to it; the distance rounded down."""
+    nx, ny = min(max(cx, lo[0]), hi[0]), min(max(cy, lo[1]), hi[1])
+    return radius - down(math.sqrt((nx - cx) ** 2 + (ny - cy) ** 2))
+
+
+@njit
+def set_max_kernel(params, which, lo, hi):
+    """The largest value of set ``which`` (:data:`~softreach.reach.proof.model_kernels.SET_INDEX`) over the box
+    ``[lo, hi]``; ``params``: goal, obstacle and zone as ``(x, y, radius)`` each, then the arena's half-width. The
+    target's distance is convex: largest at a corner. ``c1`` and ``c2`` are not (the complement of a disc): the
+    disc term at the box's nearest point to its centre (:func:`_disc_max`), the arena term, a box distance, at the
+    box's far ends. NaN where the box is (a failed enclosure)."""
+    for i in range(2):
+        if math.isnan(lo[i]) or math.isnan(hi[i]):
+            return np.nan
+    if which == 0:
+        out = -np.inf
+        for px in (lo[0], hi[0]):
+            for py in (lo[1], hi[1]):
+                out = max(out, math.sqrt((px - params[0]) ** 2 + (py - params[1]) ** 2) - params[2])
+        return out
+    if which == 2:
+        return _disc_max(params[6], params[7], params[8], lo, hi)
+    arena = params[9]
+    edge = max(max(-arena - lo[0], hi[0] - arena), max(-arena - lo[1], hi[1] - arena))
+    return max(_disc_max(params[3], params[4], params[5], lo, hi), edge)
 
 
 @dataclass(frozen=True)
@@ -178,25 +233,32 @@ class Dubins(Model, ControlAndDisturbanceAffine):
         """``c2 = zone_radius - |p - zone|`` [m]: positive inside the soft zone."""
         return self.params.zone_radius - self._distance(x, self.params.zone)
 
+    #: the held period's boxes and the sets' maxima over boxes, compiled (:attr:`~softreach.reach.dynamics.Dynamics.
+    #: held_box_kernel`, :attr:`~softreach.reach.problem.Model.set_max_kernel`): the numpy methods below run them
+    held_box_kernel = staticmethod(held_box_kernel)
+    set_max_kernel = staticmethod(set_max_kernel)
+
+    @property
+    def held_box_params(self) -> np.ndarray:
+        """:func:`held_box_kernel`'s numbers: the speed and the wind bound."""
+        return np.array([self.params.speed, self.params.wind_max], dtype=np.float64)
+
+    @property
+    def set_max_params(self) -> np.ndarray:
+        """:func:`set_max_kernel`'s numbers: goal, obstacle and zone ``(x, y, radius)``, the arena's half-width."""
+        p = self.params
+        return np.array([*p.goal, p.goal_radius, *p.obstacle, p.obstacle_radius, *p.zone, p.zone_radius, p.arena],
+                        dtype=np.float64)
+
     def set_box_max(self, which: str, t: Any, lo: Any, hi: Any) -> Any:
-        """The exact maximum of ``c1`` or ``c2`` over boxes: ``radius - (distance from the centre to the box)``,
-        the nearest point of a box being the centre clipped to it (and the arena term, a box distance, at a
-        corner). ``None`` for the target (convex: its corners suffice)."""
+        """The exact maximum of ``c1`` or ``c2`` over boxes (:func:`set_max_kernel`); ``None`` for the target
+        (convex: its corners suffice)."""
         if which not in ("hard_constraint", "soft_constraint"):
             return None
-        p = self.params
-        lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
-
-        def disc(centre: tuple[float, float], radius: float) -> np.ndarray:
-            c = np.asarray(centre, dtype=np.float64)
-            nearest = np.clip(c, lo[:, :2], hi[:, :2])
-            return radius - round_down(np.sqrt(((nearest - c) ** 2).sum(axis=1)))
-
-        if which == "soft_constraint":
-            return disc(p.zone, p.zone_radius)
-        # the arena term max_i max(-A - x_i, x_i - A) is largest at the box's far ends along each axis
-        arena = np.maximum(-p.arena - lo[:, :2], hi[:, :2] - p.arena).max(axis=1)
-        return np.maximum(disc(p.obstacle, p.obstacle_radius), arena)
+        lo, hi = (np.ascontiguousarray(v, dtype=np.float64) for v in (lo, hi))
+        out = np.empty(len(lo))
+        set_max_rows(set_max_address(self), self.set_max_params, SET_INDEX[which], lo, hi, out)
+        return out
 
     # ------------------------------------------------------------------------------------------ model metadata
     def start_difficulty(self, x: Components) -> Array:
@@ -213,41 +275,16 @@ class Dubins(Model, ControlAndDisturbanceAffine):
         return self.held_tube_pieces_box(t, x, x, a, dt, pieces)
 
     def held_enclosure_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float):
-        """Validated boxes of one period with ``u`` held, from every start in ``[x_lo, x_hi]`` and any wind signal.
-
-        The heading is exact, ``theta(s) = theta_0 + u s``. The position moves by ``int_0^s v (cos, sin)(theta)``,
-        which lies in ``s v`` times the range of ``(cos, sin)`` over every heading of the period (interval
-        bounds over any arc, :func:`~softreach.reach.proof.intervals.iv_cos_any`), plus the wind's ``[-w s, w s]``.
-        """
-        lo, hi = self.held_tube_pieces_box(t, x_lo, x_hi, a, dt, 1)
-        end_lo, end_hi = self._held_box(x_lo, x_hi, a, dt, dt, dt)
-        return lo[0], hi[0], end_lo, end_hi
+        """Validated boxes of one period with ``u`` held, from every start in ``[x_lo, x_hi]`` and any wind signal
+        (:func:`held_box_kernel`)."""
+        lo, hi = held_boxes(self, x_lo, x_hi, a, 0.0, dt)
+        end_lo, end_hi = held_boxes(self, x_lo, x_hi, a, dt, dt)
+        return lo, hi, end_lo, end_hi
 
     def held_tube_pieces_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float,
                              pieces: int):
-        edges = np.linspace(0.0, dt, pieces + 1)
-        boxes = [self._held_box(x_lo, x_hi, a, s0, s1, s1) for s0, s1 in zip(edges[:-1], edges[1:])]
-        return np.stack([b[0] for b in boxes]), np.stack([b[1] for b in boxes])
-
-    def _held_box(self, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, s0: float, s1: float,
-                  turned: float) -> tuple[np.ndarray, np.ndarray]:
-        """Every state at some ``s`` in ``[s0, s1]`` of a held period from ``[x_lo, x_hi]``; the position's
-        direction range is taken over the headings of ``[0, turned]`` (all the headings the vehicle had)."""
-        p = self.params
-        x_lo, x_hi = np.asarray(x_lo, dtype=np.float64), np.asarray(x_hi, dtype=np.float64)
-        u = np.asarray(a, dtype=np.float64)[..., 0]
-        heading = (x_lo[..., 2] + np.minimum(0.0, u * turned), x_hi[..., 2] + np.maximum(0.0, u * turned))
-        heading = (round_down(heading[0]), round_up(heading[1]))
-        out_lo, out_hi = [], []
-        for axis, rng in ((0, iv_cos_any(heading)), (1, iv_sin_any(heading))):
-            # s * [c_lo, c_hi] over s in [s0, s1]: the extremes are at the interval's ends
-            move_lo = p.speed * np.minimum(s0 * rng[0], s1 * rng[0]) - p.wind_max * s1
-            move_hi = p.speed * np.maximum(s0 * rng[1], s1 * rng[1]) + p.wind_max * s1
-            out_lo.append(round_down(x_lo[..., axis] + round_down(move_lo)))
-            out_hi.append(round_up(x_hi[..., axis] + round_up(move_hi)))
-        out_lo.append(round_down(x_lo[..., 2] + np.minimum(u * s0, u * s1)))
-        out_hi.append(round_up(x_hi[..., 2] + np.maximum(u * s0, u * s1)))
-        return np.stack(out_lo, axis=-1), np.stack(out_hi, axis=-1)
+        edges = np.linspace(0.0, dt, pieces + 1)[:, None]  # every piece at once: (pieces, 1) against N rows
+        return held_boxes(self, x_lo, x_hi, a, edges[:-1], edges[1:])
 
 
 def _register() -> None:
