@@ -205,6 +205,10 @@ def run_train(args: argparse.Namespace) -> int:
           + (f", resumed from {spec.resume} at step {before}: {res.timesteps} in all" if spec.resume else ""))
     print(f"training episodes of these {safety['steps']:,} steps: {safety['episodes']}, landed {safety['landed']}, "
           f"hard violations {safety['hard_violations']}, over Q {safety['over_budget']} (training_safety.json)")
+    cert = safety.get("certified_starts")
+    if cert is not None:
+        print(f"  of them from starts the filter certified: {cert['episodes']}, landed {cert['landed']}, "
+              f"hard violations {cert['hard_violations']}, over Q {cert['over_budget']}")
     print(f"policy: {res.model_path}" + (f"  best: {res.best_model_path}" if res.best_model_path else ""))
     print(f"evaluate: softreach evaluate {args.model} --policy {res.model_path}"
           + (f" --filter {args.filter}" if args.filter else "") + " --plots " + str(res.out_dir / "plots"))

@@ -31,12 +31,17 @@ class TrainingSafetyCounter(BaseCallback):
     hard constraint (``hard_violation``) and overspent (``budget < -BUDGET_TOL``: ``budget_used > Q + 1 ms``, the
     evaluations' rule), and the steps in which a safety filter acted (``filter_active``).
 
-    :attr:`ends` holds ``(environment steps so far, landed, hard, over)`` per episode, so the counts can be cut at
-    any step (:meth:`summary`: cumulative and per :data:`PER_STEPS` steps)."""
+    Under a safety filter the same counts are also kept for the episodes whose start the filter certified
+    (``info["filter_episode"]["certified_start"]``): its guarantee covers only those, and the environment's own
+    starts (the glider's) need not lie in ``RA~_Q``.
+
+    :attr:`ends` holds ``(environment steps so far, landed, hard, over, certified start)`` per episode, the last
+    ``1``, ``0``, or ``-1`` without a filter, so the counts can be cut at any step (:meth:`summary`: cumulative
+    and per :data:`PER_STEPS` steps)."""
 
     def __init__(self):
         super().__init__()
-        self.ends: list[tuple[int, bool, bool, bool]] = []
+        self.ends: list[tuple[int, bool, bool, bool, int]] = []
         self.interventions = 0
         self.steps = 0
 
@@ -46,21 +51,31 @@ class TrainingSafetyCounter(BaseCallback):
         for info, done in zip(infos, dones):
             self.interventions += int(bool(info.get("filter_active", False)))
             if done:
+                episode = info.get("filter_episode")
+                certified = -1 if episode is None else int(bool(episode["certified_start"]))
                 self.ends.append((self.steps, bool(info.get("landed", False)), bool(info.get("hard_violation", False)),
-                                  float(info.get("budget", 0.0)) < -BUDGET_TOL))
+                                  float(info.get("budget", 0.0)) < -BUDGET_TOL, certified))
         return True
 
     def summary(self) -> dict[str, Any]:
         """``{"steps", "episodes", "landed", "hard_violations", "over_budget", "interventions", "per_100k":
-        {...}, "curve": [[steps, cumulative hard, cumulative over], ...]}`` (the curve at each 10 % of training)."""
-        e = np.array([(s, l, h, o) for s, l, h, o in self.ends], dtype=np.int64).reshape(-1, 4)
+        {...}, "curve": [[steps, cumulative hard, cumulative over], ...], "certified_starts"}`` (the curve at each
+        10 % of training); ``"certified_starts"`` is ``None`` where no episode ran under a filter, else the
+        ``episodes``, ``landed``, ``hard_violations`` and ``over_budget`` of the episodes from certified starts."""
+        e = np.array(self.ends, dtype=np.int64).reshape(-1, 5)
         steps = max(self.steps, 1)
         tot = {"episodes": int(len(e)), "landed": int(e[:, 1].sum()), "hard_violations": int(e[:, 2].sum()),
                "over_budget": int(e[:, 3].sum()), "interventions": int(self.interventions)}
         marks = sorted({int(round(steps * k / 10)) for k in range(1, 11)})
         curve = [[m, int(e[e[:, 0] <= m, 2].sum()), int(e[e[:, 0] <= m, 3].sum())] for m in marks]
+        certified = None
+        if len(e) and (e[:, 4] >= 0).any():
+            c = e[e[:, 4] == 1]
+            certified = {"episodes": int(len(c)), "landed": int(c[:, 1].sum()), "hard_violations": int(c[:, 2].sum()),
+                         "over_budget": int(c[:, 3].sum())}
         return {"schema": SAFETY_SCHEMA, "steps": int(self.steps), **tot,
-                "per_100k": {k: v * PER_STEPS / steps for k, v in tot.items()}, "curve": curve}
+                "per_100k": {k: v * PER_STEPS / steps for k, v in tot.items()}, "curve": curve,
+                "certified_starts": certified}
 
 
 def check_method(method: str, spec: Any) -> None:
