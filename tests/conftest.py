@@ -1,25 +1,113 @@
-"""Shared fixtures: small solved tables (seconds to compute) reused across test modules."""
+"""Shared fixtures (small solved tables, each solved once per run: :mod:`shared_tables`) and the run's warm-up.
+
+The filter's first decision compiles it (about 90 s of one core on an empty compiled-code cache). The modules that
+use the filter run after those that do not, and while those run, a process of its own (:mod:`warm_up`) solves the
+shared held tables and compiles the filter on them, so that the compile takes the machine's other core instead of
+stalling the run. A test of a module that uses the filter waits until the warm-up is done (it then loads the compiled
+code); if the warm-up fails, that test compiles the filter itself, as it would without one.
+
+With ``pytest -n 2`` (pytest-xdist) the two workers share the tables and the one warm-up (started by the first
+worker), and each runs torch on one thread.
+"""
 
 from __future__ import annotations
 
 import os
+import re
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
-os.environ.setdefault("OMP_NUM_THREADS", "2")
+WORKER = os.environ.get("PYTEST_XDIST_WORKER")
+if WORKER:
+    os.environ["OMP_NUM_THREADS"] = "1"  # two workers on two cores: one thread each
+else:
+    os.environ.setdefault("OMP_NUM_THREADS", "2")
+
+from shared_tables import solved  # noqa: E402  (after the thread setting, before torch is imported)
+from warm_up import phase_lock  # noqa: E402
+
+#: a module uses the filter if its text names it (or the agents, which deploy it, or a held table, which is for it)
+USES_FILTER = re.compile(r"softreach\.(filters|agents)|ValueFilter|SafetyFilter|_held_table")
+#: the most a test waits for the warm-up [s]: past that it compiles the filter itself
+WAIT_S = 1200.0
+
+
+def _root(factory: pytest.TempPathFactory) -> Path:
+    """The folder every process of this run shares: the base temporary folder (its parent in an xdist worker)."""
+    base = factory.getbasetemp()
+    return base.parent if WORKER else base
+
+
+def _phases(text: str) -> list[str]:
+    """The warm-up phases a module's tests wait for."""
+    if not USES_FILTER.search(text):
+        return []
+    return ["pointmass", "glider"] if "glider_held_table" in text else ["pointmass"]
+
+
+def _module_phases(item: pytest.Item) -> list[str]:
+    path = Path(item.fspath)
+    cache = item.config.stash.setdefault(_TEXTS, {})
+    if path not in cache:
+        cache[path] = _phases(path.read_text())
+    return cache[path]
+
+
+_TEXTS = pytest.StashKey[dict]()
+_WARM_UP = pytest.StashKey[subprocess.Popen]()
+_WAITED: set[str] = set()
+
+
+def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Modules that use the filter last (each module's tests stay together and in order), and the warm-up started
+    when there is other work to overlap it with."""
+    first_seen: dict[Path, int] = {}
+    for item in items:
+        first_seen.setdefault(Path(item.fspath), len(first_seen))
+    items.sort(key=lambda it: (bool(_module_phases(it)), first_seen[Path(it.fspath)]))
+    phases = sorted({p for it in items for p in _module_phases(it)}, key=["pointmass", "glider"].index)
+    if not phases or all(_module_phases(it) for it in items) or WORKER not in (None, "gw0"):
+        return
+    root = _root(config._tmp_path_factory)  # type: ignore[attr-defined]
+    log = open(root / "warm_up.log", "w")
+    proc = subprocess.Popen([sys.executable, str(Path(__file__).with_name("warm_up.py")), str(root), *phases],
+                            stdout=subprocess.PIPE, stderr=log, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert proc.stdout is not None
+    if proc.stdout.readline().strip() != "locked":  # it failed before holding its locks: the tests compile
+        proc.wait()
+        return
+    config.stash[_WARM_UP] = proc
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """A test of a module that uses the filter waits until the warm-up has compiled it (at once if there is none)."""
+    for phase in _module_phases(item):
+        if phase not in _WAITED:
+            _WAITED.add(phase)
+            lock = phase_lock(_root(item.config._tmp_path_factory), phase)  # type: ignore[attr-defined]
+            try:
+                with lock.acquire(timeout=WAIT_S):
+                    pass
+            except TimeoutError:
+                pass
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    proc = session.config.stash.get(_WARM_UP, None)
+    if proc is not None and proc.poll() is None:
+        proc.terminate()
+        proc.wait()
 
 
 @pytest.fixture(scope="session")
 def pointmass_table(tmp_path_factory):
     """A coarse point-mass table with V and W_eps (41 x 41 x 45, ENO2/RK2, 11 snapshots)."""
-    from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
+    from softreach.reach import load_table
 
-    path = tmp_path_factory.mktemp("tables") / "pointmass_small.srt"
-    model = get_model("pointmass")
-    cfg = SolveConfig(shape=(41, 41), budget_points=45, settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False),
-                      snapshots=11)
-    solve_table(model, cfg, path, progress=False)
-    return load_table(path)
+    return load_table(solved("pointmass_small", _root(tmp_path_factory)))
 
 
 @pytest.fixture(scope="session")
@@ -30,47 +118,31 @@ def pointmass_table_path(pointmass_table):
 @pytest.fixture(scope="session")
 def pointmass_held_table(tmp_path_factory):
     """A coarse point-mass table of the sampled-data game (actions held 0.01 s): 41 x 41 x 45, ENO2/RK2."""
-    from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
+    from softreach.reach import load_table
 
-    path = tmp_path_factory.mktemp("tables") / "pointmass_held.srt"
-    cfg = SolveConfig(shape=(41, 41), budget_points=45, control_period=0.01,
-                      settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False))
-    solve_table(get_model("pointmass"), cfg, path, progress=False)
-    return load_table(path)
+    return load_table(solved("pointmass_held", _root(tmp_path_factory)))
 
 
 @pytest.fixture(scope="session")
 def glider_held_table(tmp_path_factory):
     """A coarse glider table of the sampled-data game (0.1 s), 21 x 15 x 13 x 9, ENO2 / RK2: the filter's proofs
     come from its cells (the packaged ones), so the tests that use it need the table only to rank and search."""
-    from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
+    from softreach.reach import load_table
 
-    path = tmp_path_factory.mktemp("tables") / "glider_held.srt"
-    cfg = SolveConfig(shape=(21, 15, 13), budget_points=9, control_period=0.1, consistency_samples=2000,
-                      settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False))
-    solve_table(get_model("glider"), cfg, path, progress=False, budgets=(0.0, 5.0, 10.0))
-    return load_table(path)
+    return load_table(solved("glider_held", _root(tmp_path_factory)))
 
 
 @pytest.fixture(scope="session")
 def dubins_table(tmp_path_factory):
     """A coarse Dubins table with V and W_eps (25 x 25 x 16 x 15, heading periodic, ENO2/RK2, 8 snapshots)."""
-    from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
+    from softreach.reach import load_table
 
-    path = tmp_path_factory.mktemp("tables") / "dubins_small.srt"
-    cfg = SolveConfig(shape=(25, 25, 16), budget_points=15, snapshots=8,
-                      settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False))
-    solve_table(get_model("dubins"), cfg, path, progress=False)
-    return load_table(path)
+    return load_table(solved("dubins_small", _root(tmp_path_factory)))
 
 
 @pytest.fixture(scope="session")
 def dubins_held_table(tmp_path_factory):
     """A coarse Dubins table of the sampled-data game (turn rate held 0.1 s): 21 x 21 x 12 x 12, ENO2/RK2."""
-    from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
+    from softreach.reach import load_table
 
-    path = tmp_path_factory.mktemp("tables") / "dubins_held.srt"
-    cfg = SolveConfig(shape=(21, 21, 12), budget_points=12, control_period=0.1,
-                      settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False))
-    solve_table(get_model("dubins"), cfg, path, progress=False)
-    return load_table(path)
+    return load_table(solved("dubins_held", _root(tmp_path_factory)))
