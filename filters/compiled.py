@@ -5,16 +5,17 @@ plans of :mod:`softreach.filters.plans`; this module decides the same way, row b
 
 * the model gives its held-action enclosure and its sets' maxima over boxes compiled
   (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`, :attr:`~softreach.reach.problem.Model.
-  set_max_kernel`): the point mass and the glider do,
-* the table holds ``W_eps`` (with ``V`` and ``V_safe`` if it has them) and the filter has landing cells (which then
-  decide what passes, :meth:`~softreach.reach.proof.lookahead.Lookahead.assess`).
+  set_max_kernel`) and bounds boxes of starts: the point mass, the glider and Dubins do
+  (:meth:`CompiledDecision.missing` names what a model lacks),
+* the table holds ``W_eps`` (with ``V`` and ``V_safe`` if it has them). Where the filter has landing cells they
+  decide what passes; without them the table does (:mod:`softreach.filters.table_pass`).
 
 Both rules are compiled, the ``"switch"`` rule and the ``"smooth"`` one with its bisection.
 
 Each step below names the numpy method it mirrors: the arithmetic is the same, in the same order, on the numbers
-of the same kernels (the enclosure, the set maxima, :mod:`softreach.reach.proof.kernels` for the table and the cells), so
-the decisions are equal, which ``tests/test_compiled_filter.py`` checks on thousands of rows of every kind. A change
-to the one-period test must be made in both. The test of one action is :mod:`softreach.filters.judge`, in parts,
+of the same kernels (the enclosure, the set maxima, :mod:`softreach.reach.proof.kernels` for the table and the cells).
+``tests/test_filter_reference.py`` checks the decisions against the reference transcribed from ``docs/filters.md``
+(``tests/reference_decision.py``). The test of one action is :mod:`softreach.filters.judge`, in parts,
 so that the table is read only where its values can decide: a candidate's next value where it passes; where none
 does, the safe value and the next value of those that can still be chosen (the decisions are those of reading
 every value: the test above compares them).
@@ -36,15 +37,16 @@ from softreach.reach.proof.box_max import kernel_field
 from softreach.reach.jit import njit
 from softreach.reach.proof.kernels import MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row
 from softreach.reach.proof.lookahead import exact_normalized
-from softreach.reach.proof.model_kernels import held_box_address
+from softreach.reach.proof.model_kernels import boxes_set_max, held_box_address
 from softreach.reach.proof.ranks import LOWEST_BAD, NEXT_CAP, PASSES_ONLY, RANK_PROVEN, RANK_SAFE, SMOOTH_PASSES_ONLY
 
 from .compiled_args import ActionMap, Box, Cells, DecisionSpace, Motion, TableArgs, Work, named, named_space, plain
 from .compiled_certify import certify_rows
 from .compiled_starts import start_plan_rows
-from .judge import badness, judge, keeps, least_next, next_value, on_table
+from .judge import badness, judge, least_next, next_value, on_table
 from .plans import PLAN_LAND, PLAN_SAFE
 from .reasons import BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, UNCERTIFIED
+from .table_pass import keeps, table_verdict
 
 
 def decision_space(n: int, m: int, J: int) -> DecisionSpace:
@@ -59,7 +61,8 @@ def decision_space(n: int, m: int, J: int) -> DecisionSpace:
         c_kept=np.empty(J, np.bool_), c_score=np.empty(J), c_dist=np.empty(J), c_pref=np.empty(J), act=np.empty(m),
         point=np.empty(n + 1), c_in=np.empty(J, np.bool_), c_bounded=np.empty(J, np.bool_),
         c_proven=np.empty(J, np.bool_), c_c1=np.empty(J), c_pick=np.empty(J, np.bool_), c_low=np.empty(J),
-        c_tie=np.empty(J), c_order=np.empty(J, np.int64), boxes=np.empty((8, n)))
+        c_tie=np.empty(J), c_order=np.empty(J, np.int64), boxes=np.empty((8, n)),
+        w_box=Box(np.empty(n), np.empty(n)), w_lo=np.empty((J, n)), w_hi=np.empty((J, n)))
 
 
 @njit(inline="always")
@@ -120,8 +123,8 @@ def _keeping(enclose, M, C, T, cands, smooth, tr, zr, space):
     for k in space.c_order:
         if not (c_ok[k] or (smooth and c_kept[k])):
             break
-        if c_ok[k] or keeps(enclose, M, C, T, cands, tr, zr, c_ok[k], c_next[k], space.end_lo[k], space.end_hi[k],
-                             c_zend[k], c_kept[k], space.work, space.work_box):
+        if (C.has_land and c_ok[k]) or keeps(enclose, M, C, T, cands, tr, zr, c_ok[k], c_next[k], space.end_lo[k],
+                                             space.end_hi[k], c_zend[k], c_kept[k], space.work, space.work_box, space):
             return k
     return -1
 
@@ -177,7 +180,7 @@ def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, best, best_
     J = cands.shape[0]
     for game in (PLAN_LAND, PLAN_SAFE):
         if game == PLAN_LAND:
-            weak, cells, plan_cells = not any_ok, C.land, C.land_plan
+            weak, cells, plan_cells = C.has_land and not any_ok, C.land, C.land_plan
         else:
             weak, cells, plan_cells = C.has_safe and best_bad >= RANK_SAFE, C.safe, C.safe_plan
         if not weak:
@@ -240,17 +243,20 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
             if s > J:
                 mid = 0.5 * (lo + hi)
             _try(s, J, act, action, cands, pol, r, best, mid)
-            a_ok, a_lands, a_bounded, a_in, a_kept, a_proven, a_c1, a_zend, t_next = judge(
-                enclose, M, C, tr, xr, xr, zr, act, end_lo[slot], end_hi[slot], work)
-            a_next = -np.inf if a_lands else np.inf
-            a_ok, a_kept = a_ok or a_lands, a_kept or a_lands
-            # the policy's and the bisection's next value (the policy's, a diagnostic, only with diagnostics)
-            if a_ok and not a_lands and (s > J or (s == 0 and diagnostics)):
+            v = judge(enclose, M, C, tr, xr, xr, zr, act, end_lo[slot], end_hi[slot], work)
+            # without landing cells the table decides here whether the end states pass (a_next its value)
+            a_ok, a_lands, a_next = table_verdict(enclose, M, C, T, cands, tr, xr, xr, zr, zr, act, v, end_lo[slot],
+                                                  end_hi[slot], work, space)
+            a_bounded, a_in, a_proven, a_c1, a_zend, t_next = v.bounded, v.in_c1, v.proven, v.c1, v.z_end, v.t_next
+            a_kept = v.kept or a_lands
+            # with cells, the policy's and the bisection's next value (the policy's, a diagnostic, only with
+            # diagnostics)
+            if C.has_land and a_ok and not a_lands and (s > J or (s == 0 and diagnostics)):
                 a_next = next_value(T, t_next, end_lo[slot], end_hi[slot], a_zend, zr, work)
-            # a passing action keeps: the call of keeps, with its large tuples, is skipped
+            # with cells a passing action keeps: the call of keeps, with its large tuples, is skipped
             if s == 0:
-                if a_ok or keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J], end_hi[J], a_zend, a_kept,
-                                  work, space.work_box):
+                if (C.has_land and a_ok) or keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J], end_hi[J],
+                                                  a_zend, a_kept, work, space.work_box, space):
                     for i in range(m):
                         applied[r, i] = pol[r, i]
                     reason[r], nxt[r], certified[r], blend[r] = PASS, a_next if diagnostics else np.nan, True, 1.0
@@ -259,8 +265,8 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
                     break
                 continue
             if s > J:
-                if any_ok and (a_ok or keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J], end_hi[J],
-                                              a_zend, a_kept, work, space.work_box)):
+                if any_ok and ((C.has_land and a_ok) or keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J],
+                                                              end_hi[J], a_zend, a_kept, work, space.work_box, space)):
                     lo, best_next = mid, a_next
                 else:
                     hi = mid
@@ -292,6 +298,15 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
             reason[r] = OUTSIDE
 
 
+def _no_cells(la: Any) -> tuple[tuple, tuple]:
+    """Cell arguments of the loaded cells' types (:attr:`~softreach.reach.proof.cell_certificate.CellCertificate.
+    kernel_args`, ``plan_args``) for a filter without cells: one cell, never good, no plan."""
+    m = frozen(np.full((1, 1), np.iinfo(np.int16).max, np.int16))
+    one = frozen(np.ones(1))
+    cells = (m, frozen(np.ones(1, np.int64)), one, one, one, la.dt, la.dt, 0, 0, la.horizon, False)
+    return cells, (frozen(np.full((1, 1), -1, np.int8)), frozen(np.zeros((1, 1), np.int8)))
+
+
 def _writable(v: np.ndarray) -> np.ndarray:
     """``v``, or a copy where it is read-only. numba types an array by whether it is writable and compiles a loop
     once per type: the caller's rows reach the loops writable (tables and cells read-only,
@@ -317,10 +332,12 @@ class CompiledDecision:
         set_address, set_params = la.set_kernel
         self.M = Motion(np.asarray(model.held_box_params, dtype=np.float64), la.eps, set_params, set_address, t_lo,
                         t_hi, np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon, frozen(la.slack),
-                        la.first_check, la.budget_slack, la.exact_env)
+                        la.first_check, la.budget_slack, la.exact_env, float(la.margin), int(la.exact_periods))
         safe, land = vf.safe_cells, vf.landing_cells
-        some = safe if safe is not None else land
-        self.C = Cells(some.kernel_args, safe is not None, land.kernel_args, some.plan_args, land.plan_args)
+        # without cells, arrays of the cells' types that nothing reads (has_land, has_safe), for one compilation
+        land_args, land_plan = (land.kernel_args, land.plan_args) if land is not None else _no_cells(la)
+        safe_args, safe_plan = (safe.kernel_args, safe.plan_args) if safe is not None else (land_args, land_plan)
+        self.C = Cells(safe_args, safe is not None, land_args, safe_plan, land_plan, land is not None)
         W_args = la.table_args
         has_S = "V_safe" in la.fields
         self.T = TableArgs(*W_args, kernel_field(*la.fields["V_safe"]) if has_S else W_args[3], has_S)
@@ -337,15 +354,32 @@ class CompiledDecision:
         self._local = threading.local()
 
     @staticmethod
-    def for_filter(vf: Any) -> "CompiledDecision | None":
-        """The compiled decision for this filter, or ``None`` where it does not apply (the module docstring)."""
+    def missing(vf: Any) -> str | None:
+        """What the compiled decision lacks for this filter, in words naming what to add; ``None``: nothing."""
         la, model = vf.lookahead, vf.model
-        if (model.held_box_kernel is None or la.set_kernel is None
-                or la.budget_field != "W_eps" or vf.landing_cells is None
-                or any(model.set_box_max(w, 0.0, np.zeros((1, la.n)), np.zeros((1, la.n))) is not None
-                       for w in ("target", "hard_constraint", "soft_constraint"))):
-            return None
-        return CompiledDecision(vf)
+        name = type(model).__name__
+        if model.held_box_kernel is None:
+            return (f"{name} gives no compiled held_box_kernel (with held_box_params): the box of every state a held "
+                    f"period reaches from a box of starts, as reach/models/pointmass.py writes it")
+        if not la.box_support:
+            return f"{name} does not override held_enclosure_box (run its held_box_kernel through held_boxes)"
+        if la.set_kernel is None:
+            return (f"{name} gives no compiled set maxima: declare set_boxes (box-distance sets) or a "
+                    f"set_max_kernel with set_max_params")
+        # a model's own set_box_max (sets not convex along each axis) must be what its own compiled kernel computes:
+        # the default kernel (box distances) does not know of it
+        if model.set_max_kernel is boxes_set_max and any(
+                model.set_box_max(w, 0.0, np.zeros((1, la.n)), np.zeros((1, la.n))) is not None
+                for w in ("target", "hard_constraint", "soft_constraint")):
+            return f"{name} bounds its sets with set_box_max but gives no set_max_kernel computing the same"
+        if la.budget_field != "W_eps":
+            return f"the table holds {la.budget_field}, not W_eps (solve it without --budget-surface)"
+        return None
+
+    @staticmethod
+    def for_filter(vf: Any) -> "CompiledDecision | None":
+        """The compiled decision for this filter, or ``None`` where it does not apply (:meth:`missing`)."""
+        return None if CompiledDecision.missing(vf) is not None else CompiledDecision(vf)
 
     def __call__(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, pol: np.ndarray, plans: np.ndarray | None,
                  diagnostics: bool = True):

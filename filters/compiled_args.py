@@ -49,6 +49,11 @@ class Motion(NamedTuple):
     budget_slack: float
     #: the environment computes as the test assumes (:attr:`Lookahead.exact_env`): the allowances apply
     exact_env: bool
+    #: without landing cells: the end states pass where the table's worst value is at most ``-margin``
+    margin: float
+    #: without landing cells: the last sample times before the horizon whose end boxes a witness judges
+    #: (:mod:`softreach.reach.proof.horizon`)
+    exact_periods: int
 
 
 class Cells(NamedTuple):
@@ -65,6 +70,8 @@ class Cells(NamedTuple):
     safe_plan: tuple
     #: the landing cells' plans
     land_plan: tuple
+    #: whether there are landing cells (without them the table certifies, :mod:`softreach.filters.table_pass`)
+    has_land: bool
 
 
 class TableArgs(NamedTuple):
@@ -178,6 +185,10 @@ class DecisionSpace(NamedTuple):
     c_order: np.ndarray
     #: ``(8, n)``: the start-plan search's boxes (:func:`~softreach.filters.compiled_starts.start_plan_rows`)
     boxes: np.ndarray
+    #: the witness's box and each candidate's end box from it (:func:`~softreach.filters.table_pass.witness`)
+    w_box: Box
+    w_lo: np.ndarray
+    w_hi: np.ndarray
 
 
 def plain(value: Any) -> Any:
@@ -195,4 +206,4 @@ def named(M, C, T, action):
 @njit(inline="always")
 def named_space(space):
     """The plain tuple of a :class:`DecisionSpace` named again."""
-    return DecisionSpace(Work(*space[0]), Box(*space[1]), *space[2:])
+    return DecisionSpace(Work(*space[0]), Box(*space[1]), *space[2:-3], Box(*space[-3]), *space[-2:])

@@ -2,11 +2,12 @@
 each row, by the decision's own parts (:mod:`softreach.filters.judge`) in the same arithmetic:
 
 * :meth:`~softreach.reach.proof.lookahead.Lookahead.best_candidate`: the candidate of least badness (a passing one by its
-  worst next certificate, else the least bad), whether it passes, and its next certificate (``+inf`` where it
-  does not);
+  worst next certificate, else the least bad), whether it passes (by the landing cells, or without them by the
+  table, :mod:`softreach.filters.table_pass`), and its next certificate (``+inf`` where it does not pass, with
+  cells; without them the table's wherever its period keeps ``C1`` and the budget);
 * the certificate at the state, whether the state lies on the table and whether a landing cell holds it.
 
-``tests/test_compiled_filter.py`` compares :meth:`ValueFilter.certify` with its numpy path row by row.
+``tests/test_filter_reference.py`` compares :meth:`ValueFilter.certify` with the reference of ``docs/filters.md``.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from softreach.reach.proof.ranks import LOWEST_BAD
 
 from .compiled_args import Cells, Motion, TableArgs, named_space
 from .judge import badness, judge_once, next_value, on_table
+from .table_pass import table_verdict
 
 
 @njit(nogil=True, _nrt=False)
@@ -43,12 +45,16 @@ def certify_rows(enclose, m_args, c_args, t_args, cands, t, x, z, ok, nxt, value
         t_next = tr
         least, best = np.inf, -1
         for j in range(J):
-            a_ok, a_lands, c_bounded[j], c_in[j], a_kept, c_proven[j], c_c1[j], c_zend[j], t_next = judge_once(
-                enclose, M, C, tr, xr, xr, zr, cands[j], end_lo[j], end_hi[j], work)
-            c_ok[j], c_kept[j] = a_ok or a_lands, a_kept or a_lands
+            v = judge_once(enclose, M, C, tr, xr, xr, zr, cands[j], end_lo[j], end_hi[j], work)
+            c_bounded[j], c_in[j], c_proven[j], c_c1[j], c_zend[j], t_next = (v.bounded, v.in_c1, v.proven, v.c1,
+                                                                               v.z_end, v.t_next)
+            # without landing cells the table decides whether the end states pass
+            c_ok[j], a_lands, c_next[j] = table_verdict(enclose, M, C, T, cands, tr, xr, xr, zr, zr, cands[j], v,
+                                                        end_lo[j], end_hi[j], work, space)
+            c_kept[j] = v.kept or a_lands
             # a passing candidate's badness is its next value (-inf: it surely lands)
-            c_next[j] = -np.inf if a_lands else (next_value(T, t_next, end_lo[j], end_hi[j], c_zend[j], zr, work)
-                                                 if a_ok else np.inf)
+            if C.has_land and c_ok[j] and not a_lands:
+                c_next[j] = next_value(T, t_next, end_lo[j], end_hi[j], c_zend[j], zr, work)
             c_score[j] = c_next[j]
             # the first of the least, as np.argmin
             if c_ok[j] and (best < 0 or c_next[j] < least):
@@ -62,4 +68,4 @@ def certify_rows(enclose, m_args, c_args, t_args, cands, t, x, z, ok, nxt, value
         # a failing candidate's next value is +inf (Lookahead.assess): none of its end states is certified
         ok[r], nxt[r] = c_ok[best], c_next[best]
         inside[r] = on_table(T.W, tr, xr, max(zr, 0.0), point, work.scratch_W)
-        in_cells[r] = cover_row(C.land, tr, xr, xr, zr)
+        in_cells[r] = C.has_land and cover_row(C.land, tr, xr, xr, zr)

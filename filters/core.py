@@ -22,9 +22,10 @@ after a certified step (its value is the minimum over the same candidates, held,
 instant), and the audit (``benchmarks/audit_filter.py``) counts the rare states where none does (reason
 ``"uncertified"``); with a continuous-time table the same checks run there, but nothing is certified.
 
-Where the model gives its enclosure and set maxima compiled, :class:`ValueFilter` runs this same decision compiled,
-row by row (:mod:`softreach.filters.compiled`, :attr:`ValueFilter.compiled`); the numpy code below is the
-reference it is tested against, and what every other model runs.
+Where the model gives its enclosure and set maxima compiled and the table holds ``W_eps``, :class:`ValueFilter` runs
+this same decision compiled, row by row (:mod:`softreach.filters.compiled`, :attr:`ValueFilter.compiled`), with or
+without cells; the numpy code below runs for the rest (a ``Q_min`` table, a model without compiled kernels).
+``tests/test_filter_reference.py`` checks the compiled decision against ``tests/reference_decision.py``.
 
 Everything works on batches: ``t`` and ``z`` are scalars or ``(N,)``, ``x`` is ``(N, n)`` (or ``(n,)``), actions
 ``(N, m)`` (or ``(m,)``) in physical units unless ``normalized=True``. numpy in, numpy out; torch in, torch out.

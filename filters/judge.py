@@ -45,7 +45,7 @@ from .compiled_args import Verdict
 _TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_INDEX["soft_constraint"]
 
 # LOWEST_BAD (softreach.reach.proof.ranks) is read here by the decision's callers and tests
-__all__ = ["LOWEST_BAD", "badness", "judge", "judge_once", "keeps", "least_next", "next_value", "on_table",
+__all__ = ["LOWEST_BAD", "badness", "judge", "judge_once", "least_next", "next_value", "on_table", "period",
            "read_least"]
 
 
@@ -140,7 +140,9 @@ def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
 @njit(inline="always")
 def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     """What :meth:`Lookahead.assess` decides without the table, for one row: a
-    :class:`~softreach.filters.compiled_args.Verdict`; writes the end box into ``end_lo``, ``end_hi``."""
+    :class:`~softreach.filters.compiled_args.Verdict`; writes the end box into ``end_lo``, ``end_hi``. Without
+    landing cells its ``ok`` is ``kept`` and ``lands`` is asked only of a period that does not keep: the table's
+    part is :func:`~softreach.filters.table_pass.table_verdict`'s."""
     params, slack = M.params, M.slack
     target_lo, target_hi, edges, horizon = M.target_lo, M.target_hi, M.edges, M.horizon
     safe, has_safe, land = C.safe, C.has_safe, C.land
@@ -165,7 +167,9 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     kept = bounded and c1 <= 0 and z_end >= 0 and in_time
     in_c1 = bounded and c1 <= 0 and in_time
     safe_end = kept and (not has_safe or cover_row(safe, t_next, end_lo, end_hi, z_end))
-    ok = safe_end and cover_row(land, t_next, end_lo, end_hi, z_end)
+    # without landing cells the table decides whether the end states pass (softreach.filters.table_pass): here ok
+    # is only that the period keeps C1 and the budget
+    ok = safe_end and (not C.has_land or cover_row(land, t_next, end_lo, end_hi, z_end))
     meets = True
     for i in range(n):
         meets = meets and tube_hi[i] >= target_lo[i] and tube_lo[i] <= target_hi[i]
@@ -295,46 +299,6 @@ def _rank(bounded, in_c1, proven, is_safe, kept, c1):
 def _tie(nxt, z_end):
     """Within a rank, the lower next certificate first (mapped into ``(-0.5, 0.5)``), then the smaller overspend."""
     return math.atan(TIE_INF if nxt == np.inf else nxt) / math.pi + TIE_OVERSPEND * max(-z_end, 0.0)
-
-
-@njit(_nrt=False)
-def keeps(enclose, M, C, T, cands, t, z, ok, nxt, end_lo, end_hi, z_end, kept, work, work_box):
-    """:meth:`Lookahead.keeps` with landing cells: a row that passes keeps; one whose period keeps ``C1`` and the
-    budget keeps when some candidate passes from its whole end box (:meth:`Lookahead.keeps_certified`)."""
-    horizon = M.horizon
-    dt = period(M)
-    if ok:
-        return True
-    if not (kept and not t + dt >= horizon - 1e-9 * max(1.0, horizon) and nxt > -np.inf):
-        return False
-    e_lo, e_hi = work_box.lo, work_box.hi
-    z = max(z_end, 0.0)
-    for j in range(cands.shape[0]):
-        if not _may_pass(enclose, M, C, t + dt, end_lo, end_hi, z, cands[j], e_lo, e_hi, work):
-            continue
-        v = judge(enclose, M, C, t + dt, end_lo, end_hi, z, cands[j], e_lo, e_hi, work)
-        if v.ok or v.lands:
-            return True
-    return False
-
-
-@njit(inline="always")
-def _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
-    """Whether :func:`judge` can find that ``a`` passes or surely lands, asked first as it costs a third of it:
-    it passes only where the landing cells cover its end box at the budget left, at most ``z`` (a cell that covers
-    at some budget covers at more), and it lands only where its motion meets the target."""
-    params, target_lo, target_hi, edges, horizon = M.params, M.target_lo, M.target_hi, M.edges, M.horizon
-    tube_lo, tube_hi = work.tube_lo, work.tube_hi
-    dt = period(M)
-    call_held_box(enclose, params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
-    _widen(end_lo, end_hi, M.slack)
-    if cover_row(C.land, min(t + dt, horizon), end_lo, end_hi, z):
-        return True
-    call_held_box(enclose, params, x_lo, x_hi, a, edges[0], dt, tube_lo, tube_hi)
-    meets = True
-    for i in range(len(x_lo)):
-        meets = meets and tube_hi[i] >= target_lo[i] and tube_lo[i] <= target_hi[i]
-    return meets
 
 
 @njit(_nrt=False)

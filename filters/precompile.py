@@ -32,7 +32,7 @@ def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
     from softreach.reach import load_table
 
     from . import ValueFilter
-    from .compiled import decide_rows
+    from .compiled import CompiledDecision, decide_rows
     from .compiled_certify import certify_rows
     from .compiled_starts import start_plan_rows
     from .plans import START_SEGMENTS, has_cells
@@ -54,7 +54,7 @@ def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
     # the landing checks SafetyFilter asks for: the same compiled code as any other count, and cells it ships
     vf = ValueFilter(table, dt, target_checks=getattr(model, "substeps", 1))
     out: dict[str, Any] = {"model": model.name, "compiled": vf.compiled is not None, "seconds": 0.0,
-                           "source": None, "cache": None}
+                           "source": None, "cache": None, "missing": CompiledDecision.missing(vf)}
     if vf.compiled is None:
         return out
     # a state in the middle of the table's grid; what the decision finds there does not matter
@@ -90,8 +90,7 @@ def _run(args: argparse.Namespace) -> int:
     for path in args.tables:
         r = precompile(path, args.period)
         if not r["compiled"]:
-            print(f"{path}: {r['model']}'s filter decides in numpy (the model has no compiled enclosure): "
-                  f"nothing to compile")
+            print(f"{path}: {r['model']}'s filter decides in numpy ({r['missing']}): nothing to compile")
         elif r["source"] == "compiled":
             print(f"{path}: {r['model']}'s filter compiled in {r['seconds']:.1f} s, cached in {r['cache']}")
         else:

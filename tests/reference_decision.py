@@ -1,6 +1,8 @@
-"""A slow, readable reference of the safety filter's decision with cells, transcribed from ``docs/filters.md``
-("The one-period test", "Landing inside a period", "The rule", "The filter with cells", "Sound to the last bit"):
-plain Python loops over one row at a time, for tests only.
+"""A slow, readable reference of the safety filter's decision, transcribed from ``docs/filters.md`` ("The one-period
+test", "Landing inside a period", "The last periods before the horizon are judged by a witness", "The rule", "The
+filter with cells", "Sound to the last bit"): plain Python loops over one row at a time, for tests only. With landing
+cells the cells decide whether an action's end states pass; without them the table does (its worst value over the
+end box at most ``-margin``, a witness in the last periods before the horizon).
 
 It shares with the filter only what is configuration or the model's, never the decision: the model's enclosure
 (``held_boxes``, the model's own ``held_box_kernel``) and set functions, the cells' stored arrays, the table's
@@ -53,6 +55,9 @@ class Judged:
     t_next: float
     end_lo: np.ndarray
     end_hi: np.ndarray
+    #: without landing cells: the table's worst value over the end box where the period keeps (``-inf`` where it
+    #: surely lands, ``+inf`` where it does not keep); ``None`` with cells
+    nxt: float | None = None
 
     @property
     def passes(self) -> bool:
@@ -74,11 +79,11 @@ class Decision:
 
 
 class ReferenceDecision:
-    """The decision of ``vf`` (a :class:`~softreach.filters.ValueFilter` with landing cells), row by row."""
+    """The decision of ``vf`` (a :class:`~softreach.filters.ValueFilter` of a ``W_eps`` table), row by row."""
 
     def __init__(self, vf):
         la = vf.lookahead
-        assert vf.landing_cells is not None, "the reference transcribes the filter with cells"
+        self.margin, self.exact_periods = la.margin, la.exact_periods
         self.model, self.dt, self.eps = vf.model, la.dt, la.eps
         self.P, self.checks, self.horizon = la.pieces, la.target_checks, la.horizon
         self.slack, self.budget_slack, self.first, self.exact_env = la.slack, la.budget_slack, la.first_check, \
@@ -103,7 +108,11 @@ class ReferenceDecision:
         return (lo - self.slack, hi + self.slack) if self.exact_env else (lo, hi)
 
     def set_max(self, name, lo, hi):
-        """The largest value of the model's set function over the box: at a corner (convex along each axis)."""
+        """The largest value of the model's set function over the box: the model's own bound where it gives one
+        (``set_box_max``: sets not convex along each axis, as Dubins's obstacle), else at a corner."""
+        bound = self.model.set_box_max(name, 0.0, np.asarray(lo, float)[None], np.asarray(hi, float)[None])
+        if bound is not None:
+            return float(bound[0])
         fn = getattr(self.model, name)
         best = -np.inf
         for corner in itertools.product((0, 1), repeat=len(lo)):
@@ -192,13 +201,12 @@ class ReferenceDecision:
         nodes, else the largest node of the cells it touches at the snapshots around ``t``; ``+inf`` off the grid."""
         values, times, grid = self.fields[name]
         glo, ghi = np.asarray(grid.lo, float), np.asarray(grid.hi, float)
-        shape = np.asarray(grid.shape)
-        h = (ghi - glo) / (shape - 1)
+        shape, h, periodic = np.asarray(grid.shape), np.asarray(grid.spacing, float), grid.periodic
         axes, wide = [], False
         for i in range(len(lo)):
             s_lo, s_hi = (lo[i] - glo[i]) / h[i], (hi[i] - glo[i]) / h[i]
             tol = 1e-9 * max(1.0, shape[i])
-            if not (s_lo >= -tol and s_hi <= shape[i] - 1 + tol):
+            if not periodic[i] and not (s_lo >= -tol and s_hi <= shape[i] - 1 + tol):
                 return math.inf
             inner = list(range(math.floor(s_lo) + 1, math.ceil(s_hi)))
             wide = wide or len(inner) > MAX_NODES
@@ -207,12 +215,18 @@ class ReferenceDecision:
             k = min(max(int(np.searchsorted(times, t, side="right")) - 1, 0), len(times) - 2)
             wt = min(max((t - times[k]) / (times[k + 1] - times[k]), 0.0), 1.0)
             snaps = [k, k + 1] if wt > 0 else [k]
-            idx = tuple(slice(max(math.floor(a), 0), min(math.ceil(b), shape[i] - 1) + 1)
-                        for i, (a, b, _) in enumerate(axes))
-            return float(max(np.asarray(values[s])[idx].max() for s in snaps))
+            nodes = []
+            for i, (a, b, _) in enumerate(axes):
+                if periodic[i]:  # every node the box touches, wrapped (at most the whole ring)
+                    nodes.append(sorted({n % shape[i] for n in range(math.floor(a), math.ceil(b) + 1)}))
+                else:
+                    nodes.append(list(range(max(math.floor(a), 0), min(math.ceil(b), shape[i] - 1) + 1)))
+            return float(max(np.asarray(values[s])[np.ix_(*nodes)].max() for s in snaps))
+        # the box's ends and the nodes strictly between (unwrapped along a periodic axis: the engine wraps them)
         points = [[lo[i]] + [glo[i] + n * h[i] for n in inner] + [hi[i]] for i, (_, _, inner) in enumerate(axes)]
         pts = np.array(list(itertools.product(*points)), dtype=np.float64)
-        v, _ = interpolate(values, times, grid, np.full(len(pts), t), np.clip(pts, glo, ghi))
+        pts = np.where(np.asarray(periodic, bool), pts, np.clip(pts, glo, ghi))
+        v, _ = interpolate(values, times, grid, np.full(len(pts), t), pts)
         return float(np.max(v)) if not np.isnan(v).any() else math.nan
 
     def next_value(self, t_next, end_lo, end_hi, z_end, z_hi):
@@ -252,8 +266,30 @@ class ReferenceDecision:
         return math.isfinite(self.box_max("W_eps", t, np.r_[x, min(z, Wg.hi[-1])], np.r_[x, min(z, Wg.hi[-1])]))
 
     # ------------------------------------------------------------ the one-period test
-    def judge(self, t, lo, hi, z, a) -> Judged:
-        """Holding ``a`` for one period from every state of ``[lo, hi]`` at budget ``z``."""
+    def in_window(self, t):
+        """One of the last ``exact_periods`` sample times before the horizon (the horizon excluded)."""
+        h = self.horizon
+        return t < h - 1e-9 and t + self.exact_periods * self.dt >= h - 1e-9 * max(1.0, h)
+
+    def witness(self, t, lo, hi, z_lo, z_hi):
+        """Held candidates applied to every state of the box at once, period after period, each the one of lowest
+        table value over its end box among those that keep ``C1`` and the budget, until one surely lands, or at the
+        horizon one's end states are inside the terminal certificate: does it land?"""
+        z_lo = max(z_lo, 0.0)
+        while True:
+            last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
+            judged = [self.judge(t, lo, hi, z_lo, c, z_hi=z_hi, exact=False) for c in self.cands]
+            if any(v.lands for v in judged) or (last and any(v.passes for v in judged)):
+                return True
+            usable = [j for j, v in enumerate(judged) if v.passes or (v.kept and not last)]
+            if not usable:
+                return False
+            j = min(usable, key=lambda j: (1e12 if judged[j].nxt == math.inf else judged[j].nxt, j))
+            t, lo, hi, z_lo = t + self.dt, judged[j].end_lo, judged[j].end_hi, max(judged[j].z_end, 0.0)
+
+    def judge(self, t, lo, hi, z, a, z_hi=None, exact=True) -> Judged:
+        """Holding ``a`` for one period from every state of ``[lo, hi]`` at budget ``z`` (the table read over the
+        budgets up to ``z_hi``, default ``z``; ``exact=False``: no witness, as the witness itself judges)."""
         dt = self.dt
         tube_lo, tube_hi = self.boxes(lo, hi, a, 0.0, dt)
         end_lo, end_hi = self.widened(*self.boxes(lo, hi, a, dt, dt))
@@ -264,6 +300,16 @@ class ReferenceDecision:
         t_next = min(t + dt, self.horizon)
         in_c1 = bounded and c1 <= 0 and in_time
         kept = in_c1 and z_end >= 0
+        if self.land is None:
+            nxt = self.next_value(t_next, end_lo, end_hi, z_end, z if z_hi is None else z_hi) if in_c1 else math.inf
+            if exact and math.isfinite(nxt) and self.in_window(t_next):
+                won = self.witness(t_next, end_lo, end_hi, z_end, z if z_hi is None else z_hi)
+                nxt = min(nxt, -self.margin) if won else max(nxt, 1e-12)
+            ok = kept and nxt <= -self.margin
+            lands = (not ok and bounded and in_time and self._meets_target(tube_lo, tube_hi)
+                     and self._lands(lo, hi, z, a))
+            return Judged(bounded, in_c1, kept, ok, lands, False, c1, z_end, t_next, end_lo, end_hi,
+                          -math.inf if lands else (nxt if kept else math.inf))
         safe_end = kept and (self.safe is None or self.covered(self.safe, t_next, end_lo, end_hi, z_end))
         ok = safe_end and self.covered(self.land, t_next, end_lo, end_hi, z_end)
         lands = False
@@ -295,22 +341,28 @@ class ReferenceDecision:
                 return True
         return False
 
-    def keeps(self, t, v: Judged) -> bool:
-        """The next state is certified: the action passes, or its period keeps ``C1`` and the budget, is not the
-        last, and one candidate passes from every state of its end box."""
-        if v.passes:
+    def keeps(self, t, v: Judged, z) -> bool:
+        """The next state is certified whatever the wind does: with cells where the action passes (its end lies in
+        landing cells); where it surely lands or its period is the last, where it passes; else where its period
+        keeps ``C1`` and the budget and one candidate passes from every state of its end box, or, without cells,
+        where its end box lies in the witness window with a witness."""
+        if self.land is not None and v.passes:
             return True
         last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
-        if not v.kept or last:
-            return False
-        z = max(v.z_end, 0.0)
-        return any(self.judge(t + self.dt, v.end_lo, v.end_hi, z, c).passes for c in self.cands)
+        if v.lands or not v.kept or last:
+            return v.passes
+        if self.land is None and self.in_window(t + self.dt) and v.nxt <= -self.margin:
+            return True
+        z_lo = max(v.z_end, 0.0)
+        return any(self.judge(t + self.dt, v.end_lo, v.end_hi, z_lo, c, z_hi=z).passes for c in self.cands)
 
     def _next(self, v: Judged, z):
-        """The next value the filter reports for an action: ``-inf`` where it lands, the table's over its end box
-        where it passes, ``+inf`` otherwise."""
+        """The next value the filter reports for an action: ``-inf`` where it lands; with cells the table's over its
+        end box where it passes, ``+inf`` otherwise; without cells the table's where its period keeps."""
         if v.lands:
             return -math.inf
+        if v.nxt is not None:
+            return v.nxt
         return self.next_value(v.t_next, v.end_lo, v.end_hi, v.z_end, z) if v.ok else math.inf
 
     def _bad_key(self, v: Judged, z):
@@ -338,9 +390,8 @@ class ReferenceDecision:
         pol = np.minimum(np.maximum(np.asarray(pol, dtype=np.float64), self.a_lo), self.a_hi)
         after = t >= self.horizon - 1e-9
         v = self.judge(t, x, x, z, pol)
-        if v.passes or self.keeps(t, v):
-            nxt = -math.inf if v.lands else (self.next_value(v.t_next, v.end_lo, v.end_hi, v.z_end, z) if v.ok
-                                             else math.inf)
+        if self.keeps(t, v, z):
+            nxt = self._next(v, z)
             return Decision(pol, AFTER_HORIZON if after else PASS, (not after) and self.certifiable, -1, 1.0, nxt,
                             NO_PLAN)
         J = len(self.cands)
@@ -348,8 +399,10 @@ class ReferenceDecision:
         any_ok = any(c.passes for c in judged)
         tied: set = set()
         if self.rule == "switch" and any_ok:
+            # the passing candidate of lowest next value that keeps the next state certified, else of lowest next value
             keys = {j: self._next(judged[j], z) for j in range(J) if judged[j].passes}
-            best = min(keys, key=lambda j: (keys[j], j))
+            order = sorted(keys, key=lambda j: (keys[j], j))
+            best = next((j for j in order if self.keeps(t, judged[j], z)), order[0])
             tied = {j for j in keys if _close(keys[j], keys[best])}
             best_bad = keys[best]
             best_next = keys[best]
@@ -358,25 +411,28 @@ class ReferenceDecision:
             if self.rule == "smooth":
                 dist = [float(np.linalg.norm((c - pol) / self.a_half)) for c in self.cands]
                 for j in sorted((j for j in range(J) if judged[j].passes or judged[j].kept), key=lambda j: dist[j]):
-                    if self.keeps(t, judged[j]):
+                    if self.keeps(t, judged[j], z):
                         keeping = j
                         break
             if keeping >= 0:
                 best = keeping
                 best_next = self._next(judged[best], z)
                 best_bad = best_next if judged[best].passes else self._bad_key(judged[best], z)
+            elif any_ok:  # the smooth rule, where no passing candidate keeps: the nearest passing one
+                best = min((j for j in range(J) if judged[j].passes), key=lambda j: (dist[j], j))
+                best_next = best_bad = self._next(judged[best], z)
             else:
                 keys = {j: self._bad_key(judged[j], z) for j in range(J)}
                 best = min(keys, key=lambda j: (keys[j], j))
                 tied = {j for j in keys if keys[j][0] == keys[best][0] and _close(keys[j][1], keys[best][1])}
-                best_next, best_bad = math.inf, keys[best]
+                best_next, best_bad = self._next(judged[best], z), keys[best]
         lam = 0.0
         if self.rule == "smooth" and self.iterations:
             lo, hi = 0.0, 1.0
             for _ in range(self.iterations):
                 mid = 0.5 * (lo + hi)
                 b = self.judge(t, x, x, z, self.blend(best, pol, mid))
-                if any_ok and self.keeps(t, b):
+                if any_ok and self.keeps(t, b, z):
                     lo, best_next = mid, self._next(b, z)
                 else:
                     hi = mid
@@ -418,7 +474,8 @@ class ReferenceDecision:
         x = np.asarray(x, dtype=np.float64)
         if t >= self.horizon - 1e-9 or not self.certifiable or not self.on_table(t, x, max(z, 0.0)):
             return False
-        return self.covered(self.land, t, x, x, z) or any(self.judge(t, x, x, z, c).passes for c in self.cands)
+        in_cell = self.land is not None and self.covered(self.land, t, x, x, z)
+        return in_cell or any(self.judge(t, x, x, z, c).passes for c in self.cands)
 
 
 def _close(a: float, b: float) -> bool:

@@ -239,9 +239,18 @@ def test_start_plans_compiled_as_in_numpy(which, pointmass_held_table, glider_he
     assert found.sum() >= 5 and len(np.unique(fast[found, 0, 1])) >= 3
 
 
-def test_a_filter_without_cells_keeps_the_numpy_test(dubins_held_table):
-    assert get_model("dubins").held_box_kernel is not None and get_model("dubins").cell_shape is None
-    assert ValueFilter(dubins_held_table, 0.1).compiled is None
+def test_a_filter_without_cells_decides_compiled_and_one_without_an_enclosure_says_what_to_add(dubins_held_table):
+    from softreach.filters.compiled import CompiledDecision
+
+    assert get_model("dubins").cell_shape is None
+    vf = ValueFilter(dubins_held_table, 0.1)
+    assert vf.landing_cells is None and vf.compiled is not None
+    vf.model.held_box_kernel = None  # an instance without the compiled enclosure
+    try:
+        assert "Dubins gives no compiled held_box_kernel" in CompiledDecision.missing(vf)
+        assert CompiledDecision.for_filter(vf) is None
+    finally:
+        del vf.model.held_box_kernel
 
 
 def test_the_decisions_order_of_candidates_is_numpys_stable_argsort():
@@ -296,8 +305,8 @@ def test_tables_and_inputs_made_in_this_process_reuse_the_compiled_decision(poin
 def test_softreach_compile_leaves_the_decision_in_numbas_cache(pointmass_held_table, dubins_held_table, capsys,
                                                                monkeypatch):
     """``softreach compile TABLE`` runs the compiled entry points (a decision, a state's certificate, a start-plan
-    search), and what they run is in numba's on-disk cache, where the next process finds it (``load_overload`` reads the cache files, not
-    this process's code); a model without a compiled enclosure says that it has nothing to compile."""
+    search), for a model with cells and one without, and what they run is in numba's on-disk cache, where the next
+    process finds it (``load_overload`` reads the cache files, not this process's code)."""
     from softreach.cli import main
     from softreach.filters.compiled import CompiledDecision, decide_rows
     from softreach.filters.compiled_certify import certify_rows
@@ -313,7 +322,7 @@ def test_softreach_compile_leaves_the_decision_in_numbas_cache(pointmass_held_ta
     assert sorted(set(calls)) == ["_decide", "certify", "start_plans"]
     out = capsys.readouterr().out.splitlines()
     assert "pointmass's filter" in out[0] and str(decide_rows.stats.cache_path) in out[0]
-    assert "dubins's filter decides in numpy" in out[1]
+    assert "dubins's filter" in out[1] and str(decide_rows.stats.cache_path) in out[1]
     for kernel in (decide_rows, certify_rows, start_plan_rows):
         assert kernel.signatures
         assert all(kernel._cache.load_overload(sig, kernel.targetctx) is not None for sig in kernel.signatures)

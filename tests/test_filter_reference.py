@@ -266,3 +266,71 @@ def test_glider_certify_is_the_references(glider):
     expect = np.array([ref.certified(t[i], x[i], z[i]) for i in range(len(x))])
     np.testing.assert_array_equal(got, expect)
     assert 30 < got.sum() < len(x) - 30
+
+
+# ------------------------------------------------------------------ a model without cells: Dubins
+@pytest.fixture(scope="module", params=["switch", "smooth"])
+def dubins(request, dubins_held_table):
+    """Dubins has no cells: the held table certifies, and the last 10 periods before ``T`` are judged by a
+    witness."""
+    vf = ValueFilter(dubins_held_table, 0.1, rule=request.param, target_checks=get_model("dubins").substeps)
+    assert vf.landing_cells is None and vf.compiled is not None
+    return vf, ReferenceDecision(vf)
+
+
+def test_dubins_random_certified_and_late_states(dubins):
+    """States across the domain, certified states (by ``certify``) at every time, and states in the witness
+    window before the horizon; turn rates random and at the ends of their box."""
+    vf, ref = dubins
+    model = vf.model
+    lo, hi = (np.asarray(b, dtype=float) for b in model.domain)
+    n = 160 if vf.rule == "switch" else 80
+    rng = np.random.default_rng(21)
+    x, z = rng.uniform(lo, hi, (n, 3)), rng.uniform(-0.1, 2.5, n)
+    t = np.round(rng.uniform(0, 7.05, n), 1)
+    t[:n // 4] = rng.uniform(6.0, 7.0, n // 4)
+    pool = rng.uniform(lo, hi, (30 * n, 3)), rng.uniform(0, 2.5, 30 * n), np.round(rng.uniform(0, 6.9, 30 * n), 1)
+    ok = vf.certify(pool[2], pool[0], pool[1])[0]
+    k = n // 2
+    assert ok.sum() >= k
+    rows = slice(n // 4, n // 4 + k)
+    x[rows], z[rows], t[rows] = pool[0][ok][:k], pool[1][ok][:k], pool[2][ok][:k]
+    # and states bisected onto the certified edge along x (to within 1e-9 m, both sides)
+    edge = []
+    for i in np.nonzero(ok)[0][:12]:
+        p_t, p_x, p_z = pool[2][i], pool[0][i].copy(), pool[1][i]
+        out = p_x.copy()
+        out[0] = p_x[0] - 3.0
+        if vf.certify(p_t, out, p_z)[0]:
+            continue
+        a_in, a_out = p_x[0], out[0]
+        for _ in range(40):
+            mid = 0.5 * (a_in + a_out)
+            if vf.certify(p_t, np.r_[mid, p_x[1:]], p_z)[0]:
+                a_in = mid
+            else:
+                a_out = mid
+        edge += [(p_t, np.r_[a_in, p_x[1:]], p_z), (p_t, np.r_[a_out, p_x[1:]], p_z)]
+    assert len(edge) >= 8
+    t = np.r_[t, [e[0] for e in edge]]
+    x = np.r_[x, [e[1] for e in edge]]
+    z = np.r_[z, [e[2] for e in edge]]
+    a = rng.uniform(-1, 1, (len(x), 1))
+    a[::3] = rng.choice([-1.0, 1.0, 0.0], (len(a[::3]), 1))
+    counts, tied = _agree(vf, ref, t, x, z, a)
+    assert counts.get(PASS, 0) > n // 5 and counts.get(UNCERTIFIED, 0) > 10, counts
+    assert counts.get(OPTIMAL, 0) + counts.get(BLEND, 0) >= 3, counts
+    assert tied <= n // 50
+
+
+def test_dubins_certify_is_the_references(dubins):
+    vf, ref = dubins
+    if vf.rule != "switch":
+        pytest.skip("certify does not depend on the rule")
+    lo, hi = (np.asarray(b, dtype=float) for b in vf.model.domain)
+    rng = np.random.default_rng(22)
+    x, z, t = rng.uniform(lo, hi, (400, 3)), rng.uniform(0, 2.5, 400), np.round(rng.uniform(0, 7.0, 400), 1)
+    got = vf.certify(t, x, z)[0]
+    expect = np.array([ref.certified(t[i], x[i], z[i]) for i in range(len(x))])
+    np.testing.assert_array_equal(got, expect)
+    assert 30 < got.sum() < len(x) - 30
