@@ -29,8 +29,11 @@ else:
 from shared_tables import solved  # noqa: E402  (after the thread setting, before torch is imported)
 from warm_up import phase_lock  # noqa: E402
 
-#: a module uses the filter if its text names it (or the agents, which deploy it, or a held table, which is for it)
+#: a module may use the filter if its text names it (or the agents, which deploy it, or a held table, which is for
+#: it): such modules run last, and wait for a warm-up there is
 USES_FILTER = re.compile(r"softreach\.(filters|agents)|ValueFilter|SafetyFilter|_held_table")
+#: a module surely makes a filter decide: only a run with one of these starts a warm-up
+DECIDES = re.compile(r"ValueFilter\(|SafetyFilter\(|_held_table|\baudit\(|\bevaluate\(")
 #: the most a test waits for the warm-up [s]: past that it compiles the filter itself
 WAIT_S = 1200.0
 
@@ -49,10 +52,16 @@ def _phases(text: str) -> list[str]:
 
 
 def _module_phases(item: pytest.Item) -> list[str]:
+    return _module(item)[0]
+
+
+def _module(item: pytest.Item) -> tuple[list[str], bool]:
+    """The warm-up phases the module of ``item`` waits for, and whether it surely makes a filter decide."""
     path = Path(item.fspath)
     cache = item.config.stash.setdefault(_TEXTS, {})
     if path not in cache:
-        cache[path] = _phases(path.read_text())
+        text = path.read_text()
+        cache[path] = (_phases(text), bool(DECIDES.search(text)))
     return cache[path]
 
 
@@ -63,13 +72,14 @@ _WAITED: set[str] = set()
 
 def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
     """Modules that use the filter last (each module's tests stay together and in order), and the warm-up started
-    when there is other work to overlap it with."""
+    when a test surely makes the filter decide and other tests can run meanwhile."""
     first_seen: dict[Path, int] = {}
     for item in items:
         first_seen.setdefault(Path(item.fspath), len(first_seen))
     items.sort(key=lambda it: (bool(_module_phases(it)), first_seen[Path(it.fspath)]))
     phases = sorted({p for it in items for p in _module_phases(it)}, key=["pointmass", "glider"].index)
-    if not phases or all(_module_phases(it) for it in items) or WORKER not in (None, "gw0"):
+    if (not any(_module(it)[1] for it in items) or all(_module_phases(it) for it in items)
+            or WORKER not in (None, "gw0") or config.option.collectonly):
         return
     root = _root(config._tmp_path_factory)  # type: ignore[attr-defined]
     log = open(root / "warm_up.log", "w")
