@@ -101,9 +101,18 @@ def _count(rs: Sequence[dict[str, Any]], name: str) -> str:
 
 
 def _training(rs: Sequence[dict[str, Any]]) -> str:
+    """Training hard violations and overspends per 100k steps, mean of the seeds; for runs trained under a filter
+    also the counts of the episodes from the starts it certified, summed over the seeds (its guarantee's share)."""
     trained = [(_num(r["train_hard_per_100k"]), _num(r["train_over_per_100k"])) for r in rs
                if _num(r.get("train_hard_per_100k")) is not None]
-    return f"{np.mean([h for h, _ in trained]):.0f}, {np.mean([o for _, o in trained]):.0f}" if trained else "—"
+    if not trained:
+        return "—"
+    text = f"{np.mean([h for h, _ in trained]):.0f}, {np.mean([o for _, o in trained]):.0f}"
+    cert = [[_num(r.get(f"train_certified_{k}")) for k in ("episodes", "hard_violations", "over_budget")] for r in rs]
+    if cert and all(None not in c for c in cert):
+        n, hard, over = (int(sum(c[i] for c in cert)) for i in range(3))
+        text += f"; from certified starts {hard}, {over} in {n} episodes"
+    return text
 
 
 def paired_lines(rows: list[dict[str, Any]]) -> list[str]:

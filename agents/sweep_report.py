@@ -28,9 +28,11 @@ EVAL_COLUMNS = ("eval_id", "eval_wind", "eval_budget", "eval_filter", "eval_rule
                 "eval_seed", "checkpoint")
 RUN_COLUMNS = ("train_timesteps", "train_wall_s", "eval_wall_s")
 #: what the training episodes did (:class:`~softreach.agents.safe_train.TrainingSafetyCounter`): counts over the
-#: whole training and per 100k environment steps
+#: whole training and per 100k environment steps; ``train_certified_*``: the episodes from starts the training's
+#: safety filter certified (empty for a run trained without one)
 TRAIN_SAFETY_COLUMNS = ("train_episodes", "train_landed", "train_hard_violations", "train_over_budget",
-                        "train_hard_per_100k", "train_over_per_100k")
+                        "train_hard_per_100k", "train_over_per_100k", "train_certified_episodes",
+                        "train_certified_hard_violations", "train_certified_over_budget")
 RATE_KEYS = ("value", "low", "high", "count", "n")
 MEAN_KEYS = ("mean", "low", "high", "std", "min", "max", "n")
 OUTCOMES = ("landed", "hard_violation", "timeout")
@@ -88,13 +90,17 @@ def table_rows(items: Sequence[tuple[SweepRun, list[EvalSetting], dict[str, Any]
         train = result.get("train", {})
         safety = train.get("safety") or {}
         per = safety.get("per_100k") or {}
+        certified = safety.get("certified_starts") or {}
         base = {"run_id": run.run_id, "model": run.model, "algo": run.algo, "method": run.method, "rule": run.rule,
                 "budget": budget_text(run.budget), "wind": run.wind, "variant": run.variant, "seed": run.seed,
                 "timesteps": run.timesteps, "n_envs": run.n_envs, "table": run.table,
                 "train_timesteps": train.get("timesteps"), "train_wall_s": train.get("wall_time_s"),
                 "train_episodes": safety.get("episodes"), "train_landed": safety.get("landed"),
                 "train_hard_violations": safety.get("hard_violations"), "train_over_budget": safety.get("over_budget"),
-                "train_hard_per_100k": per.get("hard_violations"), "train_over_per_100k": per.get("over_budget")}
+                "train_hard_per_100k": per.get("hard_violations"), "train_over_per_100k": per.get("over_budget"),
+                "train_certified_episodes": certified.get("episodes"),
+                "train_certified_hard_violations": certified.get("hard_violations"),
+                "train_certified_over_budget": certified.get("over_budget")}
         for ev in evals:
             e = result.get("evaluations", {}).get(ev.eval_id)
             row = {**base, "eval_id": ev.eval_id, "eval_wind": ev.wind, "eval_budget": ev.budget,

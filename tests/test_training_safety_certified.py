@@ -82,5 +82,44 @@ def test_certified_flag_is_the_one_reported_at_that_episodes_reset(pointmass_hel
     assert s["hard_violations"] == 0 and s["over_budget"] == 0
 
 
+def test_sweep_table_and_report_carry_the_certified_counts():
+    """results.csv gains the certified-start counts of a run trained under a filter (empty without one), and the
+    report's training cell sums them over the seeds beside the per-100k rates it already had."""
+    from types import SimpleNamespace
+
+    from softreach.agents.sweep import EvalSetting
+    from softreach.agents.sweep_methods import method_lines
+    from softreach.agents.sweep_report import table_rows
+
+    ev = EvalSetting(wind="random", budget=0.3, filter="on", episodes=20, starts="certified", seed=0,
+                     checkpoint="best", table=None)
+    agg = {"landing_rate": {"value": 1.0, "low": 0.8, "high": 1.0, "count": 20, "n": 20},
+           "hard_violation_rate": {"value": 0.0, "low": 0.0, "high": 0.2, "count": 0, "n": 20},
+           "over_budget_rate": {"value": 0.0, "low": 0.0, "high": 0.2, "count": 0, "n": 20},
+           "return": {"mean": 150.0, "std": 1.0, "n": 20}, "control_effort": {"mean": 0.3, "std": 0.1, "n": 20},
+           "time_to_land": {"mean": 0.7, "std": 0.1, "n": 20}, "intervention_rate": {"mean": 0.1, "std": 0.0, "n": 20}}
+
+    def item(seed, rule, certified):
+        run = SimpleNamespace(run_id=f"r{seed}{rule}", model="pointmass", algo="ppo", method="plain", rule=rule,
+                              budget=None, wind="random", variant="default", seed=seed, timesteps=1000, n_envs=2,
+                              table="t.srt")
+        safety = {"episodes": 30, "landed": 20, "hard_violations": 4, "over_budget": 2,
+                  "per_100k": {"hard_violations": 400.0, "over_budget": 200.0}, "certified_starts": certified}
+        result = {"status": "done", "train": {"timesteps": 1000, "safety": safety},
+                  "evaluations": {ev.eval_id: {"status": "done", "rule": "switch", "aggregates": agg}}}
+        return run, [ev], result
+
+    cert = [{"episodes": 12, "landed": 12, "hard_violations": 0, "over_budget": 1},
+            {"episodes": 9, "landed": 8, "hard_violations": 2, "over_budget": 0}]
+    rows = table_rows([item(0, "switch", cert[0]), item(1, "switch", cert[1]), item(0, "none", None)])
+    assert [(r["train_certified_episodes"], r["train_certified_hard_violations"], r["train_certified_over_budget"])
+            for r in rows] == [(12, 0, 1), (9, 2, 0), (None, None, None)]
+    lines = method_lines(rows)
+    filtered = next(x for x in lines if "trained under the filter" in x)
+    assert filtered.rstrip(" |").endswith("400, 200; from certified starts 2, 1 in 21 episodes")
+    plain = next(x for x in lines if "learned without the filter" in x)
+    assert plain.rstrip(" |").endswith("400, 200")
+
+
 if __name__ == "__main__":  # pragma: no cover
     raise SystemExit(pytest.main([__file__, "-q"]))
