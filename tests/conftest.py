@@ -1,13 +1,14 @@
 """Shared fixtures (small solved tables, each solved once per run: :mod:`shared_tables`) and the run's warm-up.
 
-The filter's first decision compiles it (about 90 s of one core on an empty compiled-code cache). The modules that
+The filter's first decision compiles it on an empty compiled-code cache, the suite's longest compile
+(``benchmarks/first_compile.py filter`` measures it). The modules that
 use the filter run after those that do not, and while those run, a process of its own (:mod:`warm_up`) solves the
 shared held tables and compiles the filter on them, so that the compile takes the machine's other core instead of
 stalling the run. A test of a module that uses the filter waits until the warm-up is done (it then loads the compiled
 code); if the warm-up fails, that test compiles the filter itself, as it would without one.
 
 With ``pytest -n 2`` (pytest-xdist) the two workers share the tables and the one warm-up (started by the first
-worker), and each runs torch on one thread.
+worker). Every process runs on one thread (``OMP_NUM_THREADS=1`` unless set, and always in a worker).
 """
 
 from __future__ import annotations
@@ -21,10 +22,11 @@ from pathlib import Path
 import pytest
 
 WORKER = os.environ.get("PYTEST_XDIST_WORKER")
+# one thread per process: the tests and the warm-up (or two workers and the warm-up) already share the machine's cores
 if WORKER:
-    os.environ["OMP_NUM_THREADS"] = "1"  # two workers on two cores: one thread each
+    os.environ["OMP_NUM_THREADS"] = "1"
 else:
-    os.environ.setdefault("OMP_NUM_THREADS", "2")
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from shared_tables import solved  # noqa: E402  (after the thread setting, before torch is imported)
 from warm_up import phase_lock  # noqa: E402

@@ -2,8 +2,9 @@
 (:func:`softreach.filters.precompile.precompile`, what ``softreach compile`` runs) in a process of its own, started by
 ``tests/conftest.py`` while the tests that do not use the filter run.
 
-The filter's first decision compiles it for about 90 s of one core, paid otherwise by whichever test decides first,
-while the machine's other core idles (one pytest process) or compiles the same code (two workers). Here it is
+The filter's first decision compiles it (``benchmarks/first_compile.py filter`` measures how long), paid otherwise by
+whichever test decides first, while the machine's other core idles (one pytest process) or compiles the same code
+(two workers). Here it is
 compiled once, beside the tests, into the run's compiled-code cache, which the tests then load.
 
 Usage: ``python tests/warm_up.py ROOT PHASE...`` with the phases ``pointmass`` and ``glider`` (a model's shared held
