@@ -31,9 +31,10 @@ else:
 from shared_tables import solved  # noqa: E402  (after the thread setting, before torch is imported)
 from warm_up import phase_lock  # noqa: E402
 
-#: a module may use the filter if its text names it (or the agents, which deploy it, or a held table, which is for
-#: it): such modules run last, and wait for a warm-up there is
-USES_FILTER = re.compile(r"softreach\.(filters|agents)|ValueFilter|SafetyFilter|_held_table")
+#: a module may use the filter if its text names it, the agents (which deploy it), a held table (which is for it) or
+#: the filter's proof (whose compiled kernels the warm-up compiles too): such modules run last, and wait for a
+#: warm-up there is
+USES_FILTER = re.compile(r"softreach\.(filters|agents|reach\.proof)|ValueFilter|SafetyFilter|_held_table")
 #: a module surely makes a filter decide: only a run with one of these starts a warm-up
 DECIDES = re.compile(r"ValueFilter\(|SafetyFilter\(|_held_table|\baudit\(|\bevaluate\(")
 #: the most a test waits for the warm-up [s]: past that it compiles the filter itself
@@ -50,7 +51,7 @@ def _phases(text: str) -> list[str]:
     """The warm-up phases a module's tests wait for."""
     if not USES_FILTER.search(text):
         return []
-    return ["pointmass", "glider"] if "glider_held_table" in text else ["pointmass"]
+    return ["pointmass", "glider"] if "glider" in text else ["pointmass"]
 
 
 def _module_phases(item: pytest.Item) -> list[str]:
