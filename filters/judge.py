@@ -138,13 +138,22 @@ def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
 
 
 @njit(inline="always")
+def meets_target(M, tube_lo, tube_hi):
+    """Whether the period's tube meets the target box (only then can it surely land)."""
+    meets = True
+    for i in range(len(tube_lo)):
+        meets = meets and tube_hi[i] >= M.target_lo[i] and tube_lo[i] <= M.target_hi[i]
+    return meets
+
+
+@njit(inline="always")
 def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     """What :meth:`Lookahead.assess` decides without the table, for one row: a
     :class:`~softreach.filters.compiled_args.Verdict`; writes the end box into ``end_lo``, ``end_hi``. Without
     landing cells its ``ok`` is ``kept`` and ``lands`` is asked only of a period that does not keep: the table's
     part is :func:`~softreach.filters.table_pass.table_verdict`'s."""
     params, slack = M.params, M.slack
-    target_lo, target_hi, edges, horizon = M.target_lo, M.target_hi, M.edges, M.horizon
+    edges, horizon = M.edges, M.horizon
     safe, has_safe, land = C.safe, C.has_safe, C.land
     tube_lo, tube_hi, lo, hi = work.tube_lo, work.tube_hi, work.lo, work.hi
     n = len(x_lo)
@@ -170,9 +179,7 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     # without landing cells the table decides whether the end states pass (softreach.filters.table_pass): here ok
     # is only that the period keeps C1 and the budget
     ok = safe_end and (not C.has_land or cover_row(land, t_next, end_lo, end_hi, z_end))
-    meets = True
-    for i in range(n):
-        meets = meets and tube_hi[i] >= target_lo[i] and tube_lo[i] <= target_hi[i]
+    meets = meets_target(M, tube_lo, tube_hi)
     lands = False
     if not ok and bounded and in_time and meets:
         lands = _lands(enclose, M, x_lo, x_hi, z, a, M.check_edges, lo, hi, work.box_lo[:n], work.box_hi[:n])

@@ -17,16 +17,7 @@ from softreach.reach.proof.kernels import cover_row
 from softreach.reach.proof.model_kernels import call_held_box
 from softreach.reach.proof.ranks import TIE_INF
 
-from .judge import _lands, _widen, judge, next_value, period
-
-
-@njit(inline="always")
-def _meets(M, tube_lo, tube_hi):
-    """Whether the period's tube meets the target box (only then can it surely land)."""
-    meets = True
-    for i in range(len(tube_lo)):
-        meets = meets and tube_hi[i] >= M.target_lo[i] and tube_lo[i] <= M.target_hi[i]
-    return meets
+from .judge import _lands, _widen, judge, meets_target, next_value, period
 
 
 @njit(inline="always")
@@ -79,7 +70,7 @@ def witness(enclose, M, C, T, cands, t, lo, hi, z_lo, z_hi, work, space):
         best, best_score, best_z, any_pass = -1, np.inf, 0.0, False
         for j in range(J):
             v = judge(enclose, M, C, t, cur_lo, cur_hi, z_lo, cands[j], w_lo[j], w_hi[j], work)
-            meets = _meets(M, work.tube_lo, work.tube_hi)
+            meets = meets_target(M, work.tube_lo, work.tube_hi)
             nxt = _table_next(T, v.in_c1, v.t_next, w_lo[j], w_hi[j], v.z_end, z_hi, work)
             passes, lands, nxt = _finish(enclose, M, t, cur_lo, cur_hi, z_lo, cands[j], v, nxt, meets, work)
             if lands:
@@ -107,7 +98,7 @@ def table_verdict(enclose, M, C, T, cands, t, x_lo, x_hi, z, z_hi, a, v, end_lo,
     without them by the table (:func:`_finish`), an end box in the witness window by a witness."""
     if C.has_land:
         return v.ok or v.lands, v.lands, (-np.inf if v.lands else np.inf)
-    meets = _meets(M, work.tube_lo, work.tube_hi)
+    meets = meets_target(M, work.tube_lo, work.tube_hi)
     nxt = _table_next(T, v.in_c1, v.t_next, end_lo, end_hi, v.z_end, z_hi, work)
     if math.isfinite(nxt) and in_window(M, v.t_next):
         won = witness(enclose, M, C, T, cands, v.t_next, end_lo, end_hi, v.z_end, z_hi, work, space)
@@ -154,7 +145,7 @@ def _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     if cover_row(C.land, min(t + dt, horizon), end_lo, end_hi, z):
         return True
     call_held_box(enclose, params, x_lo, x_hi, a, edges[0], dt, work.tube_lo, work.tube_hi)
-    return _meets(M, work.tube_lo, work.tube_hi)
+    return meets_target(M, work.tube_lo, work.tube_hi)
 
 
 __all__ = ["in_window", "keeps", "table_verdict", "witness"]
