@@ -19,12 +19,14 @@ from typing import Any
 import numpy as np
 
 
-def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
+def precompile(table: Any, period: float | None = None, cells: bool = True) -> dict[str, Any]:
     """Make one decision, one certificate of a state and one start-plan search of the filter the environment
     wraps around ``table``.
 
     :param table: a :class:`~softreach.reach.tables.table.Table` (or its path)
     :param period: the control period [s] (default: the table's)
+    :param cells: give the filter the model's cells (built or unpacked where missing); without them it runs the same
+        compiled code, which is all that compiling ahead needs
     :return: ``model``, ``compiled`` (whether the model's filter has a compiled decision at all), ``seconds``,
         ``source`` (``"compiled"`` now, loaded from the ``"cache"``, or already in this ``"process"``) and
         ``cache`` (the folder of the compiled code, :func:`softreach.reach.jit.compiled_cache_dir`)
@@ -52,7 +54,8 @@ def precompile(table: Any, period: float | None = None) -> dict[str, Any]:
     hits, misses = (sum(c.values()) for c in (decide_rows.stats.cache_hits, decide_rows.stats.cache_misses))
     t0 = time.perf_counter()
     # the landing checks SafetyFilter asks for: the same compiled code as any other count, and cells it ships
-    vf = ValueFilter(table, dt, target_checks=getattr(model, "substeps", 1))
+    no_cells = {} if cells else {"safe_cells": None, "landing_cells": None}
+    vf = ValueFilter(table, dt, target_checks=getattr(model, "substeps", 1), **no_cells)
     out: dict[str, Any] = {"model": model.name, "compiled": vf.compiled is not None, "seconds": 0.0,
                            "source": None, "cache": None, "missing": CompiledDecision.missing(vf)}
     if vf.compiled is None:
