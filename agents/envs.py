@@ -21,7 +21,7 @@ import gymnasium as gym
 import numpy as np
 
 import softreach.envs  # noqa: F401  (registers the environment ids)
-
+from softreach.filters.background import filter_code_cached
 from softreach.reach.registry import make_env as make_model_env, model_class
 
 from .tables import TableOracle, as_table, safety_filter, sample_certified
@@ -183,21 +183,6 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
 #: the notice's estimate of the wall time on an idle core
 FILTER_COMPILE_S = 90
 _announced = False
-
-
-def filter_code_cached() -> bool | None:
-    """Whether the compiled decision, certificate and start-plan search are in numba's on-disk cache (or already
-    compiled in this process): ``False`` when one must be compiled, ``None`` when the cache cannot be read."""
-    try:
-        from softreach.filters.compiled import decide_rows
-        from softreach.filters.compiled_certify import certify_rows
-        from softreach.filters.compiled_starts import start_plan_rows
-
-        # an index that numba loads for these sources (it reads an empty one where the sources changed)
-        return all(f.signatures or f._cache._cache_file._load_index()
-                   for f in (decide_rows, certify_rows, start_plan_rows))
-    except Exception:  # noqa: BLE001 - numba internals: no announcement is better than a failed episode
-        return None
 
 
 def announce_filter_compile(env: gym.Env) -> None:

@@ -13,26 +13,39 @@ package's other cached files (:func:`cache_root`: ``$SOFTREACH_CACHE`` or ``~/.c
 the installed package, which is often read-only. Only the functions compiled through :func:`njit` use it; other
 numba code in the same process keeps numba's defaults.
 
+A process that compiles ahead of use (:func:`compiling_ahead`: ``softreach solve`` compiles the safety filter's code
+in the background while it solves) holds a lock beside the cache and names the functions it compiles; another
+process that misses one of them in the cache waits for it and loads the result (:meth:`PackageCache.load_overload`)
+instead of compiling the same code at the same time on the same cores.
+
 This relies on numba's cache classes (``numba.core.caching``) and on a dispatcher's ``_cache`` attribute, which
 ``pyproject.toml`` pins to a tested range of numba versions; tests/test_numba_cache.py checks the mechanism.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import importlib.util
 import inspect
+import json
 import os
 import sys
+import time
 import warnings
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numba
 from numba.core import config
 from numba.core.caching import CompileResultCacheImpl, FunctionCache, _CacheLocator
+
+try:  # POSIX file locks; elsewhere nothing compiles ahead and nothing waits
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
 
 #: the packages whose sources make up :func:`source_stamp` (pyproject.toml, ``[tool.setuptools] packages``;
 #: each folder is searched with its sub-folders)
@@ -124,6 +137,103 @@ class PackageCache(FunctionCache):
     """numba's per-function disk cache, located and stamped by :class:`_PackageLocator`."""
 
     _impl_class = _PackageCacheImpl
+
+    def load_overload(self, sig: Any, target_context: Any) -> Any:
+        """The cached code for ``sig``, or ``None``; where it is missing and another process is compiling this
+        function ahead of use (:func:`compiling_ahead`), wait for that process and read the cache again."""
+        out = super().load_overload(sig, target_context)
+        if out is None and wait_for_compile_ahead(self._py_func):
+            out = super().load_overload(sig, target_context)
+        return out
+
+
+#: the lock file beside the compiled code that a process compiling ahead of use holds (:func:`compiling_ahead`)
+LOCK_NAME = "compiling-ahead.lock"
+#: the longest wait for a process compiling ahead [s]; past it the waiting process compiles itself
+WAIT_LIMIT_S = 1800.0
+_HOLDING: list[bool] = [False]  # this process holds the lock: its own misses are its own to compile
+_ANNOUNCED: list[bool] = [False]
+
+
+def qualified_name(func: Callable) -> str:
+    """``module.qualname`` of a Python function or of a dispatcher's ``py_func``: how the lock names functions."""
+    func = getattr(func, "py_func", func)
+    return f"{func.__module__}.{func.__qualname__}"
+
+
+@contextlib.contextmanager
+def compiling_ahead(functions: Iterable[Callable]) -> Iterator[bool]:
+    """Hold the compile-ahead lock while this process compiles ``functions`` (dispatchers of :func:`njit`), so that
+    a process that misses one of them in the cache meanwhile waits and loads it instead of compiling it too.
+
+    Yields ``True`` while the lock is held, ``False`` (holding nothing) where another process holds it or the
+    platform has no file locks. A process that dies releases the lock with it.
+    """
+    if fcntl is None:
+        yield False
+        return
+    path = compiled_cache_dir() / LOCK_NAME
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            yield False
+            return
+        _HOLDING[0] = True
+        try:
+            fh.seek(0)
+            fh.truncate()
+            fh.write(json.dumps({"pid": os.getpid(), "functions": [qualified_name(f) for f in functions]}))
+            fh.flush()
+            yield True
+        finally:
+            _HOLDING[0] = False
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def wait_for_compile_ahead(func: Callable, poll_s: float = 0.1) -> bool:
+    """Wait while another process compiles ``func`` ahead of use (:func:`compiling_ahead`); ``True`` if it waited.
+
+    Says once on stderr why the process waits. Returns at once where no process holds the lock, where the holder
+    compiles other functions, or where this process is the holder.
+    """
+    if fcntl is None or _HOLDING[0]:
+        return False
+    path = compiled_cache_dir() / LOCK_NAME
+    try:
+        fh = open(path)
+    except OSError:
+        return False
+    with fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            pass
+        else:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+            return False
+        try:
+            holder = json.loads(fh.read() or "{}")
+        except ValueError:
+            holder = {}
+        # a holder that has not yet written its names is waited for: it compiles ahead what a user runs first
+        if "functions" in holder and qualified_name(func) not in holder["functions"]:
+            return False
+        if not _ANNOUNCED[0]:
+            _ANNOUNCED[0] = True
+            print(f"softreach: waiting for process {holder.get('pid', '?')}, which compiles the safety filter's code "
+                  f"ahead of its first use (started by softreach solve)", file=sys.stderr, flush=True)
+        deadline = time.monotonic() + WAIT_LIMIT_S
+        while time.monotonic() < deadline:
+            try:
+                fcntl.flock(fh, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except BlockingIOError:
+                time.sleep(poll_s)
+                continue
+            fcntl.flock(fh, fcntl.LOCK_UN)
+            break
+    return True
 
 
 _UNWRITABLE: list[str] = []  # the cache folder that could not be written, once warned about

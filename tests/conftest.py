@@ -27,6 +27,9 @@ if WORKER:
     os.environ["OMP_NUM_THREADS"] = "1"
 else:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+# softreach solve compiles the filter in the background where the cache lacks it: here the warm-up does (tests that
+# test that set it themselves)
+os.environ["SOFTREACH_COMPILE_AHEAD"] = "0"
 
 from shared_tables import solved  # noqa: E402  (after the thread setting, before torch is imported)
 from warm_up import phase_lock  # noqa: E402

@@ -132,12 +132,20 @@ def run_solve(args: argparse.Namespace) -> int:
 
     if args.threads is not None and args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
+    model = get_model(args.model)
+    ahead = None
+    if not args.classical:
+        # the safety filter's compiled code does not depend on the table: compile it on another core meanwhile
+        from softreach.filters.background import start
+
+        ahead = start()
     threads = args.threads if args.threads is not None else idle_cores()
+    if ahead is not None and args.threads is None and threads is not None:
+        threads = max(1, threads - 1)  # the core the compilation takes
     if threads is not None and args.backend == "torch" and args.device == "cpu":
         import torch
 
         torch.set_num_threads(threads)
-    model = get_model(args.model)
     # a model may declare a coarser default grid for its held table (held_shape, held_budget_points)
     held = args.held or args.control_period is not None
     shape = tuple(args.grid) if args.grid else (held and getattr(model, "held_shape", None)) or model.default_shape
