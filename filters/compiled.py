@@ -7,8 +7,9 @@ plans of :mod:`softreach.filters.plans`; this module decides the same way, row b
   (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`, :attr:`~softreach.reach.problem.Model.
   set_max_kernel`) and bounds boxes of starts: the point mass, the glider and Dubins do
   (:meth:`CompiledDecision.missing` names what a model lacks),
-* the table holds ``W_eps`` (with ``V`` and ``V_safe`` if it has them). Where the filter has landing cells they
-  decide what passes; without them the table does (:mod:`softreach.filters.table_pass`).
+* the table holds ``W_eps`` or the budget surface ``Q_min`` (with ``V`` and ``V_safe`` if it has them; ``Q_min`` is
+  read in ``W_eps``'s shape, :func:`~softreach.reach.proof.lookahead.surface_fields`). Where the filter has landing
+  cells they decide what passes; without them the table does (:mod:`softreach.filters.table_pass`).
 
 Both rules are compiled, the ``"switch"`` rule and the ``"smooth"`` one with its bisection.
 
@@ -228,8 +229,8 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
     work, end_lo, end_hi, act, point = space.work, space.end_lo, space.end_hi, space.act, space.point
     for r in range(N):
         tr, xr, zr = t[r], x[r], z[r]
-        value[r] = (certificate_row(T.W, T.z_top, T.z_floor, T.V, T.has_V, tr, xr, zr, point, work.scratch_W,
-                                    work.scratch_V) if diagnostics else np.nan)
+        value[r] = (certificate_row(T.W, T.z_top, T.z_floor, T.z_left, T.V, T.has_V, tr, xr, zr, point,
+                                    work.scratch_W, work.scratch_V) if diagnostics else np.nan)
         new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = -1, 0, 0
         # one call of judge serves every action a row tries, since each inlined copy costs seconds of the first
         # compilation: step 0 the policy's action (Lookahead.passes), steps 1 to J every candidate
@@ -294,7 +295,7 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
             chosen[r, i] = cands[best, i]
         nxt[r], certified[r], blend[r] = best_next, any_ok, lam
         reason[r] = ((BLEND if lam > 0 else OPTIMAL) if any_ok else UNCERTIFIED) if bounded else FALLBACK
-        if not on_table(T.W, tr, xr, max(zr, 0.0), point, work.scratch_W):
+        if not on_table(T.inside, tr, xr, max(zr, 0.0), point, work.scratch_W):
             reason[r] = OUTSIDE
 
 
@@ -338,9 +339,10 @@ class CompiledDecision:
         land_args, land_plan = (land.kernel_args, land.plan_args) if land is not None else _no_cells(la)
         safe_args, safe_plan = (safe.kernel_args, safe.plan_args) if safe is not None else (land_args, land_plan)
         self.C = Cells(safe_args, safe is not None, land_args, safe_plan, land_plan, land is not None)
-        W_args = la.table_args
+        W, z_top, z_floor, z_left, V, has_V, inside = la.table_args
         has_S = "V_safe" in la.fields
-        self.T = TableArgs(*W_args, kernel_field(*la.fields["V_safe"]) if has_S else W_args[3], has_S)
+        self.T = TableArgs(W, z_top, z_floor, z_left, V, has_V, kernel_field(*la.fields["V_safe"]) if has_S else V,
+                           has_S, inside)
         # a private writable copy: a candidate row then has the type of the action being judged (a work array),
         # and the one-period test (judge) compiles once for both
         self.cands = np.array(la.candidates, dtype=np.float64, order="C")
@@ -372,8 +374,6 @@ class CompiledDecision:
                 model.set_box_max(w, 0.0, np.zeros((1, la.n)), np.zeros((1, la.n))) is not None
                 for w in ("target", "hard_constraint", "soft_constraint")):
             return f"{name} bounds its sets with set_box_max but gives no set_max_kernel computing the same"
-        if la.budget_field != "W_eps":
-            return f"the table holds {la.budget_field}, not W_eps (solve it without --budget-surface)"
         return None
 
     @staticmethod

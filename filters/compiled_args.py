@@ -75,20 +75,27 @@ class Cells(NamedTuple):
 
 
 class TableArgs(NamedTuple):
-    """A ``W_eps`` table's fields as the compiled code reads them (:func:`~softreach.reach.proof.kernels.
-    certificate_row`, :func:`~softreach.reach.proof.box_max.kernel_field`)."""
+    """A table's fields as the compiled code reads them (:func:`~softreach.reach.proof.kernels.certificate_row`,
+    :func:`~softreach.reach.proof.box_max.kernel_field`, :attr:`~softreach.reach.proof.lookahead.Lookahead.
+    table_args`)."""
 
-    #: ``W_eps`` over the state and the budget
+    #: ``W_eps`` over the state and the budget, or a budget surface's ``Q_min - z`` in its shape
     W: tuple
     #: the budget grid's top and bottom [s]
     z_top: float
     z_floor: float
+    #: the horizon where the budget read is at most the time left (a budget surface), else ``+inf``
+    #: (:func:`~softreach.reach.proof.kernels.usable_budget`)
+    z_left: float
     #: ``V`` (``W`` again where the table has none)
     V: tuple
     has_V: bool
     #: the safe value ``V_safe`` (``V`` again where the table has none)
     S: tuple
     has_S: bool
+    #: the field whose finite values say where a state lies on the table (:func:`~softreach.filters.judge.on_table`):
+    #: ``W`` itself, or a budget surface's before its nodes where no budget suffices are made infinite
+    inside: tuple
 
 
 class ActionMap(NamedTuple):

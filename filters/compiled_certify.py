@@ -40,8 +40,8 @@ def certify_rows(enclose, m_args, c_args, t_args, cands, t, x, z, ok, nxt, value
     c_score, c_in, c_bounded, c_proven, c_c1 = space.c_score, space.c_in, space.c_bounded, space.c_proven, space.c_c1
     for r in range(N):
         tr, xr, zr = t[r], x[r], z[r]
-        value[r] = certificate_row(T.W, T.z_top, T.z_floor, T.V, T.has_V, tr, xr, zr, point, work.scratch_W,
-                                   work.scratch_V)
+        value[r] = certificate_row(T.W, T.z_top, T.z_floor, T.z_left, T.V, T.has_V, tr, xr, zr, point,
+                                   work.scratch_W, work.scratch_V)
         t_next = tr
         least, best = np.inf, -1
         for j in range(J):
@@ -67,5 +67,5 @@ def certify_rows(enclose, m_args, c_args, t_args, cands, t, x, z, ok, nxt, value
             best = np.argmin(c_score)
         # a failing candidate's next value is +inf (Lookahead.assess): none of its end states is certified
         ok[r], nxt[r] = c_ok[best], c_next[best]
-        inside[r] = on_table(T.W, tr, xr, max(zr, 0.0), point, work.scratch_W)
+        inside[r] = on_table(T.inside, tr, xr, max(zr, 0.0), point, work.scratch_W)
         in_cells[r] = C.has_land and cover_row(C.land, tr, xr, xr, zr)

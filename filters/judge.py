@@ -34,7 +34,7 @@ import math
 import numpy as np
 
 from softreach.reach.jit import njit
-from softreach.reach.proof.kernels import MAX_NODES, box_max_row, cover_row, point_value
+from softreach.reach.proof.kernels import MAX_NODES, box_max_row, cover_row, point_value, usable_budget
 from softreach.reach.proof.model_kernels import SET_INDEX, call_held_box, call_set_max
 from softreach.reach.proof.ranks import (LOWEST_BAD, NEXT_CAP, RANK_LEAVES_C1, RANK_OVERSPENT, RANK_PROVEN, RANK_SAFE,
                                   RANK_UNSAFE, TIE_INF, TIE_OVERSPEND)
@@ -197,13 +197,13 @@ def judge_once(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
 def next_value(T, t_next, end_lo, end_hi, z_end, z_hi, work):
     """The worst certificate over a period's end box, the budget between ``z_end`` and ``z_hi`` (``+inf`` where
     the table has no number): :meth:`Lookahead.assess`'s next value of an action whose motion keeps ``C1``."""
-    W, z_top, z_floor, V, has_V = T.W, T.z_top, T.z_floor, T.V, T.has_V
+    W, z_floor, V, has_V = T.W, T.z_floor, T.V, T.has_V
     box_lo, box_hi, scratch_W, scratch_V = work.box_lo, work.box_hi, work.scratch_W, work.scratch_V
     n = len(end_lo)
-    z_lo = max(z_end, z_floor)
+    z_lo = max(usable_budget(z_end, np.inf, T.z_left, t_next), z_floor)
     for i in range(n):
         box_lo[i], box_hi[i] = end_lo[i], end_hi[i]
-    box_lo[n], box_hi[n] = z_lo, max(min(z_hi, z_top), z_lo)
+    box_lo[n], box_hi[n] = z_lo, max(usable_budget(z_hi, T.z_top, T.z_left, t_next), z_lo)
     best = box_max_row(W, t_next, box_lo, box_hi, MAX_NODES, scratch_W)
     if has_V and z_end >= 0 and not math.isnan(best):
         # V's maximum over the box is at least its value at the box's corner (up to rounding): where that lies
@@ -237,7 +237,7 @@ def next_floor(T, t_next, end_lo, z_end, work):
     n = len(end_lo)
     for i in range(n):
         point[i] = end_lo[i]
-    point[n] = max(z_end, T.z_floor)
+    point[n] = max(usable_budget(z_end, np.inf, T.z_left, t_next), T.z_floor)
     low = point_value(T.W, t_next, point, scratch_W[2], scratch_W[8])
     if T.has_V and z_end >= 0:
         low = min(low, point_value(T.V, t_next, end_lo, scratch_V[2], scratch_V[8]))

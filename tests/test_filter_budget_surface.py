@@ -1,5 +1,6 @@
 """The safety filter on a budget-surface table (``Q_min`` on the state grid, sampled-data game): the same
-one-period test, the same adversaries, no hard violation and no overspend from certified starts."""
+compiled decision, reading ``Q_min - min(z, T - t)`` where a ``W_eps`` table gives ``W_eps``; the same adversaries,
+no hard violation and no overspend from certified starts."""
 
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ def vf(held_qmin):
 
 def test_held_budget_surface_table_is_certified_and_its_sets_grow(held_qmin, vf):
     assert held_qmin.has_budget_surface and not held_qmin.has_budget and vf.sampled
+    assert vf.compiled is not None
     x = np.random.default_rng(0).uniform([-15, 0], [15, 18], (3000, 2))
     certified = [vf.certify(0.0, x, q)[0] for q in (0.0, 0.3, 0.6)]
     # more budget never loses a certified state (passing only gets easier with budget)
@@ -56,9 +58,46 @@ def test_no_certificate_in_a_cell_with_a_node_where_no_budget_suffices(held_qmin
     corners = np.stack([Q[k, i[:, 0] + a, i[:, 1] + b] for a in (0, 1) for b in (0, 1)], axis=1)
     infeasible_corner = (corners > (times[-1] - t) + 1e-9).any(axis=1)
     v, _ = interpolate(held_qmin.values("V"), held_qmin.times("V"), held_qmin.grid("V"), np.full(len(x), t), x)
-    by_q = np.isfinite(d) & (d < np.minimum(v, np.inf))  # certified by Q_min, not by the classical V
+    # certified by Q_min, not by the classical V (read by the compiled interpolant, a rounding away from numpy's)
+    by_q = np.isfinite(d) & (d < v - 1e-9 * np.maximum(1.0, np.abs(v)))
     assert by_q.sum() > 50
     assert not (by_q & infeasible_corner).any()
+
+
+def test_certificate_is_q_min_less_the_usable_budget(held_qmin, vf):
+    """The compiled certificate at a state is the definition read from the table's own interpolants:
+    ``min(V~, Q~_min - min(z, T - t))``, ``+inf`` at a negative budget and in a cell with a corner where no budget
+    suffices; at times near the horizon, where the budget exceeds the time left, only the time left counts. The
+    budget surface is read in float32 with its top node rounded up, so the compiled value lies at or above the
+    definition, by at most one float32 rounding of ``|Q_min - T|`` (``2**-24 * 2 T``)."""
+    Q, times, g = np.asarray(held_qmin.values("Q_min")), held_qmin.times("Q_min"), held_qmin.grid("Q_min")
+    T = float(times[-1])
+    rng = np.random.default_rng(7)
+    N = 4000
+    t = np.concatenate([rng.uniform(0.0, T, N // 2), rng.uniform(T - 0.7, T, N // 2)])
+    x = rng.uniform([-15, 0], [15, 18], (N, 2))
+    z = rng.choice([-0.01, 0.0, 0.05, 0.3, 0.6, 2.0 * T], N)
+    got = vf.value(t, x, z)
+    q, q_in = interpolate(Q, times, g, t, x)
+    v, v_in = interpolate(held_qmin.values("V"), held_qmin.times("V"), held_qmin.grid("V"), t, x)
+    want = np.where(q_in & (z >= 0), q - np.minimum(z, np.maximum(T - t, 0.0)), np.inf)
+    # cells with a corner where no budget suffices, at both snapshots around t
+    k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+    i = np.clip(np.floor((x - np.asarray(g.lo)) / np.asarray(g.spacing)).astype(int), 0, np.asarray(g.shape) - 2)
+    bad = np.zeros(N, bool)
+    for kk in (k, k + 1):
+        for a in (0, 1):
+            for b in (0, 1):
+                bad |= Q[kk, i[:, 0] + a, i[:, 1] + b] > (T - times[kk]) + 1e-9
+    want = np.where(bad, np.inf, want)
+    want = np.minimum(want, np.where(v_in & (z >= 0), v, np.inf))
+    finite = np.isfinite(want)
+    assert finite.sum() > 500 and (~finite).sum() > 500
+    assert ((z > T - t) & finite & (want < v)).sum() > 20  # the time-left clamp decides some values
+    np.testing.assert_array_equal(np.isfinite(got), finite)
+    allowance = 2.0 ** -24 * 2.0 * T
+    assert (got[finite] >= want[finite] - 1e-12).all()
+    assert (got[finite] <= want[finite] + allowance).all()
 
 
 def test_audit_from_certified_starts_never_leaves_c1_nor_overspends(vf):
@@ -94,9 +133,9 @@ def test_continuous_budget_surface_table_certifies_only_with_the_cells(tmp_path_
 
 
 def test_starts_certified_by_a_plan_of_their_own(vf):
-    """The numpy search for a start's own plan (this filter has no compiled decision): runs from such starts, the
-    plan handed to the first step, keep every promise under adversarial winds."""
-    assert vf.compiled is None
+    """The compiled search for a start's own plan on a budget surface: runs from such starts, the plan handed to the
+    first step, keep every promise under adversarial winds."""
+    assert vf.compiled is not None
     rows = audit(vf, [0.06, 0.3], starts_per_row=2, kinds=("planned",), policies=("random", "always_max"),
                  winds=("worst_case", "switch_on_filter"), pieces=4, seed=3, check_unneeded=False)
     filtered = [r for r in rows if r.filtered]

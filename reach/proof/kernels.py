@@ -62,6 +62,18 @@ def snapshot(times, t):
 
 
 @njit(inline="always")
+def _blend(a, b, f):
+    """``(1 - f) a + f b``, the node of weight 0 left out: the same number for finite nodes, and an infinite node
+    (a budget surface's where no budget suffices, :func:`~softreach.reach.proof.lookahead.surface_fields`) counts
+    only where its weight is positive, not as the NaN of ``0 * inf``."""
+    if f == 0.0:
+        return a
+    if f == 1.0:
+        return b
+    return (1.0 - f) * a + f * b
+
+
+@njit(inline="always")
 def _node_offset(q, first, extent, shape, periodic):
     """The flat index of the ``q``-th node (the last axis fastest) of the block of ``extent`` nodes from ``first``
     along each axis: wrapped along a periodic axis, held at the grid's last node along another."""
@@ -151,7 +163,7 @@ def _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first
                 s0 = (o * n_a + j) * inner
                 d0 = (o * L + p) * inner
                 for i in range(inner):
-                    dst[d0 + i] = (1.0 - f) * src[s0 + i] + f * src[s0 + inner + i]
+                    dst[d0 + i] = _blend(src[s0 + i], src[s0 + inner + i], f)
         src, dst = dst, src
     total = 1
     for a in range(D):
@@ -278,22 +290,32 @@ def point_value(field, t, x, buf, node):
             f = S - min(int(S), shape[a] - 2)
         n //= 2
         for i in range(n):
-            buf[i] = (1.0 - f) * buf[i] + f * buf[n + i]
+            buf[i] = _blend(buf[i], buf[n + i], f)
     return buf[0]
 
 
 @njit(inline="always")
-def certificate_row(W, z_top, z_floor, V, has_V, t, x, z, point, scratch_W, scratch_V):
-    """``D(t, x, z) = min(V~(t, x), W~(t, x, min(z, z_top)))`` (:meth:`~softreach.reach.proof.lookahead.Lookahead.
-    certificate`); ``+inf`` off the grid or the time span, at a budget below the table's (``W``) or a negative one
-    (``V``), or where not finite."""
+def usable_budget(z, z_top, z_left, t):
+    """The budget at which a table is read at time ``t``: ``z``, at most the budget grid's top ``z_top`` (``W_eps``
+    falls with the budget, so reading above it at the top is conservative) and at most the time left
+    ``z_left - t`` (``z_left`` the horizon for a budget surface, where no run spends more than the time left;
+    ``+inf`` for ``W_eps``, which changes nothing there)."""
+    return min(z, z_top, max(z_left - t, 0.0))
+
+
+@njit(inline="always")
+def certificate_row(W, z_top, z_floor, z_left, V, has_V, t, x, z, point, scratch_W, scratch_V):
+    """``D(t, x, z) = min(V~(t, x), W~(t, x, min(z, z_top, z_left - t)))`` (:meth:`~softreach.reach.proof.lookahead.
+    Lookahead.certificate`; ``z_left`` the horizon where the budget a run can use is at most the time left,
+    :func:`usable_budget`, else ``+inf``); ``+inf`` off the grid or the time span, at a budget below the table's
+    (``W``) or a negative one (``V``), or where not finite."""
     times = W[1]
     if not (t >= times[0] - TOL and t <= times[-1] + TOL):
         return np.inf
     n = len(x)
     for a in range(n):
         point[a] = x[a]
-    point[n] = min(z, z_top)
+    point[n] = usable_budget(z, z_top, z_left, t)
     w = point_value(W, t, point, scratch_W[2], scratch_W[8])
     out = w if (z >= z_floor and math.isfinite(w)) else np.inf
     if has_V:
@@ -304,13 +326,14 @@ def certificate_row(W, z_top, z_floor, V, has_V, t, x, z, point, scratch_W, scra
 
 
 @njit
-def certificate_rows(W, z_top, z_floor, V, has_V, t, x, z, out):
+def certificate_rows(W, z_top, z_floor, z_left, V, has_V, t, x, z, out):
     """:func:`certificate_row` for every row."""
     n = x.shape[1]
     point = np.empty(n + 1)
     scratch_W, scratch_V = box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES)
     for r in range(len(x)):
-        out[r] = certificate_row(W, z_top, z_floor, V, has_V, t[r], x[r], z[r], point, scratch_W, scratch_V)
+        out[r] = certificate_row(W, z_top, z_floor, z_left, V, has_V, t[r], x[r], z[r], point, scratch_W,
+                                 scratch_V)
 
 
 @njit

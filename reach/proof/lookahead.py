@@ -49,6 +49,7 @@ import numpy as np
 
 from .horizon import exact_before_horizon, in_window
 from .box_max import box_max, kernel_field
+from ..numerics.grid import Grid
 from ..boxes import check_action_box
 from ..dynamics import row_time
 from ..tables.interpolation import interpolate
@@ -176,6 +177,35 @@ def budget_allowance(dt: float, horizon: float, pieces: int, samples: int = 128)
     return UNIT_ROUNDOFF * ((2 * samples + 8 + 2 * int(pieces)) * float(dt) + 4.0 * float(horizon))
 
 
+def surface_fields(values: Any, times: Any, grid: Grid, horizon: float) -> tuple[tuple, tuple]:
+    """A budget surface ``Q_min`` as the compiled code reads ``W_eps`` (:func:`~softreach.reach.proof.box_max.
+    kernel_field`): over the state and a budget axis with two nodes, ``z = 0`` holding ``Q_min`` and ``z = T`` holding
+    ``Q_min - T`` (rounded up to the table's float32). The certificate ``Q~_min(t, x) - min(z, T - t)`` is linear in
+    the budget read, so the multilinear interpolant at the budget ``min(z, T - t)`` (:func:`~softreach.reach.proof.
+    kernels.usable_budget`) is that certificate, and its maximum over a box of states and budgets is the
+    certificate's; the rounding up keeps it at or above ``Q~_min - z``.
+
+    Where no budget suffices (``Q_min`` above the time left, stored at a cap) both nodes hold ``+inf``: no
+    interpolant between such a node and a feasible one says where feasibility ends, so every cell with such a
+    corner reads ``+inf`` (or NaN, read as ``+inf``, where that corner's weight is 0).
+
+    :return: ``(W, inside)``: the field above, and the same without the infinite nodes, whose finite values say
+        where a state lies on the table (:meth:`~softreach.reach.Table.inside`)
+    """
+    Q = np.asarray(values, dtype=np.float64)
+    t = np.asarray(times, dtype=np.float64)
+    none = Q > (horizon - t).reshape((-1,) + (1,) * grid.ndim) + 1e-9
+    top = Q - horizon
+    top32 = top.astype(np.float32)
+    low = top32.astype(np.float64) < top
+    top32[low] = np.nextafter(top32[low], np.float32(np.inf))
+    inside = np.stack([Q.astype(np.float32), top32], axis=-1)
+    W = np.where(none[..., None], np.float32(np.inf), inside)
+    zgrid = Grid(tuple(grid.lo) + (0.0,), tuple(grid.hi) + (float(horizon),), tuple(grid.shape) + (2,),
+                 periodic=tuple(grid.periodic) + (False,), names=tuple(grid.names) + ("z",))
+    return kernel_field(W, t, zgrid), kernel_field(inside, t, zgrid)
+
+
 class Lookahead:
     """One-period admissibility of held actions against a table's certificate (see the module docstring).
 
@@ -228,13 +258,18 @@ class Lookahead:
         self.z_top = b_grid.hi[-1] if self.budget_field == "W_eps" else np.inf
         self.horizon = float(b_times[-1])
         self.budget_slack = budget_allowance(self.dt, self.horizon, self.pieces) if self.exact_env else 0.0
-        #: a ``W_eps`` table's fields as the compiled certificate reads them (:func:`~softreach.reach.proof.kernels.
-        #: certificate_row`): ``(W, z_top, z_floor, V, has_V)``; ``None`` for a budget surface
-        self.table_args = None
+        V = kernel_field(*self.fields.get("V", self.fields[self.budget_field]))
         if self.budget_field == "W_eps":
-            V = self.fields.get("V", self.fields["W_eps"])
-            self.table_args = (kernel_field(*self.fields["W_eps"]), float(self.z_top), float(b_grid.lo[-1]),
-                               kernel_field(*V), "V" in self.fields)
+            W = kernel_field(*self.fields["W_eps"])
+            W_read = (W, float(self.z_top), float(b_grid.lo[-1]), np.inf)
+            inside = W
+        else:
+            W, inside = surface_fields(b_values, b_times, b_grid, self.horizon)
+            W_read = (W, self.horizon, 0.0, self.horizon)
+        #: the table's fields as the compiled certificate and decision read them (:func:`~softreach.reach.proof.
+        #: kernels.certificate_row`, :class:`~softreach.filters.compiled_args.TableArgs`):
+        #: ``(W, z_top, z_floor, z_left, V, has_V, inside)``
+        self.table_args = W_read + (V, "V" in self.fields, inside)
         if self.budget_field == "Q_min":
             # where no budget suffices (above the time left) Q_min is infinite, held at a cap: no interpolant
             # between such a node and a feasible one says where feasibility ends, so every cell with such a corner
@@ -281,20 +316,10 @@ class Lookahead:
     # ---------------------------------------------------------------- the certificate
     def certificate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> np.ndarray:
         """``D(t, x, z)``: ``+inf`` outside the table (unsafe), at a negative budget or after the horizon."""
-        if self.budget_field == "Q_min":
-            Q, Qt, Qg = self.fields["Q_min"]
-            q, inside = interpolate(Q, Qt, Qg, t, x)
-            none, _ = interpolate(self._no_budget, Qt, Qg, t, x)
-            out = np.where(inside & (z >= 0) & np.isfinite(q) & (none <= 0), q - self._usable(t, z), np.inf)
-        else:
-            out = np.empty(len(x))
-            certificate_rows(*self.table_args, np.ascontiguousarray(t, dtype=np.float64),
-                             np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64), out)
-            return out
-        if "V" in self.fields:
-            V, Vt, Vg = self.fields["V"]
-            v, vin = interpolate(V, Vt, Vg, t, x)
-            out = np.minimum(out, np.where(vin & (z >= 0) & np.isfinite(v), v, np.inf))
+        out = np.empty(len(x))
+        t = np.ascontiguousarray(np.broadcast_to(np.asarray(t, dtype=np.float64), (len(x),)))
+        certificate_rows(*self.table_args[:6], t, np.ascontiguousarray(x, dtype=np.float64),
+                         np.ascontiguousarray(np.broadcast_to(np.asarray(z, dtype=np.float64), (len(x),))), out)
         return out
 
     def _usable(self, t: np.ndarray, z: np.ndarray) -> np.ndarray:
