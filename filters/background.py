@@ -84,10 +84,6 @@ def main(argv: list[str] | None = None) -> int:
     argparse.ArgumentParser(description="Compile the safety filter's code into the cache, in the background: "
                                         "prints compiled, cached or busy.").parse_args(argv)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    try:  # below the solve it runs beside
-        os.nice(5)
-    except OSError:
-        pass
     print(compile_ahead())
     return 0
 
