@@ -4,6 +4,8 @@
     OMP_NUM_THREADS=1 python benchmarks/time_to_filter.py --grid 51 51 --budget-points 56 --out t.json
     OMP_NUM_THREADS=1 python benchmarks/time_to_filter.py --model glider --runs cold
     OMP_NUM_THREADS=1 python benchmarks/time_to_filter.py --table-kind continuous --grid 51 51 --budget-points 56
+    OMP_NUM_THREADS=1 python benchmarks/time_to_filter.py --model benchmarks.acc_model:CruiseControl \
+        --table-kind continuous --runs cold [--no-ahead]            # a 2-D model, 145 x 109 x 45
 
 Phases, each in a fresh Python process (its wall time counts the interpreter's start and imports, as a user's would):
 
@@ -15,6 +17,12 @@ Phases, each in a fresh Python process (its wall time counts the interpreter's s
 3. ``compile``: ``softreach compile TABLE`` (``filters.precompile``): the decision's, the certificate's and the
    start-plan search's numba code, compiled or loaded from the cache;
 4. ``first step``: ``SafetyFilter(make_env(MODEL), table)``, ``reset(seed=0)`` and one ``step`` of a random action.
+
+``softreach solve`` starts compiling the filter's code in a background process where the cache lacks it
+(:mod:`softreach.filters.background`), so a cold run's ``compile`` phase mostly waits for that process and loads its
+result: its wall seconds are what remains of the compilation after the solve and the cells, and the background
+process's CPU seconds are in no phase's. ``--no-ahead`` switches it off (``SOFTREACH_COMPILE_AHEAD=0``): the
+compilation then happens in the ``compile`` phase itself.
 
 "cold" points ``$SOFTREACH_CACHE`` (built cells, fused kernels, inductor's cache below it), ``$NUMBA_CACHE_DIR``
 and ``$TORCHINDUCTOR_CACHE_DIR`` at a new empty folder; "warm" runs every phase again with the same folders (the
@@ -142,6 +150,8 @@ def _run_phase(cmd: list[str], env: dict[str, str]) -> tuple[float, dict[str, An
 def run_once(args: argparse.Namespace, cache: Path, table: Path) -> list[dict[str, Any]]:
     """Every phase once with the caches in ``cache``; one row per phase."""
     env = _env(cache, args.threads)
+    if args.no_ahead:
+        env["SOFTREACH_COMPILE_AHEAD"] = "0"
     me = [sys.executable, os.path.abspath(__file__)]
     held = ["--held"] if args.table_kind == "held" else []
     solve = ["softreach", "solve", args.model, *held, "--quiet", "--threads", str(args.threads), "--out", str(table)]
@@ -169,6 +179,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--grid", type=int, nargs="+", default=None, help="state grid of the held solve (default: "
                                                                      "softreach solve's)")
     ap.add_argument("--budget-points", type=int, default=None, help="budget nodes (default: softreach solve's)")
+    ap.add_argument("--no-ahead", action="store_true", help="the solve does not compile the filter in the "
+                                                             "background (SOFTREACH_COMPILE_AHEAD=0)")
     ap.add_argument("--threads", type=int, default=1, help="threads of every phase (default 1)")
     ap.add_argument("--table-kind", choices=("held", "continuous"), default="held",
                     help="the table solved: of the sampled-data game (--held, default) or of the continuous-time "
