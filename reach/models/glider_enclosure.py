@@ -1,20 +1,19 @@
 """Validated enclosures of the glider's motion over one control period with the angle of attack held
-(:meth:`GliderHeldEnclosure.held_enclosure`), in interval arithmetic; the safety filter's look-ahead reads them.
+(:func:`held_box_kernel`), in interval arithmetic; the safety filter's look-ahead reads them.
 
-The enclosure is one compiled kernel (:func:`held_box_kernel`, numba): the numpy methods run it row by row
-(:func:`~softreach.reach.proof.model_kernels.held_boxes`), and the filter's compiled decision calls it by address
-(:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`), so both read the same boxes."""
+The enclosure is one compiled kernel (numba), the glider's :attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`:
+the numpy methods :class:`~softreach.reach.dynamics.Dynamics` derives from it run it row by row
+(:func:`~softreach.reach.proof.model_kernels.held_boxes`), and the filter's compiled decision calls it by address, so
+both read the same boxes."""
 
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
 from ..proof.intervals import HALF_PI, ROUND_ABS, ROUND_REL
 from ..jit import njit
-from ..proof.model_kernels import held_boxes
 from .glider_params import GliderParams
 
 #: inflation of a failed Picard candidate: relative to its width, and absolute (plus relative to |x|) so that a
@@ -194,7 +193,11 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
 class GliderHeldEnclosure:
     """The held-period enclosure of :class:`~softreach.reach.models.glider.Glider`, a base class of it.
 
-    It reads the model's ``params`` (:class:`GliderParams`), :meth:`validate_state` and :meth:`validate_control`.
+    It gives the compiled motion bound only: the base class :class:`~softreach.reach.dynamics.Dynamics` derives
+    :meth:`held_enclosure`, :meth:`held_tube_pieces` and their ``_box`` versions from it, checking their arguments
+    with the glider's :meth:`validate_state` and :meth:`validate_control` (which refuse ``V <= 0`` and angles that
+    look like degrees) and refusing, in :meth:`held_enclosure`, a row with no box (no Picard candidate within the
+    kernel's tries, or one that reached ``V <= 0`` or ``|gamma| >= pi/2``: the period is too long for that state).
     """
 
     params: GliderParams
@@ -208,85 +211,6 @@ class GliderHeldEnclosure:
         p = self.params
         return np.array([p.cl0, p.cl_alpha, p.cd0, p.cd_k, p.mass, p.gravity, p.half_rho_s, p.wind_max],
                         dtype=np.float64)
-
-    def held_enclosure(self, t: float, x: np.ndarray, a: np.ndarray, dt: float
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Boxes that provably contain every trajectory of one control period with the control held.
-
-        For every disturbance signal b(.) with values in the disturbance box (any measurable signal: it may switch
-        at any instant, also in answer to the control), the solution x(s), s in [0, dt], of x' = f(t, x, a, b(s))
-        from x with the control ``a`` held constant satisfies tube_lo <= x(s) <= tube_hi for all s, and
-        end_lo <= x(dt) <= end_hi. The method, and why it is sound: :func:`held_box_kernel`.
-
-        :param t: time [s] (unused: the dynamics are autonomous)
-        :param x: (N, 3) states (h [m], V [m/s], gamma [rad]), float64
-        :param a: (N, 1) physical controls (alpha [rad]) in the control box (``(N,)`` is accepted too; the
-            bound holds for any held angle, the control box is not needed for soundness)
-        :param dt: the period [s] (> 0)
-        :return: (tube_lo, tube_hi, end_lo, end_hi), each (N, 3) float64
-        :raises ValueError: on a bad shape, ``dt <= 0``, ``V <= 0``, non-finite values or angles that look like
-            degrees; or when no enclosure is found for a row (within the kernel's Picard candidates, or because a
-            candidate reaches ``V <= 0`` or leaves ``|gamma| < pi/2``: the period is too long for that state),
-            naming the row and its state
-        """
-        return self._enclose(x, x, a, dt, strict=True)
-
-    def held_enclosure_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float
-                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`held_enclosure` from every start in the boxes ``[x_lo, x_hi]`` (rows of ``(N, 3)``). A row with
-        no enclosure (a box too wide for one period, or reaching ``V <= 0`` or ``|gamma| >= pi/2``) is returned as
-        NaN, which every caller reads as unbounded: not admissible."""
-        return self._enclose(x_lo, x_hi, a, dt, strict=False)
-
-    def held_tube_pieces(self, t: float, x: np.ndarray, a: np.ndarray, dt: float, pieces: int
-                         ) -> tuple[np.ndarray, np.ndarray]:
-        """Boxes of the motion over each of ``pieces`` equal sub-intervals of the period (step 4 of
-        :func:`held_box_kernel`), each ``(pieces, N, 3)``."""
-        return self.held_tube_pieces_box(t, x, x, a, dt, pieces)
-
-    def held_tube_pieces_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float,
-                             pieces: int) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`held_tube_pieces` from every start in the boxes ``[x_lo, x_hi]`` (NaN rows: no enclosure)."""
-        x_lo, x_hi, alpha, dt = self._checked(x_lo, x_hi, a, dt)
-        edges = np.linspace(0.0, dt, int(pieces) + 1)[:, None]
-        return held_boxes(self, x_lo, x_hi, alpha, edges[:-1], edges[1:])
-
-    def _checked(self, x_lo: Any, x_hi: Any, a: Any, dt: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-        x_lo = np.asarray(x_lo, dtype=np.float64)
-        x_hi = np.asarray(x_hi, dtype=np.float64)
-        if x_lo.ndim != 2 or x_lo.shape[1] != 3 or x_hi.shape != x_lo.shape:
-            raise ValueError(f"x must have shape (N, 3) (h, V, gamma), got {x_lo.shape}"
-                             + (f" (upper corners {x_hi.shape})" if x_hi.shape != x_lo.shape else ""))
-        if np.any(x_hi < x_lo):
-            i = int(np.flatnonzero((x_hi < x_lo).any(axis=1))[0])
-            raise ValueError(f"start box {i} has an upper corner below its lower one: {x_lo[i].tolist()} .. "
-                             f"{x_hi[i].tolist()}")
-        n = x_lo.shape[0]
-        a = np.asarray(a, dtype=np.float64)
-        if a.shape not in ((n, 1), (n,)):
-            raise ValueError(f"a must have shape ({n}, 1) (alpha), got {a.shape}")
-        dt = float(dt)
-        if not (math.isfinite(dt) and dt > 0):
-            raise ValueError(f"dt must be a finite positive period [s], got {dt!r}")
-        if n:
-            self.validate_state(x_lo)
-            self.validate_state(x_hi)
-            self.validate_control(a)
-        return x_lo, x_hi, a.reshape(n, 1), dt
-
-    def _enclose(self, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float, strict: bool
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        x_lo, x_hi, alpha, dt = self._checked(x_lo, x_hi, a, dt)
-        tube_lo, tube_hi = held_boxes(self, x_lo, x_hi, alpha, 0.0, dt)
-        end_lo, end_hi = held_boxes(self, x_lo, x_hi, alpha, dt, dt)
-        failed = ~(np.isfinite(tube_lo).all(axis=1) & np.isfinite(end_lo).all(axis=1))
-        if strict and failed.any():
-            i = int(np.flatnonzero(failed)[0])
-            raise ValueError(f"no enclosure for row {i}: state (h, V, gamma) = ({float(x_lo[i, 0])!r} m, "
-                             f"{float(x_lo[i, 1])!r} m/s, {float(x_lo[i, 2])!r} rad), alpha = {float(alpha[i, 0])!r} "
-                             f"rad, dt = {dt!r} s: no Picard candidate within {_MAX_TRIES} held, or one reached "
-                             f"V <= 0 or |gamma| >= pi/2 ({int(failed.sum())} rows failed); shorten dt")
-        return tube_lo, tube_hi, end_lo, end_hi
 
 
 __all__ = ["GliderHeldEnclosure", "held_box_kernel"]

@@ -11,7 +11,6 @@ import numpy as np
 from .. import sets
 from ..dynamics import ControlAndDisturbanceAffine
 from ..jit import njit
-from ..proof.model_kernels import held_boxes
 from ..problem import LANDING_WORDS, Model
 
 
@@ -128,33 +127,6 @@ class PointMass(Model, ControlAndDisturbanceAffine):
     def disturbance_matrix(self, t, x):
         return [[1.0], [0]]
 
-    def held_enclosure(self, t: float, x: np.ndarray, a: np.ndarray, dt: float):
-        """Exact bounds of one period with the thrust ``u`` held (see :meth:`Dynamics.held_enclosure`).
-
-        ``v(s) = v + (u - g) s + D(s)`` and ``y(s) = y + v s + (u - g) s^2 / 2 + int_0^s D`` with
-        ``D(s) = int_0^s d``, ``|D(s)| <= d_max s``: so ``v(s)`` lies between the two straight lines of slopes
-        ``u - g -+ d_max`` and ``y(s)`` between the two parabolas ``y + v s + (u - g -+ d_max) s^2 / 2``. Every
-        bound is reached by a constant extreme wind, so the boxes are the tightest boxes (the reachable set itself
-        is a lens inside the end box).
-        """
-        return self.held_enclosure_box(t, x, x, a, dt)
-
-    def held_tube_pieces(self, t: float, x: np.ndarray, a: np.ndarray, dt: float, pieces: int):
-        """Exact boxes of the motion over each of ``pieces`` sub-intervals (see :meth:`held_enclosure`)."""
-        return self.held_tube_pieces_box(t, x, x, a, dt, pieces)
-
-    def held_enclosure_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float):
-        """:meth:`held_enclosure` from every start in ``[x_lo, x_hi]``: every bound grows with ``v`` and ``y``
-        (the motion is monotone in the start), so the lower bounds come from ``x_lo``, the upper from ``x_hi``."""
-        lo, hi = self.held_tube_pieces_box(t, x_lo, x_hi, a, dt, 1)
-        end_lo, end_hi = held_boxes(self, x_lo, x_hi, a, dt, dt)
-        return lo[0], hi[0], end_lo, end_hi
-
-    def held_tube_pieces_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float,
-                             pieces: int):
-        edges = np.linspace(0.0, dt, pieces + 1)[:, None]  # every piece at once: (pieces, 1) against N rows
-        return held_boxes(self, x_lo, x_hi, a, edges[:-1], edges[1:])
-
     def sink_rate(self, x) -> float:
         """The vertical speed downwards, ``-v`` [m/s].
 
@@ -225,9 +197,15 @@ class PointMass(Model, ControlAndDisturbanceAffine):
 @njit
 def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
     """The box of every state reachable at some time in ``[s0, s1]`` of a period with the thrust ``a[0]`` held, from
-    every start in ``[x_lo, x_hi]`` (:meth:`PointMass.held_enclosure`), written into ``lo`` and ``hi``; ``params``
-    is ``(gravity, d_max)``. ``v`` lies between two lines, extreme at the interval's ends; ``y`` between two
-    parabolas, extreme at an end or where ``v`` vanishes."""
+    every start in ``[x_lo, x_hi]`` (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`, from which the
+    model's enclosure methods are derived), written into ``lo`` and ``hi``; ``params`` is ``(gravity, d_max)``.
+
+    ``v(s) = v + (u - g) s + D(s)`` and ``y(s) = y + v s + (u - g) s^2 / 2 + int_0^s D`` with ``D(s) = int_0^s d``,
+    ``|D(s)| <= d_max s``: so ``v(s)`` lies between the two straight lines of slopes ``u - g -+ d_max``, extreme at
+    the interval's ends, and ``y(s)`` between the two parabolas ``y + v s + (u - g -+ d_max) s^2 / 2``, extreme at
+    an end or where ``v`` vanishes. Every bound grows with ``v`` and ``y`` (the motion is monotone in the start), so
+    the lower bounds come from ``x_lo``, the upper from ``x_hi``. Every bound is reached by a constant extreme wind,
+    so the boxes are the tightest boxes (the reachable set itself is a lens inside the end box)."""
     acc_lo = a[0] - params[0] - params[1]
     acc_hi = a[0] - params[0] + params[1]
     lo[0] = min(x_lo[0] + acc_lo * s0, x_lo[0] + acc_lo * s1)

@@ -41,7 +41,7 @@ from typing import Any, Callable
 import numpy as np
 
 #: where a model's author reads what the filter needs
-DOCS = "docs/models.md, 'What the safety filter needs from a model'"
+DOCS = "docs/models.md, '2. The motion bound the filter needs'"
 
 
 @dataclass(frozen=True)
@@ -96,10 +96,10 @@ def missing_extras(model: Any, cells: bool) -> list[str]:
 
     :param cells: the proof on cells is asked for (they bound boxes of starts)
     """
-    from ..dynamics import Dynamics, bounds_boxes
+    from ..dynamics import bounds_boxes, bounds_motion
 
     out = []
-    if type(model).held_enclosure is Dynamics.held_enclosure:
+    if not bounds_motion(model):
         out.append("held_enclosure(t, x, a, dt) -> (tube_lo, tube_hi, end_lo, end_hi): boxes, each (N, n), holding "
                    "every state of the period [0, dt] and its end, from the states x (N, n) with the actions "
                    "a (N, m) held, for every wind signal")
@@ -121,8 +121,8 @@ def require_filter_extras(model: Any, job: str, cells: bool) -> None:
         raise EnclosureError(
             f"{model.name} ({type(model).__module__}.{type(model).__qualname__}) lacks what the safety filter needs "
             f"for {job}; add to the class: " + "; ".join(missing) + ". A compiled held_box_kernel(params, x_lo, x_hi, "
-            "a, s0, s1, lo, hi) with held_box_params gives these through softreach.reach.proof.model_kernels.held_boxes "
-            f"(as reach/models/pointmass.py does); see {DOCS}")
+            "a, s0, s1, lo, hi) with held_box_params gives all of these (the base class derives them from it), as "
+            f"the cart of docs/models.md does; see {DOCS}")
 
 
 # ---------------------------------------------------------------------------------------------- sampling
