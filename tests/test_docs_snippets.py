@@ -43,6 +43,8 @@ TABLES = {"pointmass.srt": "pointmass_table_path", "pointmass-held.srt": "pointm
 RUN = {
     ("docs/models.md", "softreach solve cart:Cart"): ["--grid", "15", "15", "--accuracy", "low", "--quiet"],
     ("docs/models.md", "softreach plot cart.srt"): [],
+    # the cart's filter from its cells, on the table solved above
+    ("docs/models.md", "softreach evaluate cart:Cart --policy random"): ["--episodes", "2", "--quiet"],
 }
 
 #: the shell lines that are not softreach commands, by their start (and the words of a shell loop, whole)
