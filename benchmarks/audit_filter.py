@@ -13,8 +13,7 @@ Measures, for one table (``filters.core.ValueFilter`` at the table's control per
    whole cells, so the same comparison follows on 20,000 states drawn uniformly over ``C1``: the share of the
    states in each table's set that the filter certifies;
 3. latency: one decision (median of 200 calls, us) for a policy action that passes and for one the filter
-   replaces, and a batch of 1,024 random states (median of 20 calls, ms), also on the numpy path where the
-   decision is compiled (median of 5); and a reset's search for a start's own plan (``certify_start`` of one
+   replaces, and a batch of 1,024 random states (median of 20 calls, ms); and a reset's search for a start's own plan (``certify_start`` of one
    start no period or cell certifies, median of up to 50);
 4. the audit (``filters.audit.audit``): start classes x policies x winds, with and without the filter, one line
    per row and totals per (start class, filtered);
@@ -197,13 +196,6 @@ def timings(vf: ValueFilter, q: float, seed: int) -> dict[str, Any]:
             out[key] = _median_time(lambda: vf.certify_start(0.0, next(starts), q), len(pool) - 1) * 1e3
     xb, ab = x[:1024], rng.uniform(vf.a_lo, vf.a_hi, size=(1024, vf.m))
     out["batch1024_ms"] = _median_time(lambda: vf.filter(0.0, xb, q, ab), 20) * 1e3
-    if vf.compiled is not None:
-        # the same batch on the numpy path, which decides the same: what the compiled decision saves
-        compiled, vf.compiled = vf.compiled, None
-        try:
-            out["batch1024_numpy_ms"] = _median_time(lambda: vf.filter(0.0, xb, q, ab), 5) * 1e3
-        finally:
-            vf.compiled = compiled
     return out
 
 
@@ -317,8 +309,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     tm = res["timing"]
     print(f"\nlatency at Q={tm['Q']}: " + (f"single pass {tm['single_pass_us']:.0f} us, single replaced "
                                         f"{tm['single_replaced_us']:.0f} us, " if "single_pass_us" in tm else "")
-          + f"batch of 1024 {tm['batch1024_ms']:.2f} ms"
-          + (f" (numpy path {tm['batch1024_numpy_ms']:.2f} ms)" if "batch1024_numpy_ms" in tm else ""))
+          + f"batch of 1024 {tm['batch1024_ms']:.2f} ms")
     if "start_plan_search_ms" in tm:
         print(f"a reset from a start no period or cell certifies (certify_start, median of up to 50): "
               f"{tm['start_plan_search_ms']:.1f} ms"

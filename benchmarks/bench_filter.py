@@ -9,17 +9,15 @@ Without ``--table`` a 61 x 61 x 45 point-mass table is solved first (a few secon
 use). Each latency is the mean time per call over many calls, on fixed random inputs drawn beforehand, in
 ``--repeats`` runs:
 
-* **single query** — ``ValueFilter.filter(t, x, z, action)`` for one state (numpy, switch rule): the call a
+* **single query** — ``ValueFilter.filter(t, x, z, action)`` for one state (numpy in and out, switch rule): the call a
   ``SafetyFilter.step`` makes. Target: under 100 us. Once over the random states, once over those of them the
   filter certifies (before the last 0.1 s), where a deployed policy spends its steps.
 * **batch of 1,024** — the same call on ``(1024, n)`` states (numpy). Target: under 1 ms. Once over the random
   states (most of them outside the sets, where the filter searches the candidates), once over certified ones; and
   both again for the actions alone (``diagnostics=False``: ``info["value"]`` and a passing action's
   ``info["lookahead"]`` left out).
-* the same for the smooth rule, for torch tensors (CPU) in and out, for the same filter forced to its compiled
-  decision at every batch size (``compiled_*``, what ``ValueFilter`` does wherever it has one) and
-  without it (``numpy_*``: ``ValueFilter.compiled = None``, the numpy path every model without a compiled
-  enclosure takes), also for batches of 16 and 128 certified rows, where the two could cross; in the calling thread
+* the same for the smooth rule, for torch tensors (CPU) in and out, for a second filter of the same table
+  (``compiled_*``), also for batches of 16 and 128 certified rows; in the calling thread
   alone (``one_thread_*``: ``ValueFilter.threads = 1``) beside the default threads, at 256, 512 and 1,024 rows,
   where a batch is cut into blocks for them; and, for scale, the ``Table`` API calls the filter replaces
   (``Table.value`` + ``Table.optimal_control``).
@@ -90,10 +88,7 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
     a = rng.uniform(-60, 60, (n, 1))
     switch = ValueFilter(table, DT)
     smooth = ValueFilter(table, DT, rule="smooth")
-    # the same decisions in numpy alone, side by side (where the model has no compiled enclosure, both are numpy),
-    # and compiled at every batch size, as ValueFilter decides wherever it has the compiled decision
-    numpy_only = ValueFilter(table, DT)
-    numpy_only.compiled = None
+    # a second filter of the same table, at every batch size
     compiled_only = ValueFilter(table, DT)
     # and in the calling thread alone (ValueFilter.threads = 1), beside the default threads
     one_thread = ValueFilter(table, DT)
@@ -136,13 +131,9 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
             lambda: switch.filter(*cert_batch, diagnostics=False), 5, repeats),
         "compiled_switch_batch1024_us": _per_call(lambda: compiled_only.filter(t, x, z, a), 5, repeats),
         "compiled_switch_batch1024_certified_us": _per_call(lambda: compiled_only.filter(*cert_batch), 5, repeats),
-        "numpy_switch_single_us": _per_call(single(numpy_only), 100, repeats),
-        "numpy_switch_single_certified_us": _per_call(single_from(numpy_only, inside), 100, repeats),
-        "numpy_switch_batch1024_us": _per_call(lambda: numpy_only.filter(t, x, z, a), 2, repeats),
-        "numpy_switch_batch1024_certified_us": _per_call(lambda: numpy_only.filter(*cert_batch), 2, repeats),
-        **{f"{kind}_switch_batch{k}_certified_us": _per_call(lambda vf=vf, k=k: vf.filter(*(v[:k] for v in cert_batch)),
-                                                             max(5, 2048 // k), repeats)
-           for k in (16, 128) for kind, vf in (("compiled", compiled_only), ("numpy", numpy_only))},
+        **{f"compiled_switch_batch{k}_certified_us": _per_call(
+            lambda k=k: compiled_only.filter(*(v[:k] for v in cert_batch)), max(5, 2048 // k), repeats)
+           for k in (16, 128)},
         # threads: the default against one, where the batch is cut (ValueFilter.threads, PARALLEL_MIN_ROWS)
         **{f"{kind}_switch_batch{k}_certified_us": _per_call(lambda vf=vf, k=k: vf.filter(*(v[:k] for v in cert_batch)),
                                                              max(5, 2048 // k), repeats)
@@ -172,7 +163,7 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
         if len(rows_k[0]):
             per = _per_call(lambda r=rows_k: one_thread.filter(*r), 5, repeats)
             out[f"one_thread_row_{kind}_us"] = {k: v / len(rows_k[0]) for k, v in per.items()}
-            if kind == "uncertified" and one_thread.compiled is not None:
+            if kind == "uncertified":
                 # the least such a row can cost while the decision asks what it does there: the one-period
                 # tests of the policy's action and of every candidate, and nothing else
                 tests = _one_period_tests(one_thread.compiled, *rows_k)
@@ -323,7 +314,7 @@ def main(argv: list[str] | None = None) -> dict:
             "sampled_data_table": vf.sampled,
         }
         print(f"filter construction: {build * 1e3:.0f} ms (table solved for dt = {DT} s: {vf.sampled}); first "
-              f"decision: {first * 1e3:.0f} ms; compiled decision: {vf.compiled is not None}")
+              f"decision: {first * 1e3:.0f} ms")
         lat = latency(table, args.repeats)
         results["latency_us"] = lat
         results["env_step_us"] = steps = env_steps(table, args.repeats)

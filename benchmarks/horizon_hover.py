@@ -25,6 +25,7 @@ import gymnasium as gym
 
 import softreach.envs  # noqa: F401  (registers the ids)
 from softreach.filters import SafetyFilter, ValueFilter
+from softreach.filters.compiled import CompiledDecision
 from softreach.reach import load_table
 
 ENV_ID = "softreach/PointMassLanding-v0"
@@ -37,6 +38,7 @@ def run(table, exact_periods: int) -> tuple[Counter, float]:
     """Outcomes per (start time, outcome), and the slowest filtered step [s]."""
     vf = ValueFilter(table, 0.01, target_checks=10)
     vf.lookahead.exact_periods = exact_periods
+    vf.compiled = CompiledDecision(vf)  # the decision built with this window
     model = gym.make(ENV_ID).unwrapped
     hover = np.array([model.normalized_action(np.array([model.model.params.gravity]))[0]], dtype=np.float32)
     out, slowest = Counter(), 0.0

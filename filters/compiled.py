@@ -1,21 +1,21 @@
-"""The filter's whole decision, compiled: one loop over the rows instead of hundreds of numpy calls a row.
+"""The filter's whole decision, compiled: one loop over the rows, the only implementation of the decision.
 
-:class:`~softreach.filters.ValueFilter` decides by the one-period test of :mod:`softreach.reach.proof.lookahead` and the
-plans of :mod:`softreach.filters.plans`; this module decides the same way, row by row in numba, where
+:class:`~softreach.filters.ValueFilter` decides by the one-period test (``docs/filters.md``; its parameters are
+:class:`~softreach.reach.proof.lookahead.Lookahead`'s) and the cells' plans (:mod:`softreach.filters.plans`), row by row
+in numba, where
 
 * the model gives its held-action enclosure and its sets' maxima over boxes compiled
   (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`, :attr:`~softreach.reach.problem.Model.
-  set_max_kernel`) and bounds boxes of starts: the point mass, the glider and Dubins do
-  (:meth:`CompiledDecision.missing` names what a model lacks),
+  set_max_kernel`): the point mass, the glider and Dubins do; :class:`~softreach.filters.ValueFilter` refuses a
+  model that does not, naming what to add (:meth:`CompiledDecision.missing`),
 * the table holds ``W_eps`` or the budget surface ``Q_min`` (with ``V`` and ``V_safe`` if it has them; ``Q_min`` is
   read in ``W_eps``'s shape, :func:`~softreach.reach.proof.lookahead.surface_fields`). Where the filter has landing
   cells they decide what passes; without them the table does (:mod:`softreach.filters.table_pass`).
 
 Both rules are compiled, the ``"switch"`` rule and the ``"smooth"`` one with its bisection.
 
-Each step below names the numpy method it mirrors: the arithmetic is the same, in the same order, on the numbers
-of the same kernels (the enclosure, the set maxima, :mod:`softreach.reach.proof.kernels` for the table and the cells).
-``tests/test_filter_reference.py`` checks the decisions against the reference transcribed from ``docs/filters.md``
+The numbers come from the same kernels as the cells' builder (the enclosure, the set maxima,
+:mod:`softreach.reach.proof.kernels` for the table and the cells). ``tests/test_filter_reference.py`` checks the decisions against the reference transcribed from ``docs/filters.md``
 (``tests/reference_decision.py``). The test of one action is :mod:`softreach.filters.judge`, in parts,
 so that the table is read only where its values can decide: a candidate's next value where it passes; where none
 does, the safe value and the next value of those that can still be chosen (the decisions are those of reading
@@ -29,11 +29,12 @@ from __future__ import annotations
 
 import math
 import threading
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
-from softreach.reach.proof.blocks import run_in_blocks
+from softreach.reach.proof.blocks import default_threads, run_in_blocks
 from softreach.reach.proof.box_max import kernel_field
 from softreach.reach.jit import njit
 from softreach.reach.proof.kernels import MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row
@@ -174,7 +175,7 @@ def _choose(enclose, M, C, T, cands, smooth, tr, zr, t_next, space):
 @njit(_nrt=False)
 def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, best, best_next, best_bad, lam, act, c_next,
                   new_plans):
-    """:func:`~softreach.filters.plans.follow_plans` of row ``r``: where no candidate passes, the landing cells'
+    """The cells' plans of row ``r``: where no candidate passes, the landing cells'
     plan (the one being followed, else the state's own cell's); then, where the choice's end is not proven safe,
     the safe cells'. Writes the plan's candidate into ``act`` and the plan into ``new_plans[r]``; returns
     ``(best, best_next, best_bad, lam, any_ok)``."""
@@ -233,9 +234,8 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
                                     work.scratch_W, work.scratch_V) if diagnostics else np.nan)
         new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = -1, 0, 0
         # one call of judge serves every action a row tries, since each inlined copy costs seconds of the first
-        # compilation: step 0 the policy's action (Lookahead.passes), steps 1 to J every candidate
-        # (ValueFilter._candidates), then the smooth rule's bisection (ValueFilter._bisect): the largest step from
-        # the chosen candidate towards the policy's action that passes
+        # compilation: step 0 the policy's action, steps 1 to J every candidate, then the smooth rule's bisection:
+        # the largest step from the chosen candidate towards the policy's action that passes
         passed, any_ok = False, False
         best, best_next, best_bad = 0, np.inf, np.inf
         lo, hi, mid = 0.0, 1.0, 0.0
@@ -317,7 +317,7 @@ def _writable(v: np.ndarray) -> np.ndarray:
 
 
 class CompiledDecision:
-    """:func:`decide_rows` bound to one filter (build it with :meth:`for_filter`)."""
+    """:func:`decide_rows` bound to one filter, whose model gives what it needs (:meth:`missing`)."""
 
     def __init__(self, vf: Any):
         la, model = vf.lookahead, vf.model
@@ -356,30 +356,26 @@ class CompiledDecision:
         self._local = threading.local()
 
     @staticmethod
-    def missing(vf: Any) -> str | None:
-        """What the compiled decision lacks for this filter, in words naming what to add; ``None``: nothing."""
-        la, model = vf.lookahead, vf.model
+    def missing(model: Any) -> str | None:
+        """What the decision needs that ``model`` does not give, in words naming what to add; ``None``: nothing.
+        :class:`~softreach.filters.ValueFilter` refuses such a model at construction."""
         name = type(model).__name__
-        if model.held_box_kernel is None:
-            return (f"{name} gives no compiled held_box_kernel (with held_box_params): the box of every state a held "
-                    f"period reaches from a box of starts, as reach/models/pointmass.py writes it")
-        if not la.box_support:
-            return f"{name} does not override held_enclosure_box (run its held_box_kernel through held_boxes)"
-        if la.set_kernel is None:
-            return (f"{name} gives no compiled set maxima: declare set_boxes (box-distance sets) or a "
+        if getattr(model, "held_box_kernel", None) is None:
+            return (f"{name} gives no compiled held_box_kernel (with held_box_params): add one that bounds every "
+                    f"state a held period reaches from a box of starts, as reach/models/pointmass.py and the cart of "
+                    f"docs/models.md write it")
+        if getattr(model, "set_max_kernel", None) is None:
+            return (f"{name} gives no compiled set maxima: declare set_boxes (box-distance sets) or add a "
                     f"set_max_kernel with set_max_params")
         # a model's own set_box_max (sets not convex along each axis) must be what its own compiled kernel computes:
         # the default kernel (box distances) does not know of it
+        n = model.state_dim
         if model.set_max_kernel is boxes_set_max and any(
-                model.set_box_max(w, 0.0, np.zeros((1, la.n)), np.zeros((1, la.n))) is not None
+                model.set_box_max(w, 0.0, np.zeros((1, n)), np.zeros((1, n))) is not None
                 for w in ("target", "hard_constraint", "soft_constraint")):
-            return f"{name} bounds its sets with set_box_max but gives no set_max_kernel computing the same"
+            return (f"{name} bounds its sets with set_box_max but gives no set_max_kernel computing the same: add "
+                    f"one (with set_max_params)")
         return None
-
-    @staticmethod
-    def for_filter(vf: Any) -> "CompiledDecision | None":
-        """The compiled decision for this filter, or ``None`` where it does not apply (:meth:`missing`)."""
-        return None if CompiledDecision.missing(vf) is not None else CompiledDecision(vf)
 
     def __call__(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, pol: np.ndarray, plans: np.ndarray | None,
                  diagnostics: bool = True):
@@ -475,3 +471,21 @@ class CompiledDecision:
             named_one = decision_space(self.filter.lookahead.n, m, J)
             space = self._local.space = (named_one, plain(named_one))
         return space
+
+
+def best_candidate(la: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The one-period test of ``la`` (a :class:`~softreach.reach.proof.lookahead.Lookahead` on fields, no cells)
+    from each state, as :meth:`~softreach.filters.ValueFilter.certify` asks it (:func:`~softreach.filters.
+    compiled_certify.certify_rows`): whether the best candidate passes, and its worst next certificate (read only
+    where it passes). The held solve's consistency pass asks it of two snapshots of fields, not of a table
+    (:func:`~softreach.reach.numerics.held.make_consistent`).
+
+    :raises ValueError: the model does not give what the compiled test needs (:meth:`CompiledDecision.missing`)
+    """
+    missing = CompiledDecision.missing(la.model)
+    if missing is not None:
+        raise ValueError(f"the filter's one-period test cannot run for model {la.model.name!r}: {missing}")
+    bare = SimpleNamespace(lookahead=la, model=la.model, safe_cells=None, landing_cells=None,
+                           fallback_action=la.a_mid, threads=default_threads(), rule="switch", smooth_iterations=0)
+    ok, nxt, _, _, _ = CompiledDecision(bare).certify(np.asarray(t, dtype=np.float64), x, z)
+    return ok, nxt

@@ -52,7 +52,7 @@ class Motion(NamedTuple):
     #: without landing cells: the end states pass where the table's worst value is at most ``-margin``
     margin: float
     #: without landing cells: the last sample times before the horizon whose end boxes a witness judges
-    #: (:mod:`softreach.reach.proof.horizon`)
+    #: (:func:`~softreach.filters.table_pass.witness`)
     exact_periods: int
 
 

@@ -1,7 +1,7 @@
 """Whether states are certified, compiled: the numbers :meth:`~softreach.filters.ValueFilter.certify` needs of
 each row, by the decision's own parts (:mod:`softreach.filters.judge`) in the same arithmetic:
 
-* :meth:`~softreach.reach.proof.lookahead.Lookahead.best_candidate`: the candidate of least badness (a passing one by its
+* the best candidate: the candidate of least badness (a passing one by its
   worst next certificate, else the least bad), whether it passes (by the landing cells, or without them by the
   table, :mod:`softreach.filters.table_pass`), and its next certificate (``+inf`` where it does not pass, with
   cells; without them the table's wherever its period keeps ``C1`` and the budget);
@@ -65,7 +65,7 @@ def certify_rows(enclose, m_args, c_args, t_args, cands, t, x, z, ok, nxt, value
             badness(T, t_next, end_lo, end_hi, zr, work, c_ok, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend,
                     np.int64(-1), np.bool_(True), c_bad, c_score, space.c_low, space.c_tie)
             best = np.argmin(c_score)
-        # a failing candidate's next value is +inf (Lookahead.assess): none of its end states is certified
+        # the best candidate's verdict and next value (a failing one's next value certifies nothing)
         ok[r], nxt[r] = c_ok[best], c_next[best]
         inside[r] = on_table(T.inside, tr, xr, max(zr, 0.0), point, work.scratch_W)
         in_cells[r] = C.has_land and cover_row(C.land, tr, xr, xr, zr)

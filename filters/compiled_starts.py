@@ -1,7 +1,8 @@
 """The start-plan search of :func:`~softreach.filters.plans.start_plans`, compiled: where no period or cell
 certifies a start, one candidate held for several periods, or two in sequence, whose boxes keep ``C1`` and the
 budget and end in the landing cells. Each period is :func:`~softreach.filters.judge.judge`, which reads no table;
-the searches are those of the numpy code, in the same order (``tests/test_compiled_filter.py`` compares them).
+the search order is :func:`~softreach.filters.plans.start_plans`'s (the shortest first, the first candidate among
+those); ``tests/test_filters_soundness.py`` flies the plans it finds against switching winds.
 """
 
 from __future__ import annotations

@@ -22,10 +22,11 @@ after a certified step (its value is the minimum over the same candidates, held,
 instant), and the audit (``benchmarks/audit_filter.py``) counts the rare states where none does (reason
 ``"uncertified"``); with a continuous-time table the same checks run there, but nothing is certified.
 
-Where the model gives its enclosure and set maxima compiled and the table holds ``W_eps``, :class:`ValueFilter` runs
-this same decision compiled, row by row (:mod:`softreach.filters.compiled`, :attr:`ValueFilter.compiled`), with or
-without cells; the numpy code below runs for the rest (a ``Q_min`` table, a model without compiled kernels).
-``tests/test_filter_reference.py`` checks the compiled decision against ``tests/reference_decision.py``.
+:class:`ValueFilter` runs this decision compiled, row by row (:mod:`softreach.filters.compiled`,
+:attr:`ValueFilter.compiled`), with or without cells, on a ``W_eps`` table or a budget surface ``Q_min``; a model
+that does not give its enclosure and its sets' maxima compiled is refused at construction, with what to add
+(:meth:`~softreach.filters.compiled.CompiledDecision.missing`). ``tests/test_filter_reference.py`` checks the
+decision against ``tests/reference_decision.py``, a slow transcription of ``docs/filters.md``.
 
 Everything works on batches: ``t`` and ``z`` are scalars or ``(N,)``, ``x`` is ``(N, n)`` (or ``(n,)``), actions
 ``(N, m)`` (or ``(m,)``) in physical units unless ``normalized=True``. numpy in, numpy out; torch in, torch out.
@@ -43,13 +44,10 @@ import numpy as np
 from softreach.reach import Table, TableError
 from softreach.reach.proof.blocks import default_threads
 from softreach.reach.proof.lookahead import Lookahead, exact_normalized
-from softreach.reach.proof.ranks import NEXT_CAP, PASSES_ONLY, SMOOTH_PASSES_ONLY
 
 from .compiled import CompiledDecision
-from .plans import (NO_PLAN, PLAN_LAND, PLAN_SAFE, START_SEGMENTS, check_plans, follow_plans, resolve_cells,
-                    solved_for, start_plans)
-from .reasons import (AFTER_HORIZON, BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, REASONS,
-                      UNCERTIFIED)
+from .plans import NO_PLAN, PLAN_LAND, PLAN_SAFE, START_SEGMENTS, check_plans, resolve_cells, solved_for, start_plans
+from .reasons import AFTER_HORIZON, BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, REASONS, UNCERTIFIED
 from .single import filter_one
 from .tensors import batch_inputs, clip_unit, to_torch
 
@@ -81,6 +79,8 @@ class ValueFilter:
         (its sub-step ends; :class:`SafetyFilter` passes the env's ``n_substeps``). An action that surely lands
         at one of them passes. The default 1 (the period's end) is right for any environment.
     :param start_periods: the longest plan :meth:`certify_start` searches from a start state (0: none)
+    :raises ValueError: the model does not give what the decision needs (a compiled ``held_box_kernel``, its sets'
+        maxima compiled), naming what to add, before any cell is built
     """
 
     def __init__(self, table: Table, dt: float, *, margin: float | None = None, rule: str = "switch",
@@ -112,6 +112,9 @@ class ValueFilter:
         if table.grid("V").ndim != self.model.state_dim:
             raise TableError(f"table {table.path} has {table.grid('V').ndim} states, the model "
                              f"{self.model.state_dim}")
+        missing = CompiledDecision.missing(self.model)
+        if missing is not None:
+            raise ValueError(f"the safety filter cannot decide for model {self.model.name!r}: {missing}")
         self.dt = float(dt)
         self.rule = rule
         self.smooth_iterations = int(smooth_iterations)
@@ -143,9 +146,8 @@ class ValueFilter:
         #: a step can be certified: the landing cells prove it (the table, solved for this period or in continuous
         #: time, then only ranks candidates), or, for a model without cells, the table was solved for this period
         self.certifiable = self.landing_cells is not None or self.sampled
-        #: the decision compiled (:mod:`softreach.filters.compiled`), where the model, the table and the cells allow;
-        #: ``None``: numpy only
-        self.compiled = CompiledDecision.for_filter(self)
+        #: the decision, compiled (:mod:`softreach.filters.compiled`)
+        self.compiled = CompiledDecision(self)
         #: threads that share a large batch of the compiled decision (blocks of at least
         #: :data:`~softreach.reach.proof.blocks.PARALLEL_MIN_ROWS` rows); 1: the calling thread alone. By default two
         #: where the machine has them: ``benchmarks/bench_filter.py`` times 1,024 rows both ways
@@ -183,14 +185,7 @@ class ValueFilter:
         :return: ``(certified (N,), reasons, best next certificate (N,))``; reasons from :data:`CERTIFY_REASONS`
         """
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
-        if self.compiled is not None:
-            ok, nxt, value, inside, in_cells = self.compiled.certify(tt, xs, zz)
-        else:
-            value = self.lookahead.certificate(tt, xs, zz)
-            _, ok, nxt = self.lookahead.best_candidate(tt, xs, zz)
-            inside = self.table.inside(tt, xs, np.maximum(zz, 0.0))
-            in_cells = (self.landing_cells.contains(tt, xs, zz) if self.landing_cells is not None
-                        else np.zeros(len(xs), bool))
+        ok, nxt, value, inside, in_cells = self.compiled.certify(tt, xs, zz)
         # a state in a landing cell has its cell's plan even where no single period ends in the cells
         ok = ok | in_cells
         after = tt >= self.lookahead.horizon - 1e-9
@@ -285,61 +280,8 @@ class ValueFilter:
         N = len(xs)
         plans = check_plans(plan, N)
         pol = self.physical(act) if normalized else np.minimum(np.maximum(act, self.a_lo), self.a_hi)
-        la = self.lookahead
-        if self.compiled is not None:
-            applied, reason, value, nxt, ok, chosen, blend, new_plans = self.compiled(tt, xs, zz, pol, plans,
-                                                                                      diagnostics)
-            rows = np.zeros(0, np.int64)
-        else:
-            new_plans = np.tile(np.array(NO_PLAN, np.int64), (N, 1))
-            value = la.certificate(tt, xs, zz) if diagnostics else np.full(N, np.nan)
-            _, nxt, _, ok = la.passes(tt, xs, zz, pol)
-            rows = np.nonzero(~ok)[0]
-            cand = self._candidates(tt[rows], xs[rows], zz[rows], pol[rows]) if len(rows) else None
-            if not diagnostics:
-                nxt = np.full(N, np.nan)  # the rows replaced below get their chosen action's
-            applied = pol.copy()
-            reason = np.full(N, PASS, dtype=np.int64)
-            blend = np.ones(N)
-            chosen = np.full((N, self.m), np.nan)
-        if len(rows):
-            cand_ok, cand_next, cand_bad, cand_keeps = cand
-            any_ok = cand_ok.any(axis=1)
-            # switch: a candidate after which a passing action exists again (by its next certificate), else one
-            # that passes (the next state may then be a dead end), else the least bad, C1 first; smooth: the
-            # passing candidate closest to the policy's action, by the same preference
-            score = np.where(cand_keeps, cand_next,
-                             np.where(cand_ok, PASSES_ONLY + np.minimum(cand_next, NEXT_CAP), cand_bad))
-            if self.rule == "smooth":
-                dist = np.linalg.norm((la.candidates[None, :, :] - pol[rows][:, None, :]) / self.a_half, axis=2)
-                score = np.where(cand_keeps, dist, np.where(cand_ok, SMOOTH_PASSES_ONLY + dist, cand_bad))
-            j = np.argmin(score, axis=1)
-            best = la.candidates[j]
-            best_next = cand_next[np.arange(len(rows)), j]
-            best_bad = cand_bad[np.arange(len(rows)), j]
-            lam = np.zeros(len(rows))
-            if self.rule == "smooth" and self.smooth_iterations:
-                lam, best_next = self._bisect(tt[rows], xs[rows], zz[rows], best, pol[rows], any_ok, best_next)
-            a = self.blend(best, pol[rows], lam)
-            any_ok = follow_plans(self, plans, new_plans, rows, tt, xs, zz, a, best, best_next, best_bad, any_ok,
-                                  cand_next)
-            # where a plan replaced the action, its candidate itself is applied, not a blend
-            lam = np.where(new_plans[rows, 0] != NO_PLAN[0], 0.0, lam)
-            # -inf: the period surely ends landed; +inf: no candidate could be bounded at all
-            bounded = best_bad < np.inf
-            applied[rows] = np.where(bounded[:, None], a, self.fallback_action)
-            chosen[rows] = best
-            nxt[rows] = best_next
-            ok[rows] = any_ok
-            blend[rows] = lam
-            r = np.where(any_ok, np.where(lam > 0, BLEND, OPTIMAL), UNCERTIFIED)
-            r = np.where(~bounded, FALLBACK, r)
-            reason[rows] = r
-        # where the state itself is off the table, say so (the action above is still the least bad)
-        after = tt >= la.horizon - 1e-9
-        if len(rows):
-            off = ~self.table.inside(tt[rows], xs[rows], np.maximum(zz[rows], 0.0))
-            reason[rows[off]] = OUTSIDE
+        applied, reason, value, nxt, ok, chosen, blend, new_plans = self.compiled(tt, xs, zz, pol, plans, diagnostics)
+        after = tt >= self.lookahead.horizon - 1e-9
         reason = np.where(after, AFTER_HORIZON, reason)
         active = reason != PASS
         if normalized:
@@ -358,49 +300,3 @@ class ValueFilter:
         return applied, info
 
     __call__ = filter
-
-    def _candidates(self, t, x, z, pol):
-        """:meth:`Lookahead.passes` for every candidate at every row, as the rule reads it: every candidate's
-        one-period test, and whether it keeps the next state certified asked only in the rule's order of preference
-        (lowest next certificate, or nearest the policy's action), up to the first that keeps. The choice is the
-        same; the costly ``keeps`` is asked of one or two candidates a row instead of all."""
-        la = self.lookahead
-        N, J = len(x), len(la.candidates)
-        flat = la._each_candidate(t, x, z)
-        ok, nxt, bad, end_lo, end_hi, z_end, kept = la.assess(*flat, ends=True)
-        cand_ok, cand_next, cand_bad = (v.reshape(N, J) for v in (ok, nxt, bad))
-        if self.rule == "smooth":
-            # a candidate that keeps ranks by its distance whether or not its own end box is certified
-            pref = np.linalg.norm((la.candidates[None, :, :] - pol[:, None, :]) / self.a_half, axis=2)
-            eligible = cand_ok | kept.reshape(N, J)
-        else:
-            # only a passing candidate that keeps ranks by its next value; one that keeps but does not pass ranks
-            # after every passing one, where whether it keeps no longer matters
-            pref, eligible = cand_next, cand_ok
-        order = np.argsort(np.where(eligible, pref, np.inf), axis=1, kind="stable")
-        cand_keeps = np.zeros((N, J), bool)
-        open_rows = np.nonzero(eligible.any(axis=1))[0]
-        for rank in range(J):
-            j = order[open_rows, rank]
-            live = eligible[open_rows, j]  # eligible candidates come first: past them a row is done
-            open_rows, j = open_rows[live], j[live]
-            if not len(open_rows):
-                break
-            f = open_rows * J + j
-            k = la.keeps(flat[0][f], flat[2][f], ok[f], nxt[f], end_lo[f], end_hi[f], z_end[f], kept[f])
-            cand_keeps[open_rows, j] = k
-            open_rows = open_rows[~k]
-        return cand_ok, cand_next, cand_bad, cand_keeps
-
-    def _bisect(self, t, x, z, best, pol, any_ok, best_next):
-        """The largest ``lam`` in ``[0, 1]`` (by bisection) with ``best + lam (pol - best)`` admissible."""
-        lo, hi = np.zeros(len(x)), np.ones(len(x))
-        nxt = best_next.copy()
-        for _ in range(self.smooth_iterations):
-            mid = 0.5 * (lo + hi)
-            _, val, _, ok = self.lookahead.passes(t, x, z, self.blend(best, pol, mid))
-            ok &= any_ok
-            lo = np.where(ok, mid, lo)
-            hi = np.where(ok, hi, mid)
-            nxt = np.where(ok, val, nxt)
-        return lo, nxt

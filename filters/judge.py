@@ -1,5 +1,6 @@
-"""One held action judged, compiled: the one-period test of :meth:`~softreach.reach.proof.lookahead.Lookahead.assess`
-for one row, in parts that :mod:`softreach.filters.compiled` calls only where their answer can decide.
+"""One held action judged, compiled: the one-period test (``docs/filters.md``, "The one-period test"; its parameters
+are :class:`~softreach.reach.proof.lookahead.Lookahead`'s) for one row, in parts that :mod:`softreach.filters.compiled`
+calls only where their answer can decide.
 
 * :func:`judge` reads no table: the enclosures, ``C1``, the budget, the cells, whether the period surely lands;
 * :func:`next_value` and :func:`_safe_end` read the table over the period's end box;
@@ -13,7 +14,8 @@ point_value`), is at most the maximum. A safe end whose corner is above 0 is not
 possible next value (or badness) lies above another's exact one is not the least (:func:`read_least`). The choice
 is the one of reading every value.
 
-Each mirrors the numpy method it names, with the same arithmetic in the same order.
+The box bounds are those of the cells' builder (:class:`~softreach.reach.proof.lookahead.Lookahead`'s
+``checked_c1``, ``may_spend``, ``_budget_spent``), with the same arithmetic in the same order.
 
 Inlined or called: numba inlines a function (``inline="always"``) by copying its body into every caller, where the
 copy is typed and optimised again, so that each copy adds to the first compilation; a call hands over every field of
@@ -148,7 +150,7 @@ def meets_target(M, tube_lo, tube_hi):
 
 @njit(inline="always")
 def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
-    """What :meth:`Lookahead.assess` decides without the table, for one row: a
+    """What the one-period test decides without the table, for one row: a
     :class:`~softreach.filters.compiled_args.Verdict`; writes the end box into ``end_lo``, ``end_hi``. Without
     landing cells its ``ok`` is ``kept`` and ``lands`` is asked only of a period that does not keep: the table's
     part is :func:`~softreach.filters.table_pass.table_verdict`'s."""
@@ -196,7 +198,7 @@ def judge_once(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
 @njit(inline="always")
 def next_value(T, t_next, end_lo, end_hi, z_end, z_hi, work):
     """The worst certificate over a period's end box, the budget between ``z_end`` and ``z_hi`` (``+inf`` where
-    the table has no number): :meth:`Lookahead.assess`'s next value of an action whose motion keeps ``C1``."""
+    the table has no number): the next value of an action whose motion keeps ``C1``."""
     W, z_floor, V, has_V = T.W, T.z_floor, T.V, T.has_V
     box_lo, box_hi, scratch_W, scratch_V = work.box_lo, work.box_hi, work.scratch_W, work.scratch_V
     n = len(end_lo)
@@ -311,7 +313,7 @@ def _tie(nxt, z_end):
 @njit(_nrt=False)
 def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend, keeps_j,
              contest, c_bad, c_score, c_low, c_tie):
-    """The badness and score of every candidate that fails (:meth:`Lookahead.assess`), the table read only where
+    """The badness and score of every candidate that fails (:mod:`softreach.reach.proof.ranks`), the table read only where
     it can decide: a failing candidate is chosen only where ``contest`` (no other scores below
     :data:`~softreach.reach.proof.ranks.LOWEST_BAD`), and then from the lowest rank; the smooth rule's failing candidate
     that keeps (``keeps_j``) is chosen, and its badness decides the safe plans. Every other failing one gets its

@@ -16,7 +16,6 @@ from typing import Any
 import numpy as np
 
 from softreach.reach.proof.cell_certificate import CellCertificate, cell_key, cached
-from softreach.reach.proof.ranks import RANK_PROVEN, RANK_SAFE
 
 try:  # torch is a base dependency, but keep numpy-only use possible
     import torch
@@ -90,127 +89,32 @@ def check_plans(plan: Any, N: int) -> np.ndarray | None:
     return arr.astype(np.int64, copy=False)
 
 
-def follow_plans(vf: Any, plans: np.ndarray | None, new_plans: np.ndarray, rows: np.ndarray, t: np.ndarray,
-                 x: np.ndarray, z: np.ndarray, applied: np.ndarray, best: np.ndarray, best_next: np.ndarray,
-                 best_bad: np.ndarray, any_ok: np.ndarray, cand_next: np.ndarray) -> np.ndarray:
-    """Where no candidate's period ends in the cells from the state itself, follow the plan committed to at an
-    earlier step, or start the plan of the state's own cell (proven from every state of the cell). Landing cells
-    first, their plans also keep ``C1`` and the budget; then safe cells, for rows whose choice does not end in
-    them. Updates ``applied``, ``best``, ``best_next``, ``best_bad`` and ``new_plans`` in place (the rows of
-    ``rows``, the policy's action having failed there).
-
-    :return: ``any_ok`` with the rows now following a landing plan set (their step is certified)
-    """
-    any_ok = any_ok.copy()
-    J = len(vf.lookahead.candidates)
-    for game, cells in ((PLAN_LAND, vf.landing_cells), (PLAN_SAFE, vf.safe_cells)):
-        # safe cells' plans where the choice's end is not proven safe (its badness is not RANK_PROVEN's)
-        weak = np.nonzero(~any_ok if game == PLAN_LAND else best_bad >= RANK_SAFE)[0]
-        if cells is None or not len(weak):
-            continue
-        r = rows[weak]
-        follow = np.zeros(len(r), bool)
-        pj, pk = np.full(len(r), -1), np.zeros(len(r), np.int64)
-        if plans is not None:
-            pj, pk = plans[r, 0], plans[r, 1]
-            follow = (pk > 0) & (pj >= 0) & (pj < J) & (plans[r, 2] == game)
-        cj, ck = cells.plan(t[r], x[r])
-        start = ~follow & (cj >= 0) & cells.contains(t[r], x[r], z[r])
-        use = follow | start
-        jj = np.where(follow, pj, cj)[use]
-        applied[weak[use]] = best[weak[use]] = vf.lookahead.candidates[jj]
-        best_next[weak[use]] = cand_next[weak[use], jj]
-        best_bad[weak[use]] = -1.0 if game == PLAN_LAND else RANK_PROVEN
-        new_plans[r[use]] = np.stack([jj, np.where(follow, pk - 1, ck - 1)[use], np.full(int(use.sum()), game)],
-                                     axis=1)
-        if game == PLAN_LAND:
-            any_ok[weak[use]] = True
-    return any_ok
-
-
 #: a start's own plan holds one candidate, or two in sequence (:func:`start_plans`)
 START_SEGMENTS = 2
 
 
-def _segment(vf: Any, t: np.ndarray, lo: np.ndarray, hi: np.ndarray | None, z: np.ndarray,
-             periods: int) -> tuple[np.ndarray, np.ndarray]:
-    """The shortest run of one held candidate from each row's state (``hi`` ``None``) or box ``[lo, hi]``, up to
-    ``periods`` periods, each keeping ``C1`` and the budget from the box of every state the periods before may have
-    reached (:meth:`Lookahead.assess` from that box), the last passing the one-period test from its whole box.
-
-    :return: ``(plans (N, 3), once (N,))``: ``(candidate, K, PLAN_LAND)``, the first candidate among the shortest,
-        or :data:`NO_PLAN`; ``once``: from a state, some candidate passes at once (one period certifies it: no plan)
-    """
-    la = vf.lookahead
-    N, J = len(lo), len(la.candidates)
-    plans = np.tile(np.array(NO_PLAN, np.int64), (N, 1))
-    once = np.zeros(N, bool)
-    row, j = np.repeat(np.arange(N), J), np.tile(np.arange(J), N)
-    b_lo, b_hi, zz, tt = lo[row], None if hi is None else hi[row], z[row], t[row]
-    found = np.zeros(N, bool)
-    # after k periods held, does the candidate pass from the box they may have reached: a run of k + 1 periods
-    for k in range(periods):
-        passing, _, _, e_lo, e_hi, z_end, kept = la.assess(tt, b_lo, zz, la.candidates[j], x_hi=b_hi, ends=True)
-        if k == 0 and hi is None:
-            once[row[passing]] = True
-            found[row[passing]] = True
-        elif passing.any():
-            # rows are in candidate order, so the first winner of a row is its lowest candidate
-            wr, first = np.unique(row[passing], return_index=True)
-            plans[wr] = np.stack([j[passing][first], np.full(len(wr), k + 1), np.full(len(wr), PLAN_LAND)], axis=1)
-            found[wr] = True
-        keep = (kept & ~passing & ~found[row] & np.isfinite(e_lo).all(axis=1) & np.isfinite(e_hi).all(axis=1))
-        if k == periods - 1 or not keep.any():
-            break
-        row, j, b_lo, b_hi, zz, tt = row[keep], j[keep], e_lo[keep], e_hi[keep], z_end[keep], tt[keep] + la.dt
-    return plans, once
-
-
 def start_plans(vf: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int,
                 second: np.ndarray | None = None) -> np.ndarray:
-    """Plans from a start state itself, for starts that neither one period nor their own cell certifies: one
-    candidate held for ``K = 2 .. periods`` periods (:func:`_segment` from the state), so that the run ends in the
-    landing cells (or has landed); where there is none and ``second`` asks for it, two in sequence, at most
-    ``periods`` in all: the first held ``K1`` periods that keep ``C1`` and the budget, the second a run of
-    :func:`_segment` from the box of every state the first may have reached. The cells' own plans start from a
-    whole cell; these start from the state, and keep what rounding it out to its cell loses. A plan is valid only
-    as the first ``plan`` of a run from this state, its second segment handed over as the first ends
-    (:func:`advance_plan`).
+    """Plans from a start state itself, for starts that neither one period nor their own cell certifies (compiled,
+    :mod:`softreach.filters.compiled_starts`): one candidate held for ``K = 2 .. periods`` periods from the state,
+    each period keeping ``C1`` and the budget from the box of every state the periods before may have reached and
+    the last passing from its whole box, so that the run ends in the landing cells (or has landed); where there is
+    none and ``second`` asks for it, two in sequence, at most ``periods`` in all: the first held ``K1`` periods that
+    keep ``C1`` and the budget, the second such a one-candidate run from the box of every state the first may have
+    reached. The cells' own plans start from a whole cell; these start from the state, and keep what rounding it
+    out to its cell loses. A plan is valid only as the first ``plan`` of a run from this state, its second segment
+    handed over as the first ends (:func:`advance_plan`).
 
     :param second: per row, whether to search two segments where one does not do (default: no row)
     :return: ``(N, START_SEGMENTS, 3)``, each segment ``(candidate, periods, PLAN_LAND)`` or :data:`NO_PLAN`: the
         shortest one-segment plan; else the two-segment plan of the shortest first segment, the first candidate among
         those, and the shortest second segment from its box
     """
-    la = vf.lookahead
-    N, J = len(x), len(la.candidates)
-    plans = np.tile(np.array(NO_PLAN, np.int64), (N, START_SEGMENTS, 1))
+    N = len(x)
     second = np.zeros(N, bool) if second is None else np.asarray(second, bool)
-    if vf.landing_cells is None or not la.box_support or periods < 2 or N == 0:
-        return plans
-    if vf.compiled is not None:
-        # the same search, compiled (tests/test_compiled_filter.py compares the two)
-        return vf.compiled.start_plans(t, x, z, periods, second, START_SEGMENTS)
-    plans[:, 0], once = _segment(vf, t, x, None, z, periods)
-    row = np.nonzero((plans[:, 0, 0] < 0) & ~once & second)[0]
-    row, j = np.repeat(row, J), np.tile(np.arange(J), len(row))
-    b_lo, b_hi, zz, tt = x[row], None, z[row], t[row]
-    for k1 in range(1, periods):
-        # the first segment's k1-th period, from the box of its k1 - 1 before
-        _, _, _, e_lo, e_hi, z_end, kept = la.assess(tt, b_lo, zz, la.candidates[j], x_hi=b_hi, ends=True)
-        keep = kept & np.isfinite(e_lo).all(axis=1) & np.isfinite(e_hi).all(axis=1)
-        row, j, b_lo, b_hi, zz, tt = row[keep], j[keep], e_lo[keep], e_hi[keep], z_end[keep], tt[keep] + la.dt
-        if not len(row):
-            break
-        seg, _ = _segment(vf, tt, b_lo, b_hi, zz, periods - k1)
-        win = seg[:, 0] >= 0
-        if win.any():
-            wr, first = np.unique(row[win], return_index=True)
-            plans[wr, 0] = np.stack([j[win][first], np.full(len(wr), k1), np.full(len(wr), PLAN_LAND)], axis=1)
-            plans[wr, 1] = seg[win][first]
-            left = ~np.isin(row, wr)
-            row, j, b_lo, b_hi, zz, tt = row[left], j[left], b_lo[left], b_hi[left], zz[left], tt[left]
-    return plans
+    if vf.landing_cells is None or periods < 2 or N == 0:
+        return np.tile(np.array(NO_PLAN, np.int64), (N, START_SEGMENTS, 1))
+    return vf.compiled.start_plans(t, x, z, periods, second, START_SEGMENTS)
 
 
 def advance_plan(plan: np.ndarray, queued: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

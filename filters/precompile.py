@@ -27,14 +27,15 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
     :param period: the control period [s] (default: the table's)
     :param cells: give the filter the model's cells (built or unpacked where missing); without them it runs the same
         compiled code, which is all that compiling ahead needs
-    :return: ``model``, ``compiled`` (whether the model's filter has a compiled decision at all), ``seconds``,
+    :return: ``model``, ``compiled`` (always true: every filter decides compiled; a model without what it needs
+        is refused by :class:`~softreach.filters.ValueFilter`, with ``missing`` then never reached), ``seconds``,
         ``source`` (``"compiled"`` now, loaded from the ``"cache"``, or already in this ``"process"``) and
         ``cache`` (the folder of the compiled code, :func:`softreach.reach.jit.compiled_cache_dir`)
     """
     from softreach.reach import load_table
 
     from . import ValueFilter
-    from .compiled import CompiledDecision, decide_rows
+    from .compiled import decide_rows
     from .compiled_certify import certify_rows
     from .compiled_starts import start_plan_rows
     from .plans import START_SEGMENTS, has_cells
@@ -43,7 +44,7 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
         table = load_table(table)
     model = table.model
     if not (table.has_budget or table.has_budget_surface):
-        raise ValueError(f"softreach compile needs a W_eps table (softreach solve {model.name} --held); "
+        raise ValueError(f"softreach compile needs a W_eps or Q_min table (softreach solve {model.name} --held); "
                          f"{table.path} holds only the classical V")
     if period is None and table.control_period is None:
         if not has_cells(model):
@@ -56,12 +57,10 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
     # the landing checks SafetyFilter asks for: the same compiled code as any other count, and cells it ships
     no_cells = {} if cells else {"safe_cells": None, "landing_cells": None}
     vf = ValueFilter(table, dt, target_checks=getattr(model, "substeps", 1), **no_cells)
-    out: dict[str, Any] = {"model": model.name, "compiled": vf.compiled is not None, "seconds": 0.0,
-                           "source": None, "cache": None, "missing": CompiledDecision.missing(vf)}
-    if vf.compiled is None:
-        return out
+    out: dict[str, Any] = {"model": model.name, "compiled": True, "seconds": 0.0, "source": None, "cache": None,
+                           "missing": None}
     # a state in the middle of the table's grid; what the decision finds there does not matter
-    grid = table.grid("W_eps")
+    grid = table.grid("V")
     x = 0.5 * (np.asarray(grid.lo[:model.state_dim]) + np.asarray(grid.hi[:model.state_dim]))
     vf.filter(0.0, x, 0.0, vf.fallback_action)
     vf.certify(0.0, x, 0.0)
@@ -92,9 +91,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 def _run(args: argparse.Namespace) -> int:
     for path in args.tables:
         r = precompile(path, args.period)
-        if not r["compiled"]:
-            print(f"{path}: {r['model']}'s filter decides in numpy ({r['missing']}): nothing to compile")
-        elif r["source"] == "compiled":
+        if r["source"] == "compiled":
             print(f"{path}: {r['model']}'s filter compiled in {r['seconds']:.1f} s, cached in {r['cache']}")
         else:
             print(f"{path}: {r['model']}'s filter was already compiled (cached in {r['cache']}); its first "

@@ -2,7 +2,7 @@
 them, else from the table (the one-period test's item 3, ``docs/filters.md``): every possible end state inside the
 certificate, the table's worst value over the end box at most ``-margin``, and in the last
 :attr:`~softreach.filters.compiled_args.Motion.exact_periods` sample times before the horizon a witness instead
-(:mod:`softreach.reach.proof.horizon`). :func:`~softreach.filters.judge.judge` decides everything else and reads
+(:func:`witness`). :func:`~softreach.filters.judge.judge` decides everything else and reads
 no table; :func:`table_verdict` adds the table's part where there are no landing cells; :func:`keeps` is the rule's
 "one candidate passes again from every possible next state"."""
 
@@ -23,7 +23,7 @@ from .judge import _lands, _widen, judge, meets_target, next_value, period
 @njit(inline="always")
 def in_window(M, t):
     """Whether the sample time ``t`` is one of the last ``exact_periods`` before the horizon (the horizon itself
-    excluded): its end boxes are judged by a witness (:func:`softreach.reach.proof.horizon.in_window`)."""
+    excluded): its end boxes are judged by a witness (:func:`witness`)."""
     horizon = M.horizon
     return t < horizon - 1e-9 and t + M.exact_periods * period(M) >= horizon - 1e-9 * max(1.0, horizon)
 
@@ -40,7 +40,7 @@ def _finish(enclose, M, t, x_lo, x_hi, z, a, v, nxt, meets, work):
     """``(passes, lands, next value)`` of an action judged without landing cells (``v``, its
     :class:`~softreach.filters.compiled_args.Verdict`; ``nxt`` the table's value over its end box): it passes where
     its period keeps ``C1`` and the budget and ``nxt <= -margin``; else where it surely lands (then ``-inf``). The
-    next value is that of a period that keeps, ``+inf`` where it does not (:meth:`Lookahead.assess`)."""
+    next value is that of a period that keeps, ``+inf`` where it does not."""
     passes = v.kept and nxt <= -M.margin
     lands = v.lands
     if not passes and not lands and v.kept and v.bounded and meets:
@@ -55,7 +55,7 @@ def _finish(enclose, M, t, x_lo, x_hi, z, a, v, nxt, meets, work):
 @njit(_nrt=False)
 def witness(enclose, M, C, T, cands, t, lo, hi, z_lo, z_hi, work, space):
     """Does a greedy witness land from every state of the box ``[lo, hi] x [z_lo, z_hi]`` at ``t``
-    (:func:`softreach.reach.proof.horizon.witness_lands`): candidates held period after period from the box of
+    (``docs/filters.md``, "The last periods before the horizon"): candidates held period after period from the box of
     every state the periods before may have reached, each chosen by the lowest table value of its end box among
     those that keep ``C1`` and the budget, until one surely lands or, at the horizon, ends inside the terminal
     certificate. ``space``: the decision's work space (its ``w_box``, ``w_lo``, ``w_hi``)."""
@@ -108,10 +108,10 @@ def table_verdict(enclose, M, C, T, cands, t, x_lo, x_hi, z, z_hi, a, v, end_lo,
 
 @njit(_nrt=False)
 def keeps(enclose, M, C, T, cands, t, z, ok, nxt, end_lo, end_hi, z_end, kept, work, work_box, space):
-    """:meth:`Lookahead.keeps`: whether the next state is certified whatever the wind does. With landing cells a
+    """Whether the next state is certified whatever the wind does. With landing cells a
     row that passes keeps (its end lies in them). Otherwise a row that surely lands, or whose period is the last,
     keeps where it passes; one whose period keeps ``C1`` and the budget keeps when some candidate passes from its
-    whole end box (:meth:`Lookahead.keeps_certified`), or, without cells, where its end box lies in the witness
+    whole end box, or, without cells, where its end box lies in the witness
     window with a witness (``nxt <= -margin``: the witness's first candidate passes from the whole box)."""
     horizon = M.horizon
     dt = period(M)

@@ -368,15 +368,6 @@ def test_a_first_filtered_decision_announces_its_compile(monkeypatch, capsys, ti
     assert envs.filter_code_cached() in (True, False)  # numba's cache is readable here
     monkeypatch.setattr(envs, "_announced", False)
     monkeypatch.setattr(envs, "filter_code_cached", lambda: False)
-    # a filter without compiled code (a model that gives no compiled enclosure, CompiledDecision.missing) has
-    # nothing to compile: no word
-    from softreach.filters.compiled import CompiledDecision
-
-    with monkeypatch.context() as m:
-        m.setattr(CompiledDecision, "for_filter", staticmethod(lambda vf: None))
-        envs.make_env("pointmass", filter_table=str(tiny_table)).close()
-    assert "numba" not in capsys.readouterr().err
-
     def with_compiled_filter(env, table, rule, margin):
         """The filter make_env wraps, as one with a compiled decision looks to the announcement (a real one
         compiles at its first decision, minutes on a cold cache)."""

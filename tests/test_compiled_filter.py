@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from softreach.filters import PASS, ValueFilter
-from softreach.filters.plans import start_plans
 from softreach.reach import get_model, sets
 from softreach.reach.proof.model_kernels import SET_INDEX, set_max_address, set_max_rows
 from softreach.reach.registry import model_names
@@ -106,23 +105,45 @@ def test_without_diagnostics_the_same_decisions(pointmass_held_table, rule):
         vf.filter(t, x, z, a, diagnostics="no")
 
 
-def test_badness_where_it_decides_is_the_numpy_badness(pointmass_held_table):
-    """The compiled badness of failing candidates (:func:`softreach.filters.judge.badness`) against
-    :meth:`Lookahead.assess`, candidate by candidate, on rows where few states pass: the smooth rule's failing
-    candidate that keeps gets its whole badness (which decides whether the safe plans are consulted, a branch the
-    decision tests above seldom reach), whichever candidate that is; and the candidate chosen where none keeps is
-    the one the whole badness chooses."""
+def _reference_key(bad):
+    """A compiled badness as the reference's key ``(class, tie)`` (``tests/reference_decision.py``,
+    ``ReferenceDecision._bad_key``): the rank offsets of :mod:`softreach.reach.proof.ranks` named by class."""
+    from softreach.reach.proof.ranks import RANK_LEAVES_C1, RANK_OVERSPENT, RANK_PROVEN, RANK_SAFE, RANK_UNSAFE
+
+    if bad == np.inf:
+        return 7, 0.0
+    if bad >= RANK_LEAVES_C1:
+        return 6, bad - RANK_LEAVES_C1
+    ranks = {RANK_PROVEN: 0, RANK_SAFE: 1, RANK_SAFE + RANK_OVERSPENT: 2, RANK_UNSAFE: 3,
+             RANK_UNSAFE + RANK_OVERSPENT: 4}
+    rank = min(ranks, key=lambda r: abs(bad - r))
+    return ranks[rank], bad - rank
+
+
+def _same_key(a, b):
+    return a[0] == b[0] and (a[1] == b[1] or abs(a[1] - b[1]) <= 1e-9 * max(1.0, abs(a[1]), abs(b[1])))
+
+
+def test_badness_where_it_decides_is_the_references(pointmass_held_table):
+    """The compiled badness of failing candidates (:func:`softreach.filters.judge.badness`) against the reference's
+    order of failing actions (``tests/reference_decision.py``: end in safe cells, ``V_safe`` keeps, the budget kept,
+    the next value and the overspend, then how far ``C1`` may be left), candidate by candidate, on rows where few
+    states pass: the smooth rule's failing candidate that keeps gets its whole badness (which decides whether the
+    safe plans are consulted, a branch the decision tests seldom reach), whichever candidate that is; and the
+    candidate chosen where none keeps has the least key."""
+    from reference_decision import ReferenceDecision
     from softreach.filters.compiled import decision_space
     from softreach.filters.judge import LOWEST_BAD, badness, judge
 
     vf = ValueFilter(pointmass_held_table, 0.01, rule="smooth")
+    ref = ReferenceDecision(vf)
     fast, la = vf.compiled, vf.lookahead
     J = len(fast.cands)
     work = decision_space(la.n, fast.cands.shape[1], J)[0]
     t, x, z, _ = _draws(150, 3)
     exact = ranked = 0
     for r in range(len(x)):
-        passing, _, bad = la.assess(np.full(J, t[r]), np.repeat(x[r:r + 1], J, 0), np.full(J, z[r]), fast.cands)
+        judged = [ref.judge(float(t[r]), x[r], x[r], float(z[r]), c) for c in fast.cands]
         end_lo, end_hi = np.empty((J, la.n)), np.empty((J, la.n))
         ok, in_c1, bounded, proven, kept = (np.empty(J, bool) for _ in range(5))
         c1, z_end = np.empty(J), np.empty(J)
@@ -130,21 +151,23 @@ def test_badness_where_it_decides_is_the_numpy_badness(pointmass_held_table):
             a_ok, lands, bounded[j], in_c1[j], a_kept, proven[j], c1[j], z_end[j], t_next = judge(
                 fast.enclose, fast.M, fast.C, t[r], x[r], x[r], z[r], fast.cands[j], end_lo[j], end_hi[j], work)
             ok[j], kept[j] = a_ok or lands, a_kept or lands
-        np.testing.assert_array_equal(ok, passing)
+        np.testing.assert_array_equal(ok, [v.passes for v in judged])
         columns = (ok, in_c1, bounded, proven, kept, c1, z_end)
         for k in np.nonzero(~ok)[0]:
             got = np.full(J, np.nan)
             badness(fast.T, t_next, end_lo, end_hi, z[r], work, *columns, k, True, got, np.full(J, np.nan),
                     np.empty(J), np.empty(J))
-            assert got[k] == bad[k], (r, k)
+            want = ref._bad_key(judged[k], float(z[r]))
+            assert _same_key(_reference_key(got[k]), want), (r, k, got[k], want)
             exact += bool(in_c1[k])
         if not ok.any():
             got, score = np.full(J, np.nan), np.full(J, np.nan)
             badness(fast.T, t_next, end_lo, end_hi, z[r], work, *columns, -1, True, got, score, np.empty(J),
                     np.empty(J))
-            assert np.argmin(score) == np.argmin(bad) and score.min() >= LOWEST_BAD or bad.min() == np.inf, r
-            # the chosen one's badness is exact, though others' ties may be left at their lower bounds
-            assert score.min() == bad.min() or bad.min() == np.inf, r
+            least = min(ref._bad_key(v, float(z[r])) for v in judged)
+            assert score.min() >= LOWEST_BAD, r
+            # the chosen one's key is the least, though others' ties may be left at their lower bounds
+            assert _same_key(_reference_key(score.min()), least), (r, score.min(), least)
             ranked += 1
     assert exact > 100 and ranked > 20  # both kinds of rows, with next values that move the badness
 
@@ -215,42 +238,24 @@ def _glider_draws(model, n, seed):
     return t, x, z, a
 
 
-@pytest.mark.parametrize("which", ["pointmass", "glider"])
-def test_start_plans_compiled_as_in_numpy(which, pointmass_held_table, glider_held_table):
-    """The search for a start's own plan (:func:`~softreach.filters.plans.start_plans`) finds the same plans
-    compiled as on the numpy path, which judges every period by :meth:`Lookahead.assess`: states over ``C1``, at
-    the start and later, with budgets from none to the largest default."""
-    table, dt = (pointmass_held_table, 0.01) if which == "pointmass" else (glider_held_table, 0.1)
-    vf = ValueFilter(table, dt, target_checks=table.model.substeps)
-    assert vf.compiled is not None
-    rng = np.random.default_rng(11)
-    lo, hi = (np.asarray(b, dtype=float) for b in vf.model.hard_box)
-    x = rng.uniform(lo, hi, (1200, len(lo)))
-    t = np.round(rng.choice([0.0, 0.3 * vf.lookahead.horizon], len(x)), 2)
-    z = rng.uniform(0.0, max(vf.model.default_budgets), len(x))
-    fast = start_plans(vf, t, x, z, 16)
-    compiled, vf.compiled = vf.compiled, None
-    try:
-        slow = start_plans(vf, t, x, z, 16)
-    finally:
-        vf.compiled = compiled
-    np.testing.assert_array_equal(fast, slow)
-    found = fast[:, 0, 0] >= 0
-    assert found.sum() >= 5 and len(np.unique(fast[found, 0, 1])) >= 3
+def test_a_filter_without_cells_decides_compiled_and_a_model_without_an_enclosure_is_refused_first(
+        dubins_held_table, monkeypatch):
+    """A model without the compiled enclosure is refused at the filter's construction, with one line naming what
+    to add, before any cell is built."""
+    from softreach.filters import core
 
-
-def test_a_filter_without_cells_decides_compiled_and_one_without_an_enclosure_says_what_to_add(dubins_held_table):
-    from softreach.filters.compiled import CompiledDecision
-
-    assert get_model("dubins").cell_shape is None
-    vf = ValueFilter(dubins_held_table, 0.1)
+    vf = ValueFilter(dubins_held_table, 0.1, landing_cells=None, safe_cells=None)
     assert vf.landing_cells is None and vf.compiled is not None
-    vf.model.held_box_kernel = None  # an instance without the compiled enclosure
-    try:
-        assert "Dubins gives no compiled held_box_kernel" in CompiledDecision.missing(vf)
-        assert CompiledDecision.for_filter(vf) is None
-    finally:
-        del vf.model.held_box_kernel
+    model = get_model("dubins")
+    model.held_box_kernel = None  # an instance without the compiled enclosure
+
+    def no_cells(*args, **kwargs):
+        raise AssertionError("cells built for a model the filter refuses")
+
+    monkeypatch.setattr(core, "resolve_cells", no_cells)
+    with pytest.raises(ValueError, match="model 'dubins': Dubins gives no compiled held_box_kernel") as err:
+        ValueFilter(dubins_held_table, 0.1, model=model)
+    assert "\n" not in str(err.value) and "add one" in str(err.value)
 
 
 def test_the_decisions_order_of_candidates_is_numpys_stable_argsort():

@@ -3,7 +3,7 @@
 There the table's certificate is a one-period game against the terminal value, whose interpolant between the
 node that lands within the period and the one that cannot promised landings no held action delivers: a hovering
 policy was let through until no action could land any more (a timeout from a certified state). The look-ahead
-now judges end boxes in the last ``exact_periods`` sample times by a witness (``softreach.reach.proof.horizon``), so a
+now judges end boxes in the last ``exact_periods`` sample times by a witness (``softreach.filters.table_pass.witness``), so a
 state certified in that window lands.
 """
 
@@ -26,7 +26,7 @@ def _hover_runs(table, winds=(-10.0, 0.0, 10.0), cells="auto", exact_periods=Non
     vf = ValueFilter(table, 0.01, target_checks=10, safe_cells=cells, landing_cells=cells)
     if exact_periods is not None:  # the witness window's length (0: none), in the decision built from it
         vf.lookahead.exact_periods = exact_periods
-        vf.compiled = CompiledDecision.for_filter(vf)
+        vf.compiled = CompiledDecision(vf)
     base = gym.make(ENV_ID).unwrapped
     hover = float(base.normalized_action(np.array([base.model.params.gravity]))[0])
     starts, outcomes = 0, []

@@ -15,7 +15,7 @@ from softreach.filters import reasons
 from softreach.reach.proof import ranks
 
 ROOT = Path(__file__).resolve().parents[1]
-#: the filter's sources: the filters package and the numpy one-period test
+#: the filter's sources: the filters package and the one-period test's parameters
 SOURCES = sorted((ROOT / "filters").glob("*.py")) + [ROOT / "reach" / "proof" / "lookahead.py"]
 #: a kept budget's tie lies in (-0.5, 0.5): atan(next) / pi (reach/proof/ranks.py)
 TIE = 0.5

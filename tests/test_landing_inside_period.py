@@ -9,6 +9,7 @@ import pytest
 import gymnasium as gym
 
 import softreach.envs  # noqa: F401  (registers the ids)
+from judged import candidate_verdicts
 from softreach.reach.sim.integrator import integrate_period
 from softreach.filters import SafetyFilter, ValueFilter
 from softreach.reach import get_model
@@ -54,10 +55,10 @@ def test_the_filter_lands_from_the_brink_only_with_the_envs_checks(pointmass_hel
     t, x, z = np.array([0.5]), np.array([BRINK]), np.array([0.3])
     ends_only = ValueFilter(pointmass_held_table, DT)
     checks = ValueFilter(pointmass_held_table, DT, target_checks=10)
-    ok1 = ends_only.lookahead.admissible_candidates(t, x, z)[0]
-    ok10, nxt10, _ = checks.lookahead.admissible_candidates(t, x, z)
+    ok1 = candidate_verdicts(ends_only, t, x, z)[0]
+    ok10, lands10 = candidate_verdicts(checks, t, x, z)
     assert not ok1.any()  # nothing keeps C1 for ten milliseconds
-    assert ok10.any() and np.all(nxt10[ok10] == -np.inf)  # braking surely lands at a check instant
+    assert ok10.any() and np.all(lands10[ok10])  # braking surely lands at a check instant
     assert np.all(checks.lookahead.candidates[ok10[0], 0] > 0)  # only thrust up lands
     # the wrapper gives its filter the env's sub-steps, and refuses a shared filter that counts on more checks
     env = gym.make("softreach/PointMassLanding-v0", n_substeps=5)
@@ -78,8 +79,7 @@ def test_every_landing_pass_lands_under_adversarial_winds(pointmass_held_table):
     x = np.column_stack([rng.uniform(-2.0, 0.0, n), rng.uniform(0.0, 0.1, n)])
     z = rng.choice([0.0, 0.002, 0.05], n)
     t = np.full(n, 0.5)
-    ok, nxt, _ = vf.lookahead.admissible_candidates(t, x, z)
-    rows, cols = np.nonzero(ok & (nxt == -np.inf))
+    rows, cols = np.nonzero(candidate_verdicts(vf, t, x, z)[1])
     assert len(rows) > 200, "too few landing passes to test"
 
     def stop(tt, xx, rate):

@@ -34,6 +34,14 @@ from ..problem import ReachAvoidProblem
 from .solver import HamiltonianOperator, SnapshotSink, SolverSettings, Stepper, initial_value, march, output_times
 
 
+def best_candidate(la: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The filter's own compiled one-period test from each state (:func:`softreach.filters.compiled.
+    best_candidate`): ``(the best candidate passes, its worst next certificate)``."""
+    from softreach.filters.compiled import best_candidate as compiled_best
+
+    return compiled_best(la, t, x, z)
+
+
 class HeldControl(Dynamics):
     """``x' = f(t, x, a, b)`` with the control ``a`` fixed: the one-player game of the disturbance.
 
@@ -231,7 +239,7 @@ def make_consistent(model: Any, fields: dict[str, tuple[Any, list[float], Grid]]
             x, z = x[keep], z[keep]
             if len(x) == 0:
                 continue
-            _, ok, best = la.best_candidate(np.full(len(x), times[k]), x, np.maximum(z, 0.0))
+            ok, best = best_candidate(la, np.full(len(x), times[k]), x, np.maximum(z, 0.0))
             score = np.where(ok, best, np.inf)
             # below z = 0 the budget is already overspent: nothing there is certified by the test
             score = np.where(z < 0, np.inf, score)
@@ -285,7 +293,7 @@ def consistency_gaps(model: Any, fields: dict[str, tuple[Any, list[float], Grid]
         d = la.certificate(t, x, z)
         keep = (d <= 0) & ~np.asarray(model.landed(t[0], [x[:, i] for i in range(n)]))
         x, z, d = x[keep], z[keep], d[keep]
-        _, ok, best = la.best_candidate(t[: len(x)], x, z)
+        ok, best = best_candidate(la, t[: len(x)], x, z)
         score = np.where(ok, best, np.inf)
         finite = np.isfinite(score)
         gap = score[finite] - d[finite]
@@ -324,7 +332,7 @@ def _consistent_budget_surface(la: Any, model: Any, field: tuple[Any, Any, Grid]
     t = np.full(len(x), float(times[k]))
 
     def passes(z: np.ndarray) -> np.ndarray:
-        return la.best_candidate(t, x, z)[1]
+        return best_candidate(la, t, x, z)[0]
 
     hi = np.full(len(x), left)
     feasible = passes(hi)

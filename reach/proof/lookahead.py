@@ -1,5 +1,10 @@
 """The one-period look-ahead: does holding an action for one control period provably keep the state certified?
 
+This module holds the test's parameters (:class:`Lookahead`: the candidates, the allowances, the table's fields as
+the compiled code reads them) and the numpy box bounds that the cells' builder shares
+(:mod:`softreach.reach.proof.cell_game`); the test itself runs compiled (:mod:`softreach.filters.judge`,
+:mod:`softreach.filters.compiled`), once for the filter and the held solve's consistency pass alike.
+
 The certificate is the table's interpolant ``D(t, x, z) = min(V~(t, x), W~(t, x, z))`` (``V~`` only with
 ``z >= 0``): ``V <= 0`` lands without spending budget, ``W_eps <= 0`` lands spending at most ``z``. For a
 held action ``a`` and *every* disturbance signal in its box (switching at any instant, also in answer to ``a``),
@@ -47,16 +52,12 @@ from typing import Any
 
 import numpy as np
 
-from .horizon import exact_before_horizon, in_window
-from .box_max import box_max, kernel_field
+from .box_max import kernel_field
 from ..numerics.grid import Grid
 from ..boxes import check_action_box
 from ..dynamics import row_time
-from ..tables.interpolation import interpolate
 from .kernels import certificate_rows
-from .landing import lands_within, meets_target
 from .model_kernels import SET_INDEX, held_boxes, set_max_address, set_max_rows
-from .ranks import RANK_LEAVES_C1, RANK_OVERSPENT, RANK_PROVEN, RANK_SAFE, RANK_UNSAFE, TIE_INF, TIE_OVERSPEND
 
 
 #: the fields that say how much budget suffices, in the order a table's is picked
@@ -207,9 +208,11 @@ def surface_fields(values: Any, times: Any, grid: Grid, horizon: float) -> tuple
 
 
 class Lookahead:
-    """One-period admissibility of held actions against a table's certificate (see the module docstring).
+    """The one-period test's parameters against a table's certificate (see the module docstring), the certificate
+    at a state (:meth:`certificate`), and the numpy box bounds the cells' builder uses.
 
-    :param fields: ``{"V": (values, times, grid), "W_eps": (...)}`` (``V`` optional), values ``(n_t, *grid)``
+    :param fields: ``{"V": (values, times, grid), "W_eps": (...)}`` (``V`` optional; ``Q_min`` for ``W_eps`` on a
+        budget surface), values ``(n_t, *grid)``
     :param model: the model the table was solved for
     :param dt: the control period [s]
     :param eps: the ``h_eps`` width with which the environment drains the budget
@@ -228,7 +231,7 @@ class Lookahead:
         if not (isinstance(exact_periods, (int, np.integer)) and exact_periods >= 0):
             raise ValueError(f"exact_periods must be an integer >= 0, got {exact_periods!r}")
         #: end boxes at the last ``exact_periods`` sample times before the horizon are judged by a witness, not
-        #: by the table (:mod:`softreach.reach.proof.horizon`)
+        #: by the table (:func:`softreach.filters.table_pass.witness`)
         self.exact_periods = int(exact_periods)
         self.pieces = int(pieces)
         if not (isinstance(target_checks, (int, np.integer)) and target_checks >= 1):
@@ -270,12 +273,6 @@ class Lookahead:
         #: kernels.certificate_row`, :class:`~softreach.filters.compiled_args.TableArgs`):
         #: ``(W, z_top, z_floor, z_left, V, has_V, inside)``
         self.table_args = W_read + (V, "V" in self.fields, inside)
-        if self.budget_field == "Q_min":
-            # where no budget suffices (above the time left) Q_min is infinite, held at a cap: no interpolant
-            # between such a node and a feasible one says where feasibility ends, so every cell with such a corner
-            # is infeasible (its indicator's interpolant is positive there)
-            left = (self.horizon - np.asarray(b_times, dtype=np.float64)).reshape((-1,) + (1,) * b_grid.ndim)
-            self._no_budget = (np.asarray(b_values) > left + 1e-9).astype(np.float64)
         self.corners = np.array(list(itertools.product((0, 1), repeat=self.n)), dtype=bool)  # (2^n, n)
         #: the control box's map (:func:`action_map`), and the candidates as an environment applies them: each
         #: one the image of a normalised action (:func:`representable`)
@@ -321,19 +318,6 @@ class Lookahead:
         certificate_rows(*self.table_args[:6], t, np.ascontiguousarray(x, dtype=np.float64),
                          np.ascontiguousarray(np.broadcast_to(np.asarray(z, dtype=np.float64), (len(x),))), out)
         return out
-
-    def _usable(self, t: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """The budget a ``Q_min`` certificate may count on: at most the time left, since no run spends more
-        (``h_eps <= 1``). This changes nothing for the exact ``Q_min``; for its interpolant it makes ``Q~ - z <= 0``
-        at the horizon hold only between nodes with ``Q_min = 0`` (the target inside ``C2``), never between the
-        target and the capped nodes, so that a chain of passing actions still ends landed."""
-        return np.minimum(z, np.maximum(self.horizon - t, 0.0))
-
-    def _each_candidate(self, *rows: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Every row repeated once per candidate (contiguously), and the candidates tiled beside them."""
-        J = len(self.candidates)
-        N = len(rows[0])
-        return tuple(np.repeat(r, J, axis=0) for r in rows) + (np.tile(self.candidates, (N, 1)),)
 
     def _corner_max(self, fn, t: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         # a model whose set functions are not convex along each axis (an obstacle disc) bounds them itself
@@ -425,206 +409,3 @@ class Lookahead:
                     b[r] = o[0]
                 ok[r] = True
             return tuple(np.where(ok[:, None], b, x) for b in boxes), ok
-
-    # ---------------------------------------------------------------- one period
-    def check(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Admissibility of holding ``a`` for one period from each row.
-
-        :param t: ``(N,)`` times; ``x``: ``(N, n)`` states; ``z``: ``(N,)`` budgets; ``a``: ``(N, m)`` physical
-        :return: ``(admissible, next_value)``: ``next_value`` is the largest certificate over the possible end
-            states (``+inf`` where the motion may leave ``C1``, overspend the budget, or leave the table)
-        """
-        ok, nxt, _ = self.assess(t, x, z, a)
-        return ok, nxt
-
-    def assess(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray, x_hi: np.ndarray | None = None,
-               z_hi: np.ndarray | None = None, ends: bool = False, exact: bool = True):
-        """:meth:`check` plus a ``badness`` per row that ranks actions where none passes: first those that keep the
-        period in ``C1`` (then the least overspend, then the lowest next certificate), then the rest by how far
-        they may leave ``C1``. Safety comes before the budget, the budget before landing on time.
-
-        With ``x_hi`` (and ``z_hi``) the rows are boxes of states ``[x, x_hi] x [z, z_hi]``, and an action passes
-        when it passes from every state of the box (:meth:`Dynamics.held_enclosure_box`). End boxes in the last
-        :attr:`exact_periods` sample times before the horizon are judged by a witness, not by the table
-        (:mod:`softreach.reach.proof.horizon`; ``exact=False`` reads the table there too, as the witness search does).
-
-        :return: ``(admissible, next_value, badness)``; ``badness == next_value`` where the action passes
-            (``-inf`` where every run surely lands inside the period); with
-            ``ends=True`` also the end box, the lowest end budget and whether the period surely keeps ``C1`` and
-            the budget (or lands) ``(end_lo, end_hi, z_end, kept)``
-        """
-        if len(x) == 0:
-            empty = (np.zeros(0, bool), np.zeros(0), np.zeros(0))
-            return (empty + (np.zeros((0, self.n)), np.zeros((0, self.n)), np.zeros(0), np.zeros(0, bool)) if ends
-                    else empty)
-        if x_hi is None:
-            (tube_lo, tube_hi, end_lo, end_hi), bounded = self._enclose(t, x, a)
-        else:
-            tube_lo, tube_hi, end_lo, end_hi = self.model.held_enclosure_box(row_time(t), x, x_hi, a, self.dt)
-            bounded = np.isfinite(tube_lo).all(axis=1) & np.isfinite(tube_hi).all(axis=1)
-        z_top = z if z_hi is None else z_hi
-        c1 = self.checked_c1(t, x, x if x_hi is None else x_hi, a, self.dt, tube_lo, tube_hi)
-        # budget: piece j of the period is charged at the largest violation rate over a box holding every state
-        # of that piece, so a short excursion out of C2 costs only its pieces, and never less than the
-        # environment's exact integral of h_eps
-        if bounded.all() and x_hi is None:
-            piece_lo, piece_hi = self.model.held_tube_pieces(row_time(t), x, a, self.dt, self.pieces)
-        elif bounded.all():
-            piece_lo, piece_hi = self.model.held_tube_pieces_box(row_time(t), x, x_hi, a, self.dt, self.pieces)
-        else:
-            piece_lo = np.broadcast_to(tube_lo, (self.pieces,) + tube_lo.shape)
-            piece_hi = np.broadcast_to(tube_hi, (self.pieces,) + tube_hi.shape)
-        # every box compared with a set or a cell from here on holds the environment's states (widen)
-        piece_lo, piece_hi = self.widen(piece_lo, piece_hi)
-        end_lo, end_hi = self.widen(end_lo, end_hi)
-        # a period whose whole box lies in C2 spends nothing: its pieces are charged only where it may leave C2
-        spends = np.nonzero(self.may_spend(t, x, x if x_hi is None else x_hi, a, self.dt, tube_lo, tube_hi))[0]
-        z_end = np.array(np.broadcast_to(z, (len(x),)), dtype=np.float64)
-        if len(spends):
-            t_s = t[spends] if np.ndim(t) else t
-            z_end[spends] -= self._budget_spent(t_s, piece_lo[:, spends], piece_hi[:, spends], self.dt)
-        t_next = t + self.dt
-        in_time = t_next <= self.horizon + 1e-9 * max(1.0, self.horizon)
-        t_next = np.minimum(t_next, self.horizon)
-        kept = bounded & (c1 <= 0) & (z_end >= 0) & in_time
-        in_c1 = bounded & (c1 <= 0) & in_time
-        # with cells an action is admissible only when its end box lies in them: safe cells keep C1 and the budget
-        # for good, landing cells also land by T, whatever the table promises (:mod:`.cell_certificate`)
-        safe_end = kept.copy()
-        if self.safe_cells is not None:
-            r = np.nonzero(kept)[0]
-            safe_end[r] = self.safe_cells.covered(t_next[r], end_lo[r], end_hi[r], z_end[r])
-        covered = safe_end.copy()
-        if self.landing_cells is not None:
-            r = np.nonzero(safe_end)[0]
-            covered[r] = self.landing_cells.covered(t_next[r], end_lo[r], end_hi[r], z_end[r])
-        ok = kept & covered
-        nxt = np.full(len(x), np.inf)
-        rows = np.nonzero(in_c1)[0]
-        if len(rows) and self.budget_field == "Q_min":
-            # Q~ - z over the end box and the budgets [z_end, z]: largest at the lowest budget
-            Q, Qt, Qg = self.fields["Q_min"]
-            best = box_max(Q, Qt, Qg, t_next[rows], end_lo[rows], end_hi[rows]) - self._usable(t_next[rows],
-                                                                                               z_end[rows])
-            none = box_max(self._no_budget, Qt, Qg, t_next[rows], end_lo[rows], end_hi[rows])
-            best = np.where(none > 0, np.inf, best)
-        elif len(rows):
-            W, Wt, Wg = self.fields["W_eps"]
-            # rows that overspend are valued at the lowest budget (for ranking them only; they never pass)
-            z_lo = np.maximum(z_end[rows], Wg.lo[-1])
-            lo = np.concatenate([end_lo[rows], z_lo[:, None]], axis=1)
-            hi = np.concatenate([end_hi[rows], np.maximum(np.minimum(z_top[rows], self.z_top), z_lo)[:, None]],
-                                axis=1)
-            best = box_max(W, Wt, Wg, t_next[rows], lo, hi)
-        if len(rows):
-            if "V" in self.fields:
-                V, Vt, Vg = self.fields["V"]
-                v = box_max(V, Vt, Vg, t_next[rows], end_lo[rows], end_hi[rows])
-                best = np.minimum(best, np.where(z_end[rows] >= 0, v, np.inf))
-            nxt[rows] = np.where(np.isnan(best), np.inf, best)
-            if exact and self.landing_cells is None:
-                nxt[rows] = exact_before_horizon(self, t_next[rows], end_lo[rows], end_hi[rows], z_end[rows],
-                                                 z_top[rows], nxt[rows])
-        # where no action passes, the hard constraint comes first: an action whose end box lies where C1 can
-        # still be kept until T (V_safe <= 0, the held game of staying in C1) beats one that keeps only the budget
-        # (only ranks actions that do not pass, so it is asked of those alone)
-        # landing cells prove the end states certified; without them the table's interpolant must say so
-        passing = ok.copy() if self.landing_cells is not None else ok & (nxt <= -self.margin)
-        safe = in_c1.copy()
-        ranked = np.nonzero(in_c1 & ~passing)[0]
-        if "V_safe" in self.fields and len(ranked):
-            S, St, Sg = self.fields["V_safe"]
-            safe[ranked] = box_max(S, St, Sg, t_next[ranked], end_lo[ranked], end_hi[ranked]) <= 0
-        # ranks, lower is better (softreach.reach.proof.ranks): passing, by next value < proven safe end < safe end,
-        # budget kept < safe end, overspent < budget kept < overspent < how far C1 may be left < inf (not
-        # bounded); within a rank the next value, then the overspend, breaks ties
-        near = meets_target(self, tube_lo, tube_hi)
-        lands = lands_within(self, t, x, z, a, x_hi, ~passing & bounded & in_time & near)
-        passing |= lands
-        ok |= lands
-        nxt = np.where(lands, -np.inf, nxt)
-        tie = np.arctan(np.nan_to_num(nxt, posinf=TIE_INF)) / np.pi + TIE_OVERSPEND * np.maximum(-z_end, 0.0)
-        # an action ending in safe cells ranks before every other that does not pass (safe cells prove C1 and the
-        # budget for good); without them V_safe and the budget rank them
-        proven = safe_end & kept if self.safe_cells is not None else np.zeros(len(x), bool)
-        rank = np.where(proven, RANK_PROVEN,
-                        np.where(safe, RANK_SAFE, RANK_UNSAFE) + np.where(kept | lands, 0.0, RANK_OVERSPENT))
-        bad = np.where(passing, nxt, np.where(in_c1, rank + tie, np.inf))
-        bad = np.where(bounded & ~in_c1 & ~lands, RANK_LEAVES_C1 + np.maximum(c1, 0.0), bad)
-        nxt = np.where(ok, nxt, np.inf)
-        out = (passing, nxt, bad)
-        return out + (end_lo, end_hi, z_end, kept | lands) if ends else out
-
-    def passes(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, a: np.ndarray):
-        """What the filter asks of the policy's action. Where the model bounds boxes of starts: the period keeps
-        ``C1`` and the budget, and one candidate passes the one-period test again from every possible end state,
-        so the next state is certified whatever the wind did (its ``D`` may be positive: the interpolant is
-        conservative there). Elsewhere: the one-period test. On the last period the end states must be certified
-        (``D <= 0``), and an action that surely lands needs nothing more. With landing cells, certified means in
-        them: the end box lies in landing cells, or one candidate's period ends in them from all of it.
-
-        :return: ``(admissible, next_value, badness, keeps)``; ``keeps`` implies that the period keeps ``C1`` and
-            the budget, not that every end state has ``D <= 0`` (``next_value`` may be positive)
-        """
-        ok, nxt, bad, end_lo, end_hi, z_end, kept = self.assess(t, x, z, a, ends=True)
-        keeps = self.keeps(t, z, ok, nxt, end_lo, end_hi, z_end, kept)
-        return ok, nxt, bad, keeps
-
-    def keeps(self, t: np.ndarray, z: np.ndarray, ok: np.ndarray, nxt: np.ndarray, end_lo: np.ndarray,
-              end_hi: np.ndarray, z_end: np.ndarray, kept: np.ndarray) -> np.ndarray:
-        """The ``keeps`` of :meth:`passes`, from :meth:`assess` with ``ends=True`` (its outputs for the same rows)."""
-        keeps = ok.copy()
-        last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
-        if self.box_support and self.landing_cells is not None:
-            # an end box not all in landing cells still keeps the chain when one candidate's period ends in
-            # them from every state of it: the next state is then certified (ValueFilter.certify), whatever the
-            # wind did
-            rows = np.nonzero(kept & ~ok & ~last & (nxt > -np.inf))[0]
-            keeps[rows] = self.keeps_certified(t[rows] + self.dt, end_lo[rows], end_hi[rows], z_end[rows], z[rows])
-        elif self.box_support:
-            # a run that surely lands needs no next step; on the last period the end states must be certified.
-            # Otherwise the end box need not lie in {D <= 0}: that a candidate passes from every end state is
-            # what keeps the chain going, and it holds also where the interpolant is conservative (D > 0)
-            todo = kept & ~last & (nxt > -np.inf)
-            # an end box in the witness window with a witness keeps already: the witness's first candidate passes
-            # from the whole box, and the greedy search from its end box is the rest of the same witness
-            witnessed = todo & in_window(self, t + self.dt) & (nxt <= -self.margin)
-            keeps[witnessed] = True
-            rows = np.nonzero(todo & ~witnessed)[0]
-            keeps[rows] = self.keeps_certified(t[rows] + self.dt, end_lo[rows], end_hi[rows], z_end[rows], z[rows])
-        return keeps
-
-    def keeps_certified(self, t: np.ndarray, end_lo: np.ndarray, end_hi: np.ndarray, z_lo: np.ndarray,
-                        z_hi: np.ndarray) -> np.ndarray:
-        """Does some candidate pass the test from *every* state of each box at ``t`` (the end box of a period)?
-        Then whatever the wind did, the state after the period is certified. ``False`` where the model gives no
-        box enclosure or the box is off the table's time span.
-
-        :return: ``(N,)`` bool
-        """
-        N, J = len(end_lo), len(self.candidates)
-        if N == 0:
-            return np.zeros(0, bool)
-        z_lo = np.maximum(z_lo, 0.0)
-        tt, lo, zl, hi, zh, a = self._each_candidate(t, end_lo, z_lo, end_hi, z_hi)
-        try:
-            ok, _, _ = self.assess(tt, lo, zl, a, x_hi=hi, z_hi=zh)
-        except NotImplementedError:
-            return np.zeros(N, bool)
-        return ok.reshape(N, J).any(axis=1)
-
-    def best_candidate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The candidate held action with the lowest worst-case next certificate, per row.
-
-        :return: ``(action (N, m), admissible (N,), next_value (N,))``
-        """
-        N, J = len(x), len(self.candidates)
-        ok, nxt, bad = self.assess(*self._each_candidate(t, x, z))
-        j = np.argmin(bad.reshape(N, J), axis=1)
-        rows = np.arange(N)
-        return self.candidates[j], ok.reshape(N, J)[rows, j], nxt.reshape(N, J)[rows, j]
-
-    def admissible_candidates(self, t: np.ndarray, x: np.ndarray, z: np.ndarray):
-        """``(admissible, next_value, badness)``, each ``(N, J)``, of every candidate at every row."""
-        N, J = len(x), len(self.candidates)
-        return tuple(o.reshape(N, J) for o in self.assess(*self._each_candidate(t, x, z)))

@@ -1,13 +1,12 @@
 """The order in which the safety filter prefers actions: the badness of an action that does not pass the
-one-period test (:meth:`~softreach.reach.proof.lookahead.Lookahead.assess`), and the scores by which the filter's rules
+one-period test (:mod:`softreach.filters.judge`), and the scores by which the filter's rules
 choose among candidates (:class:`~softreach.filters.ValueFilter`, :mod:`softreach.filters.compiled`,
 :mod:`softreach.filters.judge`). Lower is better everywhere.
 
 An action that passes scores its worst next certificate, a number of the table's scale, far below
 :data:`NEXT_CAP`. A failing action's badness is its rank plus its tie (``atan`` of its next certificate over
 ``pi``, within ``(-0.5, 0.5)``, plus the overspend times :data:`TIE_OVERSPEND`): the ranks lie at least
-:data:`NEXT_CAP` apart, more than any tie, so the rank decides first. These numbers live in ``reach`` because the numpy test
-(:mod:`softreach.reach.proof.lookahead`) ranks with them too, and ``reach`` does not import the filter.
+:data:`NEXT_CAP` apart, more than any tie, so the rank decides first.
 
 numba reads these module globals as compile-time constants: the compiled code is that of the literals.
 """
