@@ -22,7 +22,6 @@ import numpy as np
 from softreach.reach import Model, sets
 from softreach.reach.dynamics import ControlAndDisturbanceAffine
 from softreach.reach.jit import njit
-from softreach.reach.proof.model_kernels import held_boxes
 
 
 @dataclass(frozen=True)
@@ -112,19 +111,3 @@ class CruiseControl(Model, ControlAndDisturbanceAffine):
 
     def soft_constraint(self, t, x):
         return sets.box(x, *SOFT)
-
-    # the held period's boxes, from the kernel
-    def held_enclosure(self, t, x, a, dt):
-        return self.held_enclosure_box(t, x, x, a, dt)
-
-    def held_tube_pieces(self, t, x, a, dt, pieces):
-        return self.held_tube_pieces_box(t, x, x, a, dt, pieces)
-
-    def held_enclosure_box(self, t, x_lo, x_hi, a, dt):
-        lo, hi = held_boxes(self, x_lo, x_hi, a, 0.0, dt)
-        end_lo, end_hi = held_boxes(self, x_lo, x_hi, a, dt, dt)
-        return lo, hi, end_lo, end_hi
-
-    def held_tube_pieces_box(self, t, x_lo, x_hi, a, dt, pieces):
-        edges = np.linspace(0.0, dt, pieces + 1)[:, None]  # every piece against every row
-        return held_boxes(self, x_lo, x_hi, a, edges[:-1], edges[1:])
