@@ -274,9 +274,10 @@ def test_glider_certify_is_the_references(glider):
 # ------------------------------------------------------------------ a model without cells: Dubins
 @pytest.fixture(scope="module", params=["switch", "smooth"])
 def dubins(request, dubins_held_table):
-    """Dubins has no cells: the held table certifies, and the last 10 periods before ``T`` are judged by a
-    witness."""
-    vf = ValueFilter(dubins_held_table, 0.1, rule=request.param, target_checks=get_model("dubins").substeps)
+    """Dubins without its cells (``landing_cells=None``): the held table certifies, and the last 10 periods before
+    ``T`` are judged by a witness."""
+    vf = ValueFilter(dubins_held_table, 0.1, rule=request.param, target_checks=get_model("dubins").substeps,
+                     landing_cells=None, safe_cells=None)
     assert vf.landing_cells is None and vf.compiled is not None
     return vf, ReferenceDecision(vf)
 

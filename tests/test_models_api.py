@@ -166,33 +166,33 @@ def test_a_held_solve_takes_its_candidate_actions_from_the_model(tmp_path):
 # ------------------------------------------------------------------------------------------ filter, train, evaluate
 
 def test_safety_filter_on_the_generic_env_keeps_its_guarantee(dubins_held_table):
-    """From certified starts, under random gusts and a random policy, the filtered Dubins vehicle never overspends;
-    it hits the obstacle or leaves the arena only after the filter reported a dead end ("uncertified": the
-    guarantee's stated limit, which this coarse grid reaches); an episode the filter kept certified throughout
-    reaches the goal."""
+    """From certified starts, under random gusts and a random policy, the filtered Dubins vehicle keeps the promise
+    its cells prove (``Dubins.cell_shape``; the coarse table only ranks candidates): every step certified, no hard
+    violation, no overspend, every run lands."""
     from softreach.agents.tables import sample_inside
     from softreach.filters import SafetyFilter
 
     table = dubins_held_table
     env = SafetyFilter(gym.make("softreach/SoftReach-v0", model=get_model("dubins"), wind="random"), table)
+    assert env.value_filter.landing_cells is not None
     rng = np.random.default_rng(0)
     env.action_space.seed(0)
-    kept_certified = 0
-    for ep in range(6):
+    runs = 0
+    for ep in range(40):
         q = float(rng.choice([0.0, 1.0, 2.0]))
         obs, info = env.reset(seed=ep, options={"state": sample_inside(table, q, rng).tolist(), "budget": q})
-        assert info["certified"]
-        reasons, done = set(), False
+        if not info["certified"]:
+            continue  # in the table's set, not in the cells'
+        done = False
         while not done:
             obs, _, terminated, truncated, info = env.step(env.action_space.sample())
-            reasons.add(info["filter_reason"])
+            assert info["certified"], info["filter_reason"]
             done = terminated or truncated
-        assert not info["hard_violation"] or "uncertified" in reasons
-        assert info["budget_used"] <= q + 1e-6
-        if "uncertified" not in reasons:
-            kept_certified += 1
-            assert info["landed"]
-    assert kept_certified >= 2
+        assert info["landed"] and not info["hard_violation"] and info["budget_used"] <= q + 1e-9
+        runs += 1
+        if runs == 6:
+            break
+    assert runs == 6
 
 
 def test_train_and_evaluate_dubins_smoke(tmp_path, dubins_held_table):

@@ -19,11 +19,11 @@ FILES = sorted(PACKAGED.glob("cells-pointmass-*.npz"))
 
 
 def test_the_package_ships_the_default_cells():
-    # the point mass: the filter's default target_checks (1) and the environment's (its 10 sub-steps); the glider:
-    # its environment's 2 sub-steps (SafetyFilter's). Both games each
+    # the point mass: the filter's default target_checks (1) and the environment's (its 10 sub-steps); the glider
+    # and Dubins: their environment's 2 sub-steps (SafetyFilter's). Both games each
     keys = [json.loads(str(np.load(f)["key"])) for f in sorted(PACKAGED.glob("cells-*.npz"))]
     assert sorted((k["model"], k["game"], k["target_checks"]) for k in keys) == [
-        ("glider", "land", 2), ("glider", "safe", 2),
+        ("dubins", "land", 2), ("dubins", "safe", 2), ("glider", "land", 2), ("glider", "safe", 2),
         ("pointmass", "land", 1), ("pointmass", "land", 10), ("pointmass", "safe", 1), ("pointmass", "safe", 10)]
 
 
@@ -66,7 +66,7 @@ def test_packaged_cells_are_what_the_recursion_gives(path, pointmass_held_table)
     assert set(np.unique(hold[0][m[0] < stored.never])) == set(stored.key["holds"])
 
 
-@pytest.mark.parametrize("table", ["pointmass_held_table", "glider_held_table"])
+@pytest.mark.parametrize("table", ["pointmass_held_table", "glider_held_table", "dubins_held_table"])
 def test_a_new_machine_reads_the_packaged_cells_without_building(table, request, tmp_path, monkeypatch):
     table = request.getfixturevalue(table)
     cache = tmp_path / "empty"

@@ -1,0 +1,273 @@
+"""The Dubins vehicle's cell certificates (``softreach.reach.proof.cell_certificate`` on its held-turn enclosure,
+``Dubins.cell_shape``): sound against facts of the vehicle the cells are not built from (how fast it can approach
+the goal, where the obstacle is), kept by their own plans under winds that switch inside the 0.1 s period, looked
+up consistently at the heading's seam ``theta = -pi``, and kept by the filter from certified starts (some bisected
+onto the certified edge) against adversarial policies and winds. The cells are the package's own
+(``reach/proof/cells/``), the ones a user's filter reads."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import softreach.envs  # noqa: F401  (registers the environments)
+
+from softreach.filters import SafetyFilter, ValueFilter
+from softreach.filters.audit import Row, _policy, _wind, run_episode
+from softreach.reach import get_model
+from softreach.reach.sim.integrator import integrate_period
+
+from cell_plans import cell_boxes
+
+DT = 0.1
+
+
+@pytest.fixture(scope="module")
+def vf(dubins_held_table):
+    # what SafetyFilter asks: landing checked at the environment's sub-step ends
+    out = ValueFilter(dubins_held_table, DT, target_checks=dubins_held_table.model.substeps)
+    assert out.landing_cells is not None and out.safe_cells is not None
+    assert out.landing_cells.shape == tuple(out.model.cell_shape)
+    return out
+
+
+def _box_distance(lo, hi, point):
+    """The distance from ``point`` (x, y) to each box ``[lo, hi]`` (rows) in the plane."""
+    nearest = np.clip(np.asarray(point, float), lo[:, :2], hi[:, :2])
+    return np.hypot(*(nearest - np.asarray(point, float)).T)
+
+
+@pytest.mark.parametrize("t", [0.0, 3.5, 6.5, 6.9])
+def test_no_landing_cell_is_farther_from_the_goal_than_the_vehicle_can_fly_by_T(vf, t):
+    # the vehicle's ground speed is at most v + sqrt(2) w_max: a cell farther from the goal disc cannot land by T
+    p = vf.model.params
+    cells = vf.landing_cells
+    k = cells.step_index(np.array([t]))[0]
+    lo, hi, m = cell_boxes(cells, k)
+    good = m < cells.never
+    reach = (p.speed + math.sqrt(2.0) * p.wind_max) * (vf.model.horizon - k * DT)
+    assert good.any()
+    assert (_box_distance(lo[good], hi[good], p.goal) <= p.goal_radius + reach + 1e-9).all()
+
+
+@pytest.mark.parametrize("game", ["safe", "land"])
+def test_no_good_cell_lies_inside_the_obstacle_or_the_cells_change_with_the_heading_period(vf, game):
+    cells = vf.safe_cells if game == "safe" else vf.landing_cells
+    p = vf.model.params
+    lo, hi, m = cell_boxes(cells, 0)
+    # a cell whose farthest corner from the obstacle's centre is inside the obstacle violates C1 everywhere
+    far = np.hypot(np.maximum(np.abs(lo[:, 0] - p.obstacle[0]), np.abs(hi[:, 0] - p.obstacle[0])),
+                   np.maximum(np.abs(lo[:, 1] - p.obstacle[1]), np.abs(hi[:, 1] - p.obstacle[1])))
+    inside = far < p.obstacle_radius
+    assert inside.sum() > 10 and (m[inside] == cells.never).all()
+    # the cells tile the heading's period exactly once: [-pi, pi], no cell beyond it
+    assert cells.lo[2] == -math.pi and cells.hi[2] == math.pi
+
+
+def test_landing_cells_grow_with_the_budget_and_lie_in_the_safe_cells(vf):
+    rng = np.random.default_rng(2)
+    lo, hi = (np.asarray(b, float) for b in vf.model.hard_box)
+    x = rng.uniform(lo, hi, (20000, 3))
+    before = None
+    for q in (0.0, 1.0, 2.0):
+        inside = vf.landing_cells.contains(0.0, x, q)
+        assert inside.sum() > 500
+        assert not (inside & ~vf.safe_cells.contains(0.0, x, q)).any()
+        if before is not None:
+            assert not (before & ~inside).any()
+        before = inside
+
+
+def test_the_heading_seam_is_looked_up_on_the_grid_and_nothing_off_it_is_certified(vf):
+    """The environment wraps the heading into ``[-pi, pi)``: ``theta = -pi`` is the first heading cell (closed,
+    proven for its lower face too), ``pi`` the last; a heading beyond the period is off the grid, so neither in a
+    cell nor planned; and an end box that crosses the seam touches no cell, so no period is admitted by it."""
+    env = gym.make("softreach/SoftReach-v0", model=get_model("dubins"), wind="none")
+    _, info = env.reset(options={"state": [-2.0, 0.0, math.pi], "budget": 1.0})
+    assert env.unwrapped.state[2] == -math.pi  # pi is wrapped onto the seam's lower side
+    cells = vf.landing_cells
+    n = cells.shape[2]
+    rng = np.random.default_rng(5)
+    lo, hi = (np.asarray(b, float) for b in vf.model.hard_box)
+    x = rng.uniform(lo, hi, (4000, 3))
+    for theta, column in ((-math.pi, 0), (math.pi, n - 1)):
+        at = x.copy()
+        at[:, 2] = theta
+        # the plan and the membership are those of the cell column that holds the seam
+        inner = at.copy()
+        inner[:, 2] = theta + (0.5 if column == 0 else -0.5) * cells.width[2]
+        for game in (vf.landing_cells, vf.safe_cells):
+            np.testing.assert_array_equal(game.plan(0.0, at)[0], game.plan(0.0, inner)[0])
+            np.testing.assert_array_equal(game.contains(0.0, at, 1.0), game.contains(0.0, inner, 1.0))
+    assert cells.contains(0.0, x[:200] * [1, 1, 0] + [0, 0, -math.pi], 2.0).any()
+    for theta in (np.nextafter(-math.pi, -4.0), np.nextafter(math.pi, 4.0), 3.5, -7.0):
+        off = x.copy()
+        off[:, 2] = theta
+        for game in (vf.landing_cells, vf.safe_cells):
+            assert not game.contains(0.0, off, 2.0).any()
+            assert (game.plan(0.0, off)[0] == -1).all()
+    # an end box across the seam, however good the cells at both of its ends
+    box_lo, box_hi = x[:200].copy(), x[:200].copy()
+    box_lo[:, 2], box_hi[:, 2] = math.pi - 0.01, math.pi + 0.01
+    assert not cells.covered(DT, box_lo, box_hi, 2.0).any()
+    box_lo[:, 2], box_hi[:, 2] = -math.pi - 0.01, -math.pi + 0.01
+    assert not cells.covered(DT, box_lo, box_hi, 2.0).any()
+
+
+def test_no_admitted_period_crosses_the_heading_seam(vf):
+    """The environment wraps the heading at ``+-pi``; the filter's proofs are stated in one period's coordinates.
+    A policy's turn that would carry the heading across the seam is not admitted, not even through a candidate
+    that would certify the next state from the whole end box (it would be certified in the other coordinates,
+    where the next step does not look): the regression of a run that went ``"uncertified"`` after such a pass,
+    from ``(2.76, 3.56, pi)`` at ``Q = 0`` under the env's random wind. The applied action's period stays in the
+    period, and ``c1``'s box maximum is positive for any box that leaves it."""
+    from softreach.filters.core import PASS
+
+    model = vf.model
+    start = np.array([2.7605945669964234, 3.5595853691598363, -math.pi])
+    for theta, turn in ((-math.pi, -0.0223), (-math.pi + 0.01, -0.5), (math.pi - 0.01, 0.5)):
+        x = start.copy()
+        x[2] = theta
+        applied, info = vf.filter(0.0, x, 0.0, np.array([turn]))
+        assert int(info["reason"]) != PASS
+        end = theta + float(np.asarray(applied).reshape(-1)[0]) * DT
+        assert -math.pi <= end <= math.pi, (theta, turn, applied)
+    # a box well inside C1 (west of the obstacle, inside the arena), its heading across the seam or not
+    lo = np.array([[-3.0, 2.0, math.pi - 0.1], [-3.0, 2.0, -math.pi - 1e-9], [-3.0, 2.0, -math.pi]])
+    hi = np.array([[-2.9, 2.1, math.pi + 1e-9], [-2.9, 2.1, -math.pi + 0.1], [-2.9, 2.1, math.pi]])
+    c1 = model.set_box_max("hard_constraint", 0.0, lo, hi)
+    assert (c1[:2] > 0).all() and c1[2] < 0
+
+
+def _fly_plan(cells, model, eps, rng):
+    """Draw a good cell, a state in it (on one of its faces half the time) and a budget it is good at, fly the
+    cell's plan with each wind axis jumping between its extremes at three random instants of each period, and
+    assert the claim: ``C1`` and the budget kept at every jump, and the run landed or in a good cell at the plan's
+    end."""
+    w = model.params.wind_max
+    k = int(rng.integers(0, cells.steps))
+    lo, hi, m = cell_boxes(cells, k)
+    good = np.nonzero(m < cells.never)[0]
+    c = int(rng.choice(good))
+    x = rng.uniform(lo[c], hi[c])
+    if rng.random() < 0.5:
+        axis = int(rng.integers(3))
+        x[axis] = (lo if rng.random() < 0.5 else hi)[c, axis]
+    z = (m[c] + rng.uniform(0, 3)) * cells.dz
+    t0 = k * cells.dt
+    if not cells.contains(t0, x, z)[0]:
+        return False  # a face shared with a worse neighbour: the look-up reads that one
+    j, K = (int(v[0]) for v in cells.plan(t0, x))
+    t, xs, spent, landed = t0, list(map(float, x)), 0.0, False
+    for _p in range(K):
+        cuts = np.sort(rng.uniform(0, cells.dt, 3))
+        for s0, s1 in zip(np.r_[0, cuts], np.r_[cuts, cells.dt]):
+            if s1 - s0 <= 0 or landed:
+                continue
+            b = [float(v) for v in rng.choice([-w, w], 2)]
+            xs, cost, _, _ = integrate_period(model, t, xs, [float(cells.candidates[j, 0])], b, s1 - s0, 4, eps,
+                                              1e-9)
+            spent += cost
+            t += s1 - s0
+            pt = [np.float64(v) for v in xs]
+            assert float(model.hard_constraint(t, pt)) <= 0 and z - spent >= -1e-12, (cells.game, k, x, z, xs)
+            landed = bool(model.landed(t, pt))
+    assert landed or cells.contains(t0 + K * cells.dt, np.asarray(xs), z - spent)[0], (cells.game, k, x, z, K, xs)
+    return True
+
+
+@pytest.mark.parametrize("game", ["safe", "land"])
+def test_a_cells_plan_keeps_its_promise_under_switching_winds(vf, game):
+    cells = vf.safe_cells if game == "safe" else vf.landing_cells
+    rng = np.random.default_rng(0)
+    flown = sum(_fly_plan(cells, vf.model, vf.eps, rng) for _ in range(150))
+    assert flown >= 100
+
+
+def _bisect_onto_edge(vf, x_in, q, axis, step):
+    """A start certified at ``t = 0`` within 1e-12 of the certificate's edge along ``axis``: bisected between
+    ``x_in`` (certified) and ``x_in`` moved by ``step`` (not); ``None`` if that is certified too."""
+    def certified(x):
+        return bool(np.atleast_1d(vf.certify(0.0, x, q)[0])[0])
+
+    out = x_in.copy()
+    out[axis] += step
+    if certified(out):
+        return None
+    a, b = x_in[axis], out[axis]
+    while abs(b - a) > 1e-12:
+        mid = x_in.copy()
+        mid[axis] = 0.5 * (a + b)
+        if certified(mid):
+            a = mid[axis]
+        else:
+            b = mid[axis]
+    edge = x_in.copy()
+    edge[axis] = a
+    return edge
+
+
+@pytest.mark.parametrize("policy", ["random", "always_max", "anti_optimal"])
+def test_filter_keeps_the_promise_from_certified_and_edge_starts(vf, policy):
+    """From starts the cells certify (uniform, and bisected onto the certified edge along x, y or the heading),
+    under the worst-case wind of the table, winds switching at random inside each period, and a wind that flips
+    whenever the filter starts or stops acting: every run lands, never leaves ``C1``, never overspends, and every
+    step is certified."""
+    rng = np.random.default_rng({"random": 3, "always_max": 4, "anti_optimal": 5}[policy])
+    lo, hi = (np.asarray(b, float) for b in vf.model.hard_box)
+    x = rng.uniform(lo, hi, (4000, 3))
+    runs = 0
+    for q in (0.0, 1.0):
+        ok = vf.certify(0.0, x, q)[0]
+        starts = list(x[ok][:2])
+        for x0, axis in zip(x[ok][2:30], [0, 1, 2] * 10):
+            step = float(rng.choice([-1.0, 1.0])) * 0.5
+            if not lo[axis] <= x0[axis] + step <= hi[axis]:
+                step = -step  # the edge inside C1 and the heading's period, where the environment's states lie
+            edge = _bisect_onto_edge(vf, x0, q, axis, step)
+            if edge is not None:
+                starts.append(edge)
+            if len(starts) == 4:
+                break
+        assert len(starts) == 4
+        for x0, wind in zip(starts, ["worst_case", "switch_inside", "switch_on_filter", "switch_inside"]):
+            row = Row(policy, wind, "certified", True)
+            out = run_episode(vf, vf, x0, q, _policy(policy, vf, rng), _wind(wind, vf, rng, 4), 4,
+                              vf.model.substeps, row, False)
+            assert out["landed"] and not out["hard"] and out["budget_used"] <= q + 1e-9, (x0, q, wind, out)
+            assert row.uncertified_steps == 0, (x0, q, wind)
+            runs += 1
+    assert runs == 8
+
+
+def test_safety_filter_on_the_env_keeps_its_promise_at_the_seam(dubins_held_table):
+    """The wrapped environment: starts the filter certifies, headings on the seam (``pi``, which the environment
+    wraps to ``-pi``) among them, a random policy and the env's random wind: every run lands, no hard violation,
+    no overspend, every step certified."""
+    env = SafetyFilter(gym.make("softreach/SoftReach-v0", model=get_model("dubins"), wind="random"),
+                       dubins_held_table)
+    env.action_space.seed(0)
+    vf = env.value_filter
+    rng = np.random.default_rng(7)
+    lo, hi = (np.asarray(b, float) for b in vf.model.hard_box)
+    x = rng.uniform(lo, hi, (4000, 3))
+    x[:2000, 2] = math.pi
+    seam = 0
+    for q in (0.0, 2.0):
+        wrapped = x.copy()
+        wrapped[:2000, 2] = -math.pi
+        ok = vf.certify(0.0, wrapped, q)[0]
+        for i in [*np.nonzero(ok[:2000])[0][:2], *np.nonzero(ok[2000:])[0][:1] + 2000]:
+            _, info = env.reset(seed=int(i), options={"state": x[i].tolist(), "budget": q})
+            assert info["certified"]
+            seam += int(i < 2000)
+            done = False
+            while not done:
+                _, _, terminated, truncated, info = env.step(env.action_space.sample())
+                assert info["certified"], info["filter_reason"]
+                done = terminated or truncated
+            assert info["landed"] and not info["hard_violation"] and info["budget_used"] <= q + 1e-9
+    assert seam == 4
