@@ -34,7 +34,7 @@ from .. import sets
 from ..dynamics import Components, ControlAndDisturbanceAffine
 from ..jit import njit
 from ..proof.intervals import cos_range, down, sin_range, up
-from ..proof.model_kernels import SET_INDEX, held_boxes, set_max_address, set_max_rows
+from ..proof.model_kernels import SET_INDEX, set_max_address, set_max_rows
 from ..problem import Model
 
 Array = B.Array
@@ -251,7 +251,8 @@ class Dubins(Model, ControlAndDisturbanceAffine):
         return self.params.zone_radius - self._distance(x, self.params.zone)
 
     #: the held period's boxes and the sets' maxima over boxes, compiled (:attr:`~softreach.reach.dynamics.Dynamics.
-    #: held_box_kernel`, :attr:`~softreach.reach.problem.Model.set_max_kernel`): the numpy methods below run them
+    #: held_box_kernel`, from which the base class derives every enclosure the filter reads, and
+    #: :attr:`~softreach.reach.problem.Model.set_max_kernel`, which :meth:`set_box_max` runs)
     held_box_kernel = staticmethod(held_box_kernel)
     set_max_kernel = staticmethod(set_max_kernel)
 
@@ -281,27 +282,6 @@ class Dubins(Model, ControlAndDisturbanceAffine):
     def start_difficulty(self, x: Components) -> Array:
         """The distance to the goal: the representative starts are the farthest of each set."""
         return self._distance(x, self.params.goal)
-
-    # ------------------------------------------------------------------------------------------ held periods
-    def held_enclosure(self, t: float, x: np.ndarray, a: np.ndarray, dt: float):
-        """Boxes of the motion over one period with the turn rate held (:meth:`held_enclosure_box` from points)."""
-        return self.held_enclosure_box(t, x, x, a, dt)
-
-    def held_tube_pieces(self, t: float, x: np.ndarray, a: np.ndarray, dt: float, pieces: int):
-        """Boxes of the motion over each of ``pieces`` sub-intervals (:meth:`held_tube_pieces_box` from points)."""
-        return self.held_tube_pieces_box(t, x, x, a, dt, pieces)
-
-    def held_enclosure_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float):
-        """Validated boxes of one period with ``u`` held, from every start in ``[x_lo, x_hi]`` and any wind signal
-        (:func:`held_box_kernel`)."""
-        lo, hi = held_boxes(self, x_lo, x_hi, a, 0.0, dt)
-        end_lo, end_hi = held_boxes(self, x_lo, x_hi, a, dt, dt)
-        return lo, hi, end_lo, end_hi
-
-    def held_tube_pieces_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float,
-                             pieces: int):
-        edges = np.linspace(0.0, dt, pieces + 1)[:, None]  # every piece at once: (pieces, 1) against N rows
-        return held_boxes(self, x_lo, x_hi, a, edges[:-1], edges[1:])
 
 
 def _register() -> None:
