@@ -271,3 +271,24 @@ def test_safety_filter_on_the_env_keeps_its_promise_at_the_seam(dubins_held_tabl
                 done = terminated or truncated
             assert info["landed"] and not info["hard_violation"] and info["budget_used"] <= q + 1e-9
     assert seam == 4
+
+
+@pytest.mark.parametrize("game", ["safe", "land"])
+def test_the_packaged_cells_are_what_the_recursion_gives(vf, game):
+    """The package's files at 1,500 random cells and the 2 x 60 x 60 cells on the heading's seam, at every sample:
+    the least good budget index and the plan are those one step of the game's recursion gives from the file's own
+    later samples (``cell_game.recheck``), so the file is the build's answer there for this model, its enclosure
+    and its ``c1`` bound."""
+    from softreach.reach.proof import cell_game
+
+    cells = vf.safe_cells if game == "safe" else vf.landing_cells
+    n = cells.shape[2]
+    grid = np.arange(int(np.prod(cells.shape))).reshape(cells.shape)
+    flat = np.r_[np.random.default_rng(1).choice(grid.size, 1500, replace=False), grid[:, :, 0].ravel(),
+                 grid[:, :, n - 1].ravel()]
+    m, action, hold = cell_game.recheck(cells, vf.lookahead, flat)
+    steps = cells.steps + 1
+    for name, got in (("m", m), ("action", action), ("hold", hold)):
+        np.testing.assert_array_equal(got, np.asarray(getattr(cells, name)).reshape(steps, -1)[:, flat],
+                                      err_msg=name)
+    assert 0.05 < (m[0] < cells.never).mean() < 0.95
