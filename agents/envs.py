@@ -187,11 +187,11 @@ _announced = False
 
 def announce_filter_compile(env: gym.Env) -> None:
     """Say on stderr, once per process, that the first filtered decision will compile the filter (about
-    :data:`FILTER_COMPILE_S` s, once per installed version), where the model's filter has compiled code and the cache lacks
-    it: a step that would otherwise sit silently at 0 %."""
+    :data:`FILTER_COMPILE_S` s, once per installed version), where the cache lacks the filter's compiled code: a step
+    that would otherwise sit silently at 0 %."""
     global _announced
     filt = unwrap_filter(env)
-    if _announced or filt is None or filt.value_filter.compiled is None or filter_code_cached() is not False:
+    if _announced or filt is None or filter_code_cached() is not False:
         return
     _announced = True
     import sys

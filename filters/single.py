@@ -28,8 +28,7 @@ _SCALARS = (float, int, np.floating, np.integer)
 
 def _plain(vf: Any, t: Any, x: Any, z: Any, action: Any, plan: Any) -> bool:
     """Whether the inputs are of the kind this module decides (the module docstring)."""
-    return (vf.compiled is not None
-            and type(x) is np.ndarray and x.shape == (vf.n,) and x.dtype.kind == "f"
+    return (type(x) is np.ndarray and x.shape == (vf.n,) and x.dtype.kind == "f"
             and type(action) is np.ndarray and action.shape == (vf.m,) and action.dtype.kind == "f"
             and isinstance(t, _SCALARS) and isinstance(z, _SCALARS)
             and (plan is None or (type(plan) is np.ndarray and plan.shape == (3,) and plan.dtype.kind in "iu")))
