@@ -208,3 +208,20 @@ def test_a_right_enclosure_goes_on_to_the_cells_and_is_checked_once(monkeypatch)
     check_model_for_filter(model, 0.01, "a job", checks=model.substeps, cells=True,
                            cell_width=np.array([30.0 / 30, 18.0 / 40]))
     assert checks == [1]
+
+
+def test_a_model_without_set_maxima_is_refused_before_the_held_solve(tmp_path, monkeypatch):
+    from cart_motion import doc_cart
+
+    class NoSetMaxima(doc_cart().Cart):
+        """The cart of docs/models.md with its motion bound, without its sets' box maxima."""
+
+        set_boxes = None
+
+    monkeypatch.setattr(compute, "solve_held", _no_solve)
+    monkeypatch.setattr(compute, "solve", _no_solve)
+    cfg = SolveConfig(shape=(11, 11), budget_points=8, control_period=0.05,
+                      settings=SolverSettings.from_accuracy("low", compile=False))
+    with pytest.raises(ValueError, match="gives no compiled set maxima: declare set_boxes"):
+        compute.solve_table(NoSetMaxima(), cfg, tmp_path / "cart.srt", progress=False)
+    assert not list(tmp_path.iterdir())

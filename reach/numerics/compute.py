@@ -161,8 +161,16 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
     held = cfg.control_period is not None
     if held:
         # the filter's proof rests on the model's enclosure: refuse a model without one, or a wrong one, now
+        from softreach.filters.compiled import CompiledDecision
+
         from ..proof.enclosure_check import check_model_for_filter
         check_model_for_filter(model, cfg.control_period, "softreach solve --held", cells=model.cell_shape is not None)
+        # the consistency pass runs the filter's compiled test: a model without its set maxima is refused now, not
+        # after the solve
+        lacking = CompiledDecision.missing(model)
+        if lacking is not None:
+            raise ValueError(f"softreach solve --held: the safety filter cannot decide for model {model.name!r}: "
+                             f"{lacking}")
         times = sample_times(model.horizon, cfg.control_period)
         controls = [list(a) for a in model.held_candidates(cfg.held_levels)]
     else:
