@@ -181,7 +181,7 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
 #: CPU seconds the safety filter's first decision, certificate and start-plan search take to compile with an empty
 #: compile cache, as ``benchmarks/first_compile.py filter`` measures them (docs/agents.md quotes the measurement):
 #: the notice's estimate of the wall time on an idle core
-FILTER_COMPILE_S = 90
+FILTER_COMPILE_S = 150
 _announced = False
 
 
@@ -197,8 +197,8 @@ def announce_filter_compile(env: gym.Env) -> None:
     import sys
 
     print(f"softreach: the safety filter's first decision compiles it with numba, once per installed version: about "
-          f"{FILTER_COMPILE_S:.0f} s on an idle core, longer on a busy machine; `softreach compile TABLE` does it "
-          f"ahead", file=sys.stderr)
+          f"{FILTER_COMPILE_S:.0f} s on an idle core, longer on a busy machine; `softreach solve` does it in the "
+          f"background and `softreach compile TABLE` ahead", file=sys.stderr)
 
 
 def unwrap_filter(env: gym.Env) -> Any:
