@@ -1,6 +1,6 @@
 """Test helpers for the cell certificates: every cell's box, and flying a cell's stored plan with the
 environment's integrator under a wind that switches inside the period (``tests/test_cell_certificate.py``,
-``tests/test_glider_cells.py``)."""
+``tests/test_glider_cells.py``, ``tests/test_dubins_cells.py``)."""
 
 from __future__ import annotations
 
@@ -15,19 +15,29 @@ def cell_boxes(cells, k: int):
     return cells.lo + idx * cells.width, cells.lo + (idx + 1) * cells.width, cells.m[k].reshape(-1)
 
 
-def fly_plan_from_a_good_cell(cells, model, eps: float, rng: np.random.Generator) -> None:
-    """Draw a good cell, a state in it and a budget it is good at, fly the cell's plan with the wind jumping between
-    its extremes at three random instants of each period, and assert the claim: ``C1`` and the budget kept at every
-    jump, and the run landed or in a good cell at the plan's end."""
+def fly_plan_from_a_good_cell(cells, model, eps: float, rng: np.random.Generator, faces: bool = False) -> bool:
+    """Draw a good cell, a state in it and a budget it is good at, fly the cell's plan with each wind axis jumping
+    between its extremes at three random instants of each period, and assert the claim: ``C1`` and the budget kept
+    at every jump, and the run landed or in a good cell at the plan's end.
+
+    :param faces: half the time put the state on one of its cell's faces; where the look-up reads it in a worse
+        neighbour (a face they share) nothing is flown and ``False`` returned
+    :return: whether a plan was flown
+    """
     dt = cells.dt
-    w_lo, w_hi = model.disturbance_bounds[0][0], model.disturbance_bounds[1][0]
+    d_lo, d_hi = model.disturbance_bounds
     k = int(rng.integers(0, cells.steps))
     lo, hi, m = cell_boxes(cells, k)
     good = np.nonzero(m < cells.never)[0]
     c = int(rng.choice(good))
     x = rng.uniform(lo[c], hi[c])
+    if faces and rng.random() < 0.5:
+        axis = int(rng.integers(len(x)))
+        x[axis] = (lo if rng.random() < 0.5 else hi)[c, axis]
     z = (m[c] + rng.uniform(0, 3)) * cells.dz
-    assert cells.contains(k * dt, x, z)[0]
+    if not cells.contains(k * dt, x, z)[0]:
+        assert faces, (cells.game, k, x, z)
+        return False
     j, K = (int(v[0]) for v in cells.plan(k * dt, x))
     t, xs, spent, landed = k * dt, list(map(float, x)), 0.0, False
     for _p in range(K):
@@ -35,7 +45,7 @@ def fly_plan_from_a_good_cell(cells, model, eps: float, rng: np.random.Generator
         for s0, s1 in zip(np.r_[0, cuts], np.r_[cuts, dt]):
             if s1 - s0 <= 0 or landed:
                 continue
-            b = [float(rng.choice([w_lo, w_hi]))]
+            b = [float(rng.choice([w_lo, w_hi])) for w_lo, w_hi in zip(d_lo, d_hi)]
             xs, cost, _, _ = integrate_period(model, t, xs, [float(cells.candidates[j, 0])], b, s1 - s0, 4, eps,
                                               1e-9)
             spent += cost
@@ -44,3 +54,4 @@ def fly_plan_from_a_good_cell(cells, model, eps: float, rng: np.random.Generator
             assert float(model.hard_constraint(t, pt)) <= 0 and z - spent >= -1e-12, (cells.game, k, x, z, xs)
             landed = bool(model.landed(t, pt))
     assert landed or cells.contains(k * dt + K * dt, np.asarray(xs), z - spent)[0], (cells.game, k, x, z, K, xs)
+    return True

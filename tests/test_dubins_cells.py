@@ -18,9 +18,8 @@ import softreach.envs  # noqa: F401  (registers the environments)
 from softreach.filters import SafetyFilter, ValueFilter
 from softreach.filters.audit import Row, _policy, _wind, run_episode
 from softreach.reach import get_model
-from softreach.reach.sim.integrator import integrate_period
 
-from cell_plans import cell_boxes
+from cell_plans import cell_boxes, fly_plan_from_a_good_cell
 
 DT = 0.1
 
@@ -142,48 +141,11 @@ def test_no_admitted_period_crosses_the_heading_seam(vf):
     assert (c1[:2] > 0).all() and c1[2] < 0
 
 
-def _fly_plan(cells, model, eps, rng):
-    """Draw a good cell, a state in it (on one of its faces half the time) and a budget it is good at, fly the
-    cell's plan with each wind axis jumping between its extremes at three random instants of each period, and
-    assert the claim: ``C1`` and the budget kept at every jump, and the run landed or in a good cell at the plan's
-    end."""
-    w = model.params.wind_max
-    k = int(rng.integers(0, cells.steps))
-    lo, hi, m = cell_boxes(cells, k)
-    good = np.nonzero(m < cells.never)[0]
-    c = int(rng.choice(good))
-    x = rng.uniform(lo[c], hi[c])
-    if rng.random() < 0.5:
-        axis = int(rng.integers(3))
-        x[axis] = (lo if rng.random() < 0.5 else hi)[c, axis]
-    z = (m[c] + rng.uniform(0, 3)) * cells.dz
-    t0 = k * cells.dt
-    if not cells.contains(t0, x, z)[0]:
-        return False  # a face shared with a worse neighbour: the look-up reads that one
-    j, K = (int(v[0]) for v in cells.plan(t0, x))
-    t, xs, spent, landed = t0, list(map(float, x)), 0.0, False
-    for _p in range(K):
-        cuts = np.sort(rng.uniform(0, cells.dt, 3))
-        for s0, s1 in zip(np.r_[0, cuts], np.r_[cuts, cells.dt]):
-            if s1 - s0 <= 0 or landed:
-                continue
-            b = [float(v) for v in rng.choice([-w, w], 2)]
-            xs, cost, _, _ = integrate_period(model, t, xs, [float(cells.candidates[j, 0])], b, s1 - s0, 4, eps,
-                                              1e-9)
-            spent += cost
-            t += s1 - s0
-            pt = [np.float64(v) for v in xs]
-            assert float(model.hard_constraint(t, pt)) <= 0 and z - spent >= -1e-12, (cells.game, k, x, z, xs)
-            landed = bool(model.landed(t, pt))
-    assert landed or cells.contains(t0 + K * cells.dt, np.asarray(xs), z - spent)[0], (cells.game, k, x, z, K, xs)
-    return True
-
-
 @pytest.mark.parametrize("game", ["safe", "land"])
 def test_a_cells_plan_keeps_its_promise_under_switching_winds(vf, game):
     cells = vf.safe_cells if game == "safe" else vf.landing_cells
     rng = np.random.default_rng(0)
-    flown = sum(_fly_plan(cells, vf.model, vf.eps, rng) for _ in range(150))
+    flown = sum(fly_plan_from_a_good_cell(cells, vf.model, vf.eps, rng, faces=True) for _ in range(150))
     assert flown >= 100
 
 
