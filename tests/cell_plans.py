@@ -1,6 +1,7 @@
-"""Test helpers for the cell certificates: every cell's box, and flying a cell's stored plan with the
-environment's integrator under a wind that switches inside the period (``tests/test_cell_certificate.py``,
-``tests/test_glider_cells.py``, ``tests/test_dubins_cells.py``)."""
+"""Test helpers for the cell certificates: every cell's box, flying a cell's stored plan with the environment's
+integrator under a wind that switches inside the period, the landing cells' nesting, and a filtered episode that
+keeps the promise (``tests/test_cell_certificate.py``, ``tests/test_glider_cells.py``, ``tests/test_dubins_cells.py``,
+``tests/test_models_api.py``)."""
 
 from __future__ import annotations
 
@@ -55,3 +56,30 @@ def fly_plan_from_a_good_cell(cells, model, eps: float, rng: np.random.Generator
             landed = bool(model.landed(t, pt))
     assert landed or cells.contains(k * dt + K * dt, np.asarray(xs), z - spent)[0], (cells.game, k, x, z, K, xs)
     return True
+
+
+def assert_landing_cells_nested(vf, budgets, least: int = 1) -> None:
+    """At ``t = 0``, over 20,000 states uniform over ``C1``: the landing cells hold at least ``least`` of them at each
+    budget, lie inside the safe cells, and grow with the budget (``budgets`` increasing)."""
+    rng = np.random.default_rng(2)
+    lo, hi = (np.asarray(b, float) for b in vf.model.hard_box)
+    x = rng.uniform(lo, hi, (20000, len(lo)))
+    before = None
+    for q in budgets:
+        inside = vf.landing_cells.contains(0.0, x, q)
+        assert inside.sum() >= least, (q, int(inside.sum()))
+        assert not (inside & ~vf.safe_cells.contains(0.0, x, q)).any()
+        if before is not None:
+            assert not (before & ~inside).any()
+        before = inside
+
+
+def run_certified_episode(env, q: float) -> None:
+    """Step a filtered env from a start its ``reset`` certified, with random actions, to the episode's end: every
+    step certified, and the episode landed with no hard violation and at most ``q`` of budget used."""
+    done = False
+    while not done:
+        _, _, terminated, truncated, info = env.step(env.action_space.sample())
+        assert info["certified"], info["filter_reason"]
+        done = terminated or truncated
+    assert info["landed"] and not info["hard_violation"] and info["budget_used"] <= q + 1e-9

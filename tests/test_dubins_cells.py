@@ -19,7 +19,7 @@ from softreach.filters import SafetyFilter, ValueFilter
 from softreach.filters.audit import Row, _policy, _wind, run_episode
 from softreach.reach import get_model
 
-from cell_plans import cell_boxes, fly_plan_from_a_good_cell
+from cell_plans import assert_landing_cells_nested, cell_boxes, fly_plan_from_a_good_cell, run_certified_episode
 
 DT = 0.1
 
@@ -67,17 +67,7 @@ def test_no_good_cell_lies_inside_the_obstacle_or_the_cells_change_with_the_head
 
 
 def test_landing_cells_grow_with_the_budget_and_lie_in_the_safe_cells(vf):
-    rng = np.random.default_rng(2)
-    lo, hi = (np.asarray(b, float) for b in vf.model.hard_box)
-    x = rng.uniform(lo, hi, (20000, 3))
-    before = None
-    for q in (0.0, 1.0, 2.0):
-        inside = vf.landing_cells.contains(0.0, x, q)
-        assert inside.sum() > 500
-        assert not (inside & ~vf.safe_cells.contains(0.0, x, q)).any()
-        if before is not None:
-            assert not (before & ~inside).any()
-        before = inside
+    assert_landing_cells_nested(vf, (0.0, 1.0, 2.0), least=501)
 
 
 def test_the_heading_seam_is_looked_up_on_the_grid_and_nothing_off_it_is_certified(vf):
@@ -226,12 +216,7 @@ def test_safety_filter_on_the_env_keeps_its_promise_at_the_seam(dubins_held_tabl
             _, info = env.reset(seed=int(i), options={"state": x[i].tolist(), "budget": q})
             assert info["certified"]
             seam += int(i < 2000)
-            done = False
-            while not done:
-                _, _, terminated, truncated, info = env.step(env.action_space.sample())
-                assert info["certified"], info["filter_reason"]
-                done = terminated or truncated
-            assert info["landed"] and not info["hard_violation"] and info["budget_used"] <= q + 1e-9
+            run_certified_episode(env, q)
     assert seam == 4
 
 

@@ -13,7 +13,7 @@ import pytest
 from softreach.filters import ValueFilter
 from softreach.filters.audit import Row, _policy, _wind, run_episode
 
-from cell_plans import cell_boxes, fly_plan_from_a_good_cell
+from cell_plans import assert_landing_cells_nested, cell_boxes, fly_plan_from_a_good_cell
 
 DT = 0.1
 
@@ -36,17 +36,7 @@ def test_no_landing_cell_is_too_high_to_reach_the_ground_in_time(vf, t):
 
 
 def test_landing_cells_grow_with_the_budget_and_lie_in_the_safe_cells(vf):
-    rng = np.random.default_rng(2)
-    lo, hi = (np.asarray(b, float) for b in vf.model.hard_box)
-    x = rng.uniform(lo, hi, (20000, 3))
-    before = None
-    for q in (0.0, 5.0, 10.0):
-        inside = vf.landing_cells.contains(0.0, x, q)
-        assert inside.any()
-        assert not (inside & ~vf.safe_cells.contains(0.0, x, q)).any()
-        if before is not None:
-            assert not (before & ~inside).any()
-        before = inside
+    assert_landing_cells_nested(vf, (0.0, 5.0, 10.0))
 
 
 @pytest.mark.parametrize("game", ["safe", "land"])
