@@ -98,3 +98,29 @@ def test_a_damaged_cache_folder_is_replaced(pointmass_held_table, tmp_path, monk
         again = ValueFilter(pointmass_held_table, 0.01)
     np.testing.assert_array_equal(again.landing_cells.m, expected)
     assert (folder / "m.npy").stat().st_size > 1000
+
+
+def test_cells_unpacked_from_another_package_file_are_replaced(pointmass_held_table, tmp_path, monkeypatch):
+    """An upgrade whose package ships other cells for the same key: the cache then holds the installed package's,
+    not the ones unpacked before it."""
+    import shutil
+
+    monkeypatch.setenv("SOFTREACH_CACHE", str(tmp_path / "cache"))
+    package = tmp_path / "package"
+    package.mkdir()
+    for f in FILES:
+        shutil.copy(f, package / f.name)
+    monkeypatch.setattr(cell_certificate, "PACKAGED", package)
+    table = pointmass_held_table
+    first = ValueFilter(table, table.control_period)
+    shipped = cell_certificate.cache_file(first.landing_cells.key, package)
+    old = CellCertificate.load(shipped)
+    # the next version's file: one good cell at t = 0 now never good
+    m = np.array(old.m)
+    good = int(np.flatnonzero(m[0] < old.never)[0])
+    m[0].flat[good] = old.never
+    CellCertificate(old.lo, old.hi, m, old.action, old.hold, old.candidates, old.dt, old.dz, old.horizon, old.game,
+                    old.key).save(shipped)
+    again = ValueFilter(table, table.control_period)
+    assert again.landing_cells.m[0].flat[good] == old.never
+    assert first.landing_cells.m[0].flat[good] < old.never  # the first filter's mapped cache was the old file

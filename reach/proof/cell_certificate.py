@@ -41,6 +41,7 @@ not used (that only makes the certificate smaller).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -285,6 +286,25 @@ def cache_dir() -> Path:
 PACKAGED = Path(__file__).parent / "cells"
 
 
+#: the file in a cache folder that names the package's file of the same key when the folder was made (its digest)
+_SHIPPED = "packaged.sha256"
+
+
+@functools.lru_cache(maxsize=32)
+def _digest_of(path: str, size: int, mtime_ns: int) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _file_digest(path: Path) -> str:
+    """The sha256 of a file, computed once per process for each size and modification time."""
+    st = path.stat()
+    return _digest_of(str(path), st.st_size, st.st_mtime_ns)
+
+
 def cache_file(key: dict[str, Any], folder: Path) -> Path:
     """The file that holds the cells of ``key`` (:func:`cell_key`) in ``folder``."""
     digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
@@ -295,17 +315,27 @@ def cached(lookahead: Any, shape: Any, dz: float | None = None, game: str = "saf
            span_cap: int = 32) -> CellCertificate:
     """The cells for this look-ahead, memory-mapped from a folder in :func:`cache_dir`; where there is none yet,
     the package's own (:data:`PACKAGED`) or a build (once per model, period, ``h_eps`` width, candidate set, game
-    and shape) is written there first. A cache that cannot be written is skipped with a warning."""
+    and shape) is written there first. A folder made while the package shipped another file for the same key, or
+    none (cells of an earlier version), is replaced by the installed package's. A cache that cannot be written is
+    skipped with a warning."""
     key = cell_key(lookahead, shape, dz, game, holds, span_cap)
     folder = cache_file(key, cache_dir()).with_suffix("")
+    packaged = cache_file(key, PACKAGED)
+    shipped = _file_digest(packaged) if packaged.is_file() else None
     if folder.is_dir():
-        try:
-            return CellCertificate.load(folder, key)
-        except ValueError as err:
-            warnings.warn(f"rebuilding the cells: {err}", stacklevel=2)
+        made_with = folder / _SHIPPED
+        if shipped is not None and (made_with.read_text() if made_with.is_file() else None) != shipped:
+            # made before the package shipped these cells, or from another version of its file (an upgrade):
+            # the installed package's replace them
             shutil.rmtree(folder, ignore_errors=True)
-    cells, packaged = None, cache_file(key, PACKAGED)
-    if packaged.is_file():
+        else:
+            try:
+                return CellCertificate.load(folder, key)
+            except ValueError as err:
+                warnings.warn(f"rebuilding the cells: {err}", stacklevel=2)
+                shutil.rmtree(folder, ignore_errors=True)
+    cells = None
+    if shipped is not None:
         try:
             cells = CellCertificate.load(packaged, key)
         except ValueError as err:
@@ -316,6 +346,8 @@ def cached(lookahead: Any, shape: Any, dz: float | None = None, game: str = "saf
     try:
         folder.parent.mkdir(parents=True, exist_ok=True)
         cells.save(tmp, compressed=False)
+        if shipped is not None:
+            (tmp / _SHIPPED).write_text(shipped)
         os.replace(tmp, folder)
     except OSError as err:
         shutil.rmtree(tmp, ignore_errors=True)
