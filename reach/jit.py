@@ -217,8 +217,9 @@ def wait_for_compile_ahead(func: Callable, poll_s: float = 0.1) -> bool:
             holder = json.loads(fh.read() or "{}")
         except ValueError:
             holder = {}
-        # a holder that has not yet written its names is waited for: it compiles ahead what a user runs first
-        if "functions" in holder and qualified_name(func) not in holder["functions"]:
+        # only for the functions the holder names (one that has not yet written them is not waited for: a wrong
+        # wait would stall an unrelated compilation for the holder's whole one)
+        if qualified_name(func) not in holder.get("functions", ()):
             return False
         if not _ANNOUNCED[0]:
             _ANNOUNCED[0] = True
