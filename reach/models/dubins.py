@@ -206,12 +206,10 @@ class Dubins(Model, ControlAndDisturbanceAffine):
         # west of the obstacle, roughly facing the goal
         self.start_box = ((-2.5, -1.0, -0.5), (-1.5, 1.0, 0.5))
         self.start_budget = (0.0, 2.0)
-        # the cell certificates (8 m / 60 = 0.133 m x 0.133 m x 5 deg) and plans of every length up to 8 periods: of
-        # 20,000 states uniform over C1 at t = 0, Q = 0, they certify 62 % of the default held table's own set
-        # (the table's interpolant, unproven) for about 2 min of one thread for both games; 60 x 60 x 48 cells gave
-        # 57 %, 80 x 80 x 48 60 % and 80 x 80 x 64 63 % (1.5 times the build), plans of 1, 2 and 4 periods 44 %
-        # and adding 10 and 12 periods nothing (docs/filters.md, "Dubins on cells"). The heading axis is tiled over
-        # [-pi, pi] without wrapping: a box that crosses the seam touches no cell, and counts as not covered
+        # the cell certificates (8 m / 60 = 0.133 m x 0.133 m x 5 deg) and plans of every length up to 8 periods: the
+        # heading's resolution certifies more than the position's, longer plans nothing more (the shapes measured
+        # against each other: docs/filters.md, "Dubins on cells"). The heading axis is tiled over [-pi, pi] without
+        # wrapping: a box that crosses the seam touches no cell, and counts as not covered
         self.cell_shape = (60, 60, 72)
         self.cell_holds = (1, 2, 3, 4, 5, 6, 7, 8)
         (gx, gy), r = p.goal, p.goal_radius

@@ -145,20 +145,16 @@ class Glider(GliderGame, GliderHeldEnclosure, Model):
         #: RK4 sub-steps per control period in the environment; their ends are where landing and ``C1`` are checked
         #: (0.05 s, RK4 error below 1e-9 (envs/glider_landing.py))
         self.substeps = 2
-        # the cell certificates (0.25 m x 0.125 m/s x 1/12 deg) and plans of every length up to 8 periods: on the
-        # default held table, the share of the table's own certified states at t = 0, Q = 0, is 28 % at
-        # 82 x 44 x 36 cells, 70 % at 164 x 88 x 36, 82 % at 164 x 176 x 36 with plans of 1, 2, 4 or 8 periods and
-        # 89 % with every length from 1 to 8, for a third more build time and no more memory, where twice the
-        # cells gave 3-6 points for twice the memory (docs/filters.md, "The glider on cells")
+        # the cell certificates (0.25 m x 0.125 m/s x 1/12 deg) and plans of every length up to 8 periods: finer cells
+        # and every plan length certify more of the table's own set, twice these cells little more for twice the
+        # memory (the shapes measured against each other: docs/filters.md, "The glider on cells")
         self.cell_shape = (164, 176, 36)
         self.cell_holds = (1, 2, 3, 4, 5, 6, 7, 8)
-        # a start's own plan may hold two angles in sequence: of 20,000 states uniform over C1 at Q = 5, 96 more are
-        # certified (1.5 % of the held table's set), for tens of milliseconds a reset from a start the table puts in
-        # its set and no single angle certifies; the point mass gains 1 state, and keeps one (docs/filters.md)
+        # a start's own plan may hold two angles in sequence: it certifies starts the table puts in its set where no
+        # single angle does, for tens of milliseconds a reset (docs/filters.md, "A start's own plan")
         self.start_segments = 2
-        # nine angles of attack (1.625 deg apart) held for a period, not five: the cells then certify 5-6 % more
-        # states at t = 0 (80 / 85 / 77 % of the continuous-time RA~_Q at Q = 0 / 5 / 10, against 76 / 80 / 73 %),
-        # for a held solve and a cell build that take about twice as long (docs/filters.md, "The glider on cells")
+        # nine angles of attack (1.625 deg apart) held for a period, not five: the cells then certify more states, for
+        # a held solve and a cell build that take about twice as long (docs/filters.md, "The glider on cells")
         self.held_levels = 9
         #: the target's altitude band (its sink-rate term is not a box, so the other axes are unbounded)
         self.target_box = ((p.min_altitude - p.touchdown_altitude, -math.inf, -math.inf),
