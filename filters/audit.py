@@ -159,7 +159,7 @@ def exact_pass(vf: ValueFilter, t: float, x: np.ndarray, z: float, a: np.ndarray
     ends = np.asarray(ends)
     t_next, zs = np.full(len(ends), t + dt), np.asarray(zs)
     if t + dt >= vf.lookahead.horizon - 1e-9:  # the last period: the end states must be inside the target
-        return bool(np.all(vf.lookahead.certificate(t_next, ends, zs) <= -vf.lookahead.margin))
+        return bool(np.all(vf.lookahead.certificate(t_next, ends, zs) <= 0))
     # "keeps the state certified": every sampled end state is certified, as the filter defines it
     return bool(np.all(vf.certify(t_next, ends, zs)[0]))
 

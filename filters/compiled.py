@@ -8,9 +8,9 @@ in numba, where
   (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`, :attr:`~softreach.reach.problem.Model.
   set_max_kernel`): the point mass, the glider and Dubins do; :class:`~softreach.filters.ValueFilter` refuses a
   model that does not, naming what to add (:meth:`CompiledDecision.missing`),
-* the table holds ``W_eps`` or the budget surface ``Q_min`` (with ``V`` and ``V_safe`` if it has them; ``Q_min`` is
-  read in ``W_eps``'s shape, :func:`~softreach.reach.proof.lookahead.surface_fields`). Where the filter has landing
-  cells they decide what passes; without them the table does (:mod:`softreach.filters.table_pass`).
+* the landing cells decide what passes (:mod:`softreach.reach.proof.cell_certificate`); the table, ``W_eps`` or the
+  budget surface ``Q_min`` (with ``V`` and ``V_safe`` if it has them; ``Q_min`` is read in ``W_eps``'s shape,
+  :func:`~softreach.reach.proof.lookahead.surface_fields`), only ranks the candidates.
 
 Both rules are compiled, the ``"switch"`` rule and the ``"smooth"`` one with its bisection.
 
@@ -29,12 +29,11 @@ from __future__ import annotations
 
 import math
 import threading
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
-from softreach.reach.proof.blocks import default_threads, run_in_blocks
+from softreach.reach.proof.blocks import run_in_blocks
 from softreach.reach.proof.box_max import kernel_field
 from softreach.reach.jit import njit
 from softreach.reach.proof.kernels import MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row
@@ -48,7 +47,7 @@ from .compiled_starts import start_plan_rows
 from .judge import badness, judge, least_next, next_value, on_table
 from .plans import PLAN_LAND, PLAN_SAFE
 from .reasons import BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, UNCERTIFIED
-from .table_pass import keeps, table_verdict
+from .keeps import keeps
 
 
 def decision_space(n: int, m: int, J: int) -> DecisionSpace:
@@ -63,8 +62,7 @@ def decision_space(n: int, m: int, J: int) -> DecisionSpace:
         c_kept=np.empty(J, np.bool_), c_score=np.empty(J), c_dist=np.empty(J), c_pref=np.empty(J), act=np.empty(m),
         point=np.empty(n + 1), c_in=np.empty(J, np.bool_), c_bounded=np.empty(J, np.bool_),
         c_proven=np.empty(J, np.bool_), c_c1=np.empty(J), c_pick=np.empty(J, np.bool_), c_low=np.empty(J),
-        c_tie=np.empty(J), c_order=np.empty(J, np.int64), boxes=np.empty((8, n)),
-        w_box=Box(np.empty(n), np.empty(n)), w_lo=np.empty((J, n)), w_hi=np.empty((J, n)))
+        c_tie=np.empty(J), c_order=np.empty(J, np.int64), boxes=np.empty((8, n)))
 
 
 @njit(inline="always")
@@ -117,16 +115,16 @@ def _distance(cands, j, pol, r, a_half):
 
 
 @njit(inline="always")
-def _keeping(enclose, M, C, T, cands, smooth, tr, zr, space):
-    """Which candidate keeps (:func:`~softreach.filters.judge.keeps`), asked in the rule's order of preference
+def _keeping(enclose, M, C, cands, smooth, tr, space):
+    """Which candidate keeps (:func:`~softreach.filters.keeps.keeps`), asked in the rule's order of preference
     (lowest next certificate, or nearest the policy's action) up to the first that does; ``-1``: none."""
-    c_ok, c_kept, c_next, c_zend = space.c_ok, space.c_kept, space.c_next, space.c_zend
+    c_ok, c_kept, c_zend = space.c_ok, space.c_kept, space.c_zend
     _stable_order(space.c_pref, space.c_order)
     for k in space.c_order:
         if not (c_ok[k] or (smooth and c_kept[k])):
             break
-        if (C.has_land and c_ok[k]) or keeps(enclose, M, C, T, cands, tr, zr, c_ok[k], c_next[k], space.end_lo[k],
-                                             space.end_hi[k], c_zend[k], c_kept[k], space.work, space.work_box, space):
+        if c_ok[k] or keeps(enclose, M, C, cands, tr, space.end_lo[k], space.end_hi[k], c_zend[k], c_kept[k],
+                            space.work, space.work_box):
             return k
     return -1
 
@@ -153,7 +151,7 @@ def _choose(enclose, M, C, T, cands, smooth, tr, zr, t_next, space):
             c_pref[k] = c_dist[k] if (c_ok[k] or c_kept[k]) else np.inf
         else:
             c_pref[k] = c_next[k] if c_ok[k] else np.inf
-    keeps_j = _keeping(enclose, M, C, T, cands, smooth, tr, zr, space)
+    keeps_j = _keeping(enclose, M, C, cands, smooth, tr, space)
     floor = np.inf
     for k in range(J):
         if k == keeps_j:
@@ -182,7 +180,7 @@ def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, best, best_
     J = cands.shape[0]
     for game in (PLAN_LAND, PLAN_SAFE):
         if game == PLAN_LAND:
-            weak, cells, plan_cells = C.has_land and not any_ok, C.land, C.land_plan
+            weak, cells, plan_cells = not any_ok, C.land, C.land_plan
         else:
             weak, cells, plan_cells = C.has_safe and best_bad >= RANK_SAFE, C.safe, C.safe_plan
         if not weak:
@@ -245,19 +243,19 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
                 mid = 0.5 * (lo + hi)
             _try(s, J, act, action, cands, pol, r, best, mid)
             v = judge(enclose, M, C, tr, xr, xr, zr, act, end_lo[slot], end_hi[slot], work)
-            # without landing cells the table decides here whether the end states pass (a_next its value)
-            a_ok, a_lands, a_next = table_verdict(enclose, M, C, T, cands, tr, xr, xr, zr, zr, act, v, end_lo[slot],
-                                                  end_hi[slot], work, space)
+            a_lands = v.lands
+            a_ok = v.ok or a_lands
+            # a surely landing action's next value is -inf; a passing one's is read below where it is needed
+            a_next = -np.inf if a_lands else np.inf
             a_bounded, a_in, a_proven, a_c1, a_zend, t_next = v.bounded, v.in_c1, v.proven, v.c1, v.z_end, v.t_next
             a_kept = v.kept or a_lands
-            # with cells, the policy's and the bisection's next value (the policy's, a diagnostic, only with
-            # diagnostics)
-            if C.has_land and a_ok and not a_lands and (s > J or (s == 0 and diagnostics)):
+            # the policy's and the bisection's next value (the policy's, a diagnostic, only with diagnostics)
+            if a_ok and not a_lands and (s > J or (s == 0 and diagnostics)):
                 a_next = next_value(T, t_next, end_lo[slot], end_hi[slot], a_zend, zr, work)
-            # with cells a passing action keeps: the call of keeps, with its large tuples, is skipped
+            # a passing action keeps: the call of keeps, with its large tuples, is skipped
             if s == 0:
-                if (C.has_land and a_ok) or keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J], end_hi[J],
-                                                  a_zend, a_kept, work, space.work_box, space):
+                if a_ok or keeps(enclose, M, C, cands, tr, end_lo[J], end_hi[J], a_zend, a_kept, work,
+                                 space.work_box):
                     for i in range(m):
                         applied[r, i] = pol[r, i]
                     reason[r], nxt[r], certified[r], blend[r] = PASS, a_next if diagnostics else np.nan, True, 1.0
@@ -266,8 +264,8 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
                     break
                 continue
             if s > J:
-                if any_ok and ((C.has_land and a_ok) or keeps(enclose, M, C, T, cands, tr, zr, a_ok, a_next, end_lo[J],
-                                                              end_hi[J], a_zend, a_kept, work, space.work_box, space)):
+                if any_ok and (a_ok or keeps(enclose, M, C, cands, tr, end_lo[J], end_hi[J], a_zend, a_kept, work,
+                                             space.work_box)):
                     lo, best_next = mid, a_next
                 else:
                     hi = mid
@@ -299,15 +297,6 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
             reason[r] = OUTSIDE
 
 
-def _no_cells(la: Any) -> tuple[tuple, tuple]:
-    """Cell arguments of the loaded cells' types (:attr:`~softreach.reach.proof.cell_certificate.CellCertificate.
-    kernel_args`, ``plan_args``) for a filter without cells: one cell, never good, no plan."""
-    m = frozen(np.full((1, 1), np.iinfo(np.int16).max, np.int16))
-    one = frozen(np.ones(1))
-    cells = (m, frozen(np.ones(1, np.int64)), one, one, one, la.dt, la.dt, 0, 0, la.horizon, False)
-    return cells, (frozen(np.full((1, 1), -1, np.int8)), frozen(np.zeros((1, 1), np.int8)))
-
-
 def _writable(v: np.ndarray) -> np.ndarray:
     """``v``, or a copy where it is read-only. numba types an array by whether it is writable and compiles a loop
     once per type: the caller's rows reach the loops writable (tables and cells read-only,
@@ -333,12 +322,13 @@ class CompiledDecision:
         set_address, set_params = la.set_kernel
         self.M = Motion(np.asarray(model.held_box_params, dtype=np.float64), la.eps, set_params, set_address, t_lo,
                         t_hi, np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon, frozen(la.slack),
-                        la.first_check, la.budget_slack, la.exact_env, float(la.margin), int(la.exact_periods))
+                        la.first_check, la.budget_slack, la.exact_env)
         safe, land = vf.safe_cells, vf.landing_cells
-        # without cells, arrays of the cells' types that nothing reads (has_land, has_safe), for one compilation
-        land_args, land_plan = (land.kernel_args, land.plan_args) if land is not None else _no_cells(la)
-        safe_args, safe_plan = (safe.kernel_args, safe.plan_args) if safe is not None else (land_args, land_plan)
-        self.C = Cells(safe_args, safe is not None, land_args, safe_plan, land_plan, land is not None)
+        # without safe cells, the landing cells' arrays in their place, which nothing reads (has_safe), for one
+        # compilation
+        safe_args, safe_plan = (safe.kernel_args, safe.plan_args) if safe is not None else (land.kernel_args,
+                                                                                            land.plan_args)
+        self.C = Cells(safe_args, safe is not None, land.kernel_args, safe_plan, land.plan_args)
         W, z_top, z_floor, z_left, V, has_V, inside = la.table_args
         has_S = "V_safe" in la.fields
         self.T = TableArgs(W, z_top, z_floor, z_left, V, has_V, kernel_field(*la.fields["V_safe"]) if has_S else V,
@@ -367,6 +357,9 @@ class CompiledDecision:
         if getattr(model, "set_max_kernel", None) is None:
             return (f"{name} gives no compiled set maxima: declare set_boxes (box-distance sets) or add a "
                     f"set_max_kernel with set_max_params")
+        if getattr(model, "cell_shape", None) is None:
+            return (f"{name} declares no cell_shape: add the number of cells per state axis over hard_box on which "
+                    f"the filter proves what it certifies, as docs/models.md's cart does (cell_shape = (320, 320))")
         # a model's own set_box_max (sets not convex along each axis) must be what its own compiled kernel computes:
         # the default kernel (box distances) does not know of it
         n = model.state_dim
@@ -471,21 +464,3 @@ class CompiledDecision:
             named_one = decision_space(self.filter.lookahead.n, m, J)
             space = self._local.space = (named_one, plain(named_one))
         return space
-
-
-def best_candidate(la: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The one-period test of ``la`` (a :class:`~softreach.reach.proof.lookahead.Lookahead` on fields, no cells)
-    from each state, as :meth:`~softreach.filters.ValueFilter.certify` asks it (:func:`~softreach.filters.
-    compiled_certify.certify_rows`): whether the best candidate passes, and its worst next certificate (read only
-    where it passes). The held solve's consistency pass asks it of two snapshots of fields, not of a table
-    (:func:`~softreach.reach.numerics.held.make_consistent`).
-
-    :raises ValueError: the model does not give what the compiled test needs (:meth:`CompiledDecision.missing`)
-    """
-    missing = CompiledDecision.missing(la.model)
-    if missing is not None:
-        raise ValueError(f"the filter's one-period test cannot run for model {la.model.name!r}: {missing}")
-    bare = SimpleNamespace(lookahead=la, model=la.model, safe_cells=None, landing_cells=None,
-                           fallback_action=la.a_mid, threads=default_threads(), rule="switch", smooth_iterations=0)
-    ok, nxt, _, _, _ = CompiledDecision(bare).certify(np.asarray(t, dtype=np.float64), x, z)
-    return ok, nxt

@@ -49,11 +49,6 @@ class Motion(NamedTuple):
     budget_slack: float
     #: the environment computes as the test assumes (:attr:`Lookahead.exact_env`): the allowances apply
     exact_env: bool
-    #: without landing cells: the end states pass where the table's worst value is at most ``-margin``
-    margin: float
-    #: without landing cells: the last sample times before the horizon whose end boxes a witness judges
-    #: (:func:`~softreach.filters.table_pass.witness`)
-    exact_periods: int
 
 
 class Cells(NamedTuple):
@@ -70,8 +65,6 @@ class Cells(NamedTuple):
     safe_plan: tuple
     #: the landing cells' plans
     land_plan: tuple
-    #: whether there are landing cells (without them the table certifies, :mod:`softreach.filters.table_pass`)
-    has_land: bool
 
 
 class TableArgs(NamedTuple):
@@ -111,7 +104,7 @@ class ActionMap(NamedTuple):
 class Verdict(NamedTuple):
     """What :func:`~softreach.filters.judge.judge` finds of one held action without reading the table."""
 
-    #: the action passes by the cells
+    #: the action passes: its period keeps ``C1`` and the budget and its end box lies in the landing cells
     ok: bool
     #: every run surely lands inside the period
     lands: bool
@@ -161,7 +154,7 @@ class DecisionSpace(NamedTuple):
     ``c_*`` hold one entry per candidate."""
 
     work: Work
-    #: the end box of a candidate judged from a whole end box (:func:`~softreach.filters.judge.keeps`)
+    #: the end box of a candidate judged from a whole end box (:func:`~softreach.filters.keeps.keeps`)
     work_box: Box
     #: ``(J + 1, n)``: each candidate's end box, and the policy's (or the bisection's) in the last row
     end_lo: np.ndarray
@@ -192,10 +185,6 @@ class DecisionSpace(NamedTuple):
     c_order: np.ndarray
     #: ``(8, n)``: the start-plan search's boxes (:func:`~softreach.filters.compiled_starts.start_plan_rows`)
     boxes: np.ndarray
-    #: the witness's box and each candidate's end box from it (:func:`~softreach.filters.table_pass.witness`)
-    w_box: Box
-    w_lo: np.ndarray
-    w_hi: np.ndarray
 
 
 def plain(value: Any) -> Any:
@@ -213,4 +202,4 @@ def named(M, C, T, action):
 @njit(inline="always")
 def named_space(space):
     """The plain tuple of a :class:`DecisionSpace` named again."""
-    return DecisionSpace(Work(*space[0]), Box(*space[1]), *space[2:-3], Box(*space[-3]), *space[-2:])
+    return DecisionSpace(Work(*space[0]), Box(*space[1]), *space[2:])

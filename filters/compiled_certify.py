@@ -1,10 +1,9 @@
 """Whether states are certified, compiled: the numbers :meth:`~softreach.filters.ValueFilter.certify` needs of
 each row, by the decision's own parts (:mod:`softreach.filters.judge`) in the same arithmetic:
 
-* the best candidate: the candidate of least badness (a passing one by its
-  worst next certificate, else the least bad), whether it passes (by the landing cells, or without them by the
-  table, :mod:`softreach.filters.table_pass`), and its next certificate (``+inf`` where it does not pass, with
-  cells; without them the table's wherever its period keeps ``C1`` and the budget);
+* the best candidate: the candidate of least badness (a passing one by its worst next certificate, else the least
+  bad), whether it passes (its end box in the landing cells, or it surely lands), and its next certificate
+  (``+inf`` where it does not pass);
 * the certificate at the state, whether the state lies on the table and whether a landing cell holds it.
 
 ``tests/test_filter_reference.py`` compares :meth:`ValueFilter.certify` with the reference of ``docs/filters.md``.
@@ -20,7 +19,6 @@ from softreach.reach.proof.ranks import LOWEST_BAD
 
 from .compiled_args import Cells, Motion, TableArgs, named_space
 from .judge import badness, judge_once, next_value, on_table
-from .table_pass import table_verdict
 
 
 @njit(nogil=True, _nrt=False)
@@ -48,12 +46,10 @@ def certify_rows(enclose, m_args, c_args, t_args, cands, t, x, z, ok, nxt, value
             v = judge_once(enclose, M, C, tr, xr, xr, zr, cands[j], end_lo[j], end_hi[j], work)
             c_bounded[j], c_in[j], c_proven[j], c_c1[j], c_zend[j], t_next = (v.bounded, v.in_c1, v.proven, v.c1,
                                                                                v.z_end, v.t_next)
-            # without landing cells the table decides whether the end states pass
-            c_ok[j], a_lands, c_next[j] = table_verdict(enclose, M, C, T, cands, tr, xr, xr, zr, zr, cands[j], v,
-                                                        end_lo[j], end_hi[j], work, space)
-            c_kept[j] = v.kept or a_lands
+            c_ok[j], c_kept[j] = v.ok or v.lands, v.kept or v.lands
             # a passing candidate's badness is its next value (-inf: it surely lands)
-            if C.has_land and c_ok[j] and not a_lands:
+            c_next[j] = -np.inf if v.lands else np.inf
+            if v.ok and not v.lands:
                 c_next[j] = next_value(T, t_next, end_lo[j], end_hi[j], c_zend[j], zr, work)
             c_score[j] = c_next[j]
             # the first of the least, as np.argmin
@@ -68,4 +64,4 @@ def certify_rows(enclose, m_args, c_args, t_args, cands, t, x, z, ok, nxt, value
         # the best candidate's verdict and next value (a failing one's next value certifies nothing)
         ok[r], nxt[r] = c_ok[best], c_next[best]
         inside[r] = on_table(T.inside, tr, xr, max(zr, 0.0), point, work.scratch_W)
-        in_cells[r] = C.has_land and cover_row(C.land, tr, xr, xr, zr)
+        in_cells[r] = cover_row(C.land, tr, xr, xr, zr)

@@ -6,26 +6,21 @@ action by the value at the current state (the pointwise ``a*`` of a continuous-t
 overshoot the constraint it is riding); it judges the *held* action by where one period of it can go
 (:class:`~softreach.reach.proof.lookahead.Lookahead`):
 
-* the policy's action passes when holding it for one period provably keeps the state in ``C1`` and the budget
-  non-negative (or surely lands), and: where the model bounds boxes of starts, some candidate passes again from
-  every possible next state (so the next state is certified whatever the wind did); elsewhere, every possible
-  next state lies inside the certificate (``D <= -margin``, ``D = min(V~, W~_eps)``);
-* otherwise the filter applies a candidate held action (the table's, :meth:`Dynamics.held_candidates`) that
-  passes the same test: with ``rule="switch"`` the one whose worst next certificate is lowest, with
-  ``rule="smooth"`` the point closest to the policy's action on the segment from such a candidate.
+* an action **passes** when holding it for one period provably keeps the state in ``C1`` and the budget
+  non-negative and ends in the landing cells (:mod:`softreach.reach.proof.cell_certificate`), or surely lands;
+* the policy's action is applied when it passes, or when its period keeps ``C1`` and the budget and some candidate
+  passes again from every possible next state (so the next state is certified whatever the wind did);
+* otherwise the filter applies a candidate held action (:meth:`Dynamics.held_candidates`) that passes: with
+  ``rule="switch"`` the one whose worst next table value is lowest, with ``rule="smooth"`` the point closest to
+  the policy's action on the segment from such a candidate; where none passes, the plan of the state's cell.
 
-A state is **certified** when some candidate passes. Where the model has cells
-(:mod:`softreach.reach.proof.cell_certificate`), passing means ending in the landing cells, which proves the
-guarantee, and the table (continuous-time or sampled-data) only ranks the candidates. For a model without cells,
-the table solved for the sampled-data game (``softreach solve MODEL --held``) is what makes a candidate exist again
-after a certified step (its value is the minimum over the same candidates, held, against a wind free at every
-instant), and the audit (``benchmarks/audit_filter.py``) counts the rare states where none does (reason
-``"uncertified"``); with a continuous-time table the same checks run there, but nothing is certified.
+A state is **certified** when some candidate passes or a landing cell holds it. The cells are the whole proof;
+the table (any ``W_eps`` or ``Q_min`` table of the model, continuous-time or sampled-data) only ranks the
+candidates.
 
 :class:`ValueFilter` runs this decision compiled, row by row (:mod:`softreach.filters.compiled`,
-:attr:`ValueFilter.compiled`), with or without cells, on a ``W_eps`` table or a budget surface ``Q_min``; a model
-that does not give its enclosure and its sets' maxima compiled is refused at construction, with what to add
-(:meth:`~softreach.filters.compiled.CompiledDecision.missing`). ``tests/test_filter_reference.py`` checks the
+:attr:`ValueFilter.compiled`); a model that does not give its enclosure, its sets' maxima compiled and its cells
+is refused at construction, with what to add (:meth:`~softreach.filters.compiled.CompiledDecision.missing`). ``tests/test_filter_reference.py`` checks the
 decision against ``tests/reference_decision.py``, a slow transcription of ``docs/filters.md``.
 
 Everything works on batches: ``t`` and ``z`` are scalars or ``(N,)``, ``x`` is ``(N, n)`` (or ``(n,)``), actions
@@ -46,7 +41,7 @@ from softreach.reach.proof.blocks import default_threads
 from softreach.reach.proof.lookahead import Lookahead, exact_normalized
 
 from .compiled import CompiledDecision
-from .plans import NO_PLAN, PLAN_LAND, PLAN_SAFE, START_SEGMENTS, check_plans, resolve_cells, solved_for, start_plans
+from .plans import NO_PLAN, PLAN_LAND, PLAN_SAFE, START_SEGMENTS, check_plans, resolve_cells, start_plans
 from .reasons import AFTER_HORIZON, BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, REASONS, UNCERTIFIED
 from .single import filter_one
 from .tensors import batch_inputs, clip_unit, to_torch
@@ -56,20 +51,16 @@ __all__ = ["NO_PLAN", "PLAN_LAND", "PLAN_SAFE", "PASS", "BLEND", "OPTIMAL", "OUT
 
 RULES = ("switch", "smooth")
 #: why a state is or is not certified (:meth:`ValueFilter.certify`)
-CERTIFY_REASONS = ("certified", "table_not_sampled", "outside_table", "after_horizon", "not_in_set",
-                   "no_certified_action")
+CERTIFY_REASONS = ("certified", "outside_table", "after_horizon", "not_in_set", "no_certified_action")
 
 
 class ValueFilter:
     """The safety filter's core: one table, one control period, one rule.
 
-    :param table: a table with ``V`` and ``W_eps`` or the budget surface ``Q_min``. Where the model has cells
-        (:attr:`~softreach.reach.problem.Model.cell_shape`) they certify and the table only ranks candidates, so any
-        table of the model serves (``softreach solve MODEL``); otherwise certification needs one solved for this
-        control period (``softreach solve MODEL --held``, with ``--budget-surface`` for ``Q_min``)
+    :param table: a table of the model with ``W_eps`` or the budget surface ``Q_min`` (``softreach solve MODEL``,
+        continuous-time or ``--held``): it ranks the candidates; the cells certify
     :param dt: the control period [s] over which every action is held
-    :param margin: extra tightening ``>= 0`` of the next-state condition (``D <= -margin``), value units;
-        ``None`` means 0: the test is exact for the interpolant and needs none
+    :param margin: ``None`` or 0: the cells' proof needs no tightening (any other value is refused)
     :param rule: ``"switch"`` (most robust certified candidate) or ``"smooth"`` (closest to the policy)
     :param model: if given, the table must have been solved for it, else :class:`~softreach.reach.TableError`
     :param fallback_action: physical action where no candidate can be bounded; default the control box's centre
@@ -78,9 +69,14 @@ class ValueFilter:
     :param target_checks: the equally spaced instants per period at which the environment checks for landing
         (its sub-step ends; :class:`SafetyFilter` passes the env's ``n_substeps``). An action that surely lands
         at one of them passes. The default 1 (the period's end) is right for any environment.
+    :param safe_cells: ``"auto"`` (built or read from the cache), ``None`` (none: outside the landing cells the
+        choice is not bounded by cells that prove ``C1`` and the budget), or a
+        :class:`~softreach.reach.proof.cell_certificate.CellCertificate` of the ``"safe"`` game for this filter
+    :param landing_cells: ``"auto"`` or a :class:`~softreach.reach.proof.cell_certificate.CellCertificate` of the
+        ``"land"`` game for this filter: the certificate
     :param start_periods: the longest plan :meth:`certify_start` searches from a start state (0: none)
     :raises ValueError: the model does not give what the decision needs (a compiled ``held_box_kernel``, its sets'
-        maxima compiled), naming what to add, before any cell is built
+        maxima compiled, ``cell_shape``), naming what to add, before any cell is built; a ``margin`` other than 0
     """
 
     def __init__(self, table: Table, dt: float, *, margin: float | None = None, rule: str = "switch",
@@ -95,8 +91,9 @@ class ValueFilter:
                 and dt > 0):
             raise ValueError(f"dt must be a finite positive number of seconds, got {dt!r}")
         if margin is not None and not (isinstance(margin, (int, float, np.floating)) and not isinstance(margin, bool)
-                                       and math.isfinite(margin) and margin >= 0):
-            raise ValueError(f"margin must be None or a finite number >= 0, got {margin!r}")
+                                       and margin == 0):
+            raise ValueError(f"margin must be None or 0: the landing cells prove the guarantee and no table value "
+                             f"is compared with a margin, got {margin!r}")
         if not (isinstance(smooth_iterations, (int, np.integer)) and smooth_iterations >= 0):
             raise ValueError(f"smooth_iterations must be a non-negative integer, got {smooth_iterations!r}")
         if not (isinstance(start_periods, (int, np.integer)) and not isinstance(start_periods, bool)
@@ -120,7 +117,7 @@ class ValueFilter:
         self.smooth_iterations = int(smooth_iterations)
         self.start_periods = int(start_periods)
         self.eps = float(table.eps if eps is None else eps)
-        self.constant_margin = None if margin is None else float(margin)
+        self.constant_margin = None if margin is None else 0.0
         self.n, self.m = self.model.state_dim, self.model.control_dim
         self.a_lo = np.array(self.model.control_bounds[0], dtype=np.float64)
         self.a_hi = np.array(self.model.control_bounds[1], dtype=np.float64)
@@ -133,19 +130,13 @@ class ValueFilter:
             if fb.shape != (self.m,) or not np.all(np.isfinite(fb)):
                 raise ValueError(f"fallback_action must be {self.m} finite physical value(s), got {fallback_action!r}")
             self.fallback_action = np.clip(fb, self.a_lo, self.a_hi)
-        #: the table was solved for the sampled-data game at this period
-        self.sampled = solved_for(table, self.dt)
-        self.lookahead = Lookahead.from_table(table, self.model, self.dt, self.eps, margin=self.constant_margin or 0.0,
-                                              target_checks=target_checks)
+        self.lookahead = Lookahead.from_table(table, self.model, self.dt, self.eps, target_checks=target_checks)
         self.target_checks = self.lookahead.target_checks
         #: the cells that prove C1 and the budget, and landing by T (:mod:`softreach.reach.proof.cell_certificate`);
         #: every applied action ends in them where the state is in them
         self.safe_cells = resolve_cells(self, safe_cells, "safe")
         self.landing_cells = resolve_cells(self, landing_cells, "land")
         self.lookahead.safe_cells, self.lookahead.landing_cells = self.safe_cells, self.landing_cells
-        #: a step can be certified: the landing cells prove it (the table, solved for this period or in continuous
-        #: time, then only ranks candidates), or, for a model without cells, the table was solved for this period
-        self.certifiable = self.landing_cells is not None or self.sampled
         #: the decision, compiled (:mod:`softreach.filters.compiled`)
         self.compiled = CompiledDecision(self)
         #: threads that share a large batch of the compiled decision (blocks of at least
@@ -191,9 +182,7 @@ class ValueFilter:
         after = tt >= self.lookahead.horizon - 1e-9
         reasons = []
         for i in range(len(xs)):
-            if not self.certifiable:
-                reasons.append("table_not_sampled")
-            elif after[i]:
+            if after[i]:
                 reasons.append("after_horizon")
             elif not inside[i]:
                 reasons.append("outside_table")
@@ -255,9 +244,8 @@ class ValueFilter:
             bit). ``info``: ``value`` (the certificate ``D`` at the state), ``margin``, ``active`` (the filter
             changed the action), ``reason`` (codes of :data:`REASONS`), ``optimal_action`` (the candidate the
             filter chose; NaN where the policy passed and none was needed), ``blend`` (``1`` where the policy's
-            action passed), ``lookahead`` (the worst next certificate of the applied action, ``+inf`` where it
-            may leave ``C1``, overspend or leave the table), ``certified`` (the applied action passed the test
-            and, as :meth:`certify` asks, the table was solved for this control period),
+            action passed), ``lookahead`` (the worst next table value of the applied action, ``+inf`` where it
+            does not pass), ``certified`` (the applied action passed the test, or follows a landing cell's plan),
             ``plan`` (numpy ``(N, 3)`` ints: the cells' plan the filter follows: candidate index, periods still to
             hold it, and whose plan, :data:`PLAN_LAND` or :data:`PLAN_SAFE`; :data:`NO_PLAN`: none)
         :param plan: the ``info["plan"]`` this filter returned at the previous step of the same runs (``None`` at the
@@ -290,7 +278,7 @@ class ValueFilter:
             chosen = self.normalized(chosen)
         margin = np.full(N, self.constant_margin or 0.0)
         info = {"value": value, "margin": margin, "active": active, "reason": reason, "optimal_action": chosen,
-                "blend": blend, "lookahead": nxt, "certified": ok & ~after & self.certifiable}
+                "blend": blend, "lookahead": nxt, "certified": ok & ~after}
         if single:
             applied = applied[0]
             info = {k: v[0] for k, v in info.items()}

@@ -150,10 +150,8 @@ def meets_target(M, tube_lo, tube_hi):
 
 @njit(inline="always")
 def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
-    """What the one-period test decides without the table, for one row: a
-    :class:`~softreach.filters.compiled_args.Verdict`; writes the end box into ``end_lo``, ``end_hi``. Without
-    landing cells its ``ok`` is ``kept`` and ``lands`` is asked only of a period that does not keep: the table's
-    part is :func:`~softreach.filters.table_pass.table_verdict`'s."""
+    """The one-period test of one row, which reads no table: a :class:`~softreach.filters.compiled_args.Verdict`;
+    writes the end box into ``end_lo``, ``end_hi``. ``lands`` is asked only of an action that does not pass."""
     params, slack = M.params, M.slack
     edges, horizon = M.edges, M.horizon
     safe, has_safe, land = C.safe, C.has_safe, C.land
@@ -178,9 +176,7 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     kept = bounded and c1 <= 0 and z_end >= 0 and in_time
     in_c1 = bounded and c1 <= 0 and in_time
     safe_end = kept and (not has_safe or cover_row(safe, t_next, end_lo, end_hi, z_end))
-    # without landing cells the table decides whether the end states pass (softreach.filters.table_pass): here ok
-    # is only that the period keeps C1 and the budget
-    ok = safe_end and (not C.has_land or cover_row(land, t_next, end_lo, end_hi, z_end))
+    ok = safe_end and cover_row(land, t_next, end_lo, end_hi, z_end)
     meets = meets_target(M, tube_lo, tube_hi)
     lands = False
     if not ok and bounded and in_time and meets:

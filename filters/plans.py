@@ -10,7 +10,6 @@ at the next step: the state is then inside the box chain the plan was proven for
 from __future__ import annotations
 
 import json
-import math
 from typing import Any
 
 import numpy as np
@@ -38,34 +37,23 @@ def has_cells(model: Any) -> bool:
     return getattr(model, "cell_shape", None) is not None and bounds_boxes(model)
 
 
-def solved_for(table: Any, dt: float) -> bool:
-    """Whether ``table`` was solved for the sampled-data game at the control period ``dt``."""
-    period = table.control_period
-    return period is not None and math.isclose(period, dt, rel_tol=1e-9, abs_tol=0.0)
-
-
-def certifies(table: Any, dt: float) -> bool:
-    """Whether a filter of ``table`` at the control period ``dt`` (default cells) can certify: the model has cells,
-    which prove whatever table ranks the candidates, or the table was solved for the sampled-data game at ``dt``
-    (:attr:`~softreach.filters.ValueFilter.certifiable`)."""
-    return has_cells(table.model) or solved_for(table, dt)
-
-
 def resolve_cells(vf: Any, cells: Any, game: str) -> CellCertificate | None:
-    """The cells a filter uses for ``game``: ``"auto"`` builds them (or reads the cache) where the model declares
-    ``cell_shape`` and bounds boxes of starts; ``None`` none; a :class:`CellCertificate` is checked against the
-    filter (model, period, ``h_eps``, candidates, checks). The cells read no table: one solved in continuous time
-    serves as well as one of the sampled-data game."""
+    """The cells a filter uses for ``game``: ``"auto"`` builds them (or reads the cache) from the model's
+    ``cell_shape``; ``None`` none (safe cells only: the landing cells are the certificate); a
+    :class:`CellCertificate` is checked against the filter (model, period, ``h_eps``, candidates, checks). The cells
+    read no table: one solved in continuous time serves as well as one of the sampled-data game."""
     name = "safe_cells" if game == "safe" else "landing_cells"
     la = vf.lookahead
     if isinstance(cells, str) and cells == "auto":
-        if not has_cells(vf.model):
-            return None
         return cached(la, vf.model.cell_shape, game=game, holds=vf.model.cell_holds)
-    if cells is None:
+    if cells is None and game == "safe":
         return None
+    if cells is None:
+        raise ValueError("landing_cells must be 'auto' or a CellCertificate: the landing cells are the filter's "
+                         "certificate, without them it certifies nothing")
     if not isinstance(cells, CellCertificate):
-        raise TypeError(f"{name} must be 'auto', None or a CellCertificate, got {type(cells).__name__}")
+        raise TypeError(f"{name} must be 'auto'{', None' if game == 'safe' else ''} or a CellCertificate, got "
+                        f"{type(cells).__name__}")
     if cells.game != game:
         raise ValueError(f"{name} must be cells of the {game!r} game, got {cells.game!r}")
     want = cell_key(la, cells.shape, cells.dz, game, cells.key.get("holds", (1,)), cells.key.get("span_cap", 32))

@@ -25,20 +25,23 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
 
     :param table: a :class:`~softreach.reach.tables.table.Table` (or its path)
     :param period: the control period [s] (default: the table's)
-    :param cells: give the filter the model's cells (built or unpacked where missing); without them it runs the same
-        compiled code, which is all that compiling ahead needs
+    :param cells: give the filter the model's cells (built or unpacked where missing); ``False``: cells that
+        certify nothing (:meth:`~softreach.reach.proof.cell_certificate.CellCertificate.empty`), with which it runs
+        the same compiled code, which is all that compiling ahead needs
     :return: ``model``, ``compiled`` (always true: every filter decides compiled; a model without what it needs
         is refused by :class:`~softreach.filters.ValueFilter`, with ``missing`` then never reached), ``seconds``,
         ``source`` (``"compiled"`` now, loaded from the ``"cache"``, or already in this ``"process"``) and
         ``cache`` (the folder of the compiled code, :func:`softreach.reach.jit.compiled_cache_dir`)
     """
     from softreach.reach import load_table
+    from softreach.reach.proof.cell_certificate import CellCertificate
+    from softreach.reach.proof.lookahead import Lookahead
 
     from . import ValueFilter
     from .compiled import decide_rows
     from .compiled_certify import certify_rows
     from .compiled_starts import start_plan_rows
-    from .plans import START_SEGMENTS, has_cells
+    from .plans import START_SEGMENTS
 
     if not hasattr(table, "model"):
         table = load_table(table)
@@ -47,16 +50,20 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
         raise ValueError(f"softreach compile needs a W_eps or Q_min table (softreach solve {model.name} --held); "
                          f"{table.path} holds only the classical V")
     if period is None and table.control_period is None:
-        if not has_cells(model):
-            raise ValueError(f"softreach compile needs a table of the sampled-data game (softreach solve "
-                             f"{model.name} --held) or --period SECONDS; {table.path} was solved in continuous time")
+        if model.control_period is None:
+            raise ValueError(f"softreach compile needs --period SECONDS: {table.path} was solved in continuous time "
+                             f"and {model.name} declares no control_period")
         period = model.control_period  # the cells certify; the table only ranks, at the env's period
     dt = float(period if period is not None else table.control_period)
     hits, misses = (sum(c.values()) for c in (decide_rows.stats.cache_hits, decide_rows.stats.cache_misses))
     t0 = time.perf_counter()
     # the landing checks SafetyFilter asks for: the same compiled code as any other count, and cells it ships
-    no_cells = {} if cells else {"safe_cells": None, "landing_cells": None}
-    vf = ValueFilter(table, dt, target_checks=getattr(model, "substeps", 1), **no_cells)
+    checks = getattr(model, "substeps", 1)
+    empty = {}
+    if not cells:
+        la = Lookahead.from_table(table, model, dt, table.eps, target_checks=checks)
+        empty = {"safe_cells": None, "landing_cells": CellCertificate.empty(la)}
+    vf = ValueFilter(table, dt, target_checks=checks, **empty)
     out: dict[str, Any] = {"model": model.name, "compiled": True, "seconds": 0.0, "source": None, "cache": None,
                            "missing": None}
     # a state in the middle of the table's grid; what the decision finds there does not matter

@@ -68,7 +68,7 @@ def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, p
         out, chosen_out = applied[0].copy(), chosen[0].copy()
     info = {"value": value[0], "margin": np.float64(vf.constant_margin or 0.0), "active": np.bool_(active),
             "reason": np.int64(code), "optimal_action": chosen_out, "blend": blend[0], "lookahead": nxt[0],
-            "certified": np.bool_(bool(ok[0]) and not after and vf.certifiable), "plan": new_plans[0].copy()}
+            "certified": np.bool_(bool(ok[0]) and not after), "plan": new_plans[0].copy()}
     return out, info
 
 

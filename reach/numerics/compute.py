@@ -17,7 +17,7 @@ from .. import backend as B
 from .grid import Grid, budget_axis
 from ..problem import Model, avoid_problem, check_edges, classical_problem, soft_problem
 from .budget_surface import budget_problem, solve_budget_surface
-from .held import consistency_gaps, make_consistent, solve_held
+from .held import solve_held
 from .solver import SolverSettings, solve
 from ..tables.table import BackgroundWrites, TableWriter
 
@@ -51,11 +51,6 @@ class SolveConfig:
     control_period: float | None = None
     #: candidate held actions per control axis (sampled-data game only); ``None``: the model's ``held_levels``
     held_levels: int | None = None
-    #: sampled-data game only: nodes with values in ``[-band, 0]`` are made consistent with the filter's
-    #: one-period test (:func:`softreach.reach.numerics.held.make_consistent`); value units
-    consistency_band: float = 0.1
-    #: sampled-data game only: states per sample time for the between-node gap diagnostics
-    consistency_samples: int = 20000
     #: solve the budget surface ``Q_min`` on the state grid instead of ``W_eps`` on ``(x, z)``
     #: (:mod:`softreach.reach.numerics.budget_surface`); ``budget_points`` is then unused
     budget_surface: bool = False
@@ -165,8 +160,8 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
 
         from ..proof.enclosure_check import check_model_for_filter
         check_model_for_filter(model, cfg.control_period, "softreach solve --held", cells=model.cell_shape is not None)
-        # the consistency pass runs the filter's compiled test: a model without its set maxima is refused now, not
-        # after the solve
+        # a table of the sampled-data game is made for a filter: a model the filter cannot decide for is refused
+        # now, not after the solve
         lacking = CompiledDecision.missing(model)
         if lacking is not None:
             raise ValueError(f"softreach solve --held: the safety filter cannot decide for model {model.name!r}: "
@@ -248,23 +243,6 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
             walls[name] = before + time.perf_counter() - t0
             if bar is not None:
                 bar.close()
-        if held and (aug is not None or cfg.budget_surface) and not writer.header.get("consistency"):
-            t0 = time.perf_counter()
-            arrays = {name: (np.stack([writer.read_snapshot(name, k) for k in range(len(times))]), times, grid)
-                      for name, (_, grid) in problems.items()}
-            bar = _progress(len(times) - 1, "consistency with the filter's test", progress)
-            stats = make_consistent(model, arrays, cfg.control_period, cfg.eps, np.asarray(controls),
-                                    band=cfg.consistency_band, progress=bar,
-                                    cap=problems["Q_min"][0].cap if "Q_min" in problems else None)
-            if bar is not None:
-                bar.close()
-            for name, (vals, _, _) in arrays.items():
-                for k in range(len(times)):
-                    writer.write_snapshot(name, k, vals[k])
-            gaps = consistency_gaps(model, arrays, cfg.control_period, cfg.eps, np.asarray(controls),
-                                    samples=cfg.consistency_samples)
-            walls["consistency"] = time.perf_counter() - t0
-            writer.set(consistency={"band": cfg.consistency_band, **stats, "between_nodes": gaps})
         writer.set(wall_time=walls)
         path = writer.finalize()
     finally:

@@ -140,6 +140,22 @@ class CellCertificate:
                                cell_width=(np.asarray(model.hard_box[1]) - model.hard_box[0]) / np.asarray(shape))
         return cell_game.solve(cls, la, key)
 
+    @classmethod
+    def empty(cls, lookahead: Any, game: str = "land", holds: Any = (1,)) -> "CellCertificate":
+        """Cells that certify nothing: one cell per axis, good at no budget and no time. Sound, and built in no
+        time: a filter with them runs the same compiled code as one with solved cells (what compiling the filter
+        ahead needs, :mod:`softreach.filters.background`)."""
+        la, model = lookahead, lookahead.model
+        if model.hard_box is None:
+            raise ValueError(f"{model.name} declares no hard_box; the cells tile it")
+        shape = (1,) * model.state_dim
+        key = cell_key(la, shape, None, game, holds)
+        steps = int(round(la.horizon / la.dt))
+        never = int(round(la.horizon / key["dz"])) + 1
+        m = np.full((steps + 1,) + shape, never, np.int16)
+        return cls(model.hard_box[0], model.hard_box[1], m, np.full(m.shape, -1, np.int8), np.zeros(m.shape, np.int8),
+                   la.candidates, la.dt, key["dz"], la.horizon, game, key)
+
     # ---------------------------------------------------------------- cell arithmetic
     def _cell_range(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """First and last cell index per axis a box ``[lo, hi]`` touches (closed cells), and whether it lies on

@@ -3,11 +3,9 @@
 This module holds the test's parameters (:class:`Lookahead`: the candidates, the allowances, the table's fields as
 the compiled code reads them) and the numpy box bounds that the cells' builder shares
 (:mod:`softreach.reach.proof.cell_game`); the test itself runs compiled (:mod:`softreach.filters.judge`,
-:mod:`softreach.filters.compiled`), once for the filter and the held solve's consistency pass alike.
+:mod:`softreach.filters.compiled`).
 
-The certificate is the table's interpolant ``D(t, x, z) = min(V~(t, x), W~(t, x, z))`` (``V~`` only with
-``z >= 0``): ``V <= 0`` lands without spending budget, ``W_eps <= 0`` lands spending at most ``z``. For a
-held action ``a`` and *every* disturbance signal in its box (switching at any instant, also in answer to ``a``),
+For a held action ``a`` and *every* disturbance signal in its box (switching at any instant, also in answer to ``a``),
 the model's :meth:`~softreach.reach.dynamics.Dynamics.held_enclosure` gives a box ``T`` holding the whole
 motion of the period and a box ``E`` holding its end point. The action is **admissible** when
 
@@ -18,11 +16,12 @@ motion of the period and a box ``E`` holding its end point. The action is **admi
    equal pieces of the period (:meth:`~softreach.reach.dynamics.Dynamics.held_tube_pieces`): the budget
    spent in the period, crossings of ``C2`` included, is at most that (``h_eps`` grows with ``c2``, also convex,
    so each maximum is at a corner), and the budget never goes negative, with no allowance of a period;
-3. ``max_{E x [z', z]} D(t + dt, .) <= -margin``: every possible end state lies inside the certificate at the
-   next sample time.
-   The maximum of the interpolant over the box is exact (:func:`softreach.reach.proof.box_max.box_max`), so no
-   interpolation allowance is needed: the certificate *is* the interpolant. ``margin`` (default 0) is an extra
-   tightening a user may ask for.
+3. ``E x [z', z]`` lies in the landing cells at the next sample time
+   (:mod:`softreach.reach.proof.cell_certificate`), which prove landing by ``T`` from every state in them.
+
+The table only ranks: its interpolant ``D(t, x, z) = min(V~(t, x), W~(t, x, z))`` (``V~`` only with ``z >= 0``;
+``V <= 0`` lands without spending budget, ``W_eps <= 0`` spending at most ``z``), maximised exactly over the end
+box (:func:`softreach.reach.proof.box_max.box_max`), is an admissible action's worst next value, lower first.
 
 The episode also ends when the target is reached *inside* a period, so an action also passes when every run
 surely lands at one of the environment's check instants (:mod:`softreach.reach.proof.landing`).
@@ -32,17 +31,9 @@ Each box compared with a set or a cell holds the environment's own numbers, roun
 check instant on, :meth:`Lookahead.checked_c1`), and a period that may spend is charged :func:`budget_allowance`
 more. The candidates are actions an environment applies exactly (:func:`representable`).
 
-A budget-surface table (``softreach solve MODEL --held --budget-surface``) gives the same test with
-``W~(t, x, z)`` replaced by ``Q~_min(t, x) - min(z, T - t)``: its maximum over ``E x [z', z]`` is
-``max_E Q~_min - min(z', T - t)``, again exact for the interpolant, and ``+inf`` on every cell with a node where no
-budget suffices (there ``Q_min`` is infinite, stored at a cap, and nothing says where between nodes feasibility
-ends).
-
-At the horizon the table holds the terminal value ``max(c1, c2, -kappa z, g)``, whose interpolant is ``<= 0``
-only inside the target (it is convex, and a multilinear interpolant of a convex function lies above it): a chain
-of admissible actions from ``t = 0`` therefore ends landed by ``T``. ``Q_min``'s terminal value is ``0`` on the
-target inside ``C2`` and capped elsewhere, so ``Q~_min - 0 <= 0`` holds only in cells whose every node is in
-the target inside ``C2``: inside it, where the target is convex.
+A budget-surface table (``softreach solve MODEL --budget-surface``) ranks with ``W~(t, x, z)`` replaced by
+``Q~_min(t, x) - min(z, T - t)``: its maximum over ``E x [z', z]`` is ``max_E Q~_min - min(z', T - t)``, and
+``+inf`` on every cell with a node where no budget suffices (there ``Q_min`` is infinite, stored at a cap).
 """
 
 from __future__ import annotations
@@ -217,22 +208,14 @@ class Lookahead:
     :param dt: the control period [s]
     :param eps: the ``h_eps`` width with which the environment drains the budget
     :param candidates: ``(J, m)`` physical held actions the filter may fall back on
-    :param margin: extra tightening ``>= 0`` of the end-state condition (value units)
     :param pieces: sub-intervals of the period for the budget bound (item 2)
     :param target_checks: the instants per period at which the environment checks for landing (its sub-steps);
         it must check at least there (the point-mass env has 10 sub-steps, the glider's 2)
-    :param exact_periods: how many of the last sample times before the horizon judge end boxes by a witness
     """
 
     def __init__(self, fields: dict[str, tuple[Any, np.ndarray, Any]], model: Any, dt: float, eps: float,
-                 candidates: Any, margin: float = 0.0, pieces: int = 4, target_checks: int = 1,
-                 exact_periods: int = 10):
-        self.model, self.dt, self.eps, self.margin = model, float(dt), float(eps), float(margin)
-        if not (isinstance(exact_periods, (int, np.integer)) and exact_periods >= 0):
-            raise ValueError(f"exact_periods must be an integer >= 0, got {exact_periods!r}")
-        #: end boxes at the last ``exact_periods`` sample times before the horizon are judged by a witness, not
-        #: by the table (:func:`softreach.filters.table_pass.witness`)
-        self.exact_periods = int(exact_periods)
+                 candidates: Any, pieces: int = 4, target_checks: int = 1):
+        self.model, self.dt, self.eps = model, float(dt), float(eps)
         self.pieces = int(pieces)
         if not (isinstance(target_checks, (int, np.integer)) and target_checks >= 1):
             raise ValueError(f"target_checks must be a positive integer, got {target_checks!r}")
@@ -283,23 +266,17 @@ class Lookahead:
         box = model.target_box
         self.target_lo, self.target_hi = (None, None) if box is None else (np.asarray(box[0], float),
                                                                             np.asarray(box[1], float))
-        from ..dynamics import bounds_boxes
-
         #: cells that prove ``C1`` and the budget (``safe_cells``) and landing by ``T`` (``landing_cells``),
-        #: :class:`~softreach.reach.proof.cell_certificate.CellCertificate`: an admissible action must end in them. With
-        #: landing cells they, not the table, certify the end states. ``None``: not used
+        #: :class:`~softreach.reach.proof.cell_certificate.CellCertificate`: an admissible action must end in them
         self.safe_cells = None
         self.landing_cells = None
-        #: the model bounds boxes of starts: the filter can ask that the next state be certified again
-        self.box_support = bounds_boxes(model)
         #: ``(address, params)`` of the model's compiled set maxima (:attr:`~softreach.reach.problem.Model.
         #: set_max_kernel`), which :meth:`_corner_max` runs; ``None``: the set functions at the corners, in numpy
         self.set_kernel = ((set_max_address(model), model.set_max_params)
                            if getattr(model, "set_max_kernel", None) is not None else None)
 
     @classmethod
-    def from_table(cls, table: Any, model: Any, dt: float, eps: float, margin: float = 0.0,
-                   target_checks: int = 1) -> "Lookahead":
+    def from_table(cls, table: Any, model: Any, dt: float, eps: float, target_checks: int = 1) -> "Lookahead":
         """The test against a solved table's ``V`` and ``W_eps``, with the candidates it was solved with."""
         fields = {name: (table.values(name), table.times(name), table.grid(name))
                   for name in ("V", "W_eps", "Q_min", "V_safe") if name in table.header["fields"]}
@@ -307,8 +284,7 @@ class Lookahead:
         if budget is None:
             raise ValueError(f"table {table.path} holds only the classical V; the filter needs W_eps or Q_min")
         held = table.header["fields"][budget].get("held_controls")
-        return cls(fields, model, dt, eps, held if held else model.held_candidates(), margin,
-                   target_checks=target_checks)
+        return cls(fields, model, dt, eps, held if held else model.held_candidates(), target_checks=target_checks)
 
     # ---------------------------------------------------------------- the certificate
     def certificate(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> np.ndarray:
