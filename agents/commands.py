@@ -216,30 +216,25 @@ def run_train(args: argparse.Namespace) -> int:
 
 
 def train_notes(spec: Any) -> list[str]:
-    """What ``softreach train`` says before it starts: a filter table that certifies nothing (a model without cells
-    and a table solved in continuous time, or for another control period), and a step count SB3 will round up (its
-    whole rollouts)."""
-    from softreach.filters.plans import certifies
+    """What ``softreach train`` says before it starts: a step count SB3 will round up (its whole rollouts).
+
+    :raises ValueError: a filter table whose model the safety filter cannot decide for (no cells, no compiled
+        enclosure), naming what to add, before any training
+    """
+    from softreach.filters.compiled import CompiledDecision
     from softreach.reach import load_table
-    from softreach.reach.models import get_model
 
     from .config import learn_unit, planned_steps
     from .train import resolve
 
     run, algo, _ = resolve(spec)  # raises, naming the first bad value
     notes = []
-    period = get_model(spec.model).control_period
     for option, path in (("--filter", spec.filter), ("--eval-filter", spec.eval_filter)):
         if path is None:
             continue
-        table = load_table(path)
-        got = table.control_period
-        if not certifies(table, period):
-            solved = "in continuous time" if got is None else f"for a control period of {got:g} s"
-            notes.append(f"warning: {option} {path} was solved {solved}, not for the sampled-data game at the "
-                         f"environment's {period:g} s: its filter certifies no state, so it intervenes without the "
-                         f"filter's guarantee (evaluate --starts certified refuses it); for the guarantee, solve "
-                         f"`softreach solve {spec.model} --held`")
+        missing = CompiledDecision.missing(load_table(path).model)
+        if missing is not None:
+            raise ValueError(f"{option} {path}: the safety filter cannot decide for this model: {missing}")
     pretrain = run.pretrain_steps if spec.filter else 0
     unit = learn_unit(algo, run.n_envs)
     for what, asked in (("--pretrain-steps", pretrain), ("--timesteps", run.timesteps)):

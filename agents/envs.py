@@ -54,7 +54,6 @@ class CertifiedStarts(gym.Wrapper):
     holds. Explicit ``options`` win.
 
     :raises TypeError: no ``SafetyFilter`` in the wrapper stack
-    :raises ValueError: its table is not of the sampled-data game at the environment's period (it certifies nothing)
     """
 
     def __init__(self, env: gym.Env):
@@ -62,10 +61,6 @@ class CertifiedStarts(gym.Wrapper):
         filt = unwrap_filter(env)
         if filt is None:
             raise TypeError("CertifiedStarts needs a SafetyFilter in the wrapper stack (it certifies the starts)")
-        if not filt.value_filter.certifiable:
-            raise ValueError(f"table {filt.table.path} was not solved for the sampled-data game at this control "
-                             f"period (softreach solve MODEL --held) and the model has no cells: it certifies no "
-                             f"start")
         self.filter = filt
         self.rng = np.random.default_rng()
 

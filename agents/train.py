@@ -226,9 +226,6 @@ def train(spec: TrainSpec, *, model_class: Any = None, wrap_env: Any = None, cal
 
     from .callbacks import FilterEvalCallback, progress_callback
 
-    from softreach.filters.plans import certifies
-    from softreach.reach.models import get_model
-
     run, algo_cfg, env_settings = resolve(spec)
     point = resume_point(spec.resume, spec.model, spec.algo) if spec.resume is not None else None
     out = Path(spec.out) if spec.out else (point.run_dir if point else default_out(spec))
@@ -241,9 +238,7 @@ def train(spec: TrainSpec, *, model_class: Any = None, wrap_env: Any = None, cal
 
     # the periodic evaluations run the deployed closed loop: the filter the policy will fly under
     eval_filt = as_table(spec.eval_filter) if spec.eval_filter else filt
-    # a filter certifies starts where the model has cells, or with a table of the sampled-data game at the env's
-    # period (filters.plans.certifies)
-    certifying = eval_filt is not None and certifies(eval_filt, get_model(spec.model).control_period)
+    certifying = eval_filt is not None
 
     def env_fn(rank: int, learner: bool, filtered: bool = True, table=None):
         use = (table if table is not None else filt) if filtered else None

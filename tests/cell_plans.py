@@ -1,13 +1,30 @@
 """Test helpers for the cell certificates: every cell's box, flying a cell's stored plan with the environment's
 integrator under a wind that switches inside the period, the landing cells' nesting, and a filtered episode that
 keeps the promise (``tests/test_cell_certificate.py``, ``tests/test_glider_cells.py``, ``tests/test_dubins_cells.py``,
-``tests/test_models_api.py``)."""
+``tests/test_models_api.py``), and a model without cells (:func:`without_cells`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from softreach.reach.sim.integrator import integrate_period
+
+
+def without_cells(monkeypatch) -> None:
+    """Make the filter's check of a model (:meth:`~softreach.filters.compiled.CompiledDecision.missing`) see every
+    model as one that declares no ``cell_shape``: a copy of it without, so that the check itself runs."""
+    import copy
+
+    from softreach.filters.compiled import CompiledDecision
+
+    check = CompiledDecision.missing
+
+    def missing(model):
+        bare = copy.copy(model)
+        bare.cell_shape = None
+        return check(bare)
+
+    monkeypatch.setattr(CompiledDecision, "missing", staticmethod(missing))
 
 
 def cell_boxes(cells, k: int):

@@ -11,6 +11,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from cell_plans import without_cells
 
 from softreach.cli import build_parser, main
 
@@ -103,13 +104,11 @@ def test_compile_says_which_table_it_needs(tiny_table, capsys, monkeypatch):
     # the point mass has cells: a continuous-time table ranks for them, at the model's control period
     assert main(["compile", str(tiny_table)]) == 0
     assert "pointmass's filter" in capsys.readouterr().out
-    # a model without cells needs the sampled-data game's table (or the period to filter at)
-    from softreach.filters import plans
-
-    monkeypatch.setattr(plans, "has_cells", lambda model: False)
+    # a model without cells has no certificate: refused, naming what to add
+    without_cells(monkeypatch)
     assert main(["compile", str(tiny_table)]) == 2
     err = _one_line_error(capsys)
-    assert "softreach solve pointmass --held" in err and str(tiny_table) in err and "continuous time" in err
+    assert "declares no cell_shape" in err and "docs/models.md" in err
 
 
 @pytest.mark.parametrize("start,words", [
@@ -257,21 +256,19 @@ def test_resume_refuses_another_models_run(tmp_path, capsys):
     assert "that run trained glider with ppo, this one pointmass with ppo" in _one_line_error(capsys)
 
 
-def test_train_warns_of_a_filter_that_certifies_nothing_and_of_rounded_steps(tiny_table, monkeypatch):
+def test_train_refuses_a_filter_without_cells_and_warns_of_rounded_steps(tiny_table, monkeypatch):
     from softreach.agents.commands import train_notes
     from softreach.agents.train import TrainSpec
-    from softreach.filters import plans
 
-    # the point mass has cells, which certify whatever table ranks the candidates: nothing to warn of the table
+    # the point mass has cells, which certify whatever table ranks the candidates: nothing to say of the table
     notes = train_notes(TrainSpec(filter=str(tiny_table), timesteps=256, n_envs=8))
     assert len(notes) == 1
     assert "n_steps x n_envs = 256 x 8 = 2,048 steps, so --timesteps 256 trains 2,048 steps" in notes[0]
     assert train_notes(TrainSpec(timesteps=4096, n_envs=8)) == []
-    # a model without cells: a table solved in continuous time certifies nothing, and train says so
-    monkeypatch.setattr(plans, "has_cells", lambda model: False)
-    notes = train_notes(TrainSpec(filter=str(tiny_table), timesteps=4096, n_envs=8))
-    assert len(notes) == 1
-    assert "solved in continuous time" in notes[0] and "softreach solve pointmass --held" in notes[0]
+    # a model without cells has no certificate: refused before any training, naming what to add
+    without_cells(monkeypatch)
+    with pytest.raises(ValueError, match="--filter .*declares no cell_shape"):
+        train_notes(TrainSpec(filter=str(tiny_table), timesteps=4096, n_envs=8))
 
 
 @pytest.mark.parametrize("algo,asked,n_envs", [("ppo", 20, 2), ("sac", 5, 2)])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from cell_plans import without_cells
 
 from softreach.agents.evaluate import EvalSpec, evaluate
 from softreach.filters import ValueFilter
@@ -40,17 +41,16 @@ def test_filtered_from_certified_starts_is_safe(pointmass_held_table, wind):
     assert raw.aggregates["hard_violation_rate"]["count"] + raw.aggregates["over_budget_rate"]["count"] > 0
 
 
-def test_certified_starts_need_cells_or_a_sampled_data_table(pointmass_table_path, monkeypatch):
-    from softreach.filters import plans
+def test_certified_starts_need_cells(pointmass_table_path, monkeypatch):
     from softreach.reach import load_table
 
     # the point mass has cells, which certify whatever table ranks: a continuous-time table gives certified starts
     spec = EvalSpec(policy="random", table=str(pointmass_table_path), budget=0.3, episodes=2, starts="certified")
     starts = np.array([r["start_state"] for r in evaluate(spec).episodes])
     assert ValueFilter(load_table(pointmass_table_path), 0.01).certify(0.0, starts, 0.3)[0].all()
-    # a model without cells needs a table of the sampled-data game
-    monkeypatch.setattr(plans, "has_cells", lambda model: False)
-    with pytest.raises(ValueError, match="--held"):
+    # a model without cells has no certificate: refused, naming what to add
+    without_cells(monkeypatch)
+    with pytest.raises(ValueError, match="declares no cell_shape"):
         evaluate(spec)
 
 

@@ -20,7 +20,6 @@ class _RecordingFilter:
 
     def __init__(self, table, dt, **kwargs):
         self.table, self.dt, self.kwargs = table, dt, kwargs
-        self.sampled = self.certifiable = True
         _RecordingFilter.made.append({"dt": dt, **kwargs})
 
 
@@ -76,13 +75,13 @@ def test_certifier_takes_the_filter_of_the_same_table_file(monkeypatch):
     (its cells, its compiled decision) rather than building a second one for the same file."""
     made = []
     monkeypatch.setattr(filters_pkg, "ValueFilter", lambda *a, **k: made.append(k))
-    core = SimpleNamespace(certifiable=True)
+    core = SimpleNamespace()
     filt = SimpleNamespace(table=SimpleNamespace(path="runs/../runs/glider-held.srt"), value_filter=core)
     monkeypatch.setattr("softreach.agents.evaluate.unwrap_filter", lambda env: filt)
     assert certifier(SimpleNamespace(path="runs/glider-held.srt"), env=None) is core
     assert made == []
     # another file: its own certifier
-    vf = SimpleNamespace(certifiable=True)
+    vf = SimpleNamespace()
     monkeypatch.setattr(filters_pkg, "ValueFilter", lambda *a, **k: vf)
     env = SimpleNamespace(unwrapped=SimpleNamespace(dt=0.1, model=None, n_substeps=2))
     assert certifier(SimpleNamespace(path="runs/other.srt"), env=env) is vf
