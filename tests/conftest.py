@@ -35,8 +35,8 @@ from shared_tables import solved  # noqa: E402  (after the thread setting, befor
 from warm_up import phase_lock  # noqa: E402
 
 #: a module may use the filter if its text names it, the agents (which deploy it), a held table (which is for it),
-#: a held solve (whose consistency pass runs the filter's compiled test) or the filter's proof (whose compiled kernels
-#: the warm-up compiles too): such modules run last, and wait for a warm-up there is
+#: a held solve (which checks the model's enclosure with the proof's compiled kernels) or the filter's proof (whose
+#: compiled kernels the warm-up compiles too): such modules run last, and wait for a warm-up there is
 USES_FILTER = re.compile(r"softreach\.(filters|agents|reach\.proof)|ValueFilter|SafetyFilter|_held_table|\"--held\"")
 #: a module surely makes a filter decide: only a run with one of these starts a warm-up
 DECIDES = re.compile(r"ValueFilter\(|SafetyFilter\(|_held_table|\baudit\(|\bevaluate\(")

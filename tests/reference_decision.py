@@ -1,8 +1,6 @@
 """A slow, readable reference of the safety filter's decision, transcribed from ``docs/filters.md`` ("The one-period
-test", "Landing inside a period", "The last periods before the horizon are judged by a witness", "The rule", "The
-filter with cells", "Sound to the last bit"): plain Python loops over one row at a time, for tests only. With landing
-cells the cells decide whether an action's end states pass; without them the table does (its worst value over the
-end box at most ``-margin``, a witness in the last periods before the horizon).
+test", "Landing inside a period", "The filter with cells", "Sound to the last bit"): plain Python loops over one row
+at a time, for tests only. The landing cells decide whether an action's end states pass; the table only ranks.
 
 It shares with the filter only what is configuration or the model's, never the decision: the model's enclosure
 (``held_boxes``, the model's own ``held_box_kernel``) and set functions, the cells' stored arrays, the table's
@@ -55,9 +53,6 @@ class Judged:
     t_next: float
     end_lo: np.ndarray
     end_hi: np.ndarray
-    #: without landing cells: the table's worst value over the end box where the period keeps (``-inf`` where it
-    #: surely lands, ``+inf`` where it does not keep); ``None`` with cells
-    nxt: float | None = None
 
     @property
     def passes(self) -> bool:
@@ -83,7 +78,6 @@ class ReferenceDecision:
 
     def __init__(self, vf):
         la = vf.lookahead
-        self.margin, self.exact_periods = la.margin, la.exact_periods
         self.model, self.dt, self.eps = vf.model, la.dt, la.eps
         self.P, self.checks, self.horizon = la.pieces, la.target_checks, la.horizon
         self.slack, self.budget_slack, self.first, self.exact_env = la.slack, la.budget_slack, la.first_check, \
@@ -94,7 +88,6 @@ class ReferenceDecision:
         self.rule, self.iterations, self.fallback = vf.rule, vf.smooth_iterations, vf.fallback_action
         self.land, self.safe = vf.landing_cells, vf.safe_cells
         self.fields = la.fields
-        self.certifiable = vf.certifiable
         tb = self.model.target_box
         self.target = None if tb is None else (np.asarray(tb[0], float), np.asarray(tb[1], float))
 
@@ -266,30 +259,8 @@ class ReferenceDecision:
         return math.isfinite(self.box_max("W_eps", t, np.r_[x, min(z, Wg.hi[-1])], np.r_[x, min(z, Wg.hi[-1])]))
 
     # ------------------------------------------------------------ the one-period test
-    def in_window(self, t):
-        """One of the last ``exact_periods`` sample times before the horizon (the horizon excluded)."""
-        h = self.horizon
-        return t < h - 1e-9 and t + self.exact_periods * self.dt >= h - 1e-9 * max(1.0, h)
-
-    def witness(self, t, lo, hi, z_lo, z_hi):
-        """Held candidates applied to every state of the box at once, period after period, each the one of lowest
-        table value over its end box among those that keep ``C1`` and the budget, until one surely lands, or at the
-        horizon one's end states are inside the terminal certificate: does it land?"""
-        z_lo = max(z_lo, 0.0)
-        while True:
-            last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
-            judged = [self.judge(t, lo, hi, z_lo, c, z_hi=z_hi, exact=False) for c in self.cands]
-            if any(v.lands for v in judged) or (last and any(v.passes for v in judged)):
-                return True
-            usable = [j for j, v in enumerate(judged) if v.passes or (v.kept and not last)]
-            if not usable:
-                return False
-            j = min(usable, key=lambda j: (1e12 if judged[j].nxt == math.inf else judged[j].nxt, j))
-            t, lo, hi, z_lo = t + self.dt, judged[j].end_lo, judged[j].end_hi, max(judged[j].z_end, 0.0)
-
-    def judge(self, t, lo, hi, z, a, z_hi=None, exact=True) -> Judged:
-        """Holding ``a`` for one period from every state of ``[lo, hi]`` at budget ``z`` (the table read over the
-        budgets up to ``z_hi``, default ``z``; ``exact=False``: no witness, as the witness itself judges)."""
+    def judge(self, t, lo, hi, z, a) -> Judged:
+        """Holding ``a`` for one period from every state of ``[lo, hi]`` at budget ``z``."""
         dt = self.dt
         tube_lo, tube_hi = self.boxes(lo, hi, a, 0.0, dt)
         end_lo, end_hi = self.widened(*self.boxes(lo, hi, a, dt, dt))
@@ -300,16 +271,6 @@ class ReferenceDecision:
         t_next = min(t + dt, self.horizon)
         in_c1 = bounded and c1 <= 0 and in_time
         kept = in_c1 and z_end >= 0
-        if self.land is None:
-            nxt = self.next_value(t_next, end_lo, end_hi, z_end, z if z_hi is None else z_hi) if in_c1 else math.inf
-            if exact and math.isfinite(nxt) and self.in_window(t_next):
-                won = self.witness(t_next, end_lo, end_hi, z_end, z if z_hi is None else z_hi)
-                nxt = min(nxt, -self.margin) if won else max(nxt, 1e-12)
-            ok = kept and nxt <= -self.margin
-            lands = (not ok and bounded and in_time and self._meets_target(tube_lo, tube_hi)
-                     and self._lands(lo, hi, z, a))
-            return Judged(bounded, in_c1, kept, ok, lands, False, c1, z_end, t_next, end_lo, end_hi,
-                          -math.inf if lands else (nxt if kept else math.inf))
         safe_end = kept and (self.safe is None or self.covered(self.safe, t_next, end_lo, end_hi, z_end))
         ok = safe_end and self.covered(self.land, t_next, end_lo, end_hi, z_end)
         lands = False
@@ -342,27 +303,22 @@ class ReferenceDecision:
         return False
 
     def keeps(self, t, v: Judged, z) -> bool:
-        """The next state is certified whatever the wind does: with cells where the action passes (its end lies in
-        landing cells); where it surely lands or its period is the last, where it passes; else where its period
-        keeps ``C1`` and the budget and one candidate passes from every state of its end box, or, without cells,
-        where its end box lies in the witness window with a witness."""
-        if self.land is not None and v.passes:
+        """The next state is certified whatever the wind does: where the action passes (its end lies in landing
+        cells, or it surely lands); else where its period keeps ``C1`` and the budget before the horizon and one
+        candidate passes from every state of its end box."""
+        if v.passes:
             return True
         last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
-        if v.lands or not v.kept or last:
-            return v.passes
-        if self.land is None and self.in_window(t + self.dt) and v.nxt <= -self.margin:
-            return True
+        if not v.kept or last:
+            return False
         z_lo = max(v.z_end, 0.0)
-        return any(self.judge(t + self.dt, v.end_lo, v.end_hi, z_lo, c, z_hi=z).passes for c in self.cands)
+        return any(self.judge(t + self.dt, v.end_lo, v.end_hi, z_lo, c).passes for c in self.cands)
 
     def _next(self, v: Judged, z):
-        """The next value the filter reports for an action: ``-inf`` where it lands; with cells the table's over its
-        end box where it passes, ``+inf`` otherwise; without cells the table's where its period keeps."""
+        """The next value the filter reports for an action: ``-inf`` where it lands; the table's over its end box
+        where it passes, ``+inf`` otherwise."""
         if v.lands:
             return -math.inf
-        if v.nxt is not None:
-            return v.nxt
         return self.next_value(v.t_next, v.end_lo, v.end_hi, v.z_end, z) if v.ok else math.inf
 
     def _bad_key(self, v: Judged, z):
@@ -392,8 +348,7 @@ class ReferenceDecision:
         v = self.judge(t, x, x, z, pol)
         if self.keeps(t, v, z):
             nxt = self._next(v, z)
-            return Decision(pol, AFTER_HORIZON if after else PASS, (not after) and self.certifiable, -1, 1.0, nxt,
-                            NO_PLAN)
+            return Decision(pol, AFTER_HORIZON if after else PASS, not after, -1, 1.0, nxt, NO_PLAN)
         J = len(self.cands)
         judged = [self.judge(t, x, x, z, c) for c in self.cands]
         any_ok = any(c.passes for c in judged)
@@ -466,15 +421,15 @@ class ReferenceDecision:
             reason = OUTSIDE
         if after:
             reason = AFTER_HORIZON
-        return Decision(act if bounded else self.fallback.copy(), reason, any_ok and not after and self.certifiable,
-                        best, lam, best_next, new_plan, tied)
+        return Decision(act if bounded else self.fallback.copy(), reason, any_ok and not after, best, lam, best_next,
+                        new_plan, tied)
 
     def certified(self, t, x, z) -> bool:
         """``ValueFilter.certify``: in a landing cell, or some candidate's period passes."""
         x = np.asarray(x, dtype=np.float64)
-        if t >= self.horizon - 1e-9 or not self.certifiable or not self.on_table(t, x, max(z, 0.0)):
+        if t >= self.horizon - 1e-9 or not self.on_table(t, x, max(z, 0.0)):
             return False
-        in_cell = self.land is not None and self.covered(self.land, t, x, x, z)
+        in_cell = self.covered(self.land, t, x, x, z)
         return in_cell or any(self.judge(t, x, x, z, c).passes for c in self.cands)
 
 

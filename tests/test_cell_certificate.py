@@ -11,6 +11,7 @@ from softreach.filters import ValueFilter
 from softreach.filters.audit import Row, _policy, _wind, run_episode
 from softreach.reach import get_model
 from softreach.reach.proof.cell_certificate import CellCertificate
+from softreach.reach.proof.lookahead import Lookahead
 from softreach.reach.numerics.exact_pointmass import exact_member
 
 from cell_plans import cell_boxes, fly_plan_from_a_good_cell
@@ -23,9 +24,9 @@ HOLDS = (1, 2, 4)
 @pytest.fixture(scope="module")
 def vf(pointmass_held_table):
     model = get_model("pointmass")
-    plain = ValueFilter(pointmass_held_table, DT, target_checks=model.substeps, safe_cells=None, landing_cells=None)
-    safe = CellCertificate.build(plain.lookahead, SHAPE, game="safe", holds=HOLDS)
-    land = CellCertificate.build(plain.lookahead, SHAPE, game="land", holds=HOLDS)
+    la = Lookahead.from_table(pointmass_held_table, model, DT, pointmass_held_table.eps, target_checks=model.substeps)
+    safe = CellCertificate.build(la, SHAPE, game="safe", holds=HOLDS)
+    land = CellCertificate.build(la, SHAPE, game="land", holds=HOLDS)
     return ValueFilter(pointmass_held_table, DT, target_checks=model.substeps, safe_cells=safe, landing_cells=land)
 
 

@@ -1,5 +1,5 @@
 """The filter's decision against the slow, readable reference transcribed from ``docs/filters.md``
-(``tests/reference_decision.py``): the point mass and the glider with their cells, both rules, at random states,
+(``tests/reference_decision.py``): the point mass, the glider and Dubins with their cells, both rules, at random states,
 at states bisected onto the certified edge, on the faces of ``C1``, at no budget and just before ``T``, and in
 closed loop with the plans fed back and winds that switch inside the period."""
 
@@ -257,34 +257,32 @@ def test_glider_random_and_certified_states(glider):
     assert tied <= n // 20
 
 
-def test_glider_certify_is_the_references(glider):
-    vf, ref = glider
-    if vf.rule != "switch":
-        pytest.skip("certify does not depend on the rule")
+@pytest.mark.parametrize("table_name,z_hi,seed", [("glider_held_table", 11.0, 15), ("dubins_held_table", 2.5, 22)])
+def test_certify_is_the_references(request, table_name, z_hi, seed):
+    """``ValueFilter.certify`` of the glider and Dubins (certify does not depend on the rule): states across the
+    domain at random sample times, a third of them in the landing cells at ``t = 0``."""
+    table = request.getfixturevalue(table_name)
+    vf = ValueFilter(table, table.control_period, target_checks=table.model.substeps)
     lo, hi = (np.asarray(b, dtype=float) for b in vf.model.domain)
-    rng = np.random.default_rng(15)
-    x = rng.uniform(lo, hi, (300, 3))
-    z = rng.uniform(0.0, 11.0, 300)
+    rng = np.random.default_rng(seed)
+    x, z = rng.uniform(lo, hi, (300, 3)), rng.uniform(0.0, z_hi, 300)
     t = np.round(rng.uniform(0, vf.model.horizon, 300), 1)
-    x[:100], z[:100] = _in_cells(vf, lambda r, s: (r.uniform(lo, hi, (s, 3)), r.uniform(0.0, 11.0, s)), 100, 16)
+    x[:100], z[:100] = _in_cells(vf, lambda r, s: (r.uniform(lo, hi, (s, 3)), r.uniform(0.0, z_hi, s)), 100, seed + 1)
     t[:100] = 0.0
-    _certify_agrees(vf, ref, t, x, z, 30)
+    _certify_agrees(vf, ReferenceDecision(vf), t, x, z, 30)
 
 
-# ------------------------------------------------------------------ a model without cells: Dubins
+# ------------------------------------------------------------------ Dubins
 @pytest.fixture(scope="module", params=["switch", "smooth"])
 def dubins(request, dubins_held_table):
-    """Dubins without its cells (``landing_cells=None``): the held table certifies, and the last 10 periods before
-    ``T`` are judged by a witness."""
-    vf = ValueFilter(dubins_held_table, 0.1, rule=request.param, target_checks=get_model("dubins").substeps,
-                     landing_cells=None, safe_cells=None)
-    assert vf.landing_cells is None and vf.compiled is not None
+    """Dubins with its packaged cells for its env's landing checks."""
+    vf = ValueFilter(dubins_held_table, 0.1, rule=request.param, target_checks=get_model("dubins").substeps)
     return vf, ReferenceDecision(vf)
 
 
-def test_dubins_random_certified_and_late_states(dubins):
-    """States across the domain, certified states (by ``certify``) at every time, and states in the witness
-    window before the horizon; turn rates random and at the ends of their box."""
+def test_dubins_random_certified_and_edge_states(dubins):
+    """States across the domain, certified states (by ``certify``) at every time, late states before the horizon,
+    and states bisected onto the certified edge; turn rates random and at the ends of their box."""
     vf, ref = dubins
     model = vf.model
     lo, hi = (np.asarray(b, dtype=float) for b in model.domain)
@@ -325,13 +323,3 @@ def test_dubins_random_certified_and_late_states(dubins):
     assert counts.get(PASS, 0) > n // 5 and counts.get(UNCERTIFIED, 0) > 10, counts
     assert counts.get(OPTIMAL, 0) + counts.get(BLEND, 0) >= 3, counts
     assert tied <= n // 50
-
-
-def test_dubins_certify_is_the_references(dubins):
-    vf, ref = dubins
-    if vf.rule != "switch":
-        pytest.skip("certify does not depend on the rule")
-    lo, hi = (np.asarray(b, dtype=float) for b in vf.model.domain)
-    rng = np.random.default_rng(22)
-    x, z, t = rng.uniform(lo, hi, (400, 3)), rng.uniform(0, 2.5, 400), np.round(rng.uniform(0, 7.0, 400), 1)
-    _certify_agrees(vf, ref, t, x, z, 30)

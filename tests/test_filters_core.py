@@ -195,25 +195,6 @@ def test_held_sets_lie_inside_the_continuous_sets_and_grow_with_the_budget(point
     assert abs(held[0] - ra) <= 0.08 * ra  # Prop. 3 for the held game, up to the grid
 
 
-def test_held_table_is_consistent_with_the_test_at_its_nodes(pointmass_held_table):
-    stats = pointmass_held_table.header["consistency"]
-    for name in ("V", "W_eps"):
-        # nodes below the checked band are sampled: on this coarse grid a few of them are dead ends too
-        assert stats[name]["deep_inconsistent"] <= 0.01 * stats[name]["deep_sampled"], stats[name]
-    vf = ValueFilter(pointmass_held_table, DT)
-    g = pointmass_held_table.grid("W_eps")
-    W = np.asarray(pointmass_held_table.values("W_eps")[40])
-    idx = np.argwhere((W <= 0) & (W >= -0.1))
-    nodes = g.lo + idx * np.asarray(g.spacing)
-    nodes = nodes[nodes[:, 2] >= 0][::7]
-    x, z = nodes[:, :2], nodes[:, 2]
-    landed = vf.model.landed(0, [x[:, 0], x[:, 1]])
-    x, z = x[~landed], z[~landed]
-    certified = vf.certify(40 * DT, x, z)[0]
-    d = vf.value(40 * DT, x, z)
-    assert np.all(certified | (d > 0))
-
-
 # ------------------------------------------------------------------------------------------ the filter
 def test_the_policy_passes_exactly_when_its_held_period_keeps_the_state_certified(vfilter):
     rng = np.random.default_rng(2)
@@ -310,12 +291,11 @@ def test_certify_start_adds_only_starts_plans_to_certify(vfilter, pointmass_held
 
 
 def test_the_cells_not_the_table_decide_what_is_certified(pointmass_table, pointmass_held_table):
-    """Where the model has cells they prove and the table only ranks: a table solved in continuous time certifies
-    exactly the states that one of the sampled-data game on the same grid does. Without the cells it certifies
-    nothing: a continuous-time table is no proof for held actions."""
+    """The cells prove and the table only ranks: a table solved in continuous time certifies exactly the states
+    that one of the sampled-data game on the same grid does. Without landing cells there is no filter."""
     x = np.random.default_rng(3).uniform([-15.0, 0.0], [15.0, 18.0], (1500, 2))
     cont, held = ValueFilter(pointmass_table, DT), ValueFilter(pointmass_held_table, DT)
-    assert cont.certifiable and not cont.sampled and cont.landing_cells is not None
+    assert pointmass_table.control_period is None and cont.landing_cells is not None
     counts = []
     for t in (0.0, 0.5, 0.9):
         for q in (0.0, 0.3):
@@ -323,11 +303,8 @@ def test_the_cells_not_the_table_decide_what_is_certified(pointmass_table, point
             np.testing.assert_array_equal(ok_cont, ok_held)
             counts.append(int(ok_cont.sum()))
     assert min(counts) > 0 and max(counts) < len(x), counts
-    bare = ValueFilter(pointmass_table, DT, safe_cells=None, landing_cells=None)
-    ok, why, _ = bare.certify(0.0, [[0.0, 3.0]], 0.3)
-    assert not bare.certifiable and not ok[0] and why[0] == "table_not_sampled"
-    _, info = bare.filter(0.0, [[0.0, 3.0]], 0.3, [[0.0]])
-    assert not info["certified"].any()
+    with pytest.raises(ValueError, match="landing_cells must be 'auto' or a CellCertificate"):
+        ValueFilter(pointmass_table, DT, landing_cells=None)
 
 
 def test_nonfinite_table_values_are_unsafe(pointmass_held_table):
@@ -339,10 +316,7 @@ def test_nonfinite_table_values_are_unsafe(pointmass_held_table):
         iy = int(round((5.0 - g.lo[1]) / g.spacing[1]))
         vals[:, iv - 2:iv + 3, iy - 2:iy + 3] = np.nan  # a NaN hole around (v, y) = (0, 5)
         table._arrays[name] = vals
-    vf = ValueFilter(table, DT, safe_cells=None, landing_cells=None)
-    applied, info = vf.filter(0.2, [0.0, 5.0], 0.3, [3.0])
-    assert info["active"] and not info["certified"] and np.isfinite(applied).all()
-    # the cells do not read the table: their proof stands, and the hole is still reported as unsafe, not NaN
+    # the cells do not read the table: their proof stands, and the hole is reported as unsafe, not NaN
     vf = ValueFilter(table, DT)
     applied, info = vf.filter(0.2, [0.0, 5.0], 0.3, [3.0])
     assert info["certified"] and np.isfinite(applied).all() and info["value"] == np.inf
@@ -384,8 +358,9 @@ def test_construction_errors(pointmass_held_table):
         ValueFilter(pointmass_held_table, DT, model=get_model("glider"))
     with pytest.raises(ValueError, match="rule"):
         ValueFilter(pointmass_held_table, DT, rule="clip")
-    with pytest.raises(ValueError, match="margin"):
-        ValueFilter(pointmass_held_table, DT, margin=-0.1)
+    for bad in (-0.1, 0.1):  # the cells' proof compares no table value with a margin
+        with pytest.raises(ValueError, match=f"margin must be None or 0.*got {bad!r}"):
+            ValueFilter(pointmass_held_table, DT, margin=bad)
     with pytest.raises(ValueError, match="dt"):
         ValueFilter(pointmass_held_table, 0.0)
     with pytest.raises(ValueError, match="fallback_action"):
@@ -393,8 +368,6 @@ def test_construction_errors(pointmass_held_table):
     for bad in (-1, 2.5, True):
         with pytest.raises(ValueError, match=f"start_periods .*got {bad!r}"):
             ValueFilter(pointmass_held_table, DT, start_periods=bad)
-    # another period than the table's: it filters, but certifies nothing
-    assert not ValueFilter(pointmass_held_table, 0.02).sampled
 
 
 def test_normalized_actions_match_physical(vfilter):

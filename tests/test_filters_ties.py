@@ -119,7 +119,7 @@ def test_glider_gets_its_candidates_in_binary64(glider_held_table):
     motion and its candidates stay those of its table; they reach the env in binary64: eight of the nine exactly,
     the second angle of attack (no normalised action maps to it) one unit in the last place away, where a float32
     action would have moved each by about 1e-9 rad."""
-    f = ValueFilter(glider_held_table, 0.1, target_checks=2, safe_cells=None, landing_cells=None)
+    f = ValueFilter(glider_held_table, 0.1, target_checks=2)
     assert not f.lookahead.exact_env and not f.lookahead.slack.any() and f.lookahead.budget_slack == 0
     cands = f.lookahead.candidates[:, 0]
     env = SafetyFilter(gym.make("softreach/GliderLanding-v0"), value_filter=f)
@@ -241,7 +241,7 @@ def test_a_continuous_table_with_the_cells_keeps_every_promise(pointmass_table):
     runs from starts bisected onto its certified edge, under policies that dive, climb or act at random and winds
     at both extremes or random, are certified at every step, keep C1 and the budget and land."""
     vf = ValueFilter(pointmass_table, 0.01, target_checks=get_model("pointmass").substeps)
-    assert not vf.sampled and vf.certifiable
+    assert pointmass_table.control_period is None
     starts = _edge_starts(vf, 0.3, 0.0, speeds=(-8.0, 0.0, 3.0))
     assert len(starts) >= 2, starts
     for v, y in starts:
@@ -249,26 +249,3 @@ def test_a_continuous_table_with_the_cells_keeps_every_promise(pointmass_table):
             for wind_value in (-10.0, 10.0):
                 _sound(*_episode(vf, (v, y), 0.3, 0.0, action, wind_value=wind_value, seed=k))
         _sound(*_episode(vf, (v, y), 0.3, 0.0, lambda rng: float(rng.uniform(-1, 1)), wind="random", seed=7))
-
-
-def test_a_continuous_table_without_cells_certifies_no_step(pointmass_table):
-    """Without cells a continuous-time table is no proof for held actions: ``reset`` says ``certified=False``
-    ("table_not_sampled"), the steps agree, and the filter still decides."""
-    vf = ValueFilter(pointmass_table, 0.01, safe_cells=None, landing_cells=None)
-    env = SafetyFilter(gym.make(ENV, wind="random"), value_filter=vf)
-    _, info = env.reset(seed=0, options={"state": [-2.0, 4.0], "budget": 0.3})
-    assert not info["certified"] and info["certified_reason"] == "table_not_sampled"
-    reasons = set()
-    for _ in range(30):
-        _, _, terminated, truncated, info = env.step(env.action_space.sample())
-        assert info["certified"] is False
-        if info["filter_reason"] == "pass":  # without cells a pass is the table's: its next value certifies
-            assert info["lookahead"] <= -info["margin"], info["lookahead"]
-        reasons.add(info["filter_reason"])
-        if terminated or truncated:
-            break
-    assert reasons - {"uncertified", "outside_domain"}, reasons  # it decides: some steps pass or are replaced
-    # the batched path says the same
-    _, out = env.value_filter.filter(np.zeros(3), np.array([[-2.0, 4.0]] * 3), np.full(3, 0.3),
-                                     np.zeros((3, 1)), normalized=True)
-    assert not out["certified"].any()
