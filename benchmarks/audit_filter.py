@@ -5,8 +5,7 @@ Measures, for one table (``filters.core.ValueFilter`` at the table's control per
 1. the filter's construction time;
 2. the certified region at ``t = 0``: for each budget ``Q`` the state-grid nodes where ``vf.certify_start(0, x, Q)``
    holds (a start certified by a period, its cell or a plan of its own), as a measure (nodes x cell volume), beside the table's own ``RA~_Q`` (``set_measure(0, Q)``) and, with
-   ``--continuous``, the continuous-time table's ``RA~_Q``, with their ratios (and with ``--table-alone`` the
-   region of the same filter without its cells: what the table's interpolant certifies, without proof). A grid
+   ``--continuous``, the continuous-time table's ``RA~_Q``, with their ratios. A grid
    reads ``RA~_Q`` at half a budget cell where ``Q`` lies below it (``RA~_0`` above all): the filter's region at
    that same budget is printed below the table, and at ``Q = 0`` the classical set ``{V <= 0}`` of each table,
    which ``RA~_0`` equals in the paper. Grid nodes on the sets' edges (the faces of ``C1`` among them) count for
@@ -265,8 +264,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--seed", type=int, default=0, help="seed of starts, policies and winds")
     p.add_argument("--no-unfiltered", action="store_true", help="leave out the unfiltered baseline rows")
     p.add_argument("--no-unneeded", action="store_true", help="skip the unneeded-intervention check (faster)")
-    p.add_argument("--table-alone", action="store_true",
-                   help="also count the certified region of the filter without its cells (the table alone, unproven)")
     p.add_argument("--json", help="write all results to this JSON file")
     args = p.parse_args(argv)
 
@@ -281,25 +278,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     # the environment checks landing at its sub-step ends; the filter may count on exactly those
     vf = ValueFilter(table, dt, target_checks=model.substeps)
     res: dict[str, Any] = {"table": args.table, "dt": dt, "build_s": time.perf_counter() - t0, "budgets": budgets,
-                           "sampled": vf.sampled, "consistency": table.header.get("consistency")}
-    print(f"table {args.table}: grid {table.grid(vf.lookahead.budget_field).shape}, dt {dt} s, sampled-data table: {vf.sampled}")
+                           "table_control_period": table.control_period}
+    print(f"table {args.table}: grid {table.grid(vf.lookahead.budget_field).shape}, dt {dt} s, table solved for "
+          f"{'a period of ' + format(table.control_period, 'g') + ' s' if table.control_period else 'continuous time'}")
     print(f"filter build: {res['build_s'] * 1e3:.1f} ms")
 
     cont = load_table(args.continuous) if args.continuous else None
     res["region"] = certified_region(vf, table, budgets, cont)
-    if args.table_alone:
-        # the same count for the filter without its cells: what the table's interpolant certifies, unproven
-        alone = ValueFilter(table, dt, target_checks=model.substeps, safe_cells=None, landing_cells=None)
-        for r, a in zip(res["region"], certified_region(alone, table, budgets)):
-            r["table_alone"] = a["certified"]
     head = f"\n{'Q':>5s} {'certified':>10s} {'RA~_Q held':>11s} {'ratio':>6s}"
     head += f" {'RA~_Q cont.':>11s} {'ratio':>6s}" if cont else ""
-    head += f" {'table alone':>11s}" if args.table_alone else ""
     print(head)
     for r in res["region"]:
         line = f"{r['Q']:5.2f} {r['certified']:10.2f} {r['set']:11.2f} {r['certified_over_set']:6.3f}"
         line += f" {r['continuous_set']:11.2f} {r['certified_over_continuous']:6.3f}" if cont else ""
-        line += f" {r['table_alone']:11.2f}" if args.table_alone else ""
         print(line)
     print_reference_notes(res["region"])
     res["sampled_region"] = sampled_region(vf, table, budgets, cont, seed=args.seed)

@@ -1,13 +1,13 @@
-"""What the cell certificates cost and keep: build time, and the states they certify against the table's own
-one-period test and, for the point mass, the exact sets.
+"""What the cell certificates cost and keep: build time, and the states they certify against the table's own set
+and, for the point mass, the exact sets.
 
     OMP_NUM_THREADS=1 python benchmarks/cell_certificate.py --table pointmass-held.srt
         [--shape 150 1440 --holds 1 2 4 | --cached] [--states 20000] [--times 0 0.5 0.9] [--exact-pointmass]
         [--later 0.5 1 2]
     python benchmarks/cell_certificate.py --table pointmass-held.srt --write-packaged [--checks 2]
 
-Certified means ``ValueFilter.certify``: with the cells (``landing_cells``, proven) and with the table alone
-(``landing_cells=None``, by the interpolant), on states drawn uniformly over ``C1``. ``--exact-pointmass`` also
+Certified means ``ValueFilter.certify`` (the landing cells, proven), against the table's set (``Table.contains``:
+its interpolant ``<= 0``, which a held table claims and nothing proves), on states drawn uniformly over ``C1``. ``--exact-pointmass`` also
 counts the states of the exact continuous-time sets (``softreach.reach.numerics.exact_pointmass``), which hold every state
 any controller can land from, and the cells' states outside them (unsound; 0 expected).
 
@@ -43,8 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cached", action="store_true",
                     help="the cells a filter uses (packaged, or cached by an earlier build) instead of a build")
     ap.add_argument("--later", type=float, nargs="+",
-                    help="also: of the states the table certifies and the cells miss, the share the table still "
-                         "certifies from a start this many seconds later, beside that share of the cells' states")
+                    help="also: of the states in the table's set that the cells miss, the share still in it at a "
+                         "start this many seconds later, beside that share of the cells' states")
     ap.add_argument("--write-packaged", action="store_true", help="write the cells the package ships, and stop")
     ap.add_argument("--checks", type=int, nargs="+", help="with --write-packaged: only these target_checks")
     args = ap.parse_args(argv)
@@ -52,8 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     model = table.model
     if args.write_packaged:
         return write_packaged(table, args.checks)
-    plain = ValueFilter(table, table.control_period, target_checks=model.substeps, safe_cells=None,
-                        landing_cells=None)
+    la = Lookahead.from_table(table, model, table.control_period, table.eps, target_checks=model.substeps)
     shape = tuple(args.shape) if args.shape else model.cell_shape
     if shape is None:
         ap.error(f"{model.name} declares no cell_shape; give --shape")
@@ -67,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
         built = {}
         for game in ("safe", "land"):
             t0 = time.perf_counter()
-            built[game] = CellCertificate.build(plain.lookahead, shape, game=game, holds=holds)
+            built[game] = CellCertificate.build(la, shape, game=game, holds=holds)
             print(f"{game} cells {shape}, plans of {list(holds)} periods: built in "
                   f"{time.perf_counter() - t0:.1f} s")
         vf = ValueFilter(table, table.control_period, target_checks=model.substeps, safe_cells=built["safe"],
@@ -78,12 +77,12 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(0)
     lo, hi = (np.asarray(b, float) for b in model.hard_box)
     x = rng.uniform(lo, hi, (args.states, len(lo)))
-    print(f"{args.states:,} states uniform over C1, certified: table alone / cells (proven)"
+    print(f"{args.states:,} states uniform over C1: in the table's set / certified by the cells (proven)"
           + (" / exact set / cells outside it" if args.exact_pointmass else ""))
     for t in args.times:
         parts, late = [], []
         for q in budgets:
-            table_only = plain.certify(t, x, q)[0]
+            table_only = table.contains(t, x, q)
             cells = vf.certify(t, x, q)[0]
             part = f"Q = {q:g}: {int(table_only.sum())} / {int(cells.sum())}"
             if args.exact_pointmass:
@@ -95,13 +94,13 @@ def main(argv: list[str] | None = None) -> int:
             # how much time to spare the states the cells miss have, against the cells' own states
             missed = table_only & ~cells
             for later in args.later or ():
-                share = [float(plain.certify(t + later, x[k], q)[0].mean()) if k.any() else float("nan")
+                share = [float(table.contains(t + later, x[k], q).mean()) if k.any() else float("nan")
                          for k in (missed, cells)]
                 late.append(f"Q = {q:g}, {later:g} s later: {share[0]:.0%} of the missed, {share[1]:.0%} of the "
                             f"cells' states")
         print(f"  t = {t:g} s: " + "; ".join(parts))
         for line in late:
-            print(f"    table-certified from a later start: {line}")
+            print(f"    in the table's set at a later start: {line}")
     return 0
 
 
