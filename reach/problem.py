@@ -91,8 +91,8 @@ class Model(Dynamics):
     #: budgets [s] whose sets the summaries and plots show, and those of the paper's representative starts
     default_budgets: tuple[float, ...] = (0.0, 0.06, 0.3, 0.6)
     paper_budgets: tuple[float, ...] = (0.0, 0.3, 0.6)
-    #: cells per state axis over :attr:`hard_box` of the certificates the filter solves on cells for a sampled-data
-    #: table (:mod:`softreach.reach.proof.cell_certificate`; ``None``: none, the table alone certifies), and the plan
+    #: cells per state axis over :attr:`hard_box` of the certificate the safety filter solves on cells
+    #: (:mod:`softreach.reach.proof.cell_certificate`; ``None``: none, and the filter refuses the model), and the plan
     #: lengths [periods] of the landing game's cells
     cell_shape: tuple[int, ...] | None = None
     cell_holds: tuple[int, ...] = (1,)
