@@ -191,8 +191,16 @@ def test_held_sets_lie_inside_the_continuous_sets_and_grow_with_the_budget(point
     assert all(b >= a for a, b in zip(held, held[1:]))
     # holding the action for 10 ms can only lose states (same grid and scheme)
     assert all(h <= c for h, c in zip(held, cont)), (held, cont)
-    ra = pointmass_held_table.set_measure(0.0)
-    assert abs(held[0] - ra) <= 0.08 * ra  # Prop. 3 for the held game, up to the grid
+    # Prop. 3 for the held game, up to the grid: a state whose box of one grid cell each way lies in either set
+    # ({V <= 0}, or RA~_0 of W_eps) is in the other
+    t = pointmass_held_table
+    x = np.random.default_rng(0).uniform([-20.0, -5.0], [20.0, 20.0], (20000, 2))
+    step = np.asarray(t.grid("V").spacing)
+    box = [np.array([a, b]) * step for a in (-1, 0, 1) for b in (-1, 0, 1)]
+    in_v, in_w = (lambda p: t.contains(0.0, p)), (lambda p: t.contains(0.0, p, 0.0))
+    for inside, other in ((in_v, in_w), (in_w, in_v)):
+        deep = np.all([inside(x + d) for d in box], axis=0)
+        assert deep.sum() > 1000 and other(x[deep]).all()
 
 
 # ------------------------------------------------------------------------------------------ the filter

@@ -124,3 +124,29 @@ def test_cells_unpacked_from_another_package_file_are_replaced(pointmass_held_ta
     again = ValueFilter(table, table.control_period)
     assert again.landing_cells.m[0].flat[good] == old.never
     assert first.landing_cells.m[0].flat[good] < old.never  # the first filter's mapped cache was the old file
+
+
+def test_cells_built_by_other_code_are_built_again(pointmass_held_table, tmp_path, monkeypatch):
+    """Cells the package does not ship are built on the machine and keyed by the code that built them: the same code
+    reads the cache, another version of the package builds them again."""
+    monkeypatch.setenv("SOFTREACH_CACHE", str(tmp_path))
+    table = pointmass_held_table
+    la = Lookahead.from_table(table, table.model, 0.01, table.eps, target_checks=3)  # checks the package lacks
+    builds = []
+
+    def build(lookahead, shape, dz=None, game="safe", holds=(1,), span_cap=32):
+        # a stand-in build whose cells say which build made them
+        builds.append(shape)
+        key = cell_key(lookahead, shape, dz, game, holds, span_cap)
+        m = np.full((round(lookahead.horizon / lookahead.dt) + 1,) + tuple(shape), len(builds), np.int16)
+        lo, hi = lookahead.model.hard_box
+        return CellCertificate(lo, hi, m, np.zeros(m.shape, np.int8), np.ones(m.shape, np.int8),
+                               lookahead.candidates, lookahead.dt, key["dz"], lookahead.horizon, game, key)
+
+    monkeypatch.setattr(CellCertificate, "build", staticmethod(build))
+    first = cell_certificate.cached(la, (3, 4), game="land")
+    assert len(builds) == 1 and (first.m == 1).all()
+    assert (cell_certificate.cached(la, (3, 4), game="land").m == 1).all() and len(builds) == 1
+    monkeypatch.setattr(cell_certificate, "source_stamp", lambda: "another version of the package")
+    again = cell_certificate.cached(la, (3, 4), game="land")
+    assert len(builds) == 2 and (again.m == 2).all()

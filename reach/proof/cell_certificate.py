@@ -55,7 +55,7 @@ import numpy as np
 
 from . import cell_game
 from .enclosure_check import check_model_for_filter
-from ..jit import cache_root
+from ..jit import cache_root, source_stamp
 from .kernels import budget_floor_rows, cover_rows, frozen, plan_rows, step_rows
 
 
@@ -302,8 +302,10 @@ def cache_dir() -> Path:
 PACKAGED = Path(__file__).parent / "cells"
 
 
-#: the file in a cache folder that names the package's file of the same key when the folder was made (its digest)
-_SHIPPED = "packaged.sha256"
+#: the file in a cache folder that names what made it: the digest of the package's file of the same key it was
+#: unpacked from, or, for cells built on this machine, ``built:`` and the digest of the code that built them
+#: (:func:`~softreach.reach.jit.source_stamp`, the compiled code's key too)
+_MADE_WITH = "packaged.sha256"
 
 
 @functools.lru_cache(maxsize=32)
@@ -333,16 +335,17 @@ def cached(lookahead: Any, shape: Any, dz: float | None = None, game: str = "saf
     the package's own (:data:`PACKAGED`) or a build (once per model, period, ``h_eps`` width, candidate set, game
     and shape) is written there first. A folder made while the package shipped another file for the same key, or
     none (cells of an earlier version), is replaced by the installed package's. A cache that cannot be written is
-    skipped with a warning."""
+    skipped with a warning. Cells built here by other code (another version of the package) are built again."""
     key = cell_key(lookahead, shape, dz, game, holds, span_cap)
     folder = cache_file(key, cache_dir()).with_suffix("")
     packaged = cache_file(key, PACKAGED)
     shipped = _file_digest(packaged) if packaged.is_file() else None
+    origin = shipped if shipped is not None else f"built:{source_stamp()}"
     if folder.is_dir():
-        made_with = folder / _SHIPPED
-        if shipped is not None and (made_with.read_text() if made_with.is_file() else None) != shipped:
-            # made before the package shipped these cells, or from another version of its file (an upgrade):
-            # the installed package's replace them
+        made_with = folder / _MADE_WITH
+        if (made_with.read_text() if made_with.is_file() else None) != origin:
+            # made before the package shipped these cells, from another version of its file (an upgrade), or
+            # built by other code: the installed package's file, or a build by this code, replaces them
             shutil.rmtree(folder, ignore_errors=True)
         else:
             try:
@@ -362,8 +365,7 @@ def cached(lookahead: Any, shape: Any, dz: float | None = None, game: str = "saf
     try:
         folder.parent.mkdir(parents=True, exist_ok=True)
         cells.save(tmp, compressed=False)
-        if shipped is not None:
-            (tmp / _SHIPPED).write_text(shipped)
+        (tmp / _MADE_WITH).write_text(origin)
         os.replace(tmp, folder)
     except OSError as err:
         shutil.rmtree(tmp, ignore_errors=True)
