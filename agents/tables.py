@@ -1,7 +1,7 @@
 """What the agents read from a ``W_eps`` table: fast per-step ``a*``/``b*``, shared safety filters, start states.
 
 * :class:`TableOracle` answers ``W~``, ``a*(t, x, z)`` and ``b*(t, x, z)`` for one state at a time through the
-  filter's :class:`~softreach.filters.TableField` (the same interpolant and central-difference gradient as
+  table's :class:`~softreach.reach.tables.field.TableField` (the same interpolant and central-difference gradient as
   :meth:`softreach.reach.Table.optimal_control`, several times faster for single queries). It is what the
   ``optimal`` policy plays and what ``wind="adversarial"`` blows: an environment accepts it as ``wind_table``.
 * :func:`safety_filter` wraps an environment in :class:`~softreach.filters.SafetyFilter`, computing the
@@ -40,7 +40,7 @@ class TableOracle:
     """
 
     def __init__(self, table: Table | str):
-        from softreach.filters import TableField
+        from softreach.reach.tables.field import TableField
 
         self.table = as_table(table)
         self.model = self.table.model

@@ -9,8 +9,8 @@
 
 from .core import (AFTER_HORIZON, BLEND, CERTIFY_REASONS, FALLBACK, NO_PLAN, OPTIMAL, OUTSIDE, PASS,
                    PLAN_LAND, PLAN_SAFE, REASONS, RULES, UNCERTIFIED, ValueFilter)
-from .field import TableField
 from softreach.reach.proof.lookahead import Lookahead
+from softreach.reach.tables.field import TableField
 from .wrapper import SafetyFilter
 from .vector import VecSafetyFilter
 

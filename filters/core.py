@@ -136,7 +136,6 @@ class ValueFilter:
         #: every applied action ends in them where the state is in them
         self.safe_cells = resolve_cells(self, safe_cells, "safe")
         self.landing_cells = resolve_cells(self, landing_cells, "land")
-        self.lookahead.safe_cells, self.lookahead.landing_cells = self.safe_cells, self.landing_cells
         #: the decision, compiled (:mod:`softreach.filters.compiled`)
         self.compiled = CompiledDecision(self)
         #: threads that share a large batch of the compiled decision (blocks of at least

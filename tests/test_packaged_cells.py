@@ -4,6 +4,7 @@ them instead of building, through the memory-mapped cache."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -83,8 +84,14 @@ def test_a_new_machine_reads_the_packaged_cells_without_building(table, request,
     # the package's cells were unpacked into the cache, one folder per game, and are read memory-mapped
     assert sorted(p.name.split("-")[2] for p in cache.iterdir()) == ["land", "safe"]
     assert isinstance(vf.landing_cells.m.base, np.memmap) and isinstance(vf.safe_cells.hold.base, np.memmap)
-    # a later filter reads the cache alone
-    monkeypatch.setattr(cell_certificate, "PACKAGED", tmp_path / "no_package")
+    # a later filter reads the cache alone, not the package's file
+    load = CellCertificate.load
+
+    def from_the_cache(path, key=None):
+        assert Path(path).is_dir(), f"read {path} again"
+        return load(path, key)
+
+    monkeypatch.setattr(CellCertificate, "load", staticmethod(from_the_cache))
     again = ValueFilter(table, table.control_period, target_checks=table.model.substeps)
     np.testing.assert_array_equal(again.landing_cells.m, vf.landing_cells.m)
 

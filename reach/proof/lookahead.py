@@ -266,10 +266,6 @@ class Lookahead:
         box = model.target_box
         self.target_lo, self.target_hi = (None, None) if box is None else (np.asarray(box[0], float),
                                                                             np.asarray(box[1], float))
-        #: cells that prove ``C1`` and the budget (``safe_cells``) and landing by ``T`` (``landing_cells``),
-        #: :class:`~softreach.reach.proof.cell_certificate.CellCertificate`: an admissible action must end in them
-        self.safe_cells = None
-        self.landing_cells = None
         #: ``(address, params)`` of the model's compiled set maxima (:attr:`~softreach.reach.problem.Model.
         #: set_max_kernel`), which :meth:`_corner_max` runs; ``None``: the set functions at the corners, in numpy
         self.set_kernel = ((set_max_address(model), model.set_max_params)

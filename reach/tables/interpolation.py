@@ -1,6 +1,6 @@
 """Multilinear interpolation of a table's snapshots on a grid, with time as one more axis: the one engine behind
 :class:`~softreach.reach.tables.query.Table` (values, gradients, slices), the safety filter's certificate and
-:class:`~softreach.filters.TableField`.
+:class:`~softreach.reach.tables.field.TableField`.
 
 A query is located once (:meth:`Interpolant.locate`: the cell of each point, clamped to the grid or wrapped along a
 periodic axis, and the snapshot interval of its time); the value and the gradient are then read with the same

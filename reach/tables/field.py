@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from softreach.reach import Table, TableError
-from softreach.reach.tables.interpolation import Interpolant
+from .interpolation import Interpolant
+from .query import Table
+from .table import TableError
 
 
 class TableField(Interpolant):
