@@ -1,7 +1,7 @@
 """Whether a held action keeps the next state certified, compiled: the rule's "one candidate passes again from every
 possible next state" (``docs/filters.md``, "The filter with cells"). An action whose end box lies in the landing
 cells keeps by the cells themselves; one whose period keeps ``C1`` and the budget keeps where some candidate,
-judged from its whole end box (:func:`~softreach.filters.judge.judge`), ends in the landing cells or surely lands.
+judged from its whole end box (:func:`~softreach.filters.judge.judge_once`), ends in the landing cells or surely lands.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from softreach.reach.jit import njit
 from softreach.reach.proof.kernels import cover_row
 from softreach.reach.proof.model_kernels import call_held_box
 
-from .judge import _widen, judge, meets_target, period
+from .judge import _widen, judge_once, meets_target, period
 
 
 @njit(inline="always")
@@ -43,7 +43,7 @@ def keeps(enclose, M, C, cands, t, end_lo, end_hi, z_end, kept, work, work_box):
     for j in range(cands.shape[0]):
         if not _may_pass(enclose, M, C, t + dt, end_lo, end_hi, z_lo, cands[j], e_lo, e_hi, work):
             continue
-        v = judge(enclose, M, C, t + dt, end_lo, end_hi, z_lo, cands[j], e_lo, e_hi, work)
+        v = judge_once(enclose, M, C, t + dt, end_lo, end_hi, z_lo, cands[j], e_lo, e_hi, work)
         if v.ok or v.lands:
             return True
     return False
