@@ -20,11 +20,13 @@ The box bounds are those of the cells' builder (:class:`~softreach.reach.proof.l
 Inlined or called: numba inlines a function (``inline="always"``) by copying its body into every caller, where the
 copy is typed and optimised again, so that each copy adds to the first compilation; a call hands over every field of
 the large tuples of arrays, which costs more than the work of the small functions here. So a function that a loop
-over rows or candidates runs is inlined into that loop (:func:`judge` into the decision's loop and into
-:func:`keeps`, :func:`next_value` into each loop that reads next values), and each loop is a function of its own,
-called once a row (:func:`keeps`, :func:`badness`, :func:`least_next`, :func:`read_least`). What runs once for a row
-that does not pass is called (:func:`on_table`), and the searches outside the decision (a state's certificate, the
-start plans) call :func:`judge_once`. And since numba's typing of one function takes more than linear time in its
+over rows or candidates runs is inlined into that loop (:func:`judge` into the decision's loop, :func:`next_value`
+into each loop that reads next values), and each loop is a function of its own, called once a row
+(:func:`~softreach.filters.keeps.keeps`, :func:`badness`, :func:`least_next`, :func:`read_least`). What runs once
+for a row that does not pass is called (:func:`on_table`), and the searches from a whole box or outside the decision
+(:func:`~softreach.filters.keeps.keeps`, a state's certificate, the start plans) call :func:`judge_once`: a second
+inlined copy of :func:`judge` cost half a minute of the first compilation and no measurable time per decision
+(``benchmarks/first_compile.py``, ``benchmarks/bench_filter.py``). And since numba's typing of one function takes more than linear time in its
 length, a part of the decision that runs at most once a row is a function of its own where it is large and its arguments
 few (:mod:`softreach.filters.compiled`'s ``_follow_plans``).
 """
@@ -186,8 +188,8 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
 
 @njit(_nrt=False)
 def judge_once(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
-    """:func:`judge`, compiled once, for the searches outside the decision (a state's certificate, the start plans;
-    the module docstring)."""
+    """:func:`judge`, compiled once, for the searches from a whole box or outside the decision (the module
+    docstring)."""
     return judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work)
 
 
