@@ -25,8 +25,9 @@ into each loop that reads next values), and each loop is a function of its own, 
 (:func:`~softreach.filters.keeps.keeps`, :func:`badness`, :func:`least_next`, :func:`read_least`). What runs once
 for a row that does not pass is called (:func:`on_table`), and the searches from a whole box or outside the decision
 (:func:`~softreach.filters.keeps.keeps`, a state's certificate, the start plans) call :func:`judge_once`, so that the
-decision's loop holds the one inlined copy of :func:`judge` (``docs/filters.md``, "Time to a certified filter", quotes what a second copy cost). And since numba's typing of one function takes more than linear time in its
-length, a part of the decision that runs at most once a row is a function of its own where it is large and its arguments
+decision's loop holds the one inlined copy of :func:`judge` (``docs/filters.md``, "Time to a certified filter", quotes
+what a second copy cost). And since numba's typing of one function takes more than linear time in its length, a part
+of the decision that runs at most once a row is a function of its own where it is large and its arguments
 few (:mod:`softreach.filters.compiled`'s ``_follow_plans``).
 """
 
