@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
-from softreach.reach.problem import LANDING_WORDS, TaskWords
+from softreach.reach.model_report import LANDING_WORDS, TaskWords
 
 
 def _title(result) -> str:

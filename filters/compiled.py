@@ -5,7 +5,7 @@
 in numba, where
 
 * the model gives its held-action enclosure and its sets' maxima over boxes compiled
-  (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`, :attr:`~softreach.reach.problem.Model.
+  (:attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel`, :attr:`~softreach.reach.problem.Model.
   set_max_kernel`): the point mass, the glider and Dubins do; :class:`~softreach.filters.ValueFilter` refuses a
   model that does not, naming what to add (:meth:`CompiledDecision.missing`),
 * the landing cells decide what passes (:mod:`softreach.reach.proof.cell_certificate`); the table, ``W_eps`` or the

@@ -10,7 +10,7 @@ overshoot the constraint it is riding); it judges the *held* action by where one
   non-negative and ends in the landing cells (:mod:`softreach.reach.proof.cell_certificate`), or surely lands;
 * the policy's action is applied when it passes, or when its period keeps ``C1`` and the budget and some candidate
   passes again from every possible next state (so the next state is certified whatever the wind did);
-* otherwise the filter applies a candidate held action (:meth:`Dynamics.held_candidates`) that passes: with
+* otherwise the filter applies a candidate held action (:meth:`FilterPart.held_candidates`) that passes: with
   ``rule="switch"`` the one whose worst next table value is lowest, with ``rule="smooth"`` the point closest to
   the policy's action on the segment from such a candidate; where none passes, the plan of the state's cell.
 

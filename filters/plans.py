@@ -31,8 +31,8 @@ PLAN_SAFE = 2
 
 def has_cells(model: Any) -> bool:
     """Whether the filter builds cells for ``model`` by default: it declares ``cell_shape`` and bounds boxes of
-    starts (:meth:`~softreach.reach.dynamics.Dynamics.held_enclosure_box`)."""
-    from softreach.reach.dynamics import bounds_boxes
+    starts (:meth:`~softreach.reach.model_filter.FilterPart.held_enclosure_box`)."""
+    from softreach.reach.model_filter import bounds_boxes
 
     return getattr(model, "cell_shape", None) is not None and bounds_boxes(model)
 

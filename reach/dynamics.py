@@ -14,7 +14,6 @@ the dissipation bounds ``alpha_i >= |dH/dp_i|`` that the Lax-Friedrichs scheme n
 
 from __future__ import annotations
 
-import itertools
 from abc import ABC, abstractmethod
 from typing import Any, Callable, Mapping, Sequence
 
@@ -128,106 +127,8 @@ class Dynamics(ABC):
         """Model parameters recorded in table metadata (override to add more)."""
         return {}
 
-    #: extra actions worth holding for a control period (e.g. the point mass's hover thrust ``u = g``)
-    trim_controls: tuple[tuple[float, ...], ...] = ()
-    #: evenly spaced values per control axis of the actions the sampled-data game and the filter hold for a period
-    #: (:meth:`held_candidates`' default; ``softreach solve --held`` takes it from here)
-    held_levels: int = 5
-
-    def held_candidates(self, levels: int | None = None) -> list[tuple[float, ...]]:
-        """Actions a sampled-data controller may hold for one period: ``levels`` evenly spaced values along each
-        control axis (the box's corners and, for odd ``levels``, its centre among them) and :attr:`trim_controls`.
-
-        :param levels: values per control axis (>= 2); ``None``: :attr:`held_levels`
-        """
-        if levels is None:
-            levels = self.held_levels
-        if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 2:
-            raise ValueError(f"levels must be an integer >= 2, got {levels!r}")
-        axes = [np.linspace(lo, hi, int(levels)) for lo, hi in zip(*self.control_bounds)]
-        out = [tuple(float(v) for v in a) for a in itertools.product(*axes)]
-        for a in self.trim_controls:
-            a = tuple(float(v) for v in a)
-            if len(a) != self.control_dim or not all(lo <= v <= hi for v, lo, hi in zip(a, *self.control_bounds)):
-                raise ValueError(f"{self.name}: trim control {a!r} is not in the control box {self.control_bounds}")
-            if a not in out:
-                out.append(a)
-        return out
-
-    #: the motion bound of a held period, compiled: a numba ``njit`` function ``(params, x_lo, x_hi, a, s0, s1, lo,
-    #: hi)`` writing into ``lo``, ``hi`` the box of every state reachable at some time in ``[s0, s1]`` of a period
-    #: with the control ``a`` held, from every start in ``[x_lo, x_hi]`` and for every disturbance signal of the box
-    #: (switching at any instant), for the numbers :attr:`held_box_params` (1-d float arrays; NaN where it finds no
-    #: box). The model writes it once: :meth:`held_enclosure`, :meth:`held_tube_pieces` and their ``_box`` versions
-    #: run it (:func:`~softreach.reach.proof.model_kernels.held_boxes`), and the filter's compiled decision calls it
-    #: by address. It has no time argument: a model whose motion depends on ``t`` overrides the four methods
-    #: instead. ``None``: no compiled bound
-    held_box_kernel: Any = None
-    held_box_params: np.ndarray = np.zeros(0)
-
     def validate_control(self, a: Any) -> None:
         """Raise ``ValueError`` naming a control the model cannot take; the default accepts every control."""
-
-    def held_enclosure(self, t: float, x: np.ndarray, a: np.ndarray, dt: float):
-        """Boxes containing every trajectory of one control period with the control ``a`` held and any
-        disturbance signal in the box (switching at any instant): ``(tube_lo, tube_hi, end_lo, end_hi)``, each
-        ``(N, n)``; the tube holds ``x(s)`` for all ``s`` in ``[0, dt]``, the end box ``x(dt)``.
-
-        Derived from :attr:`held_box_kernel` (:meth:`held_enclosure_box` from the points). The safety filter's
-        one-period look-ahead needs it; a model that cannot bound its motion is refused there.
-
-        :param x: ``(N, n)`` states
-        :param a: ``(N, m)`` physical controls (``(N,)`` for one control)
-        :param dt: the control period [s]
-        :raises ValueError: a bad shape or period, a state or control the model refuses, or a row the kernel
-            finds no box for (NaN), naming it: the look-ahead reads that row as not admissible
-        """
-        from .proof.model_kernels import refuse_unbounded_rows
-
-        return refuse_unbounded_rows(self, x, a, dt, self.held_enclosure_box(t, x, x, a, dt))
-
-    def held_enclosure_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float):
-        """:meth:`held_enclosure` for every start in the box ``[x_lo, x_hi]`` (rows of ``(N, n)``), from
-        :attr:`held_box_kernel`: the tube is its box over ``[0, dt]``, the end box over ``[dt, dt]``. A row with no
-        box is NaN, which every caller reads as unbounded: not admissible. The filter's cells need it."""
-        from .proof.model_kernels import kernel_boxes
-
-        return kernel_boxes(self, "held_enclosure_box", x_lo, x_hi, a, dt)
-
-    def held_tube_pieces_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float,
-                             pieces: int):
-        """:meth:`held_tube_pieces` for every start in the box ``[x_lo, x_hi]``: :attr:`held_box_kernel` over each
-        piece; without a kernel, the whole tube of the model's own :meth:`held_enclosure_box` for every piece."""
-        from .proof.model_kernels import kernel_boxes
-
-        if self.held_box_kernel is None:
-            lo, hi, _, _ = self.held_enclosure_box(t, x_lo, x_hi, a, dt)
-            return np.broadcast_to(lo, (pieces,) + lo.shape), np.broadcast_to(hi, (pieces,) + hi.shape)
-        return kernel_boxes(self, "held_tube_pieces_box", x_lo, x_hi, a, dt, pieces)
-
-    def held_tube_pieces(self, t: float, x: np.ndarray, a: np.ndarray, dt: float, pieces: int):
-        """Boxes ``(lo, hi)``, each ``(pieces, N, n)``, holding the motion over each of ``pieces`` equal
-        sub-intervals of the period (control held, any disturbance signal): :meth:`held_tube_pieces_box` from the
-        points. The budget bound of the safety filter charges each piece by its own box. Without a kernel every
-        piece gets the whole tube of the model's own :meth:`held_enclosure` (sound, a coarser budget bound)."""
-        if self.held_box_kernel is None:
-            lo, hi, _, _ = self.held_enclosure(t, x, a, dt)
-            return np.broadcast_to(lo, (pieces,) + lo.shape), np.broadcast_to(hi, (pieces,) + hi.shape)
-        return self.held_tube_pieces_box(t, x, x, a, dt, pieces)
-
-
-def bounds_motion(model: Any) -> bool:
-    """Whether ``model`` bounds its held motion from states: a :attr:`Dynamics.held_box_kernel`, or its own
-    :meth:`Dynamics.held_enclosure` or :meth:`Dynamics.held_enclosure_box` (from which the points' one follows)."""
-    return model.held_box_kernel is not None or type(model).held_enclosure is not Dynamics.held_enclosure or (
-        bounds_boxes(model))
-
-
-def bounds_boxes(model: Any) -> bool:
-    """Whether ``model`` bounds the motion from boxes of starts (a :attr:`Dynamics.held_box_kernel`, or its own
-    :meth:`Dynamics.held_enclosure_box`): what the filter's cells and its "the next state is certified again" rule
-    need."""
-    return model.held_box_kernel is not None or type(model).held_enclosure_box is not Dynamics.held_enclosure_box
 
 
 def _unstack(x: Array) -> list[Array]:

@@ -26,51 +26,30 @@ import math
 import numpy as np
 
 from . import backend as B
-from .boxes import box_check, check_horizon, check_start_budget
+from .boxes import box_check, check_horizon
 from .dynamics import Components, Dynamics
-from .proof.model_kernels import box_params, boxes_set_max
+from .model_env import EnvPart
+from .model_filter import FilterPart
+from .model_report import ReportPart
 
 Array = B.Array
 
 
-@dataclass(frozen=True)
-class TaskWords:
-    """How plots and reports name a model's task, so that a cruise controller is not said to "land".
-
-    :param target: the target set's name in legends
-    :param reached: what an episode that reaches the target did, in a sentence ("reached the target", "landed")
-    :param success: the rate of such episodes ("success rate", "landing rate")
-    :param duration: the time an episode took to reach the target ("time to target", "time to land")
-    :param arrival_speed: the speed :meth:`Model.sink_rate` reports on arrival, ``None`` for a model without one
-    """
-
-    target: str = "target"
-    reached: str = "reached the target"
-    success: str = "success rate"
-    duration: str = "time to target"
-    arrival_speed: str | None = None
-
-
-#: the words of the landing tasks (point mass, glider)
-LANDING_WORDS = TaskWords(target="target (landing zone)", reached="landed", success="landing rate",
-                          duration="time to land", arrival_speed="touchdown sink rate")
-
-
-class Model(Dynamics):
+class Model(Dynamics, FilterPart, EnvPart, ReportPart):
     """Dynamics plus the sets and horizon of a reach task: the public model API (``docs/models.md``).
 
     Subclasses implement :meth:`target`, :meth:`hard_constraint` and :meth:`soft_constraint` (implicit
-    functions, ``<= 0`` inside) and set ``horizon`` and ``domain`` (the default grid box). What an environment
-    needs is declared here too (:attr:`control_period`, :attr:`substeps`, :attr:`start_box`,
-    :attr:`start_budget`; "reached" is :meth:`landed`), and so is every fact that code elsewhere would otherwise
-    look up by the model's name (units, periodic axes, :meth:`sink_rate`, :meth:`start_difficulty`,
-    :meth:`set_box_max`). :meth:`parameters` returns the constructor's keyword arguments, from which a table
-    rebuilds the model.
+    functions, ``<= 0`` inside) and set ``horizon`` and ``domain`` (the default grid box); the solver reads these and
+    the :class:`~softreach.reach.dynamics.Dynamics`. What each other reader needs is a group of its own, declared
+    on the model all the same: the safety filter's (:class:`~softreach.reach.model_filter.FilterPart`: the held
+    candidates, the motion bound, the sets over boxes, the cells), the environment's
+    (:class:`~softreach.reach.model_env.EnvPart`: control period, sub-steps, starts; "reached" is :meth:`landed`),
+    and the reports' (:class:`~softreach.reach.model_report.ReportPart`: words, budgets shown, units). So every fact
+    that code elsewhere would otherwise look up by the model's name lives on the model. :meth:`parameters` returns
+    the constructor's keyword arguments, from which a table rebuilds the model.
     """
 
     horizon: float = 1.0
-    #: how plots and reports name the task (:class:`TaskWords`)
-    words: TaskWords = TaskWords()
     #: default grid box ``(lo, hi)`` over the physical state
     domain: tuple[tuple[float, ...], tuple[float, ...]] = ((), ())
     #: bounding box of the hard-constraint set ``C1``; a grid must contain it (``None``: unbounded, unchecked)
@@ -84,72 +63,24 @@ class Model(Dynamics):
     #: needed to get back, while the classical ``V`` grows like ``c2``. Matching the two (``kappa`` about the rate
     #: at which the controls can change ``c2``) keeps the budget slices as well resolved as ``V``.
     budget_scale: float = 1.0
-    #: the environment's control period [s] (``None``: no sampled-data game), and its RK4 sub-steps per period,
-    #: whose ends are where an episode checks landing and ``C1``
-    control_period: float | None = None
-    substeps: int = 1
-    #: budgets [s] whose sets the summaries and plots show, and those of the paper's representative starts
-    default_budgets: tuple[float, ...] = (0.0, 0.06, 0.3, 0.6)
-    paper_budgets: tuple[float, ...] = (0.0, 0.3, 0.6)
-    #: cells per state axis over :attr:`hard_box` of the certificate the safety filter solves on cells
-    #: (:mod:`softreach.reach.proof.cell_certificate`; ``None``: none, and the filter refuses the model), and the plan
-    #: lengths [periods] of the landing game's cells
-    cell_shape: tuple[int, ...] | None = None
-    cell_holds: tuple[int, ...] = (1,)
-    #: candidates a start's own plan may hold in sequence, 1 or 2 (:func:`softreach.filters.plans.start_plans`)
-    start_segments: int = 1
     #: ``f``, the sets and the target do not depend on ``t`` (the solver then evaluates the sets once)
     time_invariant: bool = True
     #: per state axis, whether it is periodic (an angle): its period is the ``domain`` along it, ``[lo, hi)``.
     #: The solver's grid wraps there (no boundary), table queries wrap the coordinate, the environment wraps the
     #: state. Empty: no periodic axis.
     periodic: tuple[bool, ...] = ()
-    #: the box the environment draws start states from, uniformly (``None``: the env must be given one)
-    start_box: tuple[tuple[float, ...], tuple[float, ...]] | None = None
-    #: the budget ``Q`` [s] of an episode, or a ``(low, high)`` range the environment draws it from
-    start_budget: float | tuple[float, float] = 0.0
-    #: the ``(horizontal, vertical)`` state axes of the set panels of a model with more than two states
-    plot_axes: tuple[int, int] = (1, 0)
-    #: units of the control and of the disturbance components (messages, plots)
-    control_units: tuple[str, ...] = ()
-    disturbance_units: tuple[str, ...] = ()
-    #: ``(lo, hi)`` of a box that holds the target set (``-inf``/``inf`` where unbounded), or ``None``. The safety
-    #: filter skips its landing test for periods whose motion cannot meet this box; only speed depends on it
-    target_box: tuple[tuple[float, ...], tuple[float, ...]] | None = None
-    #: ``{"target": (lo, hi), "hard_constraint": ..., "soft_constraint": ...}`` where each of these set functions
-    #: is exactly :func:`~softreach.reach.sets.box` of that box (``(lo, hi, scale)`` with a scale), time-invariant
-    #: (``tests/test_compiled_filter.py`` checks it). It gives the default :attr:`set_max_kernel`; ``None``: not
-    #: declared
-    set_boxes: dict[str, tuple[tuple[float, ...], ...]] | None = None
 
     #: the declared boxes and ranges, checked where they are set (:class:`~softreach.reach.dynamics.Dynamics`):
-    #: a grid spans ``domain`` and cells tile ``hard_box``, so both need width on every axis; ``target_box`` may
-    #: be unbounded; the empty ``domain`` ``((), ())`` means none declared
+    #: a grid spans ``domain`` and cells tile ``hard_box``, so both need width on every axis; the empty ``domain``
+    #: ``((), ())`` means none declared; each part adds the checks of its own
     _CHECKS = {
         **Dynamics._CHECKS,
+        **FilterPart._CHECKS,
+        **EnvPart._CHECKS,
         "domain": box_check("domain", states=True, strict=True),
         "hard_box": box_check("hard_box", states=True, strict=True, optional=True),
-        "start_box": box_check("start_box", states=True, optional=True),
-        "target_box": box_check("target_box", states=True, optional=True, unbounded=True),
-        "start_budget": check_start_budget,
         "horizon": check_horizon,
     }
-
-    @property
-    def set_max_kernel(self) -> Any:
-        """The largest value of each set function over a box of states, compiled: a numba ``njit`` function
-        ``(params, which, lo, hi) -> float`` for the numbers :attr:`set_max_params`, ``which`` the set's index in
-        :data:`~softreach.reach.proof.model_kernels.SET_INDEX`, ``lo``, ``hi`` 1-d arrays. It must be the largest value of
-        the (time-invariant) set function at the box's corners, which the safety filter's one-period test takes
-        (:meth:`set_box_max`); ``tests/test_compiled_filter.py`` checks it for every model that gives one. The
-        default is :func:`~softreach.reach.proof.model_kernels.boxes_set_max` where :attr:`set_boxes` are declared; ``None``:
-        the filter evaluates the set functions at the corners in numpy, and has no compiled decision."""
-        return boxes_set_max if self.set_boxes else None
-
-    @property
-    def set_max_params(self) -> np.ndarray:
-        """The numbers :attr:`set_max_kernel` reads."""
-        return box_params(self.set_boxes, self.state_dim) if self.set_boxes else np.zeros(0)
 
     @abstractmethod
     def target(self, t: float, x: Components) -> Array:
@@ -189,38 +120,6 @@ class Model(Dynamics):
                 lo, hi = float(self.domain[0][i]), float(self.domain[1][i])
                 out[i] = lo + (out[i] - lo) % (hi - lo)
         return out
-
-    def sink_rate(self, x: Sequence[float]) -> float:
-        """The speed at touchdown that an evaluation reports [m/s] (the landings: vertical speed downwards);
-        ``nan`` for a model without one (the default).
-
-        :param x: one state, a number per component
-        """
-        return math.nan
-
-    def start_difficulty(self, x: Components) -> Array:
-        """How hard a start is, for picking the paper's representative starts (:func:`softreach.agents.tables.
-        paper_starts` takes the largest among deep nodes of each set). The landings: the altitude. The default:
-        the first state component.
-
-        :param x: state components (arrays over the grid)
-        """
-        return x[0]
-
-    def set_box_max(self, which: str, t: Any, lo: Any, hi: Any) -> Any:
-        """An upper bound of a set function over boxes of states, or ``None`` when the largest value at the
-        boxes' corners is one (the default: true for box distances and every function that is convex, or
-        monotone, along each axis). The safety filter's one-period test bounds ``c1``, ``c2`` and ``g`` over
-        boxes of reachable states this way; a model whose sets are not of that kind (the complement of a disc,
-        as an obstacle) must override this, else that test is unsound.
-
-        :param which: ``"target"``, ``"hard_constraint"`` or ``"soft_constraint"``
-        :param t: time(s) [s]
-        :param lo: ``(N, n)`` lower corners
-        :param hi: ``(N, n)`` upper corners
-        :return: ``(N,)`` upper bounds, or ``None``
-        """
-        return None
 
     def landed(self, t: float, x: Components) -> Array:
         """In the target, inside ``C2`` and ``C1``: where an episode ends landed (no action is needed there)."""

@@ -14,7 +14,8 @@ import pytest
 from cart_motion import CartMotion, doc_cart
 
 from softreach.reach import Model
-from softreach.reach.dynamics import ControlAndDisturbanceAffine, bounds_boxes, bounds_motion
+from softreach.reach.dynamics import ControlAndDisturbanceAffine
+from softreach.reach.model_filter import bounds_boxes, bounds_motion
 from softreach.reach.proof.enclosure_check import EnclosureCheck, check_enclosure, missing_extras
 from softreach.reach.proof.model_kernels import held_boxes
 

@@ -10,7 +10,7 @@ import pytest
 
 from softreach.agents.evaluate import EvalSpec, EvaluationResult, evaluate
 from softreach.agents.statistics import mean_ci
-from softreach.reach.problem import LANDING_WORDS, TaskWords
+from softreach.reach.model_report import LANDING_WORDS, TaskWords
 
 
 @pytest.mark.parametrize("budget", [None, 0.0, 0.06, 0.3])

@@ -30,7 +30,8 @@ from .. import sets
 from ..dynamics import Components
 from ..jit import njit
 from ..proof.model_kernels import box_distance_max, box_params
-from ..problem import LANDING_WORDS, Model
+from ..model_report import LANDING_WORDS
+from ..problem import Model
 from .glider_enclosure import GliderHeldEnclosure
 from .glider_game import GliderGame
 # re-exported: users take the parameters and the angle helpers from the model module

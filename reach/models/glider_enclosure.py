@@ -1,7 +1,7 @@
 """Validated enclosures of the glider's motion over one control period with the angle of attack held
 (:func:`held_box_kernel`), in interval arithmetic; the safety filter's look-ahead reads them.
 
-The enclosure is one compiled kernel (numba), the glider's :attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`:
+The enclosure is one compiled kernel (numba), the glider's :attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel`:
 the numpy methods :class:`~softreach.reach.dynamics.Dynamics` derives from it run it row by row
 (:func:`~softreach.reach.proof.model_kernels.held_boxes`), and the filter's compiled decision calls it by address, so
 both read the same boxes."""
@@ -201,7 +201,7 @@ class GliderHeldEnclosure:
     """
 
     params: GliderParams
-    #: the compiled enclosure (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`)
+    #: the compiled enclosure (:attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel`)
     held_box_kernel = staticmethod(held_box_kernel)
 
     @property

@@ -11,7 +11,8 @@ import numpy as np
 from .. import sets
 from ..dynamics import ControlAndDisturbanceAffine
 from ..jit import njit
-from ..problem import LANDING_WORDS, Model
+from ..model_report import LANDING_WORDS
+from ..problem import Model
 
 
 @dataclass(frozen=True)
@@ -197,7 +198,7 @@ class PointMass(Model, ControlAndDisturbanceAffine):
 @njit
 def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
     """The box of every state reachable at some time in ``[s0, s1]`` of a period with the thrust ``a[0]`` held, from
-    every start in ``[x_lo, x_hi]`` (:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`, from which the
+    every start in ``[x_lo, x_hi]`` (:attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel`, from which the
     model's enclosure methods are derived), written into ``lo`` and ``hi``; ``params`` is ``(gravity, d_max)``.
 
     ``v(s) = v + (u - g) s + D(s)`` and ``y(s) = y + v s + (u - g) s^2 / 2 + int_0^s D`` with ``D(s) = int_0^s d``,

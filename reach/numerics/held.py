@@ -9,7 +9,7 @@ where ``W^a_k`` solves, over ``[t_k, t_k+1]``, the reach-avoid variational inequ
 game with ``a`` fixed (Hamiltonian ``max_b p . f(t, x, a, b)``), from the terminal value ``W_k+1``. Its zero
 sublevel set is what a held-action controller can guarantee; it lies inside the continuous-time set (the control
 commits first and cannot react inside a period). The minimum runs over a finite set of candidate actions
-(:meth:`Dynamics.held_candidates`), so ``W_k`` is an upper bound of the value over all held actions: a state it
+(:meth:`FilterPart.held_candidates`), so ``W_k`` is an upper bound of the value over all held actions: a state it
 certifies is certified by one of those candidates.
 
 Every sub-solve uses the same schemes, dissipation and projection as the continuous solve

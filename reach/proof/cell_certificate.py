@@ -8,7 +8,7 @@ Cells are boxes: the hard-constraint box ``C1`` (:attr:`~softreach.reach.problem
 ``shape`` state cells, times budget cells ``[j dz, (j + 1) dz]``. A **plan** is a candidate held action kept for
 ``K`` periods (``K`` in ``holds``). A cell ``(c, j)`` is **good at sample time** ``t_k = k dt`` when some plan
 satisfies, from *every* state of the cell and for every wind signal (the model's box enclosures
-:meth:`~softreach.reach.dynamics.Dynamics.held_enclosure_box`, chained period by period):
+:meth:`~softreach.reach.model_filter.FilterPart.held_enclosure_box`, chained period by period):
 
 1. every period's motion stays in ``C1`` (the convex ``c1`` at the corners of each tube box);
 2. the budget spent, bounded as in the one-period test (pieces charged at their largest ``h_eps``) and summed

@@ -3,9 +3,9 @@
 
 Every certificate the filter states (the one-period test of :class:`~softreach.reach.proof.lookahead.Lookahead`, the
 cells of :mod:`~softreach.reach.proof.cell_certificate`, the compiled decision) is sound only if the model's boxes hold
-every motion of a held period: :meth:`~softreach.reach.dynamics.Dynamics.held_enclosure`,
-:meth:`~softreach.reach.dynamics.Dynamics.held_tube_pieces`, their ``_box`` versions from boxes of starts, and the
-compiled :attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel` over sub-intervals ``[s0, s1]`` of the
+every motion of a held period: :meth:`~softreach.reach.model_filter.FilterPart.held_enclosure`,
+:meth:`~softreach.reach.model_filter.FilterPart.held_tube_pieces`, their ``_box`` versions from boxes of starts, and the
+compiled :attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel` over sub-intervals ``[s0, s1]`` of the
 period. Nothing in the proof compares them with the model's ``f``. :func:`check_enclosure` does, by simulation:
 
 * starts uniform over ``C1`` (the model's ``hard_box``, its ``domain`` where ``C1`` is unbounded), some on a face
@@ -96,7 +96,7 @@ def missing_extras(model: Any, cells: bool) -> list[str]:
 
     :param cells: the proof on cells is asked for (they bound boxes of starts)
     """
-    from ..dynamics import bounds_boxes, bounds_motion
+    from ..model_filter import bounds_boxes, bounds_motion
 
     out = []
     if not bounds_motion(model):
@@ -219,7 +219,7 @@ def _durations(dt: float, checks: int) -> list[float]:
 def _claims(model: Any, t0: float, b_lo: np.ndarray, b_hi: np.ndarray, x0: np.ndarray, a: np.ndarray,
             dt: float, pieces: int, checks: int, cells: bool) -> list[tuple[str, float, float, float, bool, Any]]:
     """Every box the filter may read for these runs: ``(name, period, s0, s1, from_box, (lo, hi))``."""
-    from ..dynamics import bounds_boxes
+    from ..model_filter import bounds_boxes
     from .model_kernels import held_boxes
 
     out = []

@@ -6,14 +6,14 @@ the compiled code reads them) and the numpy box bounds that the cells' builder s
 :mod:`softreach.filters.compiled`).
 
 For a held action ``a`` and *every* disturbance signal in its box (switching at any instant, also in answer to ``a``),
-the model's :meth:`~softreach.reach.dynamics.Dynamics.held_enclosure` gives a box ``T`` holding the whole
+the model's :meth:`~softreach.reach.model_filter.FilterPart.held_enclosure` gives a box ``T`` holding the whole
 motion of the period and a box ``E`` holding its end point. The action is **admissible** when
 
 1. ``max_T c1 <= 0``: the motion stays in ``C1`` for the whole period. ``c1`` is convex (a box distance), so its
    maximum over ``T`` is at a corner of ``T`` (a model with other sets bounds them itself,
    :meth:`~softreach.reach.problem.Model.set_box_max`);
 2. ``z' = z - sum_j (dt / P) max_{T_j} h_eps >= 0``, ``T_j`` a box holding the motion over the ``j``-th of ``P``
-   equal pieces of the period (:meth:`~softreach.reach.dynamics.Dynamics.held_tube_pieces`): the budget
+   equal pieces of the period (:meth:`~softreach.reach.model_filter.FilterPart.held_tube_pieces`): the budget
    spent in the period, crossings of ``C2`` included, is at most that (``h_eps`` grows with ``c2``, also convex,
    so each maximum is at a corner), and the budget never goes negative, with no allowance of a period;
 3. ``E x [z', z]`` lies in the landing cells at the next sample time

@@ -1,5 +1,5 @@
 """A model's compiled functions as the safety filter calls them: its held-action enclosure
-(:attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`) and its sets' largest values over boxes
+(:attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel`) and its sets' largest values over boxes
 (:attr:`~softreach.reach.problem.Model.set_max_kernel`), each called through the address of a C callback, and the
 set-maximum kernel of a model whose sets are box distances.
 
@@ -76,7 +76,7 @@ def held_box_rows(address, params, x_lo, x_hi, a, s0, s1, lo, hi):
 
 def held_boxes(model: Any, x_lo: Any, x_hi: Any, a: Any, s0: Any, s1: Any) -> tuple[np.ndarray, np.ndarray]:
     """The box of every state reachable at some time in ``[s0, s1]`` of a held period from ``[x_lo, x_hi]``, by the
-    model's :attr:`~softreach.reach.dynamics.Dynamics.held_box_kernel`: what a model's numpy enclosure methods
+    model's :attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel`: what a model's numpy enclosure methods
     return, on the same kernel as the filter's compiled decision. ``s0``, ``s1`` are floats, or arrays that
     broadcast against the rows (``(P, 1)``: one box per piece and row).
 
