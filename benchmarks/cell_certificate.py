@@ -6,10 +6,12 @@ and, for the point mass, the exact sets.
         [--later 0.5 1 2]
     python benchmarks/cell_certificate.py --table pointmass-held.srt --write-packaged [--checks 2]
 
-Certified means ``ValueFilter.certify`` (the landing cells, proven), against the table's set (``Table.contains``:
-its interpolant ``<= 0``, which a held table claims and nothing proves), on states drawn uniformly over ``C1``. ``--exact-pointmass`` also
-counts the states of the exact continuous-time sets (``softreach.reach.numerics.exact_pointmass``), which hold every state
-any controller can land from, and the cells' states outside them (unsound; 0 expected).
+Certified means ``ValueFilter.certify`` (the landing cells, proven), against the table's set (``Table.contains``: its
+interpolant ``<= 0``, which a held table claims and nothing proves), on states drawn uniformly over ``C1``.
+``--exact-pointmass`` also counts the states of the exact continuous-time sets
+(``softreach.reach.numerics.exact_pointmass``), which hold every state any controller can land from, and the cells'
+states outside them (unsound; 0 expected).
+
 
 ``--write-packaged`` (re)writes the cells the package ships (``reach/proof/cells/``, the model's ``cell_shape``, for the
 filter's default ``target_checks`` 1 and the environment's sub-steps, or those of ``--checks``) from the table's

@@ -19,9 +19,11 @@ the table (any ``W_eps`` or ``Q_min`` table of the model, continuous-time or sam
 candidates.
 
 :class:`ValueFilter` runs this decision compiled, row by row (:mod:`softreach.filters.compiled`,
-:attr:`ValueFilter.compiled`); a model that does not give its enclosure, its sets' maxima compiled and its cells
-is refused at construction, with what to add (:meth:`~softreach.filters.compiled.CompiledDecision.missing`). ``tests/test_filter_reference.py`` checks the
-decision against ``tests/reference_decision.py``, a slow transcription of ``docs/filters.md``.
+:attr:`ValueFilter.compiled`); a model that does not give its enclosure, its sets' maxima compiled and its cells is
+refused at construction, with what to add (:meth:`~softreach.filters.compiled.CompiledDecision.missing`).
+``tests/test_filter_reference.py`` checks the decision against ``tests/reference_decision.py``, a slow transcription
+of ``docs/filters.md``.
+
 
 Everything works on batches: ``t`` and ``z`` are scalars or ``(N,)``, ``x`` is ``(N, n)`` (or ``(n,)``), actions
 ``(N, m)`` (or ``(m,)``) in physical units unless ``normalized=True``. numpy in, numpy out; torch in, torch out.

@@ -29,14 +29,6 @@ PLAN_LAND = 1
 PLAN_SAFE = 2
 
 
-def has_cells(model: Any) -> bool:
-    """Whether the filter builds cells for ``model`` by default: it declares ``cell_shape`` and bounds boxes of
-    starts (:meth:`~softreach.reach.model_filter.FilterPart.held_enclosure_box`)."""
-    from softreach.reach.model_filter import bounds_boxes
-
-    return getattr(model, "cell_shape", None) is not None and bounds_boxes(model)
-
-
 def resolve_cells(vf: Any, cells: Any, game: str) -> CellCertificate | None:
     """The cells a filter uses for ``game``: ``"auto"`` builds them (or reads the cache) from the model's
     ``cell_shape``; ``None`` none (safe cells only: the landing cells are the certificate); a

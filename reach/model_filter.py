@@ -128,13 +128,13 @@ class FilterPart:
 
     @property
     def set_max_kernel(self) -> Any:
-        """The largest value of each set function over a box of states, compiled: a numba ``njit`` function
-        ``(params, which, lo, hi) -> float`` for the numbers :attr:`set_max_params`, ``which`` the set's index in
-        :data:`~softreach.reach.proof.model_kernels.SET_INDEX`, ``lo``, ``hi`` 1-d arrays. It must be the largest value of
-        the (time-invariant) set function at the box's corners, which the safety filter's one-period test takes
-        (:meth:`set_box_max`); ``tests/test_compiled_filter.py`` checks it for every model that gives one. The
-        default is :func:`~softreach.reach.proof.model_kernels.boxes_set_max` where :attr:`set_boxes` are declared; ``None``:
-        the filter evaluates the set functions at the corners in numpy, and has no compiled decision."""
+        """The largest value of each set function over a box of states, compiled: a numba ``njit`` function ``(params,
+        which, lo, hi) -> float`` for the numbers :attr:`set_max_params`, ``which`` the set's index in
+        :data:`~softreach.reach.proof.model_kernels.SET_INDEX`, ``lo``, ``hi`` 1-d arrays. It must be the largest
+        value of the (time-invariant) set function at the box's corners, which the safety filter's one-period test
+        takes (:meth:`set_box_max`); ``tests/test_compiled_filter.py`` checks it for every model that gives one. The
+        default is :func:`~softreach.reach.proof.model_kernels.boxes_set_max` where :attr:`set_boxes` are declared;
+        ``None``: the filter evaluates the set functions at the corners in numpy, and has no compiled decision."""
         return boxes_set_max if self.set_boxes else None
 
     @property

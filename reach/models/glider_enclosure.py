@@ -1,8 +1,9 @@
 """Validated enclosures of the glider's motion over one control period with the angle of attack held
 (:func:`held_box_kernel`), in interval arithmetic; the safety filter's look-ahead reads them.
 
-The enclosure is one compiled kernel (numba), the glider's :attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel`:
-the numpy methods :class:`~softreach.reach.dynamics.Dynamics` derives from it run it row by row
+The enclosure is one compiled kernel (numba), the glider's
+:attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel`: the numpy methods
+:class:`~softreach.reach.model_filter.FilterPart` derives from it run it row by row
 (:func:`~softreach.reach.proof.model_kernels.held_boxes`), and the filter's compiled decision calls it by address, so
 both read the same boxes."""
 
@@ -193,7 +194,7 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
 class GliderHeldEnclosure:
     """The held-period enclosure of :class:`~softreach.reach.models.glider.Glider`, a base class of it.
 
-    It gives the compiled motion bound only: the base class :class:`~softreach.reach.dynamics.Dynamics` derives
+    It gives the compiled motion bound only: the base class :class:`~softreach.reach.model_filter.FilterPart` derives
     :meth:`held_enclosure`, :meth:`held_tube_pieces` and their ``_box`` versions from it, checking their arguments
     with the glider's :meth:`validate_state` and :meth:`validate_control` (which refuse ``V <= 0`` and angles that
     look like degrees) and refusing, in :meth:`held_enclosure`, a row with no box (no Picard candidate within the

@@ -102,7 +102,7 @@ def held_boxes(model: Any, x_lo: Any, x_hi: Any, a: Any, s0: Any, s1: Any) -> tu
 
 def kernel_boxes(model: Any, method: str, x_lo: Any, x_hi: Any, a: Any, dt: Any, pieces: int | None = None
                  ) -> tuple[np.ndarray, ...]:
-    """What :class:`~softreach.reach.dynamics.Dynamics` derives from a model's ``held_box_kernel``, on checked
+    """What :class:`~softreach.reach.model_filter.FilterPart` derives from a model's ``held_box_kernel``, on checked
     arguments (:func:`checked_rows`): with ``pieces=None`` ``(tube_lo, tube_hi, end_lo, end_hi)``, the boxes over
     ``[0, dt]`` and ``[dt, dt]``; else ``(lo, hi)``, each ``(pieces, N, n)``, the boxes over each of ``pieces``
     equal parts of the period."""
