@@ -238,11 +238,11 @@ def train(spec: TrainSpec, *, model_class: Any = None, wrap_env: Any = None, cal
 
     # the periodic evaluations run the deployed closed loop: the filter the policy will fly under
     eval_filt = as_table(spec.eval_filter) if spec.eval_filter else filt
-    certifying = eval_filt is not None
 
     def env_fn(rank: int, learner: bool, filtered: bool = True, table=None):
         use = (table if table is not None else filt) if filtered else None
-        deployed = table is not None and certifying
+        # the deployed closed loop: the evaluation filter's table
+        deployed = table is not None
         name = ("train" if filtered else "pretrain") if learner else ("deployed" if deployed else "eval")
         def thunk():
             # the deployed loop is measured where the filter's guarantee holds: from the starts it certifies
