@@ -41,7 +41,8 @@ from softreach.reach.proof.lookahead import exact_normalized
 from softreach.reach.proof.model_kernels import boxes_set_max, held_box_address
 from softreach.reach.proof.ranks import LOWEST_BAD, NEXT_CAP, PASSES_ONLY, RANK_PROVEN, RANK_SAFE, SMOOTH_PASSES_ONLY
 
-from .compiled_args import ActionMap, Box, Cells, DecisionSpace, Motion, TableArgs, Work, named, named_space, plain
+from .compiled_args import (N_BOOL_J, N_FLOAT_J, N_FLOAT_N, N_FLOAT_N1, ActionMap, Cells, DecisionSpace, Motion,
+                            TableArgs, named, packed_space, plain)
 from .compiled_certify import certify_rows
 from .compiled_starts import start_plan_rows
 from .judge import badness, judge, least_next, next_value, on_table
@@ -50,19 +51,16 @@ from .reasons import BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, UNCERTIFIED
 from .keeps import keeps
 
 
-def decision_space(n: int, m: int, J: int) -> DecisionSpace:
+def decision_space(n: int, m: int, J: int) -> tuple[DecisionSpace, tuple]:
     """The work space of :func:`decide_rows` (and its ``work`` and ``boxes``, eight boxes, of
     :func:`~softreach.filters.compiled_starts.start_plan_rows`) for ``n`` states, ``m`` controls and ``J``
-    candidates: the compiled loops allocate nothing."""
-    work = Work(np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n + 1), np.empty(n + 1),
-                box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES))
-    return DecisionSpace(
-        work=work, work_box=Box(np.empty(n), np.empty(n)), end_lo=np.empty((J + 1, n)), end_hi=np.empty((J + 1, n)),
-        c_ok=np.empty(J, np.bool_), c_next=np.empty(J), c_bad=np.empty(J), c_zend=np.empty(J),
-        c_kept=np.empty(J, np.bool_), c_score=np.empty(J), c_dist=np.empty(J), c_pref=np.empty(J), act=np.empty(m),
-        point=np.empty(n + 1), c_in=np.empty(J, np.bool_), c_bounded=np.empty(J, np.bool_),
-        c_proven=np.empty(J, np.bool_), c_c1=np.empty(J), c_pick=np.empty(J, np.bool_), c_low=np.empty(J),
-        c_tie=np.empty(J), c_order=np.empty(J, np.int64), boxes=np.empty((8, n)))
+    candidates, the compiled loops allocate nothing: named, and packed as the compiled entry points take it
+    (:func:`~softreach.filters.compiled_args.packed_space`), the same memory."""
+    packed = (np.empty((N_FLOAT_J, J)), np.empty((N_BOOL_J, J), np.bool_), np.empty((N_FLOAT_N, n)),
+              np.empty((N_FLOAT_N1, n + 1)), np.empty((2, J + 1, n)), np.empty(m), np.empty(J, np.int64),
+              np.empty((8, n)), box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES))
+    # the named views in Python: the compiled function's own code, run by the interpreter
+    return packed_space.py_func(packed), packed
 
 
 @njit(inline="always")
@@ -222,7 +220,7 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
     and ``space_args``: the model's side, the cells, the table, the control box's map and the work space as plain
     tuples (:mod:`softreach.filters.compiled_args`)."""
     M, C, T, action = named(m_args, c_args, t_args, a_args)
-    space = named_space(space_args)
+    space = packed_space(space_args)
     N = x.shape[0]
     J, m = cands.shape
     work, end_lo, end_hi, act, point = space.work, space.end_lo, space.end_hi, space.act, space.point
@@ -461,6 +459,5 @@ class CompiledDecision:
         space = getattr(self._local, "space", None)
         if space is None:
             J, m = self.cands.shape
-            named_one = decision_space(self.filter.lookahead.n, m, J)
-            space = self._local.space = (named_one, plain(named_one))
+            space = self._local.space = decision_space(self.filter.lookahead.n, m, J)
         return space

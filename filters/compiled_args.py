@@ -7,9 +7,10 @@ keeps caching the functions that take them (their type names the class, which is
 
 The compiled entry points (:func:`~softreach.filters.compiled.decide_rows`, :func:`~softreach.filters.
 compiled_certify.certify_rows`, :func:`~softreach.filters.compiled_starts.start_plan_rows`) take them as plain
-tuples (:func:`plain`) and name them again first thing (:func:`named`, :func:`named_space`): numba types a plain
+tuples (:func:`plain`) and name them again first thing (:func:`named`, :func:`packed_space`): numba types a plain
 tuple of arrays at each call from a fingerprint computed in C, a named tuple in Python, field by field, which would
-double the fixed cost of a one-row decision.
+double the fixed cost of a one-row decision. Each array a call hands over is unboxed again at every call, so the
+work space goes packed, its arrays of one kind rows of one array (:func:`packed_space`).
 """
 
 from __future__ import annotations
@@ -199,7 +200,17 @@ def named(M, C, T, action):
     return Motion(*M), Cells(*C), TableArgs(*T), ActionMap(*action)
 
 
+#: rows of the packed work space's arrays (:func:`packed_space`): one float and one boolean per candidate, floats
+#: per state axis, floats per state axis and the budget
+N_FLOAT_J, N_BOOL_J, N_FLOAT_N, N_FLOAT_N1 = 9, 6, 6, 3
+
+
 @njit(inline="always")
-def named_space(space):
-    """The plain tuple of a :class:`DecisionSpace` named again."""
-    return DecisionSpace(Work(*space[0]), Box(*space[1]), *space[2:])
+def packed_space(packed):
+    """The :class:`DecisionSpace` whose arrays are views of the packed one: ``(floats (N_FLOAT_J, J), booleans
+    (N_BOOL_J, J), floats (N_FLOAT_N, n), floats (N_FLOAT_N1, n + 1), end boxes (2, J + 1, n), act, c_order, boxes,
+    scratch_W, scratch_V)`` (:func:`~softreach.filters.compiled.decision_space`). In Python and compiled alike."""
+    fJ, bJ, fn, fn1, ends, act, order, boxes, scratch_W, scratch_V = packed
+    work = Work(fn[0], fn[1], fn[2], fn[3], fn1[0], fn1[1], scratch_W, scratch_V)
+    return DecisionSpace(work, Box(fn[4], fn[5]), ends[0], ends[1], bJ[0], fJ[0], fJ[1], fJ[2], bJ[1], fJ[3], fJ[4],
+                         fJ[5], act, fn1[2], bJ[2], bJ[3], bJ[4], fJ[6], bJ[5], fJ[7], fJ[8], order, boxes)

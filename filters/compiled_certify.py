@@ -17,7 +17,7 @@ from softreach.reach.jit import njit
 from softreach.reach.proof.kernels import certificate_row, cover_row
 from softreach.reach.proof.ranks import LOWEST_BAD
 
-from .compiled_args import Cells, Motion, TableArgs, named_space
+from .compiled_args import Cells, Motion, TableArgs, packed_space
 from .judge import badness, judge_once, next_value, on_table
 
 
@@ -30,7 +30,7 @@ def certify_rows(enclose, m_args, c_args, t_args, cands, t, x, z, ok, nxt, value
     (:func:`~softreach.filters.judge.badness`). The arguments as :func:`~softreach.filters.compiled.decide_rows`
     takes them."""
     M, C, T = Motion(*m_args), Cells(*c_args), TableArgs(*t_args)
-    space = named_space(space_args)
+    space = packed_space(space_args)
     N = x.shape[0]
     J = cands.shape[0]
     work, end_lo, end_hi, point = space.work, space.end_lo, space.end_hi, space.point

@@ -19,7 +19,7 @@ def candidate_verdicts(vf, t, x, z) -> tuple[np.ndarray, np.ndarray]:
     x = np.ascontiguousarray(np.atleast_2d(np.asarray(x, dtype=np.float64)))
     N, J = len(x), len(fast.cands)
     t, z = (np.broadcast_to(np.asarray(v, dtype=np.float64), (N,)) for v in (t, z))
-    work = decision_space(vf.n, vf.m, J)[0]
+    work = decision_space(vf.n, vf.m, J)[0].work
     lo, hi = np.empty(vf.n), np.empty(vf.n)
     passes, lands = np.zeros((N, J), bool), np.zeros((N, J), bool)
     for r in range(N):
@@ -38,6 +38,6 @@ def verdict(vf, t, x, z, a):
     fast = vf.compiled
     x = np.ascontiguousarray(x, dtype=np.float64)
     a = np.ascontiguousarray(a, dtype=np.float64)
-    work = decision_space(vf.n, vf.m, len(fast.cands))[0]
+    work = decision_space(vf.n, vf.m, len(fast.cands))[0].work
     lo, hi = np.empty(vf.n), np.empty(vf.n)
     return judge(fast.enclose, fast.M, fast.C, float(t), x, x, float(z), a, lo, hi, work)

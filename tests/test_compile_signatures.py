@@ -17,7 +17,7 @@ def test_a_candidate_row_has_the_type_of_the_action_being_judged(pointmass_held_
     cd = vf.compiled
     assert cd is not None
     J, m = cd.cands.shape
-    space = decision_space(vf.lookahead.n, m, J)
+    space = decision_space(vf.lookahead.n, m, J)[0]
     assert numba.typeof(cd.cands[0]) == numba.typeof(space.act)
     # the candidates themselves are the filter's: the compiled code reads them, it never writes them
     np.testing.assert_array_equal(cd.cands, np.asarray(vf.lookahead.candidates, dtype=np.float64))

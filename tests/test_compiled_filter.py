@@ -139,7 +139,7 @@ def test_badness_where_it_decides_is_the_references(pointmass_held_table):
     ref = ReferenceDecision(vf)
     fast, la = vf.compiled, vf.lookahead
     J = len(fast.cands)
-    work = decision_space(la.n, fast.cands.shape[1], J)[0]
+    work = decision_space(la.n, fast.cands.shape[1], J)[0].work
     t, x, z, _ = _draws(150, 3)
     exact = ranked = 0
     for r in range(len(x)):

@@ -91,7 +91,7 @@ def test_a_period_spends_budget_only_where_its_box_may_leave_c2(vfilter):
     from softreach.filters.judge import judge
 
     fast = vfilter.compiled
-    work = decision_space(la.n, 1, len(fast.cands))[0]
+    work = decision_space(la.n, 1, len(fast.cands))[0].work
     lo, hi = np.empty(la.n), np.empty(la.n)
     z_end = np.array([judge(fast.enclose, fast.M, fast.C, 0.0, x[r], x[r], z[r], a[r], lo, hi, work).z_end
                       for r in range(600)])
