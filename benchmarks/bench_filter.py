@@ -200,10 +200,10 @@ def _one_period_tests(decision, t, x, z, pol):
         return passed
 
     J, m = decision.cands.shape
-    space = decision_space(x.shape[1], m, J)
+    space = decision_space(x.shape[1], m, J)[0]
     args = (decision.enclose, decision.M, decision.C, decision.cands,
-            *(np.ascontiguousarray(v, dtype=np.float64) for v in (t, x, z, pol)), space[0], space[2], space[3],
-            space[12])
+            *(np.ascontiguousarray(v, dtype=np.float64) for v in (t, x, z, pol)), space.work, space.end_lo,
+            space.end_hi, space.act)
     return lambda: run(*args)
 
 
