@@ -19,16 +19,15 @@ The box bounds are those of the cells' builder (:class:`~softreach.reach.proof.l
 
 Inlined or called: numba inlines a function (``inline="always"``) by copying its body into every caller, where the
 copy is typed and optimised again, so that each copy adds to the first compilation; a call hands over every field of
-the large tuples of arrays, which costs more than the work of the small functions here. So a function that a loop
-over rows or candidates runs is inlined into that loop (:func:`judge` into the decision's loop, :func:`next_value`
-into each loop that reads next values), and each loop is a function of its own, called once a row
-(:func:`~softreach.filters.keeps.keeps`, :func:`badness`, :func:`least_next`, :func:`read_least`). What runs once
-for a row that does not pass is called (:func:`on_table`), and the searches from a whole box or outside the decision
+the large tuples of arrays, which costs more than the work of the small functions here. So a function that a loop over
+rows or candidates runs is inlined into that loop (:func:`judge` into the decision's loop, :func:`next_value` into
+each loop that reads next values), and each loop is a function of its own, called once a row
+(:func:`~softreach.filters.keeps.keeps`, :func:`badness`, :func:`least_next`, :func:`read_least`). What runs once for
+a row that does not pass is called (:func:`on_table`), and the searches from a whole box or outside the decision
 (:func:`~softreach.filters.keeps.keeps`, a state's certificate, the start plans) call :func:`judge_once`, so that the
-decision's loop holds the one inlined copy of :func:`judge` (``docs/filters.md``, "Time to a certified filter", quotes
-what a second copy cost). And since numba's typing of one function takes more than linear time in its length, a part
-of the decision that runs at most once a row is a function of its own where it is large and its arguments
-few (:mod:`softreach.filters.compiled`'s ``_follow_plans``).
+decision's loop holds the one inlined copy of :func:`judge`. And since numba's typing of one function takes more than
+linear time in its length, a part of the decision that runs at most once a row is a function of its own where it is
+large and its arguments few (:mod:`softreach.filters.compiled`'s ``_follow_plans``).
 """
 
 from __future__ import annotations
