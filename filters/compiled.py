@@ -21,8 +21,8 @@ so that the table is read only where its values can decide: a candidate's next v
 does, the safe value and the next value of those that can still be chosen (the decisions are those of reading
 every value: the test above compares them).
 
-The per-row outputs: the applied action, the reason code, the certificate at the state, the applied action's worst
-next certificate, whether it is certified, the chosen candidate (NaN where the policy passed) and the new plan.
+The per-row outputs: the applied action, the reason code, the table's value at the state, the applied action's worst
+next table value, whether it is certified, the chosen candidate (NaN where the policy passed) and the new plan.
 """
 
 from __future__ import annotations
@@ -115,7 +115,7 @@ def _distance(cands, j, pol, r, a_half):
 @njit(inline="always")
 def _keeping(enclose, M, C, cands, smooth, tr, space):
     """Which candidate keeps (:func:`~softreach.filters.keeps.keeps`), asked in the rule's order of preference
-    (lowest next certificate, or nearest the policy's action) up to the first that does; ``-1``: none."""
+    (lowest next table value, or nearest the policy's action) up to the first that does; ``-1``: none."""
     c_ok, c_kept, c_zend = space.c_ok, space.c_kept, space.c_zend
     _stable_order(space.c_pref, space.c_order)
     for k in space.c_order:

@@ -1,10 +1,10 @@
 """Whether states are certified, compiled: the numbers :meth:`~softreach.filters.ValueFilter.certify` needs of
 each row, by the decision's own parts (:mod:`softreach.filters.judge`) in the same arithmetic:
 
-* the best candidate: the candidate of least badness (a passing one by its worst next certificate, else the least
-  bad), whether it passes (its end box in the landing cells, or it surely lands), and its next certificate
+* the best candidate: the candidate of least badness (a passing one by its worst next table value, else the least
+  bad), whether it passes (its end box in the landing cells, or it surely lands), and its next table value
   (``+inf`` where it does not pass);
-* the certificate at the state, whether the state lies on the table and whether a landing cell holds it.
+* the table's value at the state, whether the state lies on the table and whether a landing cell holds it.
 
 ``tests/test_filter_reference.py`` compares :meth:`ValueFilter.certify` with the reference of ``docs/filters.md``.
 """

@@ -166,7 +166,7 @@ class ValueFilter:
 
     # ---------------------------------------------------------------- queries
     def value(self, t: Any, x: Any, z: Any) -> np.ndarray:
-        """The certificate ``D = min(V~, W~_eps)`` (``+inf`` outside the table); numpy out."""
+        """The table's value ``D = min(V~, W~_eps)`` (``+inf`` outside the table), which ranks; numpy out."""
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
         out = self.lookahead.certificate(tt, xs, zz)
         return out[0] if single else out
@@ -174,7 +174,7 @@ class ValueFilter:
     def certify(self, t: Any, x: Any, z: Any) -> tuple[np.ndarray, list[str], np.ndarray]:
         """Is each state certified: does some candidate held action pass the one-period test there?
 
-        :return: ``(certified (N,), reasons, best next certificate (N,))``; reasons from :data:`CERTIFY_REASONS`
+        :return: ``(certified (N,), reasons, best next table value (N,))``; reasons from :data:`CERTIFY_REASONS`
         """
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
         ok, nxt, value, inside, in_cells = self.compiled.certify(tt, xs, zz)
@@ -208,7 +208,7 @@ class ValueFilter:
         step, the second as the first ends (:func:`~softreach.filters.plans.advance_plan`; :class:`SafetyFilter`
         does both).
 
-        :return: ``(certified, reasons, best next certificate, plans (N, START_SEGMENTS, 3))``; each row's
+        :return: ``(certified, reasons, best next table value, plans (N, START_SEGMENTS, 3))``; each row's
             segments, :data:`NO_PLAN` where none is needed or none was found
         """
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
@@ -242,7 +242,7 @@ class ValueFilter:
         :param action: the policy's action(s), ``(N, m)`` or ``(m,)``: physical units, or ``[-1, 1]`` with
             ``normalized=True`` (then every returned action is normalised too)
         :return: ``(applied, info)``; where the policy's action passes, ``applied`` holds the numbers given (bit for
-            bit). ``info``: ``value`` (the certificate ``D`` at the state), ``margin``, ``active`` (the filter
+            bit). ``info``: ``value`` (the table's ``D`` at the state), ``margin``, ``active`` (the filter
             changed the action), ``reason`` (codes of :data:`REASONS`), ``optimal_action`` (the candidate the
             filter chose; NaN where the policy passed and none was needed), ``blend`` (``1`` where the policy's
             action passed), ``lookahead`` (the worst next table value of the applied action, ``+inf`` where it

@@ -303,7 +303,7 @@ def _rank(bounded, in_c1, proven, is_safe, kept, c1):
 
 @njit(inline="always")
 def _tie(nxt, z_end):
-    """Within a rank, the lower next certificate first (mapped into ``(-0.5, 0.5)``), then the smaller overspend."""
+    """Within a rank, the lower next table value first (mapped into ``(-0.5, 0.5)``), then the smaller overspend."""
     return math.atan(TIE_INF if nxt == np.inf else nxt) / math.pi + TIE_OVERSPEND * max(-z_end, 0.0)
 
 

@@ -26,11 +26,10 @@ class SafetyFilter(gym.Wrapper):
 
     From a start the filter certifies (``info["certified"]`` at ``reset``), for every policy and every wind within
     its bounds (switching at any instant, also in answer to the filter), each step holds an action that provably
-    keeps the vehicle in ``C1`` for the whole period, spends no more budget than is left, and ends inside the
-    table's certificate; at the horizon that means landed. This holds as long as the filter never reports
-    ``"uncertified"`` (a state between grid nodes from which no held action passes; ``docs/filters.md`` gives
-    the audit's counts). The policy's own action passes whenever holding it for one period keeps the state
-    certified. See :mod:`softreach.filters.core` and :mod:`softreach.reach.proof.lookahead`.
+    keeps the vehicle in ``C1`` for the whole period, spends no more budget than is left, and ends in the model's
+    landing cells, from which a proven plan lands by ``T``; so every run lands by ``T``. The policy's own action
+    passes whenever holding it for one period keeps the state certified. See :mod:`softreach.filters.core`,
+    :mod:`softreach.reach.proof.lookahead` and :mod:`softreach.reach.proof.cell_certificate`.
 
     A ``gymnasium.Wrapper`` rather than an ``ActionWrapper``, because the filter needs the state, time and
     remaining budget, which it reads from ``env.unwrapped`` (``state``, ``time``, ``budget``); observations and
@@ -41,11 +40,13 @@ class SafetyFilter(gym.Wrapper):
 
     * ``filter_active`` — the filter replaced (or, with ``rule="smooth"``, moved) the policy's action;
     * ``policy_action`` / ``applied_action`` — the normalised action the policy gave / the one applied;
-    * ``value`` — the certificate ``min(V~, W~_eps)`` at the state the decision was taken in (``+inf`` outside);
-    * ``margin`` (the extra tightening, 0 by default), ``optimal_action`` (the normalised candidate the filter
+    * ``value`` — the table's ``min(V~, W~_eps)`` at the state the decision was taken in (``+inf`` outside), which
+      ranks and proves nothing;
+    * ``margin`` (0), ``optimal_action`` (the normalised candidate the filter
       chose, NaN where the policy passed), ``filter_reason`` (``"pass"``, ``"blend"``, ``"optimal"``,
       ``"outside_domain"``, ``"after_horizon"``, ``"fallback"``, ``"uncertified"``);
-    * ``certified`` — the applied action passed the one-period test; ``lookahead`` — its worst next certificate;
+    * ``certified`` — the applied action passed the one-period test (or follows a landing cell's plan);
+      ``lookahead`` — its worst next table value;
     * on the last step of an episode, ``filter_episode``: ``steps``, ``interventions``, ``intervention_rate``,
       ``min_value`` and ``max_value`` (over the decisions; ``max_value <= 0`` means the episode never left the
       table's safe set), ``budget_used`` and ``initial_budget``.
@@ -58,7 +59,7 @@ class SafetyFilter(gym.Wrapper):
 
     :param env: a softreach landing environment (possibly wrapped, e.g. by ``TimeLimit`` or ``Monitor``)
     :param table: a :class:`~softreach.reach.Table` with ``W_eps``, or the path of one
-    :param margin: ``None`` (0) or an extra tightening ``>= 0`` of the next-state test (value units)
+    :param margin: ``None`` or 0 (any other is refused: the cells compare no table value with a margin)
     :param rule: ``"switch"`` (least restrictive; the default) or ``"smooth"``
     :param filter_kwargs: passed to :class:`~softreach.filters.ValueFilter` (``fallback_action``,
         ``smooth_iterations``, ``eps``, ``safe_cells``, ``landing_cells``, ``start_periods``)
@@ -89,7 +90,7 @@ class SafetyFilter(gym.Wrapper):
                 raise ValueError(f"rule={rule!r} differs from the shared value_filter's {value_filter.rule!r}")
             if margin is not None and margin != value_filter.constant_margin:
                 raise ValueError(f"margin={margin!r} differs from the shared value_filter's "
-                                 f"{value_filter.constant_margin!r} (None: computed)")
+                                 f"{value_filter.constant_margin!r}")
             if filter_kwargs:
                 raise ValueError(f"{sorted(filter_kwargs)} cannot apply to a shared value_filter")
             if not math.isclose(value_filter.dt, float(base.dt), rel_tol=1e-12, abs_tol=0.0):
