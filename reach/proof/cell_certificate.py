@@ -150,11 +150,11 @@ class CellCertificate:
             raise ValueError(f"{model.name} declares no hard_box; the cells tile it")
         shape = (1,) * model.state_dim
         key = cell_key(la, shape, None, game, holds)
-        steps = int(round(la.horizon / la.dt))
-        never = int(round(la.horizon / key["dz"])) + 1
-        m = np.full((steps + 1,) + shape, never, np.int16)
-        return cls(model.hard_box[0], model.hard_box[1], m, np.full(m.shape, -1, np.int8), np.zeros(m.shape, np.int8),
-                   la.candidates, la.dt, key["dz"], la.horizon, game, key)
+        m = np.zeros((int(round(la.horizon / la.dt)) + 1,) + shape, np.int16)
+        cells = cls(model.hard_box[0], model.hard_box[1], m, np.full(m.shape, -1, np.int8),
+                    np.zeros(m.shape, np.int8), la.candidates, la.dt, key["dz"], la.horizon, game, key)
+        m[...] = cells.never  # the certificate's own "no budget suffices" (its kernel arguments view m)
+        return cells
 
     # ---------------------------------------------------------------- cell arithmetic
     def _cell_range(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
