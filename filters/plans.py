@@ -41,8 +41,8 @@ def resolve_cells(vf: Any, cells: Any, game: str) -> CellCertificate | None:
     if cells is None and game == "safe":
         return None
     if cells is None:
-        raise ValueError("landing_cells must be 'auto' or a CellCertificate: the landing cells are the filter's "
-                         "certificate, without them it certifies nothing")
+        raise ValueError("landing_cells must be 'auto' or a CellCertificate, got None: the landing cells are the "
+                         "filter's certificate, without them it certifies nothing")
     if not isinstance(cells, CellCertificate):
         raise TypeError(f"{name} must be 'auto'{', None' if game == 'safe' else ''} or a CellCertificate, got "
                         f"{type(cells).__name__}")

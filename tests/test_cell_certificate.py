@@ -15,6 +15,7 @@ from softreach.reach.proof.lookahead import Lookahead
 from softreach.reach.numerics.exact_pointmass import exact_member
 
 from cell_plans import cell_boxes, fly_plan_from_a_good_cell
+from judged import candidate_verdicts
 
 DT = 0.01
 SHAPE = (60, 360)
@@ -205,3 +206,23 @@ def test_the_cover_test_is_every_touched_cell_good_at_the_budget(vf):
             index -= index * cells.dz > z[r]
             assert got[r] == bool((block <= index).all()), r
         assert 0.05 < got.mean() < 0.95 and got[top].any()  # both answers are asked, at the top too
+
+
+def test_empty_cells_certify_nothing(pointmass_held_table):
+    """``CellCertificate.empty`` (what compiling ahead builds the filter with): a filter accepts it as its own cells,
+    and it holds no state at any time or budget, so the filter certifies only states where a candidate surely lands
+    within the period (which the enclosure proves without cells)."""
+    model = get_model("pointmass")
+    la = Lookahead.from_table(pointmass_held_table, model, DT, pointmass_held_table.eps, target_checks=model.substeps)
+    empty = CellCertificate.empty(la)
+    vf = ValueFilter(pointmass_held_table, DT, target_checks=model.substeps, safe_cells=None, landing_cells=empty)
+    rng = np.random.default_rng(0)
+    lo, hi = (np.asarray(b, float) for b in model.hard_box)
+    x = rng.uniform(lo, hi, (500, 2))
+    t, z = rng.uniform(0.0, 1.0, 500), rng.uniform(0.0, 1.0, 500)
+    assert not empty.contains(t, x, z).any()
+    certified = vf.certify(0.0, x, 0.6)[0]
+    passes, lands = candidate_verdicts(vf, 0.0, x, 0.6)
+    np.testing.assert_array_equal(passes, lands)
+    np.testing.assert_array_equal(certified, lands.any(axis=1))
+    assert 0 < certified.sum() < len(x)

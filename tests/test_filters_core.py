@@ -311,7 +311,7 @@ def test_the_cells_not_the_table_decide_what_is_certified(pointmass_table, point
             np.testing.assert_array_equal(ok_cont, ok_held)
             counts.append(int(ok_cont.sum()))
     assert min(counts) > 0 and max(counts) < len(x), counts
-    with pytest.raises(ValueError, match="landing_cells must be 'auto' or a CellCertificate"):
+    with pytest.raises(ValueError, match="landing_cells must be 'auto' or a CellCertificate, got None"):
         ValueFilter(pointmass_table, DT, landing_cells=None)
 
 
