@@ -2,9 +2,9 @@
 
 The filter's first decision compiles it on an empty compiled-code cache, the suite's longest compile
 (``benchmarks/first_compile.py filter`` measures it). The modules that
-use the filter run after those that do not, and while those run, a process of its own (:mod:`warm_up`) solves the
-shared held tables and compiles the filter on them, so that the compile takes the machine's other core instead of
-stalling the run. A test of a module that uses the filter waits until the warm-up is done (it then loads the compiled
+make the filter decide run after those that do not, and while those run, a process of its own (:mod:`warm_up`) compiles the
+filter and solves the glider's shared held table, so that the compile takes the machine's other core instead of
+stalling the run. A test of a module that makes the filter decide waits until the warm-up is done (it then loads the compiled
 code); if the warm-up fails, that test compiles the filter itself, as it would without one.
 
 With ``pytest -n 2`` (pytest-xdist) the two workers share the tables and the one warm-up (started by the first
@@ -31,28 +31,21 @@ else:
 # test that set it themselves)
 os.environ["SOFTREACH_COMPILE_AHEAD"] = "0"
 
-from shared_tables import solved  # noqa: E402  (after the thread setting, before torch is imported)
+from shared_tables import run_root, solved  # noqa: E402  (after the thread setting, before torch is imported)
 from warm_up import phase_lock  # noqa: E402
 
-#: a module may use the filter if its text names it, the agents (which deploy it), a held table (which is for it),
-#: a held solve (which checks the model's enclosure with the proof's compiled kernels) or the filter's proof (whose
-#: compiled kernels the warm-up compiles too): such modules run last, and wait for a warm-up there is
-USES_FILTER = re.compile(r"softreach\.(filters|agents|reach\.proof)|ValueFilter|SafetyFilter|_held_table|\"--held\"")
-#: a module surely makes a filter decide: only a run with one of these starts a warm-up
-DECIDES = re.compile(r"ValueFilter\(|SafetyFilter\(|_held_table|\baudit\(|\bevaluate\(")
+#: a module that surely makes a filter decide: such modules run last and wait for the warm-up (one with them starts
+#: it). A module that decides without saying so here loses no work either: the warm-up holds the compile-ahead lock
+#: while it compiles the filter (:func:`softreach.reach.jit.compiling_ahead`), so such a test waits for it and loads
+#: the result instead of compiling it too
+DECIDES = re.compile(r"ValueFilter\(|SafetyFilter\(|_held_table|\baudit\(|\bevaluate\(|filter_table=|\[\"compile\"")
 #: the most a test waits for the warm-up [s]: past that it compiles the filter itself
 WAIT_S = 1200.0
 
 
-def _root(factory: pytest.TempPathFactory) -> Path:
-    """The folder every process of this run shares: the base temporary folder (its parent in an xdist worker)."""
-    base = factory.getbasetemp()
-    return base.parent if WORKER else base
-
-
 def _phases(text: str) -> list[str]:
     """The warm-up phases a module's tests wait for."""
-    if not USES_FILTER.search(text):
+    if not DECIDES.search(text):
         return []
     return ["pointmass", "glider"] if "glider" in text else ["pointmass"]
 
@@ -77,7 +70,7 @@ _WAITED: set[str] = set()
 
 
 def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Modules that use the filter last (each module's tests stay together and in order), and the warm-up started
+    """Modules that make the filter decide last (each module's tests stay together and in order), and the warm-up started
     when a test surely makes the filter decide and other tests can run meanwhile."""
     first_seen: dict[Path, int] = {}
     for item in items:
@@ -87,7 +80,7 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
     if (not any(_module(it)[1] for it in items) or all(_module_phases(it) for it in items)
             or WORKER not in (None, "gw0") or config.option.collectonly):
         return
-    root = _root(config._tmp_path_factory)  # type: ignore[attr-defined]
+    root = run_root(config._tmp_path_factory)  # type: ignore[attr-defined]
     log = open(root / "warm_up.log", "w")
     proc = subprocess.Popen([sys.executable, str(Path(__file__).with_name("warm_up.py")), str(root), *phases],
                             stdout=subprocess.PIPE, stderr=log, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
@@ -99,11 +92,11 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
 
 
 def pytest_runtest_setup(item: pytest.Item) -> None:
-    """A test of a module that uses the filter waits until the warm-up has compiled it (at once if there is none)."""
+    """A test of a module that makes the filter decide waits until the warm-up has compiled it (at once if there is none)."""
     for phase in _module_phases(item):
         if phase not in _WAITED:
             _WAITED.add(phase)
-            lock = phase_lock(_root(item.config._tmp_path_factory), phase)  # type: ignore[attr-defined]
+            lock = phase_lock(run_root(item.config._tmp_path_factory), phase)  # type: ignore[attr-defined]
             try:
                 with lock.acquire(timeout=WAIT_S):
                     pass
@@ -123,7 +116,7 @@ def pointmass_table(tmp_path_factory):
     """A coarse point-mass table with V and W_eps (41 x 41 x 45, ENO2/RK2, 11 snapshots)."""
     from softreach.reach import load_table
 
-    return load_table(solved("pointmass_small", _root(tmp_path_factory)))
+    return load_table(solved("pointmass_small", run_root(tmp_path_factory)))
 
 
 @pytest.fixture(scope="session")
@@ -136,7 +129,7 @@ def pointmass_held_table(tmp_path_factory):
     """A coarse point-mass table of the sampled-data game (actions held 0.01 s): 41 x 41 x 45, ENO2/RK2."""
     from softreach.reach import load_table
 
-    return load_table(solved("pointmass_held", _root(tmp_path_factory)))
+    return load_table(solved("pointmass_held", run_root(tmp_path_factory)))
 
 
 @pytest.fixture(scope="session")
@@ -145,7 +138,7 @@ def glider_held_table(tmp_path_factory):
     come from its cells (the packaged ones), so the tests that use it need the table only to rank and search."""
     from softreach.reach import load_table
 
-    return load_table(solved("glider_held", _root(tmp_path_factory)))
+    return load_table(solved("glider_held", run_root(tmp_path_factory)))
 
 
 @pytest.fixture(scope="session")
@@ -153,7 +146,7 @@ def dubins_table(tmp_path_factory):
     """A coarse Dubins table with V and W_eps (25 x 25 x 16 x 15, heading periodic, ENO2/RK2, 8 snapshots)."""
     from softreach.reach import load_table
 
-    return load_table(solved("dubins_small", _root(tmp_path_factory)))
+    return load_table(solved("dubins_small", run_root(tmp_path_factory)))
 
 
 @pytest.fixture(scope="session")
@@ -161,4 +154,4 @@ def dubins_held_table(tmp_path_factory):
     """A coarse Dubins table of the sampled-data game (turn rate held 0.1 s): 21 x 21 x 12 x 12, ENO2/RK2."""
     from softreach.reach import load_table
 
-    return load_table(solved("dubins_held", _root(tmp_path_factory)))
+    return load_table(solved("dubins_held", run_root(tmp_path_factory)))

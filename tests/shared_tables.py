@@ -15,7 +15,8 @@ from typing import Any
 
 from filelock import FileLock
 
-#: name -> (model, SolveConfig arguments, solve_table arguments); every table ENO2 / RK2 ("medium"), float32, eager
+#: name -> (model, SolveConfig arguments, solve_table arguments); every table ENO2 / RK2 ("medium"), float32, with the
+#: compiled CPU loops (the ``"fused"`` engine; the point mass's tables are bit for bit the eager ones)
 TABLES: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     # V and W_eps, 41 x 41 x 45, 11 snapshots
     "pointmass_small": ("pointmass", dict(shape=(41, 41), budget_points=45, snapshots=11), {}),
@@ -29,7 +30,19 @@ TABLES: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     "dubins_small": ("dubins", dict(shape=(25, 25, 16), budget_points=15, snapshots=8), {}),
     # the sampled-data game, turn rate held 0.1 s, 21 x 21 x 12 x 12
     "dubins_held": ("dubins", dict(shape=(21, 21, 12), budget_points=12, control_period=0.1), {}),
+    # the budget surface Q_min with V, 41 x 41, WENO5 / RK3 ("very_high", float64), 5 snapshots
+    "pointmass_qmin": ("pointmass", dict(shape=(41, 41), budget_points=0, snapshots=5, budget_surface=True), {}),
 }
+#: the solver settings of a table whose own are not the default ones: ``SolverSettings.from_accuracy`` arguments
+SETTINGS: dict[str, dict[str, Any]] = {"pointmass_qmin": dict(accuracy="very_high")}
+_DEFAULT_SETTINGS = dict(accuracy="medium", dtype="float32", compile=True)
+
+
+def run_root(factory: Any) -> Path:
+    """The folder every process of this run shares: the base temporary folder of ``factory`` (a
+    ``pytest.TempPathFactory``; its parent in a pytest-xdist worker)."""
+    base = factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
 
 
 def lock(path: Path) -> FileLock:
@@ -46,8 +59,8 @@ def solved(name: str, root: Path) -> Path:
     with lock(path):
         if not path.exists():
             part = path.with_name(f".{name}.{os.getpid()}.srt")
-            cfg = SolveConfig(**config, settings=SolverSettings.from_accuracy("medium", dtype="float32",
-                                                                              compile=False))
+            settings = dict(SETTINGS.get(name, _DEFAULT_SETTINGS))
+            cfg = SolveConfig(**config, settings=SolverSettings.from_accuracy(settings.pop("accuracy"), **settings))
             solve_table(get_model(model), cfg, part, progress=False, **extra)
             os.replace(part, path)
     return path

@@ -18,7 +18,7 @@ DT = 0.01
 def _solve(tmp_path_factory, name: str, period: float | None):
     path = tmp_path_factory.mktemp("qmin_tables") / name
     cfg = SolveConfig(shape=(41, 41), budget_points=45, control_period=period, budget_surface=True,
-                      settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False))
+                      settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=True))
     solve_table(get_model("pointmass"), cfg, path, progress=False)
     return load_table(path)
 

@@ -43,7 +43,7 @@ def one_thread():
 def glider_table(tmp_path_factory):
     path = tmp_path_factory.mktemp("glider") / "glider_tiny.srt"
     cfg = SolveConfig(shape=SHAPE, budget_points=NZ,
-                      settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False), snapshots=11)
+                      settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=True), snapshots=11)
     with one_thread():
         summary = solve_table(Glider(), cfg, path, progress=False, budgets=BUDGETS)
     table = load_table(path)

@@ -63,7 +63,7 @@ def test_value_does_not_decrease_as_eps_decreases(tmp_path):
     tables = {}
     for eps in (1.0, 0.1, 1e-3):
         cfg = SolveConfig(shape=(41, 41), budget_points=45, eps=eps, snapshots=3,
-                          settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=False))
+                          settings=SolverSettings.from_accuracy("medium", dtype="float32", compile=True))
         solve_table(MODEL, cfg, tmp_path / f"e{eps}.srt", progress=False)
         tables[eps] = load_table(tmp_path / f"e{eps}.srt")
     W = {e: np.asarray(t.values("W_eps")[0]) for e, t in tables.items()}

@@ -1,14 +1,15 @@
-"""The test run's warm-up: solves the shared held tables and compiles the filter's decision on them
-(:func:`softreach.filters.precompile.precompile`, what ``softreach compile`` runs) in a process of its own, started by
-``tests/conftest.py`` while the tests that do not use the filter run.
+"""The test run's warm-up: compiles the filter's decision (:func:`softreach.filters.background.compile_ahead`, what
+``softreach solve`` runs in the background), then solves the glider's shared held table and compiles the glider's
+kernels on it (:func:`softreach.filters.precompile.precompile`, what ``softreach compile`` runs), in a process of its
+own, started by ``tests/conftest.py`` while the tests that do not use the filter run.
 
 The filter's first decision compiles it (``benchmarks/first_compile.py filter`` measures how long), paid otherwise by
 whichever test decides first, while the machine's other core idles (one pytest process) or compiles the same code
 (two workers). Here it is
 compiled once, beside the tests, into the run's compiled-code cache, which the tests then load.
 
-Usage: ``python tests/warm_up.py ROOT PHASE...`` with the phases ``pointmass`` and ``glider`` (a model's shared held
-table, then its filter). Each phase's lock (:func:`phase_lock`) is held from the start until the phase is done, so a
+Usage: ``python tests/warm_up.py ROOT PHASE...`` with the phases ``pointmass`` (the filter's code) and ``glider`` (the
+glider's shared held table, then its kernels). Each phase's lock (:func:`phase_lock`) is held from the start until the phase is done, so a
 test that waits on it finds the decision compiled; the line ``locked`` on stdout says that every lock is held. The
 tables themselves are taken under their own locks (:func:`shared_tables.solved`), never while waiting on another.
 """
@@ -42,12 +43,18 @@ def main(argv: list[str]) -> int:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from shared_tables import solved
 
+    from softreach.filters.background import compile_ahead
     from softreach.filters.precompile import precompile
     from softreach.reach import load_table
 
     for phase, phase_held in zip(phases, held):
-        path = solved(PHASES[phase], root)  # or the table a test has solved meanwhile
-        result = precompile(load_table(path))
+        # the filter's compiled code is the same for every table: compiled first on the smallest one (what
+        # softreach solve compiles in the background), so that the tests need not also wait for the shared held
+        # table, which the first of them to ask solves meanwhile
+        result = compile_ahead() if phase == "pointmass" else "busy"
+        if result == "busy":
+            path = solved(PHASES[phase], root)  # or the table a test has solved meanwhile
+            result = precompile(load_table(path))
         print(f"{phase}: {result}", file=sys.stderr, flush=True)  # to the log the conftest keeps
         phase_held.release()
     return 0
