@@ -1,11 +1,11 @@
 """Shared fixtures (small solved tables, each solved once per run: :mod:`shared_tables`) and the run's warm-up.
 
 The filter's first decision compiles it on an empty compiled-code cache, the suite's longest compile
-(``benchmarks/first_compile.py filter`` measures it). The modules that
-make the filter decide run after those that do not, and while those run, a process of its own (:mod:`warm_up`) compiles the
-filter and solves the glider's shared held table, so that the compile takes the machine's other core instead of
-stalling the run. A test of a module that makes the filter decide waits until the warm-up is done (it then loads the compiled
-code); if the warm-up fails, that test compiles the filter itself, as it would without one.
+(``benchmarks/first_compile.py filter`` measures it). The modules that make the filter decide run after those that do
+not, and while those run, a process of its own (:mod:`warm_up`) compiles the filter and solves the glider's shared
+held table, so that the compile takes the machine's other core instead of stalling the run. A test of a module that
+makes the filter decide waits until the warm-up is done (it then loads the compiled code); if the warm-up fails, that
+test compiles the filter itself, as it would without one.
 
 With ``pytest -n 2`` (pytest-xdist) the two workers share the tables and the one warm-up (started by the first
 worker). Every process runs on one thread (``OMP_NUM_THREADS=1`` unless set, and always in a worker).
@@ -70,8 +70,8 @@ _WAITED: set[str] = set()
 
 
 def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Modules that make the filter decide last (each module's tests stay together and in order), and the warm-up started
-    when a test surely makes the filter decide and other tests can run meanwhile."""
+    """Modules that make the filter decide last (each module's tests stay together and in order), and the warm-up
+    started when a test surely makes the filter decide and other tests can run meanwhile."""
     first_seen: dict[Path, int] = {}
     for item in items:
         first_seen.setdefault(Path(item.fspath), len(first_seen))
@@ -92,7 +92,8 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
 
 
 def pytest_runtest_setup(item: pytest.Item) -> None:
-    """A test of a module that makes the filter decide waits until the warm-up has compiled it (at once if there is none)."""
+    """A test of a module that makes the filter decide waits until the warm-up has compiled it (at once if there is
+    none)."""
     for phase in _module_phases(item):
         if phase not in _WAITED:
             _WAITED.add(phase)

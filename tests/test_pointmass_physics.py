@@ -83,7 +83,7 @@ def test_value_does_not_decrease_as_eps_decreases(tmp_path):
 def _ceiling(shape):
     grid = Grid(MODEL.domain[0], MODEL.domain[1], shape)
     V = np.asarray(solve(classical_problem(MODEL), grid, [0.0, 1.0],
-                         SolverSettings.from_accuracy("very_high", backend="numpy", compile=False)))
+                         SolverSettings.from_accuracy("very_high", dtype="float64", compile=True)))
     iv = int(np.argmin(np.abs(grid.axis(0))))
     assert abs(grid.axis(0)[iv]) < 1e-9
     y = grid.axis(1)

@@ -5,13 +5,16 @@ own, started by ``tests/conftest.py`` while the tests that do not use the filter
 
 The filter's first decision compiles it (``benchmarks/first_compile.py filter`` measures how long), paid otherwise by
 whichever test decides first, while the machine's other core idles (one pytest process) or compiles the same code
-(two workers). Here it is
-compiled once, beside the tests, into the run's compiled-code cache, which the tests then load.
+(two workers). Here it is compiled once, beside the tests, into the run's compiled-code cache, which the tests then
+load.
 
 Usage: ``python tests/warm_up.py ROOT PHASE...`` with the phases ``pointmass`` (the filter's code) and ``glider`` (the
-glider's shared held table, then its kernels). Each phase's lock (:func:`phase_lock`) is held from the start until the phase is done, so a
-test that waits on it finds the decision compiled; the line ``locked`` on stdout says that every lock is held. The
-tables themselves are taken under their own locks (:func:`shared_tables.solved`), never while waiting on another.
+glider's shared held table, then its kernels). Each phase's lock (:func:`phase_lock`) is held from the start until the
+phase is done, so a test that waits on it finds the decision compiled; the line ``locked`` on stdout says that every
+lock is held. The tables themselves are taken under their own locks (:func:`shared_tables.solved`), never while
+waiting on another. While the filter compiles, the warm-up also holds the compile-ahead lock
+(:func:`softreach.reach.jit.compiling_ahead`): a test that makes the filter decide without waiting on a phase waits
+for that compilation and loads it.
 """
 
 from __future__ import annotations
@@ -51,8 +54,8 @@ def main(argv: list[str]) -> int:
         # the filter's compiled code is the same for every table: compiled first on the smallest one (what
         # softreach solve compiles in the background), so that the tests need not also wait for the shared held
         # table, which the first of them to ask solves meanwhile
-        result = compile_ahead() if phase == "pointmass" else "busy"
-        if result == "busy":
+        result = compile_ahead() if phase == "pointmass" else None
+        if result in (None, "busy"):  # the glider's kernels, or another process compiles ahead: on the shared table
             path = solved(PHASES[phase], root)  # or the table a test has solved meanwhile
             result = precompile(load_table(path))
         print(f"{phase}: {result}", file=sys.stderr, flush=True)  # to the log the conftest keeps
