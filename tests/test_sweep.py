@@ -106,14 +106,15 @@ def test_local_sweep_table_failure_and_resume(local_sweep, pointmass_table_path)
     assert res3["status"]["done"] == 4 and model.stat().st_mtime_ns == stamp[0]
 
 
-def kill_when_started(marker: Path) -> list[int]:
-    """SIGKILL the process that writes ``marker`` (a run's running.json) as soon as it appears, from a thread;
-    the returned list receives its pid."""
+def kill_when_started(marker: Path) -> tuple[list[int], threading.Event]:
+    """SIGKILL the process that writes ``marker`` (a run's running.json) as soon as it appears, from a thread that
+    watches until the returned event is set (however long the run takes to start on a loaded machine); the returned
+    list receives its pid."""
     killed: list[int] = []
+    done = threading.Event()
 
     def watch():
-        deadline = time.time() + 60
-        while time.time() < deadline and not killed:
+        while not done.is_set() and not killed:
             try:
                 pid = json.loads(marker.read_text())["pid"]
             except (OSError, ValueError):
@@ -123,7 +124,7 @@ def kill_when_started(marker: Path) -> list[int]:
             killed.append(pid)
 
     threading.Thread(target=watch, daemon=True).start()
-    return killed
+    return killed, done
 
 
 def check_killed(res, spec: SweepSpec, out: Path, killed: list[int], message: str) -> None:
@@ -141,8 +142,11 @@ def test_killed_worker_is_reported(tmp_path, pointmass_table_path):
     """A local worker killed mid-run: that run is reported killed, the others run in a fresh pool."""
     spec = tiny_spec(pointmass_table_path)
     out = tmp_path / "sweep"
-    killed = kill_when_started(out / "runs" / spec.runs()[0].run_id / "running.json")
-    res = run_sweep(spec, out, workers=1, log=lambda _: None)
+    killed, done = kill_when_started(out / "runs" / spec.runs()[0].run_id / "running.json")
+    try:
+        res = run_sweep(spec, out, workers=1, log=lambda _: None)
+    finally:
+        done.set()
     check_killed(res, spec, out, killed, "worker process died")
 
 
@@ -159,8 +163,11 @@ def local_ray():
 def test_killed_ray_worker_is_reported(tmp_path, pointmass_table_path, local_ray):
     spec = tiny_spec(pointmass_table_path)
     out = tmp_path / "sweep"
-    killed = kill_when_started(out / "runs" / spec.runs()[0].run_id / "running.json")
-    res = run_sweep(spec, out, ray="auto", log=lambda _: None)
+    killed, done = kill_when_started(out / "runs" / spec.runs()[0].run_id / "running.json")
+    try:
+        res = run_sweep(spec, out, ray="auto", log=lambda _: None)
+    finally:
+        done.set()
     check_killed(res, spec, out, killed, "WorkerCrashedError")
 
 
@@ -232,8 +239,8 @@ def test_ctrl_c_says_how_to_resume(tmp_path, pointmass_table_path):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
                             env={**os.environ, "OMP_NUM_THREADS": "1"},
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    deadline = time.time() + 120
-    while not list(out.glob("runs/*/running.json")) and time.time() < deadline and proc.poll() is None:
+    # until its run starts, however loaded the machine (a process that ends first fails the next line)
+    while not list(out.glob("runs/*/running.json")) and proc.poll() is None:
         time.sleep(0.05)
     worker = json.loads(next(out.glob("runs/*/running.json")).read_text())["pid"]
     os.killpg(proc.pid, signal.SIGINT)
