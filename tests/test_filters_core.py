@@ -76,10 +76,20 @@ def test_pointmass_pieces_cover_the_period():
     assert lo[0, 0, 0] < -10 and lo[-1, 0, 0] > -10
 
 
-def test_a_period_spends_budget_only_where_its_box_may_leave_c2(vfilter):
+@pytest.mark.parametrize("eps", [None, 0.5], ids=["table_eps", "eps_0.5"])
+def test_a_period_spends_budget_only_where_its_box_may_leave_c2(vfilter, pointmass_held_table, eps):
     """The one-period test charges a period's pieces only where its whole box may leave ``C2``: inside, the budget
-    is kept to the bit; where it may leave, the pieces' charge. Both paths, on states on both sides of the soft
-    limit ``v = -10`` and far from it, at the budgets the decision uses."""
+    is kept to the bit; where it may leave, the pieces' charge, the same to the bit in the compiled test and in the
+    cells' builder (``Lookahead``). Both paths, on states on both sides of the soft limit ``v = -10`` and far from
+    it, at the budgets the decision uses. With the table's ``h_eps`` width (``1e-3``) nearly every piece is charged
+    all or nothing; with a width of 0.5 most are charged a fraction, where an order of the sum would show."""
+    if eps is not None:
+        from softreach.reach.proof.cell_certificate import CellCertificate
+        from softreach.reach.proof.lookahead import Lookahead
+
+        la = Lookahead.from_table(pointmass_held_table, pointmass_held_table.model, DT, eps)
+        vfilter = ValueFilter(pointmass_held_table, DT, eps=eps, safe_cells=None,
+                              landing_cells=CellCertificate.empty(la))
     la = vfilter.lookahead
     rng = np.random.default_rng(3)
     x = np.c_[np.r_[rng.uniform(-10.8, -9.2, 300), rng.uniform(-14, 14, 300)], rng.uniform(1, 17, 600)]
@@ -107,6 +117,9 @@ def test_a_period_spends_budget_only_where_its_box_may_leave_c2(vfilter):
     np.testing.assert_array_equal(z_end[~inside], charged[~inside])
     # the point mass's pieces lie in its period's box, so inside it they are charged nothing either
     np.testing.assert_array_equal(charged[inside], z[inside])
+    if eps is not None:  # charges of a fraction of a piece's share, at most rows that spend
+        shares = (z - charged)[~inside] / (DT / la.pieces)
+        assert (np.abs(shares - np.round(shares)) > 1e-3).mean() > 0.5
 
 
 # ------------------------------------------------------------------------------------------ the box maximum

