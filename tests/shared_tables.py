@@ -15,8 +15,9 @@ from typing import Any
 
 from filelock import FileLock
 
-#: name -> (model, SolveConfig arguments, solve_table arguments); every table ENO2 / RK2 ("medium"), float32, with the
-#: compiled CPU loops (the ``"fused"`` engine; the point mass's tables are bit for bit the eager ones)
+#: name -> (model, SolveConfig arguments, solve_table arguments); ENO2 / RK2 ("medium"), float32, with the compiled
+#: CPU loops (the ``"fused"`` engine; the point mass's tables are bit for bit the eager ones), where :data:`SETTINGS`
+#: does not say otherwise
 TABLES: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     # V and W_eps, 41 x 41 x 45, 11 snapshots
     "pointmass_small": ("pointmass", dict(shape=(41, 41), budget_points=45, snapshots=11), {}),

@@ -1,7 +1,7 @@
 """The test run's warm-up: compiles the filter's decision (:func:`softreach.filters.background.compile_ahead`, what
 ``softreach solve`` runs in the background), then solves the glider's shared held table and compiles the glider's
 kernels on it (:func:`softreach.filters.precompile.precompile`, what ``softreach compile`` runs), in a process of its
-own, started by ``tests/conftest.py`` while the tests that do not use the filter run.
+own, started by ``tests/conftest.py`` while the tests that do not make the filter decide run.
 
 The filter's first decision compiles it (``benchmarks/first_compile.py filter`` measures how long), paid otherwise by
 whichever test decides first, while the machine's other core idles (one pytest process) or compiles the same code
