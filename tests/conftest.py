@@ -51,16 +51,11 @@ def _phases(text: str) -> list[str]:
 
 
 def _module_phases(item: pytest.Item) -> list[str]:
-    return _module(item)[0]
-
-
-def _module(item: pytest.Item) -> tuple[list[str], bool]:
-    """The warm-up phases the module of ``item`` waits for, and whether it surely makes a filter decide."""
+    """The warm-up phases the module of ``item`` waits for (none: it does not surely make a filter decide)."""
     path = Path(item.fspath)
     cache = item.config.stash.setdefault(_TEXTS, {})
     if path not in cache:
-        text = path.read_text()
-        cache[path] = (_phases(text), bool(DECIDES.search(text)))
+        cache[path] = _phases(path.read_text())
     return cache[path]
 
 
@@ -77,7 +72,7 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
         first_seen.setdefault(Path(item.fspath), len(first_seen))
     items.sort(key=lambda it: (bool(_module_phases(it)), first_seen[Path(it.fspath)]))
     phases = sorted({p for it in items for p in _module_phases(it)}, key=["pointmass", "glider"].index)
-    if (not any(_module(it)[1] for it in items) or all(_module_phases(it) for it in items)
+    if (not phases or all(_module_phases(it) for it in items)
             or WORKER not in (None, "gw0") or config.option.collectonly):
         return
     root = run_root(config._tmp_path_factory)  # type: ignore[attr-defined]
