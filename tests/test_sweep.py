@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -106,10 +108,11 @@ def test_local_sweep_table_failure_and_resume(local_sweep, pointmass_table_path)
     assert res3["status"]["done"] == 4 and model.stat().st_mtime_ns == stamp[0]
 
 
-def kill_when_started(marker: Path) -> tuple[list[int], threading.Event]:
-    """SIGKILL the process that writes ``marker`` (a run's running.json) as soon as it appears, from a thread that
-    watches until the returned event is set (however long the run takes to start on a loaded machine); the returned
-    list receives its pid."""
+@contextlib.contextmanager
+def killing_when_started(marker: Path) -> Iterator[list[int]]:
+    """While the block runs, SIGKILL the process that writes ``marker`` (a run's running.json) as soon as it appears,
+    from a thread that watches until the block ends (however long the run takes to start on a loaded machine); the
+    yielded list receives its pid."""
     killed: list[int] = []
     done = threading.Event()
 
@@ -124,7 +127,10 @@ def kill_when_started(marker: Path) -> tuple[list[int], threading.Event]:
             killed.append(pid)
 
     threading.Thread(target=watch, daemon=True).start()
-    return killed, done
+    try:
+        yield killed
+    finally:
+        done.set()
 
 
 def check_killed(res, spec: SweepSpec, out: Path, killed: list[int], message: str) -> None:
@@ -142,11 +148,8 @@ def test_killed_worker_is_reported(tmp_path, pointmass_table_path):
     """A local worker killed mid-run: that run is reported killed, the others run in a fresh pool."""
     spec = tiny_spec(pointmass_table_path)
     out = tmp_path / "sweep"
-    killed, done = kill_when_started(out / "runs" / spec.runs()[0].run_id / "running.json")
-    try:
+    with killing_when_started(out / "runs" / spec.runs()[0].run_id / "running.json") as killed:
         res = run_sweep(spec, out, workers=1, log=lambda _: None)
-    finally:
-        done.set()
     check_killed(res, spec, out, killed, "worker process died")
 
 
@@ -163,11 +166,8 @@ def local_ray():
 def test_killed_ray_worker_is_reported(tmp_path, pointmass_table_path, local_ray):
     spec = tiny_spec(pointmass_table_path)
     out = tmp_path / "sweep"
-    killed, done = kill_when_started(out / "runs" / spec.runs()[0].run_id / "running.json")
-    try:
+    with killing_when_started(out / "runs" / spec.runs()[0].run_id / "running.json") as killed:
         res = run_sweep(spec, out, ray="auto", log=lambda _: None)
-    finally:
-        done.set()
     check_killed(res, spec, out, killed, "WorkerCrashedError")
 
 
