@@ -38,11 +38,11 @@ from softreach.reach.proof.box_max import kernel_field
 from softreach.reach.jit import njit
 from softreach.reach.proof.kernels import MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row
 from softreach.reach.proof.lookahead import exact_normalized
-from softreach.reach.proof.model_kernels import boxes_set_max, held_box_address
+from softreach.reach.proof.period import missing_kernels, motion
 from softreach.reach.proof.ranks import LOWEST_BAD, NEXT_CAP, PASSES_ONLY, RANK_PROVEN, RANK_SAFE, SMOOTH_PASSES_ONLY
 
-from .compiled_args import (N_BOOL_J, N_FLOAT_J, N_FLOAT_N, N_FLOAT_N1, ActionMap, Cells, DecisionSpace, Motion,
-                            TableArgs, named, packed_space, plain)
+from .compiled_args import (N_BOOL_J, N_FLOAT_J, N_FLOAT_N, N_FLOAT_N1, ActionMap, Cells, DecisionSpace, TableArgs,
+                            named, packed_space, plain)
 from .compiled_certify import certify_rows
 from .compiled_starts import start_plan_rows
 from .judge import badness, judge, least_next, next_value, on_table
@@ -307,20 +307,10 @@ class CompiledDecision:
     """:func:`decide_rows` bound to one filter, whose model gives what it needs (:meth:`missing`)."""
 
     def __init__(self, vf: Any):
-        la, model = vf.lookahead, vf.model
+        la = vf.lookahead
         self.filter = vf
-        tb = model.target_box
-        t_lo, t_hi = ((np.full(la.n, -np.inf), np.full(la.n, np.inf)) if tb is None
-                      else (np.asarray(tb[0], dtype=np.float64), np.asarray(tb[1], dtype=np.float64)))
-        checks = np.stack([np.linspace(0.0, la.dt * j / la.target_checks, la.pieces + 1)
-                           for j in range(1, la.target_checks + 1)])
-        #: the model's enclosure, called by address (:func:`~softreach.reach.proof.model_kernels.held_box_address`)
-        self.enclose = held_box_address(model)
-        # the sets over boxes: the lookahead's compiled set maxima (its _corner_max), called by address too
-        set_address, set_params = la.set_kernel
-        self.M = Motion(np.asarray(model.held_box_params, dtype=np.float64), la.eps, set_params, set_address, t_lo,
-                        t_hi, np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon, frozen(la.slack),
-                        la.first_check, la.budget_slack, la.exact_env)
+        #: the model's enclosure, called by address, and the model's side of the one-period test
+        self.enclose, self.M = motion(la)
         safe, land = vf.safe_cells, vf.landing_cells
         # without safe cells, the landing cells' arrays in their place, which nothing reads (has_safe), for one
         # compilation
@@ -347,26 +337,12 @@ class CompiledDecision:
     def missing(model: Any) -> str | None:
         """What the decision needs that ``model`` does not give, in words naming what to add; ``None``: nothing.
         :class:`~softreach.filters.ValueFilter` refuses such a model at construction."""
-        name = type(model).__name__
-        if getattr(model, "held_box_kernel", None) is None:
-            return (f"{name} gives no compiled held_box_kernel (with held_box_params): add one that bounds every "
-                    f"state a held period reaches from a box of starts, as reach/models/pointmass.py and the cart of "
-                    f"docs/models.md write it")
-        if getattr(model, "set_max_kernel", None) is None:
-            return (f"{name} gives no compiled set maxima: declare set_boxes (box-distance sets) or add a "
-                    f"set_max_kernel with set_max_params")
-        if getattr(model, "cell_shape", None) is None:
-            return (f"{name} declares no cell_shape: add the number of cells per state axis over hard_box on which "
-                    f"the filter proves what it certifies, as docs/models.md's cart does (cell_shape = (320, 320))")
-        # a model's own set_box_max (sets not convex along each axis) must be what its own compiled kernel computes:
-        # the default kernel (box distances) does not know of it
-        n = model.state_dim
-        if model.set_max_kernel is boxes_set_max and any(
-                model.set_box_max(w, 0.0, np.zeros((1, n)), np.zeros((1, n))) is not None
-                for w in ("target", "hard_constraint", "soft_constraint")):
-            return (f"{name} bounds its sets with set_box_max but gives no set_max_kernel computing the same: add "
-                    f"one (with set_max_params)")
-        return None
+        missing = missing_kernels(model)
+        if missing is None and getattr(model, "cell_shape", None) is None:
+            return (f"{type(model).__name__} declares no cell_shape: add the number of cells per state axis over "
+                    f"hard_box on which the filter proves what it certifies, as docs/models.md's cart does "
+                    f"(cell_shape = (320, 320))")
+        return missing
 
     def __call__(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, pol: np.ndarray, plans: np.ndarray | None,
                  diagnostics: bool = True):

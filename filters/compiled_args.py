@@ -20,36 +20,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from softreach.reach.jit import njit
-
-
-class Motion(NamedTuple):
-    """The model's side of the one-period test (:class:`~softreach.reach.proof.lookahead.Lookahead`)."""
-
-    #: the model's ``held_box_params``: the parameters its compiled enclosure reads
-    params: np.ndarray
-    #: the ``h_eps`` width with which the environment drains the budget
-    eps: float
-    #: the parameters of the model's compiled set maxima
-    set_params: Any
-    #: the address of the model's compiled set maxima (:func:`~softreach.reach.proof.model_kernels.call_set_max`)
-    set_address: int
-    #: the target box's lower and upper corners (``-inf`` / ``+inf`` where the model has none)
-    target_lo: np.ndarray
-    target_hi: np.ndarray
-    #: the instants ``0, dt / P, ..., dt`` that cut the period into the budget's ``P`` pieces: the last is ``dt``
-    edges: np.ndarray
-    #: per landing check instant ``s`` (a row), the instants that cut ``[0, s]`` into the same number of pieces
-    check_edges: np.ndarray
-    #: the table's horizon ``T`` [s]
-    horizon: float
-    #: the rounding allowance that widens every box compared with a set or a cell, per state axis
-    slack: np.ndarray
-    #: the environment's first check instant inside a period [s]
-    first_check: float
-    #: the budget's rounding allowance, added to a positive charge
-    budget_slack: float
-    #: the environment computes as the test assumes (:attr:`Lookahead.exact_env`): the allowances apply
-    exact_env: bool
+from softreach.reach.proof.period import Motion
 
 
 class Cells(NamedTuple):

@@ -15,9 +15,10 @@ import numpy as np
 
 from softreach.reach.jit import njit
 from softreach.reach.proof.kernels import certificate_row, cover_row
+from softreach.reach.proof.period import Motion
 from softreach.reach.proof.ranks import LOWEST_BAD
 
-from .compiled_args import Cells, Motion, TableArgs, packed_space
+from .compiled_args import Cells, TableArgs, packed_space
 from .judge import badness, judge_once, next_value, on_table
 
 

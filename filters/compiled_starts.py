@@ -12,9 +12,10 @@ import math
 import numpy as np
 
 from softreach.reach.jit import njit
+from softreach.reach.proof.period import Motion, period
 
-from .compiled_args import Cells, Motion, Work
-from .judge import judge_once, period
+from .compiled_args import Cells, Work
+from .judge import judge_once
 from .plans import PLAN_LAND
 
 

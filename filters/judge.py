@@ -14,8 +14,8 @@ point_value`), is at most the maximum. A safe end whose corner is above 0 is not
 possible next value (or badness) lies above another's exact one is not the least (:func:`read_least`). The choice
 is the one of reading every value.
 
-The box bounds are those of the cells' builder (:class:`~softreach.reach.proof.lookahead.Lookahead`'s
-``checked_c1``, ``may_spend``, ``_budget_spent``), with the same arithmetic in the same order.
+The period's bounds (its boxes, ``C1``, the budget, landing inside it) are :mod:`softreach.reach.proof.period`'s,
+which the cells' builder runs too.
 
 Inlined or called: numba inlines a function (``inline="always"``) by copying its body into every caller, where the
 copy is typed and optimised again, so that each copy adds to the first compilation; a call hands over every field of
@@ -38,151 +38,38 @@ import numpy as np
 
 from softreach.reach.jit import njit
 from softreach.reach.proof.kernels import MAX_NODES, box_max_row, cover_row, point_value, usable_budget
-from softreach.reach.proof.model_kernels import SET_INDEX, call_held_box, call_set_max
+from softreach.reach.proof.period import c1_and_charge, enclose_period, lands, meets_target, period
 from softreach.reach.proof.ranks import (LOWEST_BAD, NEXT_CAP, RANK_LEAVES_C1, RANK_OVERSPENT, RANK_PROVEN, RANK_SAFE,
                                   RANK_UNSAFE, TIE_INF, TIE_OVERSPEND)
 
 from .compiled_args import Verdict
 
-# the sets' indices in the model's set-maximum kernel
-_TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_INDEX["soft_constraint"]
-
 # LOWEST_BAD (softreach.reach.proof.ranks) is read here by the decision's callers and tests
-__all__ = ["LOWEST_BAD", "badness", "judge", "judge_once", "least_next", "next_value", "on_table", "period",
-           "read_least"]
-
-
-@njit(inline="always")
-def period(M):
-    """The control period ``dt`` of :class:`~softreach.filters.compiled_args.Motion` ``M``: its last edge."""
-    return M.edges[len(M.edges) - 1]
-
-
-@njit(inline="always")
-def _widen(lo, hi, slack):
-    """:meth:`Lookahead.widen`: the box ``[lo, hi]`` grown in place by the rounding allowance ``slack``."""
-    for i in range(len(lo)):
-        lo[i] -= slack[i]
-        hi[i] += slack[i]
-
-
-@njit(inline="always")
-def _checked_c1(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
-    """:meth:`Lookahead.checked_c1`: the largest ``c1`` over the tube and over the widened box of the states from
-    the environment's first check instant on (``lo``, ``hi``: work space)."""
-    params, set_params, sets, slack, first = M.params, M.set_params, M.set_address, M.slack, M.first_check
-    c1 = call_set_max(sets, set_params, _HARD, tube_lo, tube_hi)
-    if not M.exact_env:  # no allowance: the tube alone
-        return c1
-    call_held_box(enclose, params, x_lo, x_hi, a, min(first, length), length, lo, hi)
-    _widen(lo, hi, slack)
-    moved = call_set_max(sets, set_params, _HARD, lo, hi)
-    # np.maximum's NaN rule: a NaN from either side
-    return moved if (moved > c1 or math.isnan(moved)) else c1
-
-
-@njit(inline="always")
-def _may_spend(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
-    """:meth:`Lookahead.may_spend`: whether the tube, or the widened box of the states from half the first
-    sub-step on, may leave ``C2`` (``lo``, ``hi``: work space)."""
-    params, set_params, sets, slack, first = M.params, M.set_params, M.set_address, M.slack, M.first_check
-    if not call_set_max(sets, set_params, _SOFT, tube_lo, tube_hi) <= 0:
-        return True
-    if not M.exact_env:  # no allowance: the tube alone
-        return False
-    call_held_box(enclose, params, x_lo, x_hi, a, min(0.5 * first, length), length, lo, hi)
-    _widen(lo, hi, slack)
-    return not call_set_max(sets, set_params, _SOFT, lo, hi) <= 0
-
-
-@njit(inline="always")
-def _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
-    """:meth:`Lookahead._budget_spent` over the pieces ``[edges[j], edges[j + 1]]`` of a held action's motion, each
-    piece's box widened, and the rounding allowance added where the charge is positive."""
-    params, eps, set_params, sets = M.params, M.eps, M.set_params, M.set_address
-    slack, budget_slack = M.slack, M.budget_slack
-    P = len(edges) - 1
-    length = edges[P]
-    out = 0.0
-    for j in range(P):
-        call_held_box(enclose, params, x_lo, x_hi, a, edges[j], edges[j + 1], lo, hi)
-        _widen(lo, hi, slack)
-        out += (length / P) * min(max(call_set_max(sets, set_params, _SOFT, lo, hi) / eps, 0.0), 1.0)
-    return out + budget_slack if out > 0 else out
-
-
-@njit(_nrt=False)
-def _lands(enclose, M, x_lo, x_hi, z, a, check_edges, lo, hi, e_lo, e_hi):
-    """:func:`~softreach.reach.proof.landing.lands_within` of one row: at some check instant ``s`` every run is in the
-    target inside ``C2``, the motion until ``s`` kept ``C1`` and the budget spent until ``s`` is at most ``z``. Not
-    inlined into :func:`judge`: it is asked only of actions that do not pass and whose motion meets the target."""
-    params, set_params, sets, slack = M.params, M.set_params, M.set_address, M.slack
-    for j in range(check_edges.shape[0]):
-        edges = check_edges[j]
-        s = edges[len(edges) - 1]
-        call_held_box(enclose, params, x_lo, x_hi, a, 0.0, s, lo, hi)
-        call_held_box(enclose, params, x_lo, x_hi, a, s, s, e_lo, e_hi)
-        good = True
-        for i in range(len(lo)):
-            good = good and math.isfinite(lo[i]) and math.isfinite(hi[i])
-        if not good:
-            continue
-        _widen(e_lo, e_hi, slack)
-        if not (call_set_max(sets, set_params, _TARGET, e_lo, e_hi) <= 0
-                and call_set_max(sets, set_params, _SOFT, e_lo, e_hi) <= 0):
-            continue
-        # (e_lo, e_hi are free again: the widened box of the checked states)
-        if not _checked_c1(enclose, M, x_lo, x_hi, a, s, lo, hi, e_lo, e_hi) <= 0:
-            continue
-        spends = _may_spend(enclose, M, x_lo, x_hi, a, s, lo, hi, e_lo, e_hi)
-        if z - (_spent(enclose, M, x_lo, x_hi, a, edges, lo, hi) if spends else 0.0) >= 0:
-            return True
-    return False
-
-
-@njit(inline="always")
-def meets_target(M, tube_lo, tube_hi):
-    """Whether the period's tube meets the target box (only then can it surely land)."""
-    meets = True
-    for i in range(len(tube_lo)):
-        meets = meets and tube_hi[i] >= M.target_lo[i] and tube_lo[i] <= M.target_hi[i]
-    return meets
+__all__ = ["LOWEST_BAD", "badness", "judge", "judge_once", "least_next", "next_value", "on_table", "read_least"]
 
 
 @njit(inline="always")
 def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     """The one-period test of one row, which reads no table: a :class:`~softreach.filters.compiled_args.Verdict`;
     writes the end box into ``end_lo``, ``end_hi``. ``lands`` is asked only of an action that does not pass."""
-    params, slack = M.params, M.slack
-    edges, horizon = M.edges, M.horizon
-    safe, has_safe, land = C.safe, C.has_safe, C.land
     tube_lo, tube_hi, lo, hi = work.tube_lo, work.tube_hi, work.lo, work.hi
     n = len(x_lo)
-    P = len(edges) - 1
-    dt = edges[P]
-    call_held_box(enclose, params, x_lo, x_hi, a, edges[0], dt, tube_lo, tube_hi)
-    call_held_box(enclose, params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
-    # every box compared with a set or a cell holds the environment's states, rounding included
-    _widen(end_lo, end_hi, slack)
-    bounded = True
-    for i in range(n):
-        bounded = bounded and math.isfinite(tube_lo[i]) and math.isfinite(tube_hi[i])
-    c1 = _checked_c1(enclose, M, x_lo, x_hi, a, dt, tube_lo, tube_hi, lo, hi)
-    # a period whose whole box lies in C2 spends nothing: its pieces are charged only where it may leave C2
-    spends = _may_spend(enclose, M, x_lo, x_hi, a, dt, tube_lo, tube_hi, lo, hi)
-    z_end = z - _spent(enclose, M, x_lo, x_hi, a, edges, lo, hi) if spends else z
+    dt = period(M)
+    bounded = enclose_period(enclose, M, x_lo, x_hi, a, dt, tube_lo, tube_hi, end_lo, end_hi)
+    c1, charge = c1_and_charge(enclose, M, x_lo, x_hi, a, M.edges, tube_lo, tube_hi, lo, hi)
+    z_end = z - charge
+    horizon = M.horizon
     t_next = t + dt
     in_time = t_next <= horizon + 1e-9 * max(1.0, horizon)
     t_next = min(t_next, horizon)
     kept = bounded and c1 <= 0 and z_end >= 0 and in_time
     in_c1 = bounded and c1 <= 0 and in_time
-    safe_end = kept and (not has_safe or cover_row(safe, t_next, end_lo, end_hi, z_end))
-    ok = safe_end and cover_row(land, t_next, end_lo, end_hi, z_end)
-    meets = meets_target(M, tube_lo, tube_hi)
-    lands = False
-    if not ok and bounded and in_time and meets:
-        lands = _lands(enclose, M, x_lo, x_hi, z, a, M.check_edges, lo, hi, work.box_lo[:n], work.box_hi[:n])
-    return Verdict(ok, lands, bounded, in_c1, kept, safe_end and has_safe, c1, z_end, t_next)
+    safe_end = kept and (not C.has_safe or cover_row(C.safe, t_next, end_lo, end_hi, z_end))
+    ok = safe_end and cover_row(C.land, t_next, end_lo, end_hi, z_end)
+    landed = False
+    if not ok and bounded and in_time and meets_target(M, tube_lo, tube_hi):
+        landed = lands(enclose, M, x_lo, x_hi, z, a, tube_lo, tube_hi, work.box_lo[:n], work.box_hi[:n], lo, hi)
+    return Verdict(ok, landed, bounded, in_c1, kept, safe_end and C.has_safe, c1, z_end, t_next)
 
 
 @njit(_nrt=False)

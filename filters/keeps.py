@@ -9,8 +9,9 @@ from __future__ import annotations
 from softreach.reach.jit import njit
 from softreach.reach.proof.kernels import cover_row
 from softreach.reach.proof.model_kernels import call_held_box
+from softreach.reach.proof.period import meets_target, period, widen
 
-from .judge import _widen, judge_once, meets_target, period
+from .judge import judge_once
 
 
 @njit(inline="always")
@@ -21,7 +22,7 @@ def _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     params, edges, horizon = M.params, M.edges, M.horizon
     dt = period(M)
     call_held_box(enclose, params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
-    _widen(end_lo, end_hi, M.slack)
+    widen(end_lo, end_hi, M.slack)
     if cover_row(C.land, min(t + dt, horizon), end_lo, end_hi, z):
         return True
     call_held_box(enclose, params, x_lo, x_hi, a, edges[0], dt, work.tube_lo, work.tube_hi)

@@ -79,10 +79,11 @@ def test_pointmass_pieces_cover_the_period():
 @pytest.mark.parametrize("eps", [None, 0.5], ids=["table_eps", "eps_0.5"])
 def test_a_period_spends_budget_only_where_its_box_may_leave_c2(vfilter, pointmass_held_table, eps):
     """The one-period test charges a period's pieces only where its whole box may leave ``C2``: inside, the budget
-    is kept to the bit; where it may leave, the pieces' charge, the same to the bit in the compiled test and in the
-    cells' builder (``Lookahead``). Both paths, on states on both sides of the soft limit ``v = -10`` and far from
-    it, at the budgets the decision uses. With the table's ``h_eps`` width (``1e-3``) nearly every piece is charged
-    all or nothing; with a width of 0.5 most are charged a fraction, where an order of the sum would show."""
+    is kept to the bit; where it may leave, the pieces' charge, the same to the bit in the compiled bounds (the
+    filter's and the cells' builder's, :mod:`softreach.reach.proof.period`) and in the reference transcribed from
+    ``docs/filters.md``. On states on both sides of the soft limit ``v = -10`` and far from it, at the budgets the
+    decision uses. With the table's ``h_eps`` width (``1e-3``) nearly every piece is charged all or nothing; with a
+    width of 0.5 most are charged a fraction, where an order of the sum would show."""
     if eps is not None:
         from softreach.reach.proof.cell_certificate import CellCertificate
         from softreach.reach.proof.lookahead import Lookahead
@@ -95,7 +96,6 @@ def test_a_period_spends_budget_only_where_its_box_may_leave_c2(vfilter, pointma
     x = np.c_[np.r_[rng.uniform(-10.8, -9.2, 300), rng.uniform(-14, 14, 300)], rng.uniform(1, 17, 600)]
     a = rng.uniform(-60, 60, (600, 1))
     z = rng.uniform(0.0, 0.6, 600)
-    t = np.zeros(600)
     # the filter's compiled one-period test: its end budget
     from softreach.filters.compiled import decision_space
     from softreach.filters.judge import judge
@@ -105,13 +105,13 @@ def test_a_period_spends_budget_only_where_its_box_may_leave_c2(vfilter, pointma
     lo, hi = np.empty(la.n), np.empty(la.n)
     z_end = np.array([judge(fast.enclose, fast.M, fast.C, 0.0, x[r], x[r], z[r], a[r], lo, hi, work).z_end
                       for r in range(600)])
-    tube_lo, tube_hi, _, _ = la.model.held_enclosure(0.0, x, a, DT)
+    ref = ReferenceDecision(vfilter)
+    tubes = [ref.boxes(x[r], x[r], a[r], 0.0, DT) for r in range(600)]
     # inside: the tube, and the box of the states the env computes widened by its rounding, lie in C2
-    inside = ~la.may_spend(t, x, x, a, DT, tube_lo, tube_hi)
-    assert (inside <= (la._corner_max(la.model.soft_constraint, t, tube_lo, tube_hi) <= 0)).all()
-    # the pieces widened by the allowance for the env's rounding, and the budget allowance added (Lookahead)
-    pieces = la.widen(*la.model.held_tube_pieces(t, x, a, DT, la.pieces))
-    charged = z - la._budget_spent(t, *pieces, DT)
+    inside = np.array([not ref.may_spend(x[r], x[r], a[r], DT, *tubes[r]) for r in range(600)])
+    assert all(ref.set_max("soft_constraint", *tubes[r]) <= 0 for r in np.flatnonzero(inside))
+    # the pieces widened by the allowance for the env's rounding, and the budget allowance added
+    charged = z - np.array([ref.spent(x[r], x[r], a[r], DT) for r in range(600)])
     assert inside.sum() > 200 and (~inside).sum() > 100 and (charged[~inside] < z[~inside]).sum() > 50
     np.testing.assert_array_equal(z_end[inside], z[inside])
     np.testing.assert_array_equal(z_end[~inside], charged[~inside])

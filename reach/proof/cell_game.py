@@ -10,13 +10,14 @@ the later samples. Both the solve and :func:`recheck` run that step, so a certif
 from __future__ import annotations
 
 import json
-import math
 from typing import Any
 
 import numpy as np
 from tqdm.auto import tqdm
 
-from .landing import lands_within, meets_target
+from .blocks import default_threads, run_in_blocks
+from .model_kernels import ENCLOSE_MIN_ROWS, SET_INDEX, set_max_rows
+from .period import motion, period_rows
 
 
 class _LastPlans:
@@ -92,8 +93,10 @@ def solve(cls: type, lookahead: Any, key: dict[str, Any]) -> Any:
 
 def terminal(cells: Any, la: Any, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """The cells' least good budget index at ``T``: 0 inside ``C1`` in the ``"safe"`` game, else ``never``."""
-    inside = la._corner_max(la.model.hard_constraint, np.full(len(lo), la.horizon), lo, hi) <= 0
-    return np.where(inside & (cells.game == "safe"), 0, cells.never)
+    M, c1 = motion(la)[1], np.empty(len(lo))
+    set_max_rows(M.set_address, M.set_params, SET_INDEX["hard_constraint"], np.ascontiguousarray(lo),
+                 np.ascontiguousarray(hi), c1)
+    return np.where((c1 <= 0) & (cells.game == "safe"), 0, cells.never)
 
 
 def all_plan_steps(cells: Any, la: Any, t0: float, lo: np.ndarray, hi: np.ndarray, holds: tuple, span_cap: int,
@@ -160,28 +163,28 @@ def recheck(cells: Any, lookahead: Any, flat: Any) -> tuple[np.ndarray, np.ndarr
 
 def plan_steps(cells: Any, la: Any, t0: float, lo: np.ndarray, hi: np.ndarray, a: np.ndarray, holds: tuple,
                span_cap: int) -> list:
-    """One candidate held from every cell for ``max(holds)`` periods, the boxes chained: per plan length
-    ``K`` in ``holds``, whether every period so far keeps ``C1``, the budget bound, the cells the end box
-    touches (and whether they are few enough to use), and whether every run surely lands by then."""
-    model, C = la.model, len(lo)
-    acts = np.broadcast_to(a, (C, len(a)))
+    """One candidate held from every cell for ``max(holds)`` periods, the boxes chained, each period bounded by
+    :func:`~softreach.reach.proof.period.period_rows` (the filter's own bounds): per plan length ``K`` in ``holds``,
+    whether every period so far keeps ``C1``, the budget bound, the cells the end box touches (and whether they
+    are few enough to use), and whether every run surely lands by then. The bounds do not depend on ``t0``: the
+    compiled enclosure and set maxima have no time argument."""
+    enclose, M = motion(la)
+    C, n = lo.shape
+    acts = np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64), (C, len(a))))
     ok, spend, lands = np.ones(C, bool), np.zeros(C), np.zeros(C, bool)
+    kept, charge, landed = np.empty(C, bool), np.empty(C), np.empty(C, bool)
+    end_lo, end_hi = np.empty((C, n)), np.empty((C, n))
     out = []
     for p in range(1, max(holds) + 1):
-        t = np.full(C, t0 + (p - 1) * la.dt)
-        tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure_box(float(t[0]), lo, hi, acts, la.dt)
-        ok &= np.isfinite(tube_lo).all(axis=1) & np.isfinite(tube_hi).all(axis=1)
-        # every box compared with a set or a cell holds the environment's states, rounding included (la.widen)
-        end_lo, end_hi = la.widen(end_lo, end_hi)
-        with np.errstate(invalid="ignore"):
-            ok &= la.checked_c1(t, lo, hi, acts, la.dt, tube_lo, tube_hi) <= 0
-            pieces = la.widen(*model.held_tube_pieces_box(float(t[0]), lo, hi, acts, la.dt, la.pieces))
-            charge = np.where(la.may_spend(t, lo, hi, acts, la.dt, tube_lo, tube_hi),
-                              la._budget_spent(t, pieces[0], pieces[1], la.dt), 0.0)
-            spend = spend + np.nan_to_num(charge, nan=np.inf)
         # landing needs only the budget spent until the landing instant, at most the plan's bound so far
-        rows = ok & ~lands & meets_target(la, np.nan_to_num(tube_lo), np.nan_to_num(tube_hi))
-        lands |= lands_within(la, t, lo, np.full(C, np.inf), acts, hi, rows)
+        ask = ok & ~lands
+        args = (np.ascontiguousarray(lo), np.ascontiguousarray(hi), acts, ask, kept, charge, end_lo, end_hi, landed)
+        # the rows are independent and the loop releases the GIL: one block a thread
+        run_in_blocks(lambda i, j: period_rows(enclose, M, *(v[i:j] for v in args)), C, default_threads(),
+                      ENCLOSE_MIN_ROWS)
+        ok &= kept
+        spend = spend + charge
+        lands |= landed
         lo, hi = np.where(ok[:, None], end_lo, lo), np.where(ok[:, None], end_hi, hi)
         if p in holds:
             first, last, on = cells._cell_range(lo, hi)

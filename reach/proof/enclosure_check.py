@@ -211,8 +211,8 @@ def _simulate(model: Any, t0: float, x0: np.ndarray, a: np.ndarray, breaks: np.n
 
 # ---------------------------------------------------------------------------------------------- the claims
 def _durations(dt: float, checks: int) -> list[float]:
-    """The periods the filter bounds: the landing test's check instants, ``dt`` last (:mod:`~softreach.reach.
-    landing` computes them the same way)."""
+    """The periods the filter bounds: the landing test's check instants, ``dt`` last (as
+    :attr:`~softreach.reach.proof.period.Motion.check_edges` ends them)."""
     return [dt * j / checks for j in range(1, checks + 1)]
 
 

@@ -1,9 +1,8 @@
 """The one-period look-ahead: does holding an action for one control period provably keep the state certified?
 
 This module holds the test's parameters (:class:`Lookahead`: the candidates, the allowances, the table's fields as
-the compiled code reads them) and the numpy box bounds that the cells' builder shares
-(:mod:`softreach.reach.proof.cell_game`); the test itself runs compiled (:mod:`softreach.filters.judge`,
-:mod:`softreach.filters.compiled`).
+the compiled code reads them); the period's bounds run compiled (:mod:`softreach.reach.proof.period`, which the
+filter's decision, :mod:`softreach.filters.judge`, and the cells' builder share).
 
 For a held action ``a`` and *every* disturbance signal in its box (switching at any instant, also in answer to ``a``),
 the model's :meth:`~softreach.reach.model_filter.FilterPart.held_enclosure` gives a box ``T`` holding the whole
@@ -24,12 +23,12 @@ The table only ranks: its interpolant ``D(t, x, z) = min(V~(t, x), W~(t, x, z))`
 box (:func:`softreach.reach.proof.box_max.box_max`), is an admissible action's worst next value, lower first.
 
 The episode also ends when the target is reached *inside* a period, so an action also passes when every run
-surely lands at one of the environment's check instants (:mod:`softreach.reach.proof.landing`).
+surely lands at one of the environment's check instants (:func:`softreach.reach.proof.period.lands`).
 
 Each box compared with a set or a cell holds the environment's own numbers, rounding included: it is widened by
 :func:`state_allowance` (``C1`` is asked of the exact tube and of the widened box from the environment's first
-check instant on, :meth:`Lookahead.checked_c1`), and a period that may spend is charged :func:`budget_allowance`
-more. The candidates are actions an environment applies exactly (:func:`representable`).
+check instant on, :func:`~softreach.reach.proof.period.checked_c1`), and a period that may spend is charged
+:func:`budget_allowance` more. The candidates are actions an environment applies exactly (:func:`representable`).
 
 A budget-surface table (``softreach solve MODEL --budget-surface``) ranks with ``W~(t, x, z)`` replaced by
 ``Q~_min(t, x) - min(z, T - t)``: its maximum over ``E x [z', z]`` is ``max_E Q~_min - min(z', T - t)``, and
@@ -38,7 +37,6 @@ A budget-surface table (``softreach solve MODEL --budget-surface``) ranks with `
 
 from __future__ import annotations
 
-import itertools
 from typing import Any
 
 import numpy as np
@@ -46,9 +44,7 @@ import numpy as np
 from .box_max import kernel_field
 from ..numerics.grid import Grid
 from ..boxes import check_action_box
-from ..dynamics import row_time
 from .kernels import certificate_rows
-from .model_kernels import SET_INDEX, held_boxes, set_max_address, set_max_rows
 
 
 #: the fields that say how much budget suffices, in the order a table's is picked
@@ -199,8 +195,8 @@ def surface_fields(values: Any, times: Any, grid: Grid, horizon: float) -> tuple
 
 
 class Lookahead:
-    """The one-period test's parameters against a table's certificate (see the module docstring), the certificate
-    at a state (:meth:`certificate`), and the numpy box bounds the cells' builder uses.
+    """The one-period test's parameters against a table's certificate (see the module docstring), and the
+    certificate at a state (:meth:`certificate`).
 
     :param fields: ``{"V": (values, times, grid), "W_eps": (...)}`` (``V`` optional; ``Q_min`` for ``W_eps`` on a
         budget surface), values ``(n_t, *grid)``
@@ -256,20 +252,12 @@ class Lookahead:
         #: kernels.certificate_row`, :class:`~softreach.filters.compiled_args.TableArgs`):
         #: ``(W, z_top, z_floor, z_left, V, has_V, inside)``
         self.table_args = W_read + (V, "V" in self.fields, inside)
-        self.corners = np.array(list(itertools.product((0, 1), repeat=self.n)), dtype=bool)  # (2^n, n)
         #: the control box's map (:func:`action_map`), and the candidates as an environment applies them: each
         #: one the image of a normalised action (:func:`representable`)
         self.a_mid, self.a_half = action_map(model)
         self.candidates = np.asarray(candidates, dtype=np.float64)
         if self.exact_env:
             self.candidates = representable(self.candidates, self.a_mid, self.a_half)
-        box = model.target_box
-        self.target_lo, self.target_hi = (None, None) if box is None else (np.asarray(box[0], float),
-                                                                            np.asarray(box[1], float))
-        #: ``(address, params)`` of the model's compiled set maxima (:attr:`~softreach.reach.problem.Model.
-        #: set_max_kernel`), which :meth:`_corner_max` runs; ``None``: the set functions at the corners, in numpy
-        self.set_kernel = ((set_max_address(model), model.set_max_params)
-                           if getattr(model, "set_max_kernel", None) is not None else None)
 
     @classmethod
     def from_table(cls, table: Any, model: Any, dt: float, eps: float, target_checks: int = 1) -> "Lookahead":
@@ -290,98 +278,3 @@ class Lookahead:
         certificate_rows(*self.table_args[:6], t, np.ascontiguousarray(x, dtype=np.float64),
                          np.ascontiguousarray(np.broadcast_to(np.asarray(z, dtype=np.float64), (len(x),))), out)
         return out
-
-    def _corner_max(self, fn, t: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        # a model whose set functions are not convex along each axis (an obstacle disc) bounds them itself
-        bound = self.model.set_box_max(fn.__name__, row_time(t), lo, hi)
-        if bound is not None:
-            return np.asarray(bound, dtype=np.float64)
-        if self.set_kernel is not None and fn.__name__ in SET_INDEX:
-            out = np.empty(len(lo))
-            set_max_rows(*self.set_kernel, SET_INDEX[fn.__name__], np.ascontiguousarray(lo, dtype=np.float64),
-                         np.ascontiguousarray(hi, dtype=np.float64), out)
-            return out
-        N, C = len(lo), len(self.corners)
-        pts = np.where(self.corners[None, :, :], hi[:, None, :], lo[:, None, :]).reshape(N * C, self.n)
-        t_arg = row_time(t)
-        t_arg = t_arg if np.isscalar(t_arg) else np.repeat(t, C)
-        vals = np.asarray(fn(t_arg, [pts[:, i] for i in range(self.n)]), dtype=np.float64)
-        return np.broadcast_to(vals, (N * C,)).reshape(N, C).max(axis=1)
-
-    def _budget_spent(self, t: np.ndarray, piece_lo: np.ndarray, piece_hi: np.ndarray, length: float) -> np.ndarray:
-        """The budget bound of item 2 over ``length`` seconds cut in ``len(piece_lo)`` equal pieces: each piece
-        charged at the largest ``h_eps`` over its box (at a corner: ``c2`` is convex)."""
-        P, N = piece_lo.shape[0], piece_lo.shape[1]
-        # every piece of every row in one evaluation
-        t_all = t if np.isscalar(row_time(t)) else np.tile(t, P)
-        c2 = self._corner_max(self.model.soft_constraint, t_all, np.reshape(piece_lo, (P * N, -1)),
-                              np.reshape(piece_hi, (P * N, -1)))
-        # each piece's share, added piece by piece: the compiled test's arithmetic in its order (filters.judge._spent)
-        share = (length / P) * np.clip(c2 / self.eps, 0.0, 1.0).reshape(P, N)
-        charge = share[0]
-        for j in range(1, P):
-            charge = charge + share[j]
-        # a charge for rounding wherever the environment's cost may be positive (budget_allowance)
-        return charge + np.where(charge > 0, self.budget_slack, 0.0)
-
-    def widen(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The boxes ``[lo, hi]`` grown on every side by the rounding allowance :attr:`slack`
-        (:func:`state_allowance`): they then hold the environment's states, not only the exact motion. The same
-        boxes where no allowance applies (:attr:`exact_env`)."""
-        if not self.exact_env:
-            return lo, hi
-        return lo - self.slack, hi + self.slack
-
-    def checked_c1(self, t: np.ndarray, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, length: float,
-                   tube_lo: np.ndarray, tube_hi: np.ndarray) -> np.ndarray:
-        """The largest ``c1`` over the motion of ``length`` seconds held from the boxes ``[x_lo, x_hi]``: over the
-        model's tube ``[tube_lo, tube_hi]`` (the exact motion, from the start on), and over the states from the
-        environment's first check instant (:attr:`first_check`) on, widened by the allowance: those are the
-        environment's own numbers, with its rounding, where it checks ``C1``. The start needs none: it is the
-        environment's number itself. A model without a compiled enclosure (:func:`~softreach.reach.proof.model_kernels.
-        held_boxes`) has its whole tube widened."""
-        c1 = self._corner_max(self.model.hard_constraint, t, tube_lo, tube_hi)
-        if not self.exact_env:
-            return c1
-        moved = self._moved(x_lo, x_hi, a, self.first_check, length, tube_lo, tube_hi)
-        return np.maximum(c1, self._corner_max(self.model.hard_constraint, t, *moved))
-
-    def may_spend(self, t: np.ndarray, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, length: float,
-                  tube_lo: np.ndarray, tube_hi: np.ndarray) -> np.ndarray:
-        """Where the environment's cost of the motion of ``length`` seconds may be positive: where the model's tube
-        may leave ``C2``, or the widened box of the states from half the first sub-step on (the first RK4 stage
-        states the environment computes, :func:`state_allowance`) may. Elsewhere every rate the environment
-        reads is 0 (the start is its own number), so its cost is exactly 0 and the period is charged nothing."""
-        soft = self.model.soft_constraint
-        inside = self._corner_max(soft, t, tube_lo, tube_hi) <= 0
-        if not self.exact_env:
-            return ~inside
-        moved = self._moved(x_lo, x_hi, a, 0.5 * self.first_check, length, tube_lo, tube_hi)
-        return ~(inside & (self._corner_max(soft, t, *moved) <= 0))
-
-    def _moved(self, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, s0: float, length: float,
-               tube_lo: np.ndarray, tube_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The box of the states from ``s0`` to ``length`` into the period, widened (:meth:`widen`); the whole tube
-        widened for a model without a compiled enclosure."""
-        if getattr(self.model, "held_box_kernel", None) is not None:
-            return self.widen(*held_boxes(self.model, x_lo, x_hi, a, min(s0, length), length))
-        return self.widen(tube_lo, tube_hi)
-
-    def _enclose(self, t: np.ndarray, x: np.ndarray, a: np.ndarray, dt: float | None = None):
-        t0 = row_time(t)
-        dt = self.dt if dt is None else dt
-        try:
-            return self.model.held_enclosure(t0, x, a, dt), np.ones(len(x), bool)
-        except ValueError:
-            # a row the model cannot bound (it would leave the model's domain): inadmissible, the others go on
-            boxes = [np.full((len(x), self.n), np.nan) for _ in range(4)]
-            ok = np.zeros(len(x), bool)
-            for r in range(len(x)):
-                try:
-                    one = self.model.held_enclosure(t0 if np.isscalar(t0) else t0[r], x[r:r + 1], a[r:r + 1], dt)
-                except ValueError:
-                    continue
-                for b, o in zip(boxes, one):
-                    b[r] = o[0]
-                ok[r] = True
-            return tuple(np.where(ok[:, None], b, x) for b in boxes), ok

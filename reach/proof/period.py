@@ -1,0 +1,241 @@
+"""One held period bounded, compiled: the box of its motion, the largest ``c1`` over it, the budget it may spend,
+and whether every run surely lands inside it (``docs/filters.md``, "The one-period test"; the module docstring of
+:mod:`softreach.reach.proof.lookahead` states the test). The one implementation of these bounds: the filter's
+decision (:mod:`softreach.filters.judge`) runs them for a state, the cells' builder
+(:mod:`softreach.reach.proof.cell_game`) for boxes of starts (:func:`period_rows`).
+
+Every box compared with a set or a cell holds the environment's own numbers, rounding included: it is widened by
+the allowance :attr:`Motion.slack` (:func:`~softreach.reach.proof.lookahead.state_allowance`), and a charge that may
+be positive gets :attr:`Motion.budget_slack` more (:func:`~softreach.reach.proof.lookahead.budget_allowance`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ..jit import njit
+from .kernels import frozen
+from .model_kernels import SET_INDEX, call_held_box, call_set_max, held_box_address, set_max_address
+
+# the sets' indices in the model's set-maximum kernel
+_TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_INDEX["soft_constraint"]
+
+
+class Motion(NamedTuple):
+    """The model's side of the one-period test (:class:`~softreach.reach.proof.lookahead.Lookahead`'s numbers as
+    the compiled code reads them, :func:`motion`)."""
+
+    #: the model's ``held_box_params``: the parameters its compiled enclosure reads
+    params: np.ndarray
+    #: the ``h_eps`` width with which the environment drains the budget
+    eps: float
+    #: the parameters of the model's compiled set maxima
+    set_params: Any
+    #: the address of the model's compiled set maxima (:func:`~softreach.reach.proof.model_kernels.call_set_max`)
+    set_address: int
+    #: the target box's lower and upper corners (``-inf`` / ``+inf`` where the model has none)
+    target_lo: np.ndarray
+    target_hi: np.ndarray
+    #: the instants ``0, dt / P, ..., dt`` that cut the period into the budget's ``P`` pieces: the last is ``dt``
+    edges: np.ndarray
+    #: per landing check instant ``s`` (a row), the instants that cut ``[0, s]`` into the same number of pieces
+    check_edges: np.ndarray
+    #: the table's horizon ``T`` [s]
+    horizon: float
+    #: the rounding allowance that widens every box compared with a set or a cell, per state axis
+    slack: np.ndarray
+    #: the environment's first check instant inside a period [s]
+    first_check: float
+    #: the budget's rounding allowance, added to a positive charge
+    budget_slack: float
+    #: the environment computes as the test assumes (:attr:`Lookahead.exact_env`): the allowances apply
+    exact_env: bool
+
+
+def missing_kernels(model: Any) -> str | None:
+    """What the compiled bounds need that ``model`` does not give, in words naming what to add; ``None``:
+    nothing."""
+    name = type(model).__name__
+    if getattr(model, "held_box_kernel", None) is None:
+        return (f"{name} gives no compiled held_box_kernel (with held_box_params): add one that bounds every state a "
+                f"held period reaches from a box of starts, as reach/models/pointmass.py and the cart of "
+                f"docs/models.md write it")
+    if getattr(model, "set_max_kernel", None) is None:
+        return (f"{name} gives no compiled set maxima: declare set_boxes (box-distance sets) or add a set_max_kernel "
+                f"with set_max_params")
+    # a model's own set_box_max (sets not convex along each axis) must be what its own compiled kernel computes: the
+    # default kernel (box distances) does not know of it
+    from .model_kernels import boxes_set_max
+
+    n = model.state_dim
+    if model.set_max_kernel is boxes_set_max and any(
+            model.set_box_max(w, 0.0, np.zeros((1, n)), np.zeros((1, n))) is not None for w in SET_INDEX):
+        return (f"{name} bounds its sets with set_box_max but gives no set_max_kernel computing the same: add one "
+                f"(with set_max_params)")
+    return None
+
+
+def motion(la: Any) -> tuple[int, Motion]:
+    """The address of the model's compiled enclosure (:func:`~softreach.reach.proof.model_kernels.held_box_address`)
+    and the :class:`Motion` of the look-ahead ``la`` (:class:`~softreach.reach.proof.lookahead.Lookahead`).
+
+    :raises ValueError: the model lacks a compiled kernel (:func:`missing_kernels`)
+    """
+    model = la.model
+    missing = missing_kernels(model)
+    if missing is not None:
+        raise ValueError(f"the one-period bounds of model {model.name!r} are compiled: {missing}")
+    tb = model.target_box
+    t_lo, t_hi = ((np.full(la.n, -np.inf), np.full(la.n, np.inf)) if tb is None
+                  else (np.asarray(tb[0], dtype=np.float64), np.asarray(tb[1], dtype=np.float64)))
+    checks = np.stack([np.linspace(0.0, la.dt * j / la.target_checks, la.pieces + 1)
+                       for j in range(1, la.target_checks + 1)])
+    M = Motion(np.asarray(model.held_box_params, dtype=np.float64), la.eps,
+               np.ascontiguousarray(model.set_max_params, dtype=np.float64), set_max_address(model), t_lo, t_hi,
+               np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon, frozen(la.slack), la.first_check,
+               la.budget_slack, la.exact_env)
+    return held_box_address(model), M
+
+
+@njit(inline="always")
+def period(M):
+    """The control period ``dt`` of :class:`Motion` ``M``: its last edge."""
+    return M.edges[len(M.edges) - 1]
+
+
+@njit(inline="always")
+def widen(lo, hi, slack):
+    """The box ``[lo, hi]`` grown in place by the rounding allowance ``slack``: it then holds the environment's
+    states, not only the exact motion."""
+    for i in range(len(lo)):
+        lo[i] -= slack[i]
+        hi[i] += slack[i]
+
+
+@njit(inline="always")
+def set_max(M, which, lo, hi):
+    """The largest value of the model's set ``which`` over the box ``[lo, hi]``."""
+    return call_set_max(M.set_address, M.set_params, which, lo, hi)
+
+
+@njit(inline="always")
+def checked_c1(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
+    """The largest ``c1`` over the motion of ``length`` seconds: over the tube (the exact motion, from the start
+    on), and over the box of the states from the environment's first check instant on, widened: those are the
+    environment's own numbers where it checks ``C1``; the start is its own number and needs no allowance.
+    ``lo``, ``hi``: work space."""
+    c1 = set_max(M, _HARD, tube_lo, tube_hi)
+    if not M.exact_env:  # no allowance: the tube alone
+        return c1
+    call_held_box(enclose, M.params, x_lo, x_hi, a, min(M.first_check, length), length, lo, hi)
+    widen(lo, hi, M.slack)
+    moved = set_max(M, _HARD, lo, hi)
+    # a NaN from either side
+    return moved if (moved > c1 or math.isnan(moved)) else c1
+
+
+@njit(inline="always")
+def may_spend(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
+    """Whether the environment's cost of the motion of ``length`` seconds may be positive: the tube, or the widened
+    box of the states from half the first sub-step on (the first stage states the environment computes), may leave
+    ``C2``. Elsewhere every rate it reads is 0, its cost exactly 0. ``lo``, ``hi``: work space."""
+    if not set_max(M, _SOFT, tube_lo, tube_hi) <= 0:
+        return True
+    if not M.exact_env:  # no allowance: the tube alone
+        return False
+    call_held_box(enclose, M.params, x_lo, x_hi, a, min(0.5 * M.first_check, length), length, lo, hi)
+    widen(lo, hi, M.slack)
+    return not set_max(M, _SOFT, lo, hi) <= 0
+
+
+@njit(inline="always")
+def spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
+    """The budget the motion over the pieces ``[edges[j], edges[j + 1]]`` may spend: each piece charged its share
+    of the length times the largest ``h_eps`` over its widened box (at a corner: ``c2`` is convex), the shares added
+    piece by piece, and the rounding allowance where the charge is positive."""
+    P = len(edges) - 1
+    length = edges[P]
+    out = 0.0
+    for j in range(P):
+        call_held_box(enclose, M.params, x_lo, x_hi, a, edges[j], edges[j + 1], lo, hi)
+        widen(lo, hi, M.slack)
+        out += (length / P) * min(max(set_max(M, _SOFT, lo, hi) / M.eps, 0.0), 1.0)
+    return out + M.budget_slack if out > 0 else out
+
+
+@njit(inline="always")
+def enclose_period(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, end_lo, end_hi):
+    """The tube over ``[0, length]`` of the action ``a`` held from the box ``[x_lo, x_hi]`` and its end box, widened,
+    written into the arrays given: whether the tube is bounded (finite; the enclosure writes NaN where it finds no
+    box)."""
+    call_held_box(enclose, M.params, x_lo, x_hi, a, 0.0, length, tube_lo, tube_hi)
+    call_held_box(enclose, M.params, x_lo, x_hi, a, length, length, end_lo, end_hi)
+    widen(end_lo, end_hi, M.slack)
+    bounded = True
+    for i in range(len(tube_lo)):
+        bounded = bounded and math.isfinite(tube_lo[i]) and math.isfinite(tube_hi[i])
+    return bounded
+
+
+@njit(inline="always")
+def c1_and_charge(enclose, M, x_lo, x_hi, a, edges, tube_lo, tube_hi, lo, hi):
+    """The largest ``c1`` over the motion until ``edges[-1]`` (:func:`checked_c1`) and the budget it spends
+    (:func:`spent` where it :func:`may_spend`, else 0) given its tube; ``lo``, ``hi``: work space."""
+    length = edges[len(edges) - 1]
+    c1 = checked_c1(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi)
+    charge = spent(enclose, M, x_lo, x_hi, a, edges, lo, hi) if may_spend(
+        enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi) else 0.0
+    return c1, charge
+
+
+@njit(inline="always")
+def meets_target(M, tube_lo, tube_hi):
+    """Whether the period's tube meets the target box (only then can it surely land)."""
+    meets = True
+    for i in range(len(tube_lo)):
+        meets = meets and tube_hi[i] >= M.target_lo[i] and tube_lo[i] <= M.target_hi[i]
+    return meets
+
+
+@njit(_nrt=False)
+def lands(enclose, M, x_lo, x_hi, z, a, tube_lo, tube_hi, end_lo, end_hi, lo, hi):
+    """Whether every run of ``a`` held from the box surely lands at one of the environment's check instants ``s``
+    (:attr:`Motion.check_edges`): the widened box of the states at ``s`` lies in the target inside ``C2`` (every
+    corner: the target and ``c2`` are convex or monotone along each axis on such boxes), the motion until ``s`` kept
+    ``C1`` and the budget spent until ``s`` is at most ``z``. The episode ends at the first instant in the target,
+    so every run then ends landed at ``s`` at the latest, whatever the wind did. The arrays after ``a``: work
+    space."""
+    for j in range(M.check_edges.shape[0]):
+        edges = M.check_edges[j]
+        s = edges[len(edges) - 1]
+        if not enclose_period(enclose, M, x_lo, x_hi, a, s, tube_lo, tube_hi, end_lo, end_hi):
+            continue
+        if not (set_max(M, _TARGET, end_lo, end_hi) <= 0 and set_max(M, _SOFT, end_lo, end_hi) <= 0):
+            continue
+        c1, charge = c1_and_charge(enclose, M, x_lo, x_hi, a, edges, tube_lo, tube_hi, lo, hi)
+        if c1 <= 0 and z - charge >= 0:
+            return True
+    return False
+
+
+@njit(nogil=True)
+def period_rows(enclose, M, x_lo, x_hi, a, ask, kept, charge, end_lo, end_hi, landed):
+    """The cells' builder's period for every row (2-d C-contiguous arrays): the action ``a[r]`` held for one period
+    from the box ``[x_lo[r], x_hi[r]]``. Writes ``kept`` (the tube is bounded and keeps ``C1``), ``charge`` (the
+    budget it may spend; ``+inf`` where no bound is a number), the widened end box, and, where ``ask[r]`` and the
+    period is kept, ``landed`` (every run surely lands inside it, with any budget: the plan's own bound is charged
+    for it by the builder; elsewhere ``False``)."""
+    n = x_lo.shape[1]
+    tube_lo, tube_hi, lo, hi = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    w_lo, w_hi = np.empty(n), np.empty(n)
+    for r in range(x_lo.shape[0]):
+        bounded = enclose_period(enclose, M, x_lo[r], x_hi[r], a[r], period(M), tube_lo, tube_hi, end_lo[r],
+                                 end_hi[r])
+        c1, c = c1_and_charge(enclose, M, x_lo[r], x_hi[r], a[r], M.edges, tube_lo, tube_hi, lo, hi)
+        kept[r] = bounded and c1 <= 0
+        charge[r] = np.inf if math.isnan(c) else c
+        landed[r] = (ask[r] and kept[r] and meets_target(M, tube_lo, tube_hi)
+                     and lands(enclose, M, x_lo[r], x_hi[r], np.inf, a[r], tube_lo, tube_hi, w_lo, w_hi, lo, hi))
