@@ -64,25 +64,24 @@ class FilterPart:
     #: with the control ``a`` held, from every start in ``[x_lo, x_hi]`` and for every disturbance signal of the box
     #: (switching at any instant), for the numbers :attr:`held_box_params` (1-d float arrays; NaN where it finds no
     #: box). The model writes it once: :meth:`held_enclosure`, :meth:`held_tube_pieces` and their ``_box`` versions
-    #: run it (:func:`~softreach.reach.proof.model_kernels.held_boxes`), and the filter's compiled decision calls it
-    #: by address. It has no time argument: a model whose motion depends on ``t`` overrides the four methods
-    #: instead. ``None``: no compiled bound
+    #: run it (:func:`~softreach.reach.proof.model_kernels.held_boxes`), and the filter's compiled decision and cells
+    #: call it by address. It has no time argument: a model whose motion depends on ``t`` bounds it over every ``t``
+    #: of the horizon. ``None``: no bound, and no filter
     held_box_kernel: Any = None
     held_box_params: np.ndarray = np.zeros(0)
 
     def held_enclosure(self, t: float, x: np.ndarray, a: np.ndarray, dt: float):
         """Boxes containing every trajectory of one control period with the control ``a`` held and any
         disturbance signal in the box (switching at any instant): ``(tube_lo, tube_hi, end_lo, end_hi)``, each
-        ``(N, n)``; the tube holds ``x(s)`` for all ``s`` in ``[0, dt]``, the end box ``x(dt)``.
-
-        Derived from :attr:`held_box_kernel` (:meth:`held_enclosure_box` from the points). The safety filter's
-        one-period look-ahead needs it; a model that cannot bound its motion is refused there.
+        ``(N, n)``; the tube holds ``x(s)`` for all ``s`` in ``[0, dt]``, the end box ``x(dt)``. From
+        :attr:`held_box_kernel` (:meth:`held_enclosure_box` from the points).
 
         :param x: ``(N, n)`` states
         :param a: ``(N, m)`` physical controls (``(N,)`` for one control)
         :param dt: the control period [s]
         :raises ValueError: a bad shape or period, a state or control the model refuses, or a row the kernel
-            finds no box for (NaN), naming it: the look-ahead reads that row as not admissible
+            finds no box for (NaN), naming it
+        :raises NotImplementedError: the model gives no :attr:`held_box_kernel`
         """
         from .proof.model_kernels import refuse_unbounded_rows
 
@@ -91,7 +90,7 @@ class FilterPart:
     def held_enclosure_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float):
         """:meth:`held_enclosure` for every start in the box ``[x_lo, x_hi]`` (rows of ``(N, n)``), from
         :attr:`held_box_kernel`: the tube is its box over ``[0, dt]``, the end box over ``[dt, dt]``. A row with no
-        box is NaN, which every caller reads as unbounded: not admissible. The filter's cells need it."""
+        box is NaN, which every caller reads as unbounded: not admissible."""
         from .proof.model_kernels import kernel_boxes
 
         return kernel_boxes(self, "held_enclosure_box", x_lo, x_hi, a, dt)
@@ -99,22 +98,15 @@ class FilterPart:
     def held_tube_pieces_box(self, t: float, x_lo: np.ndarray, x_hi: np.ndarray, a: np.ndarray, dt: float,
                              pieces: int):
         """:meth:`held_tube_pieces` for every start in the box ``[x_lo, x_hi]``: :attr:`held_box_kernel` over each
-        piece; without a kernel, the whole tube of the model's own :meth:`held_enclosure_box` for every piece."""
+        piece."""
         from .proof.model_kernels import kernel_boxes
 
-        if self.held_box_kernel is None:
-            lo, hi, _, _ = self.held_enclosure_box(t, x_lo, x_hi, a, dt)
-            return np.broadcast_to(lo, (pieces,) + lo.shape), np.broadcast_to(hi, (pieces,) + hi.shape)
         return kernel_boxes(self, "held_tube_pieces_box", x_lo, x_hi, a, dt, pieces)
 
     def held_tube_pieces(self, t: float, x: np.ndarray, a: np.ndarray, dt: float, pieces: int):
         """Boxes ``(lo, hi)``, each ``(pieces, N, n)``, holding the motion over each of ``pieces`` equal
         sub-intervals of the period (control held, any disturbance signal): :meth:`held_tube_pieces_box` from the
-        points. The budget bound of the safety filter charges each piece by its own box. Without a kernel every
-        piece gets the whole tube of the model's own :meth:`held_enclosure` (sound, a coarser budget bound)."""
-        if self.held_box_kernel is None:
-            lo, hi, _, _ = self.held_enclosure(t, x, a, dt)
-            return np.broadcast_to(lo, (pieces,) + lo.shape), np.broadcast_to(hi, (pieces,) + hi.shape)
+        points. The budget bound of the safety filter charges each piece by its own box."""
         return self.held_tube_pieces_box(t, x, x, a, dt, pieces)
 
     #: ``(lo, hi)`` of a box that holds the target set (``-inf``/``inf`` where unbounded), or ``None``. The safety
@@ -164,17 +156,3 @@ class FilterPart:
     cell_holds: tuple[int, ...] = (1,)
     #: candidates a start's own plan may hold in sequence, 1 or 2 (:func:`softreach.filters.plans.start_plans`)
     start_segments: int = 1
-
-
-def bounds_motion(model: Any) -> bool:
-    """Whether ``model`` bounds its held motion from states: a :attr:`FilterPart.held_box_kernel`, or its own
-    :meth:`FilterPart.held_enclosure` or :meth:`FilterPart.held_enclosure_box` (from which the points' one follows)."""
-    return model.held_box_kernel is not None or type(model).held_enclosure is not FilterPart.held_enclosure or (
-        bounds_boxes(model))
-
-
-def bounds_boxes(model: Any) -> bool:
-    """Whether ``model`` bounds the motion from boxes of starts (a :attr:`FilterPart.held_box_kernel`, or its own
-    :meth:`FilterPart.held_enclosure_box`): what the filter's cells and its "the next state is certified again" rule
-    need."""
-    return model.held_box_kernel is not None or type(model).held_enclosure_box is not FilterPart.held_enclosure_box

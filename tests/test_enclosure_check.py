@@ -28,8 +28,7 @@ FEW = EnclosureCheck(samples=512)
 
 
 def _check(model, settings=EnclosureCheck()):
-    return check_enclosure(model, model.control_period, pieces=4, checks=model.substeps, cells=True,
-                           settings=settings)
+    return check_enclosure(model, model.control_period, pieces=4, checks=model.substeps, settings=settings)
 
 
 # ------------------------------------------------------------------------------------------ the built-in models
@@ -38,9 +37,9 @@ def test_the_built_in_enclosures_hold_every_simulated_run(name):
     model = get_model(name)
     report = _check(model)
     assert report["runs"] == 2048 and report["tightest"] <= 0
-    # every claim of the filter's: the point and box methods and the kernel, over the period and each landing check
-    from_kernel = 6 if model.held_box_kernel is not None else 0
-    assert report["claims"] == model.substeps * (12 + from_kernel)
+    # every claim of the filter's: the kernel's tube, end and four pieces from boxes and from points, over the period
+    # and each landing check
+    assert report["claims"] == model.substeps * 6 * 2
 
 
 def test_the_runs_reach_the_bounds_of_an_exact_enclosure():
@@ -162,19 +161,16 @@ def test_a_model_without_the_extras_is_refused_before_the_held_solve(tmp_path, m
     with pytest.raises(EnclosureError) as err:
         compute.solve_table(Cart(), cfg, tmp_path / "cart.srt", progress=False)
     msg = str(err.value)
-    assert "held_enclosure(t, x, a, dt) -> (tube_lo, tube_hi, end_lo, end_hi)" in msg
-    assert "softreach solve --held" in msg and "docs/models.md" in msg and "held_box_kernel(" in msg
+    assert "held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi) with held_box_params" in msg
+    assert "softreach solve --held" in msg and "docs/models.md" in msg
     assert not list(tmp_path.iterdir())  # not even a partial table
 
 
-def test_the_cells_ask_for_the_box_enclosure():
-    class PointsOnly(Cart):
-        def held_enclosure(self, t, x, a, dt):
-            raise NotImplementedError
-
-    assert missing_extras(Cart(), cells=False) and len(missing_extras(Cart(), cells=True)) == 2
-    assert missing_extras(PointsOnly(), cells=False) == []
-    assert "held_enclosure_box(t, x_lo, x_hi, a, dt)" in missing_extras(PointsOnly(), cells=True)[0]
+def test_the_cells_ask_for_a_hard_box():
+    no_box = PointMass()
+    no_box.hard_box = None
+    assert missing_extras(PointMass(), cells=True) == [] and missing_extras(no_box, cells=False) == []
+    assert [m.split(" =")[0] for m in missing_extras(no_box, cells=True)] == ["hard_box"]
 
 
 def _lookahead(model, monkeypatch):

@@ -15,7 +15,6 @@ from cart_motion import CartMotion, doc_cart
 
 from softreach.reach import Model
 from softreach.reach.dynamics import ControlAndDisturbanceAffine
-from softreach.reach.model_filter import bounds_boxes, bounds_motion
 from softreach.reach.proof.enclosure_check import EnclosureCheck, check_enclosure, missing_extras
 from softreach.reach.proof.model_kernels import held_boxes
 
@@ -107,9 +106,10 @@ def test_the_docs_cart_bound_holds_every_simulated_run_and_is_reached():
     and constant extreme pushes reach the bounds within rounding."""
     model = Cart()
     assert missing_extras(model, cells=True) == []
-    report = check_enclosure(model, model.control_period, pieces=4, checks=model.substeps, cells=True,
+    report = check_enclosure(model, model.control_period, pieces=4, checks=model.substeps,
                              settings=EnclosureCheck(samples=512))
-    assert report["claims"] == model.substeps * (12 + 6)  # the four derived methods and the kernel itself
+    # per check instant: the tube, the end and four pieces, each from the start boxes and from the points
+    assert report["claims"] == model.substeps * 6 * 2
     assert -1e-9 < report["tightest"] <= 0
 
 
@@ -186,7 +186,7 @@ class NoBound(CartMotion, Model, ControlAndDisturbanceAffine):
 
 
 class OwnPoints(NoBound):
-    """A bound from points only, written by hand (a loose one: the whole reachable speed range)."""
+    """A bound from points only, written by hand as a method: the filter reads the compiled kernel, not this."""
 
     def held_enclosure(self, t, x, a, dt):
         lo = np.stack([x[:, 0] - 2.5 * dt - 2.5 * dt * dt, x[:, 1] - 2.5 * dt], 1)
@@ -195,16 +195,10 @@ class OwnPoints(NoBound):
 
 
 def test_what_a_model_gives_is_what_is_derived_and_reported():
-    assert bounds_motion(Cart()) and bounds_boxes(Cart()) and missing_extras(Cart(), cells=True) == []
-    assert not bounds_motion(NoBound()) and not bounds_boxes(NoBound())
-    assert [m.split("(")[0] for m in missing_extras(NoBound(), cells=True)] == ["held_enclosure", "held_enclosure_box"]
-    with pytest.raises(NotImplementedError, match="cart gives no held_box_kernel"):
+    assert missing_extras(Cart(), cells=True) == []
+    for model in (NoBound(), OwnPoints()):
+        assert [m.split("(")[0] for m in missing_extras(model, cells=False)] == ["held_box_kernel"]
+        with pytest.raises(NotImplementedError, match="cart gives no held_box_kernel, from which held_tube_pieces_box"):
+            model.held_tube_pieces(0.0, np.zeros((1, 2)), np.zeros((1, 1)), 0.05, 3)
+    with pytest.raises(NotImplementedError, match="cart gives no held_box_kernel, from which held_enclosure_box"):
         NoBound().held_enclosure(0.0, np.zeros((1, 2)), np.zeros((1, 1)), 0.05)
-    # a model's own method is kept, and the pieces default to its whole tube (sound, coarser)
-    own = OwnPoints()
-    assert bounds_motion(own) and not bounds_boxes(own)
-    assert missing_extras(own, cells=False) == [] and len(missing_extras(own, cells=True)) == 1
-    x, a = np.array([[0.0, 1.0]]), np.zeros((1, 1))
-    p_lo, p_hi = own.held_tube_pieces(0.0, x, a, 0.05, 3)
-    tube_lo, tube_hi, _, _ = own.held_enclosure(0.0, x, a, 0.05)
-    assert p_lo.shape == (3, 1, 2) and (p_lo == tube_lo).all() and (p_hi == tube_hi).all()

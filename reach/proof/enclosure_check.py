@@ -3,10 +3,10 @@
 
 Every certificate the filter states (the one-period test of :class:`~softreach.reach.proof.lookahead.Lookahead`, the
 cells of :mod:`~softreach.reach.proof.cell_certificate`, the compiled decision) is sound only if the model's boxes hold
-every motion of a held period: :meth:`~softreach.reach.model_filter.FilterPart.held_enclosure`,
-:meth:`~softreach.reach.model_filter.FilterPart.held_tube_pieces`, their ``_box`` versions from boxes of starts, and the
-compiled :attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel` over sub-intervals ``[s0, s1]`` of the
-period. Nothing in the proof compares them with the model's ``f``. :func:`check_enclosure` does, by simulation:
+every motion of a held period: its compiled :attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel` over
+sub-intervals ``[s0, s1]`` of the period, from boxes of starts and from points, from which every enclosure the filter
+reads is derived. Nothing in the proof compares them with the model's ``f``. :func:`check_enclosure` does, by
+simulation:
 
 * starts uniform over ``C1`` (the model's ``hard_box``, its ``domain`` where ``C1`` is unbounded), some on a face
   or a corner of it, each the corner or an inner point of a start box up to ``box_cells`` cells wide;
@@ -36,7 +36,7 @@ import json
 import math
 import time
 from dataclasses import asdict, dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -92,20 +92,15 @@ class EnclosureError(ValueError):
 
 # ---------------------------------------------------------------------------------------------- the extras
 def missing_extras(model: Any, cells: bool) -> list[str]:
-    """The methods the filter's proof needs that ``model`` does not implement (empty: none missing).
+    """What the filter's proof needs of ``model`` that it does not give (empty: nothing missing).
 
-    :param cells: the proof on cells is asked for (they bound boxes of starts)
+    :param cells: the proof on cells is asked for (they tile ``hard_box``)
     """
-    from ..model_filter import bounds_boxes, bounds_motion
-
     out = []
-    if not bounds_motion(model):
-        out.append("held_enclosure(t, x, a, dt) -> (tube_lo, tube_hi, end_lo, end_hi): boxes, each (N, n), holding "
-                   "every state of the period [0, dt] and its end, from the states x (N, n) with the actions "
-                   "a (N, m) held, for every wind signal")
-    if cells and not bounds_boxes(model):
-        out.append("held_enclosure_box(t, x_lo, x_hi, a, dt) -> (tube_lo, tube_hi, end_lo, end_hi): the same from "
-                   "every start in the boxes [x_lo, x_hi] (the cells bound whole cells)")
+    if getattr(model, "held_box_kernel", None) is None:
+        out.append("held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi) with held_box_params: a compiled function "
+                   "writing into lo, hi a box that holds every state at some time in [s0, s1] of a period with the "
+                   "action a held, from every start in [x_lo, x_hi], for every wind signal")
     if cells and model.hard_box is None:
         out.append("hard_box = ((lo, ...), (hi, ...)): the box holding C1, which the cells tile")
     return out
@@ -114,15 +109,14 @@ def missing_extras(model: Any, cells: bool) -> list[str]:
 def require_filter_extras(model: Any, job: str, cells: bool) -> None:
     """Refuse, before ``job`` starts, a model without what the filter's proof needs (:func:`missing_extras`).
 
-    :raises EnclosureError: naming each missing method with its signature, and where the docs describe them
+    :raises EnclosureError: naming each missing part with its signature, and where the docs describe them
     """
     missing = missing_extras(model, cells)
     if missing:
         raise EnclosureError(
             f"{model.name} ({type(model).__module__}.{type(model).__qualname__}) lacks what the safety filter needs "
-            f"for {job}; add to the class: " + "; ".join(missing) + ". A compiled held_box_kernel(params, x_lo, x_hi, "
-            "a, s0, s1, lo, hi) with held_box_params gives all of these (the base class derives them from it), as "
-            f"the cart of docs/models.md does; see {DOCS}")
+            f"for {job}; add to the class: " + "; ".join(missing) + f". The base class derives every enclosure the "
+            f"filter reads from the kernel, as the cart of docs/models.md shows; see {DOCS}")
 
 
 # ---------------------------------------------------------------------------------------------- sampling
@@ -216,65 +210,31 @@ def _durations(dt: float, checks: int) -> list[float]:
     return [dt * j / checks for j in range(1, checks + 1)]
 
 
-def _claims(model: Any, t0: float, b_lo: np.ndarray, b_hi: np.ndarray, x0: np.ndarray, a: np.ndarray,
-            dt: float, pieces: int, checks: int, cells: bool) -> list[tuple[str, float, float, float, bool, Any]]:
-    """Every box the filter may read for these runs: ``(name, period, s0, s1, from_box, (lo, hi))``."""
-    from ..model_filter import bounds_boxes
+def _claims(model: Any, b_lo: np.ndarray, b_hi: np.ndarray, x0: np.ndarray, a: np.ndarray, dt: float,
+            pieces: int, checks: int) -> list[tuple[str, float, float, float, bool, Any]]:
+    """Every box the filter may read for these runs, from the model's ``held_box_kernel`` over the start boxes and
+    from the start points: ``(name, period, s0, s1, from_box, (lo, hi))``."""
     from .model_kernels import held_boxes
 
     out = []
-    box_methods = cells or bounds_boxes(model)
     for D in _durations(dt, checks):
         edges = np.linspace(0.0, D, pieces + 1)
-        tube_lo, tube_hi, end_lo, end_hi = _point_enclosure(model, t0, x0, a, D)
-        out += [("held_enclosure (tube)", D, 0.0, D, False, (tube_lo, tube_hi)),
-                ("held_enclosure (end)", D, D, D, False, (end_lo, end_hi))]
-        p_lo, p_hi = _guarded(lambda: model.held_tube_pieces(t0, x0, a, D, pieces), len(x0), model.state_dim, pieces)
-        out += [(f"held_tube_pieces (piece {j + 1} of {pieces})", D, edges[j], edges[j + 1], False, (p_lo[j], p_hi[j]))
-                for j in range(pieces)]
-        if box_methods:
-            tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure_box(t0, b_lo, b_hi, a, D)
-            out += [("held_enclosure_box (tube)", D, 0.0, D, True, (tube_lo, tube_hi)),
-                    ("held_enclosure_box (end)", D, D, D, True, (end_lo, end_hi))]
-            p_lo, p_hi = model.held_tube_pieces_box(t0, b_lo, b_hi, a, D, pieces)
-            out += [(f"held_tube_pieces_box (piece {j + 1} of {pieces})", D, edges[j], edges[j + 1], True,
-                     (p_lo[j], p_hi[j])) for j in range(pieces)]
-        if model.held_box_kernel is not None:
-            for name, s0, s1 in [("tube", 0.0, D), ("end", D, D)] + [
-                    (f"piece {j + 1} of {pieces}", edges[j], edges[j + 1]) for j in range(pieces)]:
-                out.append((f"held_box_kernel ({name})", D, float(s0), float(s1), True,
-                            held_boxes(model, b_lo, b_hi, a, float(s0), float(s1))))
+        for name, s0, s1 in [("tube", 0.0, D), ("end", D, D)] + [
+                (f"piece {j + 1} of {pieces}", edges[j], edges[j + 1]) for j in range(pieces)]:
+            for from_box, lo, hi in ((True, b_lo, b_hi), (False, x0, x0)):
+                out.append((f"held_box_kernel ({name}, from {'a box' if from_box else 'a point'})", D, float(s0),
+                            float(s1), from_box, held_boxes(model, lo, hi, a, float(s0), float(s1))))
     return out
 
 
-def _guarded(call: Callable[[], Any], N: int, n: int, pieces: int | None = None) -> Any:
-    """``call()``; where the model refuses (``ValueError``: no enclosure, which the filter reads as not
-    admissible) every box NaN, which claims nothing."""
-    try:
-        return call()
-    except ValueError:
-        return (np.full((N, n) if pieces is None else (pieces, N, n), np.nan),) * (4 if pieces is None else 2)
-
-
-def _point_enclosure(model: Any, t0: float, x0: np.ndarray, a: np.ndarray, D: float):
-    """:meth:`held_enclosure` of the rows; where the model refuses the batch, row by row (as the look-ahead does)."""
-    try:
-        return model.held_enclosure(t0, x0, a, D)
-    except ValueError:
-        rows = [_guarded(lambda: model.held_enclosure(t0, x0[r:r + 1], a[r:r + 1], D), 1, x0.shape[1])
-                for r in range(len(x0))]
-        return tuple(np.concatenate([np.asarray(one[i]) for one in rows]) for i in range(4))
-
-
 # ---------------------------------------------------------------------------------------------- the check
-def check_enclosure(model: Any, dt: float, pieces: int = 4, checks: int = 1, cells: bool = False,
-                    cell_width: Any = None, settings: EnclosureCheck = EnclosureCheck()) -> dict[str, Any]:
+def check_enclosure(model: Any, dt: float, pieces: int = 4, checks: int = 1, cell_width: Any = None,
+                    settings: EnclosureCheck = EnclosureCheck()) -> dict[str, Any]:
     """Compare the model's held-period enclosures with simulated runs (the module docstring).
 
     :param dt: the control period [s]
     :param pieces: the pieces of a period the budget bound charges (:attr:`Lookahead.pieces`)
     :param checks: the landing test's check instants per period (:attr:`Lookahead.target_checks`)
-    :param cells: check the box enclosures too (required for cells)
     :param cell_width: the width of a cell per axis (start boxes are up to ``box_cells`` of them); ``None``: the
         model's ``cell_shape`` over ``C1``, else its default grid's spacing
     :return: ``{"runs", "claims", "tightest", "seconds"}``: ``tightest`` is the largest excess over a box found,
@@ -293,7 +253,7 @@ def check_enclosure(model: Any, dt: float, pieces: int = 4, checks: int = 1, cel
     rng = np.random.default_rng(settings.seed)
     b_lo, b_hi, x0, a, tau, wind = _samples(model, dt, cell_width, settings, rng)
     t0 = 0.0
-    claims = _claims(model, t0, b_lo, b_hi, x0, a, dt, pieces, checks, cells)
+    claims = _claims(model, b_lo, b_hi, x0, a, dt, pieces, checks)
     fixed = np.unique([0.0, dt] + [float(c[2]) for c in claims] + [float(c[3]) for c in claims])
     F, N = len(fixed), len(x0)
     marks = np.concatenate([np.broadcast_to(fixed, (N, F)), tau], axis=1)
@@ -395,5 +355,5 @@ def check_model_for_filter(model: Any, dt: float, job: str, pieces: int = 4, che
                       bool(cells), width, asdict(settings)], sort_keys=True, default=str)
     if key in _PASSED:
         return
-    check_enclosure(model, dt, pieces, checks, cells, cell_width, settings)
+    check_enclosure(model, dt, pieces, checks, cell_width, settings)
     _PASSED.add(key)

@@ -118,12 +118,12 @@ def checked_rows(model: Any, method: str, x_lo: Any, x_hi: Any, a: Any, dt: Any
     """The arguments of ``model.method`` checked (shapes, a box's corners in order, the period, and the model's
     ``validate_state`` / ``validate_control``), as float64 arrays with the controls ``(N, m)``.
 
-    :raises NotImplementedError: the model gives no ``held_box_kernel`` (nor its own ``method``)
+    :raises NotImplementedError: the model gives no ``held_box_kernel``
     :raises ValueError: naming the bad value
     """
     if model.held_box_kernel is None:
-        raise NotImplementedError(f"{model.name} gives no held_box_kernel (nor its own {method}); the safety filter "
-                                  f"needs a validated bound of its motion over a held period")
+        raise NotImplementedError(f"{model.name} gives no held_box_kernel, from which {method} is derived; the safety "
+                                  f"filter needs a validated bound of its motion over a held period")
     n, m = model.state_dim, model.control_dim
     x_lo, x_hi, a = (np.asarray(v, dtype=np.float64) for v in (x_lo, x_hi, a))
     if x_lo.ndim != 2 or x_lo.shape[1] != n or x_hi.shape != x_lo.shape:
