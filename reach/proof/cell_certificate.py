@@ -171,19 +171,6 @@ class CellCertificate:
         g = np.clip(np.nan_to_num(g), 0, n - 1).astype(np.int64)
         return f, np.maximum(f, g), on
 
-    def _budget_index(self, spend: np.ndarray, needed: Any) -> np.ndarray:
-        """The lowest budget index ``j`` with ``j dz - spend >= needed dz``: the start budgets whose lowest end
-        budget still lies in a good cell of index ``needed``; ``never`` where no budget does (or the spend is not
-        finite)."""
-        needed = np.asarray(needed, dtype=np.int64)
-        spend = np.asarray(spend, dtype=np.float64)
-        finite = np.isfinite(spend)
-        s = np.where(finite, spend, 0.0)
-        j = np.ceil(np.minimum(s / self.dz + needed - 1e-12, self.never)).astype(np.int64)
-        # float guard: the condition itself, not its rearrangement, decides
-        j = np.where(j * self.dz - s >= needed * self.dz, j, j + 1)
-        return np.where(finite, np.minimum(np.maximum(j, 0), self.never), self.never)
-
     def step_index(self, t: np.ndarray) -> np.ndarray:
         """The sample index whose game covers time ``t`` (between samples, a model whose motion does not depend on
         ``t``): ``"safe"`` takes ``floor(t / dt)``, whose plans keep ``C1`` until at least ``T``; ``"land"`` takes

@@ -2,19 +2,22 @@
 <softreach.reach.proof.cell_certificate.CellCertificate.build>`), and the same recursion asked again of a stored
 certificate (:func:`recheck`): the module docstring of :mod:`softreach.reach.proof.cell_certificate` states the game.
 
-A **plan step** is one candidate held from every cell for ``K`` periods, its boxes chained (:func:`plan_steps`);
-one step of the recursion (:func:`backward_step`) gives every cell the least budget index over the plan steps from
-the later samples. Both the solve and :func:`recheck` run that step, so a certificate that passes
+A **plan step** is one candidate held from every cell for ``K`` periods, its boxes chained (:func:`plan_steps`):
+the rows that keep ``C1``, their budget bound and the range of cells their end box touches; one step of the
+recursion (:func:`backward_step`) gives every cell the least budget index over the plan steps from the later
+samples. Both the solve and :func:`recheck` run that step, so a certificate that passes
 :func:`recheck` at every cell is the one the solve gives."""
 
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 import numpy as np
 from tqdm.auto import tqdm
 
+from ..jit import njit
 from .blocks import default_threads, run_in_blocks
 from .model_kernels import ENCLOSE_MIN_ROWS, SET_INDEX, set_max_rows
 from .period import motion, period_rows
@@ -119,18 +122,66 @@ def backward_step(cells: Any, plans: list, m: np.ndarray, k: int, N: int, C: int
     best = np.full(C, never, np.int64)
     action = np.full(C, -1, np.int8)
     hold = np.zeros(C, np.int8)
-    for j, K, (rows, spend, cols, starts, land_rows, land_need) in plans:
+    shape = np.asarray(cells.shape, dtype=np.int64)
+    for j, K, (rows, spend, first, last, land_rows, land_need) in plans:
         if k + K > N:
             continue
+        need = np.empty(len(rows), np.int64)
+        plan_needs(np.ascontiguousarray(m[k + K]), shape, first, last, spend, cells.dz, never, need)
         # landing inside the plan needs no later cell: its budget index does not change with k
-        for r, need in ((land_rows, land_need),
-                        (rows, cells._budget_index(spend, np.maximum.reduceat(m[k + K][cols], starts)
-                                                   if len(rows) else np.zeros(0, np.int64)))):
-            better = need < best[r]
+        for r, nd in ((land_rows, land_need), (rows, need)):
+            better = nd < best[r]
             r = r[better]
-            best[r], action[r], hold[r] = need[better], j, K
+            best[r], action[r], hold[r] = nd[better], j, K
     out = np.minimum(best, never)
     return out, np.where(out < never, action, -1), hold
+
+
+@njit(inline="always")
+def budget_index(spend, needed, dz, never):
+    """The lowest budget index ``j`` with ``j dz - spend >= needed dz``: the start budgets whose lowest end budget
+    still lies in a good cell of index ``needed``; ``never`` where no budget does (or the spend is not finite)."""
+    if not math.isfinite(spend):
+        return never
+    j = np.int64(math.ceil(min(spend / dz + needed - 1e-12, float(never))))
+    # float guard: the condition itself, not its rearrangement, decides
+    if not j * dz - spend >= needed * dz:
+        j += 1
+    return min(max(j, 0), never)
+
+
+@njit(nogil=True)
+def budget_indices(spend, needed, dz, never, out):
+    """:func:`budget_index` of every row."""
+    for i in range(len(spend)):
+        out[i] = budget_index(spend[i], needed, dz, never)
+
+
+@njit(nogil=True)
+def plan_needs(m_next, shape, first, last, spend, dz, never, out):
+    """For every row of a plan step: the budget index its start needs (:func:`budget_index`) to reach, after
+    spending ``spend[i]``, the cells ``first[i] .. last[i]`` (per axis, inclusive) at the largest of their least
+    good budget indices ``m_next`` (flat, the last axis fastest)."""
+    d = len(shape)
+    idx = np.empty(d, np.int64)
+    for i in range(first.shape[0]):
+        for a in range(d):
+            idx[a] = first[i, a]
+        worst = np.int64(0)
+        while True:
+            flat = np.int64(0)
+            for a in range(d):
+                flat = flat * shape[a] + idx[a]
+            worst = max(worst, np.int64(m_next[flat]))
+            # the next cell of the range, the last axis fastest
+            a = d - 1
+            while a >= 0 and idx[a] == last[i, a]:
+                idx[a] = first[i, a]
+                a -= 1
+            if a < 0:
+                break
+            idx[a] += 1
+        out[i] = budget_index(spend[i], worst, dz, never)
 
 
 def recheck(cells: Any, lookahead: Any, flat: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -189,25 +240,8 @@ def plan_steps(cells: Any, la: Any, t0: float, lo: np.ndarray, hi: np.ndarray, a
         if p in holds:
             first, last, on = cells._cell_range(lo, hi)
             rows = np.nonzero(ok & on & ((last - first + 1).prod(axis=1) <= span_cap))[0]
-            cols, starts = touched(cells.shape, first[rows], last[rows])
             land_rows = np.nonzero(ok & lands)[0]
-            out.append((p, (rows, spend[rows], cols, starts, land_rows, cells._budget_index(spend[land_rows], 0))))
+            land_need = np.empty(len(land_rows), np.int64)
+            budget_indices(spend[land_rows], 0, cells.dz, cells.never, land_need)
+            out.append((p, (rows, spend[rows], first[rows], last[rows], land_rows, land_need)))
     return out
-
-
-def touched(shape: tuple, first: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The flat indices of the cells ``first..last`` of every row, concatenated, and where each row's start:
-    ``np.maximum.reduceat(field.ravel()[cols], starts)`` is then every row's largest value."""
-    if len(first) == 0:
-        return np.zeros(0, np.int32), np.zeros(0, np.int64)
-    span = last - first + 1
-    count = span.prod(axis=1)
-    starts = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
-    row = np.repeat(np.arange(len(first)), count)
-    local = np.arange(int(count.sum())) - np.repeat(starts, count)
-    flat = np.zeros(len(local), np.int64)
-    for d in range(len(shape)):
-        # mixed radix over the row's own spans, the last axis fastest
-        stride = span[:, d + 1:].prod(axis=1)[row]
-        flat = flat * shape[d] + first[row, d] + (local // stride) % span[row, d]
-    return flat.astype(np.int32), starts
