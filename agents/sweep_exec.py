@@ -288,7 +288,10 @@ def connect_ray(address: str, workers: int):
         return ray, False
     try:
         if address == "local":
-            ray.init(num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False)
+            # Ray starts its workers at niceness 15, below every other process: on a shared machine a sweep's runs
+            # would get a small share of the CPU. They are the sweep's work: they run at the driver's priority
+            ray.init(num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False,
+                     _system_config={"worker_niceness": 0})
         else:
             ray.init(address=address, log_to_driver=False)
     except ConnectionError as exc:

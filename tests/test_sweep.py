@@ -18,6 +18,7 @@ import stable_baselines3  # noqa: F401
 
 from softreach.agents.sweep import SweepSpec, load_sweep_file  # noqa: E402
 from softreach.agents.sweep_cli import run_sweep  # noqa: E402
+from softreach.agents.sweep_exec import connect_ray  # noqa: E402
 from softreach.agents.sweep_report import COLUMNS, read_table  # noqa: E402
 
 #: one PPO update of 2 x 64 steps, one periodic evaluation (so best_model.zip exists)
@@ -155,9 +156,10 @@ def test_killed_worker_is_reported(tmp_path, pointmass_table_path):
 
 @pytest.fixture(scope="module")
 def local_ray():
-    """A local Ray instance with one CPU for this module's Ray tests."""
-    ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'softreach[sweep]')")
-    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+    """A local Ray instance with one CPU for this module's Ray tests, started as ``softreach sweep --ray local``
+    starts one; the sweeps below join it (``--ray auto``)."""
+    ray, started = connect_ray("local", 1)
+    assert started
     yield ray
     ray.shutdown()
 
@@ -173,7 +175,8 @@ def test_killed_ray_worker_is_reported(tmp_path, pointmass_table_path, local_ray
 
 @pytest.mark.process
 def test_sweep_on_local_ray(tmp_path, pointmass_table_path, local_sweep, local_ray):
-    """The same sweep as Ray tasks: the same table, the same numbers (training and evaluation are seeded)."""
+    """The same sweep as Ray tasks: the same table, the same numbers (training and evaluation are seeded), the
+    workers at the driver's priority."""
     spec = tiny_spec(pointmass_table_path)
     out = tmp_path / "sweep_ray"
     res = run_sweep(spec, out, ray="auto", log=lambda _: None)
@@ -186,6 +189,8 @@ def test_sweep_on_local_ray(tmp_path, pointmass_table_path, local_sweep, local_r
         assert differ <= {"train_wall_s", "eval_wall_s"}, differ
     result = json.loads((out / "runs" / spec.runs()[0].run_id / "result.json").read_text())
     assert result["status"] == "done" and result["pid"] != os.getpid()  # ran in a Ray worker process
+    # at the driver's priority: Ray's own default, niceness 15, starves the runs on a shared machine
+    assert local_ray.get(local_ray.remote(lambda: os.nice(0)).remote()) == os.nice(0)
 
 
 def test_bad_input_names_the_value(tmp_path, pointmass_table_path):

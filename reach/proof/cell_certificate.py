@@ -157,20 +157,6 @@ class CellCertificate:
         return cells
 
     # ---------------------------------------------------------------- cell arithmetic
-    def _cell_range(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """First and last cell index per axis a box ``[lo, hi]`` touches (closed cells), and whether it lies on
-        the grid. Off-grid boxes get a valid range and ``False``."""
-        with np.errstate(invalid="ignore"):
-            f = np.floor((lo - self.lo) / self.width)
-            g = np.floor((hi - self.lo) / self.width)
-        n = np.asarray(self.shape)
-        # a box reaching exactly the grid's upper end touches the last cell only
-        g = np.where(hi == self.hi, n - 1, g)
-        on = (np.isfinite(f) & np.isfinite(g) & (f >= 0) & (g <= n - 1)).all(axis=1)
-        f = np.clip(np.nan_to_num(f), 0, n - 1).astype(np.int64)
-        g = np.clip(np.nan_to_num(g), 0, n - 1).astype(np.int64)
-        return f, np.maximum(f, g), on
-
     def step_index(self, t: np.ndarray) -> np.ndarray:
         """The sample index whose game covers time ``t`` (between samples, a model whose motion does not depend on
         ``t``): ``"safe"`` takes ``floor(t / dt)``, whose plans keep ``C1`` until at least ``T``; ``"land"`` takes

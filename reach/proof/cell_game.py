@@ -19,6 +19,7 @@ from tqdm.auto import tqdm
 
 from ..jit import njit
 from .blocks import default_threads, run_in_blocks
+from .kernels import cell_span
 from .model_kernels import ENCLOSE_MIN_ROWS, SET_INDEX, set_max_rows
 from .period import motion, period_rows
 
@@ -137,6 +138,18 @@ def backward_step(cells: Any, plans: list, m: np.ndarray, k: int, N: int, C: int
     return out, np.where(out < never, action, -1), hold
 
 
+@njit(nogil=True)
+def cell_ranges(shape, clo, chi, width, lo, hi, first, last, on):
+    """Per row and axis the first and last cell the box ``[lo, hi]`` touches (closed cells, :func:`~softreach.reach.
+    proof.kernels.cell_span`, the filter's cover test's), and whether it lies on the grid."""
+    for i in range(lo.shape[0]):
+        on[i] = True
+        for a in range(len(shape)):
+            f, g, on_a = cell_span(lo[i, a], hi[i, a], clo[a], chi[a], width[a], shape[a])
+            first[i, a], last[i, a] = f, g
+            on[i] = on[i] and on_a
+
+
 @njit(inline="always")
 def budget_index(spend, needed, dz, never):
     """The lowest budget index ``j`` with ``j dz - spend >= needed dz``: the start budgets whose lowest end budget
@@ -225,6 +238,7 @@ def plan_steps(cells: Any, la: Any, t0: float, lo: np.ndarray, hi: np.ndarray, a
     ok, spend, lands = np.ones(C, bool), np.zeros(C), np.zeros(C, bool)
     kept, charge, landed = np.empty(C, bool), np.empty(C), np.empty(C, bool)
     end_lo, end_hi = np.empty((C, n)), np.empty((C, n))
+    shape = np.asarray(cells.shape, dtype=np.int64)
     out = []
     for p in range(1, max(holds) + 1):
         # landing needs only the budget spent until the landing instant, at most the plan's bound so far
@@ -238,7 +252,9 @@ def plan_steps(cells: Any, la: Any, t0: float, lo: np.ndarray, hi: np.ndarray, a
         lands |= landed
         lo, hi = np.where(ok[:, None], end_lo, lo), np.where(ok[:, None], end_hi, hi)
         if p in holds:
-            first, last, on = cells._cell_range(lo, hi)
+            first, last, on = np.empty((C, n), np.int64), np.empty((C, n), np.int64), np.empty(C, bool)
+            cell_ranges(shape, cells.lo, cells.hi, cells.width, np.ascontiguousarray(lo), np.ascontiguousarray(hi), first,
+                        last, on)
             rows = np.nonzero(ok & on & ((last - first + 1).prod(axis=1) <= span_cap))[0]
             land_rows = np.nonzero(ok & lands)[0]
             land_need = np.empty(len(land_rows), np.int64)

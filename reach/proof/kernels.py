@@ -357,7 +357,7 @@ def budget_floor(z, dz, top):
 
 
 @njit(inline="always")
-def _cell_span(lo, hi, clo, chi, width, n):
+def cell_span(lo, hi, clo, chi, width, n):
     """The cells ``[first, last]`` that ``[lo, hi]`` touches along one axis of ``n`` cells (clamped to the grid),
     and whether it lies on the grid along it."""
     f = math.floor((lo - clo) / width)
@@ -387,7 +387,7 @@ def cover_row(cells, t, lo, hi, z):
     runs = 1
     run_lo, run_hi = 0, 0
     for a in range(D):
-        fi, gi, on_a = _cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a])
+        fi, gi, on_a = cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a])
         on = on and on_a
         if a == D - 1:
             run_lo, run_hi = fi, gi
@@ -403,7 +403,7 @@ def cover_row(cells, t, lo, hi, z):
         off = 0
         stride = shape[D - 1]
         for a in range(D - 2, -1, -1):
-            fi, gi, _ = _cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a])
+            fi, gi, _ = cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a])
             span = gi - fi + 1
             off += (fi + rest % span) * stride
             rest //= span
@@ -422,7 +422,7 @@ def plan_row(cells, action, hold, t, x):
     m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
     off, stride = 0, 1
     for a in range(len(shape) - 1, -1, -1):
-        fi, _, on = _cell_span(x[a], x[a], clo[a], chi[a], width[a], shape[a])
+        fi, _, on = cell_span(x[a], x[a], clo[a], chi[a], width[a], shape[a])
         if not on:
             return -1, 0
         off += fi * stride
