@@ -77,17 +77,16 @@ def solve(cls: type, lookahead: Any, key: dict[str, Any]) -> Any:
     bar = tqdm(total=N + len(la.candidates), desc=f"{model.name} {game} cells", unit="step", disable=None,
                leave=False)
     for k in range(N - 1, -1, -1):
-        if model.time_invariant and k + K_max + 1 <= N and all(
-                np.array_equal(m[k + 1], m[k + 1 + d]) for d in range(1, K_max + 1)):
-            # the recursion reads the next K_max columns; they agree, so every earlier one is the same
+        if k + K_max + 1 <= N and all(np.array_equal(m[k + 1], m[k + 1 + d]) for d in range(1, K_max + 1)):
+            # the recursion reads the next K_max columns with the same plans; they agree, so every earlier one is
+            # the same
             m[:k + 1], action[:k + 1], hold[:k + 1] = m[k + 1], action[k + 1], hold[k + 1]
             break
-        if plans is None or not model.time_invariant:
-            plans = _SHARED.get(key) if model.time_invariant else None
+        if plans is None:
+            plans = _SHARED.get(key)
             if plans is None:
-                plans = all_plan_steps(cells, la, k * dt, cell_lo, cell_hi, holds, span_cap, bar)
-                if model.time_invariant:
-                    _SHARED.put(key, plans)
+                plans = all_plan_steps(cells, la, cell_lo, cell_hi, holds, span_cap, bar)
+                _SHARED.put(key, plans)
         bar.update(1)
         m[k], action[k], hold[k] = backward_step(cells, plans, m, k, N, C)
     bar.close()
@@ -103,12 +102,12 @@ def terminal(cells: Any, la: Any, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.where((c1 <= 0) & (cells.game == "safe"), 0, cells.never)
 
 
-def all_plan_steps(cells: Any, la: Any, t0: float, lo: np.ndarray, hi: np.ndarray, holds: tuple, span_cap: int,
+def all_plan_steps(cells: Any, la: Any, lo: np.ndarray, hi: np.ndarray, holds: tuple, span_cap: int,
                    bar: Any = None) -> list:
     """:func:`plan_steps` of every candidate: ``(j, K, step)`` in the candidates' order."""
     out = []
     for j, a in enumerate(la.candidates):
-        out += [(j, K, g) for K, g in plan_steps(cells, la, t0, lo, hi, a, holds, span_cap)]
+        out += [(j, K, g) for K, g in plan_steps(cells, la, lo, hi, a, holds, span_cap)]
         if bar is not None:
             bar.update(1)
     return out
@@ -217,21 +216,19 @@ def recheck(cells: Any, lookahead: Any, flat: Any) -> tuple[np.ndarray, np.ndarr
     lo, hi = cell_boxes(cells, flat)
     m, action, hold = np.empty((N + 1, C), np.int64), np.full((N + 1, C), -1, np.int8), np.zeros((N + 1, C), np.int8)
     m[N] = terminal(cells, la, lo, hi)
-    plans = None
+    plans = all_plan_steps(cells, la, lo, hi, tuple(key["holds"]), key["span_cap"])
     for k in range(N - 1, -1, -1):
-        if plans is None or not la.model.time_invariant:
-            plans = all_plan_steps(cells, la, k * la.dt, lo, hi, tuple(key["holds"]), key["span_cap"])
         m[k], action[k], hold[k] = backward_step(cells, plans, m_all, k, N, C)
     return m, action, hold
 
 
-def plan_steps(cells: Any, la: Any, t0: float, lo: np.ndarray, hi: np.ndarray, a: np.ndarray, holds: tuple,
-               span_cap: int) -> list:
+def plan_steps(cells: Any, la: Any, lo: np.ndarray, hi: np.ndarray, a: np.ndarray, holds: tuple, span_cap: int
+               ) -> list:
     """One candidate held from every cell for ``max(holds)`` periods, the boxes chained, each period bounded by
     :func:`~softreach.reach.proof.period.period_rows` (the filter's own bounds): per plan length ``K`` in ``holds``,
     whether every period so far keeps ``C1``, the budget bound, the cells the end box touches (and whether they
-    are few enough to use), and whether every run surely lands by then. The bounds do not depend on ``t0``: the
-    compiled enclosure and set maxima have no time argument."""
+    are few enough to use), and whether every run surely lands by then. The same at every sample time: the compiled
+    enclosure and set maxima have no time argument."""
     enclose, M = motion(la)
     C, n = lo.shape
     acts = np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64), (C, len(a))))
