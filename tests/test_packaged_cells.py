@@ -14,9 +14,11 @@ from softreach.reach.proof import cell_certificate, cell_game
 from softreach.reach.proof.cell_certificate import PACKAGED, CellCertificate, cell_key
 from softreach.reach.proof.lookahead import Lookahead
 
-#: the point mass's files are rechecked here, and one is rebuilt (11 to 25 s each); the glider's take 16 min to
-#: build, and tests/test_glider_cells.py checks what they claim instead
-FILES = sorted(PACKAGED.glob("cells-pointmass-*.npz"))
+#: every file is rechecked here, and one of the point mass's is rebuilt whole (the glider's and Dubins's take
+#: minutes to build; tests/test_glider_cells.py and tests/test_dubins_cells.py fly what they claim)
+FILES = sorted(PACKAGED.glob("cells-*.npz"))
+#: the test table of each model, solved for the packaged cells' period and candidates
+TABLES = {"pointmass": "pointmass_held_table", "glider": "glider_held_table", "dubins": "dubins_held_table"}
 
 
 def test_the_package_ships_the_default_cells():
@@ -31,7 +33,7 @@ def test_the_package_ships_the_default_cells():
 @pytest.mark.slow
 def test_packaged_cells_equal_a_fresh_build(pointmass_held_table):
     """The default filter's safe cells, rebuilt whole; the other files are rechecked below."""
-    path = next(f for f in FILES if "-safe-" in f.name and CellCertificate.load(f).key["target_checks"] == 1)
+    path = next(f for f in FILES if "pointmass-safe-" in f.name and CellCertificate.load(f).key["target_checks"] == 1)
     stored = CellCertificate.load(path)
     table = pointmass_held_table
     la = Lookahead.from_table(table, table.model, table.control_period, table.eps,
@@ -44,13 +46,13 @@ def test_packaged_cells_equal_a_fresh_build(pointmass_held_table):
 
 
 @pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
-def test_packaged_cells_are_what_the_recursion_gives(path, pointmass_held_table):
+def test_packaged_cells_are_what_the_recursion_gives(path, request):
     """Every packaged file, at 2,000 random cells and every sample: the least good budget index and the plan are
     those one step of the game's recursion gives from the file's own later samples, and at ``T`` those of the
     game. At every cell that would make the file the build's own answer; a file built by other code, or for other
     enclosures, candidates or budget bounds, disagrees at some of them."""
     stored = CellCertificate.load(path)
-    table = pointmass_held_table
+    table = request.getfixturevalue(TABLES[stored.key["model"]])
     la = Lookahead.from_table(table, table.model, table.control_period, table.eps,
                               target_checks=stored.key["target_checks"])
     flat = np.random.default_rng(0).choice(int(np.prod(stored.shape)), 2000, replace=False)
