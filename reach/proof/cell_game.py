@@ -106,8 +106,9 @@ def all_plan_steps(cells: Any, la: Any, lo: np.ndarray, hi: np.ndarray, holds: t
                    bar: Any = None) -> list:
     """:func:`plan_steps` of every candidate: ``(j, K, step)`` in the candidates' order."""
     out = []
+    bounds = motion(la)
     for j, a in enumerate(la.candidates):
-        out += [(j, K, g) for K, g in plan_steps(cells, la, lo, hi, a, holds, span_cap)]
+        out += [(j, K, g) for K, g in plan_steps(cells, bounds, lo, hi, a, holds, span_cap)]
         if bar is not None:
             bar.update(1)
     return out
@@ -127,7 +128,10 @@ def backward_step(cells: Any, plans: list, m: np.ndarray, k: int, N: int, C: int
         if k + K > N:
             continue
         need = np.empty(len(rows), np.int64)
-        plan_needs(np.ascontiguousarray(m[k + K]), shape, first, last, spend, cells.dz, never, need)
+        m_next = np.ascontiguousarray(m[k + K])
+        # the rows are independent and the loop releases the GIL: one block a thread
+        run_in_blocks(lambda i, j: plan_needs(m_next, shape, first[i:j], last[i:j], spend[i:j], cells.dz, never,
+                                              need[i:j]), len(rows), default_threads(), ENCLOSE_MIN_ROWS)
         # landing inside the plan needs no later cell: its budget index does not change with k
         for r, nd in ((land_rows, land_need), (rows, need)):
             better = nd < best[r]
@@ -222,14 +226,17 @@ def recheck(cells: Any, lookahead: Any, flat: Any) -> tuple[np.ndarray, np.ndarr
     return m, action, hold
 
 
-def plan_steps(cells: Any, la: Any, lo: np.ndarray, hi: np.ndarray, a: np.ndarray, holds: tuple, span_cap: int
-               ) -> list:
+def plan_steps(cells: Any, bounds: tuple, lo: np.ndarray, hi: np.ndarray, a: np.ndarray, holds: tuple,
+               span_cap: int) -> list:
     """One candidate held from every cell for ``max(holds)`` periods, the boxes chained, each period bounded by
     :func:`~softreach.reach.proof.period.period_rows` (the filter's own bounds): per plan length ``K`` in ``holds``,
     whether every period so far keeps ``C1``, the budget bound, the cells the end box touches (and whether they
     are few enough to use), and whether every run surely lands by then. The same at every sample time: the compiled
-    enclosure and set maxima have no time argument."""
-    enclose, M = motion(la)
+    enclosure and set maxima have no time argument.
+
+    :param bounds: ``(enclosure's address, Motion)`` of the look-ahead (:func:`~softreach.reach.proof.period.motion`)
+    """
+    enclose, M = bounds
     C, n = lo.shape
     acts = np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64), (C, len(a))))
     ok, spend, lands = np.ones(C, bool), np.zeros(C), np.zeros(C, bool)
