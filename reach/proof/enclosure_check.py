@@ -115,7 +115,7 @@ def require_filter_extras(model: Any, job: str, cells: bool) -> None:
     if missing:
         raise EnclosureError(
             f"{model.name} ({type(model).__module__}.{type(model).__qualname__}) lacks what the safety filter needs "
-            f"for {job}; add to the class: " + "; ".join(missing) + f". The base class derives every enclosure the "
+            f"for {job}; add to the class: " + "; ".join(missing) + ". The base class derives every enclosure the "
             f"filter reads from the kernel, as the cart of docs/models.md shows; see {DOCS}")
 
 
