@@ -1,6 +1,6 @@
-"""What the compiled decision reads, by name: the model's side of the one-period test, the cells, the table, the
-control box's map, the verdict on one action and the work space (:mod:`softreach.filters.compiled`,
-:mod:`softreach.filters.judge`).
+"""What the compiled decision reads, by name: the cells, the table, the control box's map, the verdict on one action
+and the work space (:mod:`softreach.filters.compiled`, :mod:`softreach.filters.judge`); the model's side of the
+one-period test, :class:`~softreach.reach.proof.period.Motion`, is the period's bounds' own.
 
 Each is a :class:`typing.NamedTuple`: numba compiles a field read by name to the same code as one by position, and
 keeps caching the functions that take them (their type names the class, which is found again by its module).
@@ -166,8 +166,8 @@ def plain(value: Any) -> Any:
 
 @njit(inline="always")
 def named(M, C, T, action):
-    """The plain tuples of a :class:`Motion`, :class:`Cells`, :class:`TableArgs` and :class:`ActionMap` named
-    again."""
+    """The plain tuples of a :class:`~softreach.reach.proof.period.Motion`, :class:`Cells`, :class:`TableArgs` and
+    :class:`ActionMap` named again."""
     return Motion(*M), Cells(*C), TableArgs(*T), ActionMap(*action)
 
 
