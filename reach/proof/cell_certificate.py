@@ -268,10 +268,11 @@ def cache_dir() -> Path:
 
 
 #: cells shipped with the package for the default configurations, so that the first filter on a machine need not
-#: build them: the point mass at 0.01 s for ``target_checks`` 1 and its environment's 10 (``tests/test_packaged_
-#: cells.py`` rebuilds each and checks it equals the file), the glider at 0.1 s for its environment's 2, what
-#: :class:`~softreach.filters.SafetyFilter` asks (6 min to build; ``tests/test_glider_cells.py`` checks the files'
-#: claims). Rewritten by ``python benchmarks/cell_certificate.py --table TABLE --write-packaged [--checks N]``
+#: build them (minutes for the glider, ``docs/filters.md``): the point mass at 0.01 s for ``target_checks`` 1 and its
+#: environment's 10, the glider and Dubins at 0.1 s for their environments' 2, what
+#: :class:`~softreach.filters.SafetyFilter` asks. ``tests/test_packaged_cells.py`` rechecks every file against the
+#: recursion and rebuilds one whole; ``tests/test_glider_cells.py`` and ``tests/test_dubins_cells.py`` fly their
+#: claims. Rewritten by ``python benchmarks/cell_certificate.py --table TABLE --write-packaged [--checks N]``
 PACKAGED = Path(__file__).parent / "cells"
 
 

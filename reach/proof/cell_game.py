@@ -257,8 +257,8 @@ def plan_steps(cells: Any, bounds: tuple, lo: np.ndarray, hi: np.ndarray, a: np.
         lo, hi = np.where(ok[:, None], end_lo, lo), np.where(ok[:, None], end_hi, hi)
         if p in holds:
             first, last, on = np.empty((C, n), np.int64), np.empty((C, n), np.int64), np.empty(C, bool)
-            cell_ranges(shape, cells.lo, cells.hi, cells.width, np.ascontiguousarray(lo), np.ascontiguousarray(hi), first,
-                        last, on)
+            cell_ranges(shape, cells.lo, cells.hi, cells.width, np.ascontiguousarray(lo), np.ascontiguousarray(hi),
+                        first, last, on)
             rows = np.nonzero(ok & on & ((last - first + 1).prod(axis=1) <= span_cap))[0]
             land_rows = np.nonzero(ok & lands)[0]
             land_need = np.empty(len(land_rows), np.int64)
