@@ -107,6 +107,13 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
         proc.wait()
 
 
+@pytest.fixture(scope="session", autouse=True)
+def sb3_log_folder(tmp_path_factory):
+    """SB3 makes a folder for the logger of every ``learn`` given none, in the system's temporary folder, and keeps
+    it: the tests' go under this run's temporary folder instead (SB3 reads ``SB3_LOGDIR``)."""
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3"))
+
+
 @pytest.fixture(scope="session")
 def pointmass_table(tmp_path_factory):
     """A coarse point-mass table with V and W_eps (41 x 41 x 45, ENO2/RK2, 11 snapshots)."""
