@@ -18,7 +18,8 @@ import numpy as np
 
 from ..jit import njit
 from .kernels import frozen
-from .model_kernels import SET_INDEX, call_held_box, call_set_max, held_box_address, set_max_address
+from .model_kernels import (SET_INDEX, boxes_set_max, call_held_box, call_set_max, held_box_address,
+                            set_max_address)
 
 # the sets' indices in the model's set-maximum kernel
 _TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_INDEX["soft_constraint"]
@@ -68,8 +69,6 @@ def missing_kernels(model: Any) -> str | None:
                 f"with set_max_params")
     # a model's own set_box_max (sets not convex along each axis) must be what its own compiled kernel computes: the
     # default kernel (box distances) does not know of it
-    from .model_kernels import boxes_set_max
-
     n = model.state_dim
     if model.set_max_kernel is boxes_set_max and any(
             model.set_box_max(w, 0.0, np.zeros((1, n)), np.zeros((1, n))) is not None for w in SET_INDEX):
