@@ -128,7 +128,7 @@ def test_grid_validation():
 
 @pytest.mark.parametrize("fused", [False, True], ids=["rate-compiled", "step-fused"])
 def test_compiled_soft_solve_has_no_graph_break(fused, monkeypatch):
-    """A graph break sends every step back to eager Python and recompiles for each new time: ~25x slower. The
+    """A graph break sends every step back to eager Python and recompiles for each new time. The
     graphs are dynamo's, whatever compiles them, so the solve's ``torch.compile`` runs them with dynamo's eager
     backend here (no code generated); :func:`test_compiled_step_matches_eager` runs inductor's code."""
     import functools
