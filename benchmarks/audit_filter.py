@@ -14,7 +14,7 @@ Measures, for one table (``filters.core.ValueFilter`` at the table's control per
 3. latency: one decision (median of 200 calls, us) for a policy action that passes and for one the filter
    replaces, and a batch of 1,024 random states (median of 20 calls, ms); and a reset's search for a start's own plan (``certify_start`` of one
    start no period or cell certifies, median of up to 50);
-4. the audit (``filters.audit.audit``): start classes x policies x winds, with and without the filter, one line
+4. the audit (``agents.audit.audit``): start classes x policies x winds, with and without the filter, one line
    per row and totals per (start class, filtered);
 5. point mass only: the four starts of issue 10, each certified or not (and why) and run once.
 
@@ -41,7 +41,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from softreach.filters.audit import POLICIES, WINDS, Row, _policy, _wind, audit, run_episode
+from softreach.agents.audit import POLICIES, WINDS, Row, _policy, _wind, audit, run_episode
 from softreach.filters.core import PASS, ValueFilter
 from softreach.reach import load_table
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from softreach.filters import ValueFilter
-from softreach.filters.audit import Row, _policy, _wind, run_episode
+from softreach.agents.audit import Row, _policy, _wind, run_episode
 from softreach.reach import get_model
 from softreach.reach.proof.cell_certificate import CellCertificate
 from softreach.reach.proof.lookahead import Lookahead

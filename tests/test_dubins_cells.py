@@ -16,7 +16,7 @@ import pytest
 import softreach.envs  # noqa: F401  (registers the environments)
 
 from softreach.filters import SafetyFilter, ValueFilter
-from softreach.filters.audit import Row, _policy, _wind, run_episode
+from softreach.agents.audit import Row, _policy, _wind, run_episode
 from softreach.reach import get_model
 
 from cell_plans import assert_landing_cells_nested, cell_boxes, fly_plan_from_a_good_cell, run_certified_episode

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from softreach.filters import ValueFilter
-from softreach.filters.audit import POLICIES, audit
+from softreach.agents.audit import POLICIES, audit
 from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
 from softreach.reach.tables.interpolation import interpolate
 

@@ -80,7 +80,7 @@ def test_plans_are_followed_as_in_a_batch(pointmass_held_table):
     """Closed loop, each step's plan fed to the next, from starts in the landing cells and starts that only a plan
     of their own certifies (followed from the first step), the policy random, the wind switching at random: the
     one-row path and the batched path give the same steps all along."""
-    from softreach.filters.audit import sample_starts
+    from softreach.agents.audit import sample_starts
 
     vf = ValueFilter(pointmass_held_table, 0.01)
     p = vf.model.params

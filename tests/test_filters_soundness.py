@@ -11,7 +11,7 @@ import gymnasium as gym
 
 import softreach.envs  # noqa: F401  (registers the environments)
 from softreach.filters import SafetyFilter, ValueFilter
-from softreach.filters.audit import POLICIES, Row, _policy, _wind, audit, run_episode
+from softreach.agents.audit import POLICIES, Row, _policy, _wind, audit, run_episode
 from softreach.filters.plans import NO_PLAN, PLAN_LAND, advance_plan, start_plans
 from softreach.reach import get_model
 from softreach.reach.sim.integrator import integrate_period

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from softreach.filters import ValueFilter
-from softreach.filters.audit import Row, _policy, _wind, run_episode
+from softreach.agents.audit import Row, _policy, _wind, run_episode
 
 from cell_plans import assert_landing_cells_nested, cell_boxes, fly_plan_from_a_good_cell
 
