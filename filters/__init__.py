@@ -1,11 +1,5 @@
-"""softreach.filters: a least-restrictive safety filter built on a ``W_eps`` table (paper §V).
-
-* :class:`ValueFilter` — the pure, batched core (numpy in/out, torch in/out): the one-period look-ahead of
-  held actions (:class:`Lookahead`), certification, the ``"switch"`` and ``"smooth"`` rules;
-* :class:`SafetyFilter` — a ``gymnasium.Wrapper`` that filters any policy's actions in the landing
-  environments;
-* :class:`VecSafetyFilter` — one batched decision per step for SB3's ``DummyVecEnv`` of filtered environments.
-"""
+"""softreach.filters: a least-restrictive safety filter on a ``W_eps`` table (paper §V; docs/filters.md): the batched
+core :class:`ValueFilter`, the ``gymnasium.Wrapper`` :class:`SafetyFilter`, and :class:`VecSafetyFilter` for SB3."""
 
 from .core import (AFTER_HORIZON, BLEND, CERTIFY_REASONS, FALLBACK, NO_PLAN, OPTIMAL, OUTSIDE, PASS,
                    PLAN_LAND, PLAN_SAFE, REASONS, RULES, UNCERTIFIED, ValueFilter)

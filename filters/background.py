@@ -1,16 +1,7 @@
-"""The safety filter's compiled code, compiled in the background while ``softreach solve`` solves a table.
-
-The filter's decision, a state's certificate and a start's plan search are numba code that a machine compiles once
-(:mod:`softreach.filters.precompile`), into the package's compiled-code cache (:mod:`softreach.reach.jit`). That
-compilation depends on neither the model nor the table (tables store float32, and each model's enclosure is called
-by its address), so it need not wait for the user's table: ``softreach solve`` starts it in a process of its own (:func:`start`) where the cache lacks it,
-and the solve and the compilation share the machine's cores instead of following each other. A filter built
-meanwhile waits for that process and loads its result (:func:`softreach.reach.jit.wait_for_compile_ahead`).
-
-``SOFTREACH_COMPILE_AHEAD=0`` turns it off (the test suite compiles the filter in a warm-up process of its own).
-
-    python -m softreach.filters.background      # what softreach solve starts
-"""
+"""The safety filter's compiled code (:mod:`softreach.filters.precompile`) compiled in a background process while
+``softreach solve`` solves, so that the two share the cores; it depends on neither model nor table (tables store
+float32; a model's enclosure is called by its address). A filter built meanwhile waits for it
+(:func:`softreach.reach.jit.wait_for_compile_ahead`). ``SOFTREACH_COMPILE_AHEAD=0`` turns it off."""
 
 from __future__ import annotations
 
@@ -45,19 +36,18 @@ def filter_code_cached() -> bool | None:
 
 
 def start() -> subprocess.Popen | None:
-    """Start compiling the filter's code in a background process where the cache lacks it and
-    ``$SOFTREACH_COMPILE_AHEAD`` is not ``0``; the process, or ``None`` where none was started."""
+    """Start compiling the filter's code in a background process where the cache lacks it and :data:`ENV_SWITCH`
+    is not ``0``: the process, or ``None``."""
     if os.environ.get(ENV_SWITCH, "1") == "0" or filter_code_cached() is not False:
         return None
-    # detached from the terminal's Ctrl-C (a solve interrupted by the user leaves it to finish: the cache keeps
-    # its work); its output goes nowhere: a failure costs only the time it would have saved
+    # its own session: a solve's Ctrl-C leaves it to finish into the cache; a failure only costs the time it would save
     return subprocess.Popen([sys.executable, "-m", "softreach.filters.background"],
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
 
 
 def compile_ahead() -> str:
-    """Compile the filter's code into the cache, holding the compile-ahead lock: ``"compiled"``, ``"cached"``
+    """Compile the filter's code into the cache under the compile-ahead lock: ``"compiled"``, ``"cached"``
     (nothing to do) or ``"busy"`` (another process holds the lock)."""
     from softreach.reach import SolveConfig, SolverSettings, get_model, solve_table
     from softreach.reach.jit import compiling_ahead

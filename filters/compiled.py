@@ -1,28 +1,9 @@
 """The filter's whole decision, compiled: one loop over the rows, the only implementation of the decision.
 
-:class:`~softreach.filters.ValueFilter` decides by the one-period test (``docs/filters.md``; its parameters are
-:class:`~softreach.reach.proof.lookahead.Lookahead`'s) and the cells' plans (:mod:`softreach.filters.plans`), row by row
-in numba, where
-
-* the model gives its held-action enclosure and its sets' maxima over boxes compiled
-  (:attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel`, :attr:`~softreach.reach.problem.Model.
-  set_max_kernel`): the point mass, the glider and Dubins do; :class:`~softreach.filters.ValueFilter` refuses a
-  model that does not, naming what to add (:meth:`CompiledDecision.missing`),
-* the landing cells decide what passes (:mod:`softreach.reach.proof.cell_certificate`); the table, ``W_eps`` or the
-  budget surface ``Q_min`` (with ``V`` and ``V_safe`` if it has them; ``Q_min`` is read in ``W_eps``'s shape,
-  :func:`~softreach.reach.proof.lookahead.surface_fields`), only ranks the candidates.
-
-Both rules are compiled, the ``"switch"`` rule and the ``"smooth"`` one with its bisection.
-
-The numbers come from the same kernels as the cells' builder (the enclosure, the set maxima,
-:mod:`softreach.reach.proof.kernels` for the table and the cells). ``tests/test_filter_reference.py`` checks the decisions against the reference transcribed from ``docs/filters.md``
-(``tests/reference_decision.py``). The test of one action is :mod:`softreach.filters.judge`, in parts,
-so that the table is read only where its values can decide: a candidate's next value where it passes; where none
-does, the safe value and the next value of those that can still be chosen (the decisions are those of reading
-every value: the test above compares them).
-
-The per-row outputs: the applied action, the reason code, the table's value at the state, the applied action's worst
-next table value, whether it is certified, the chosen candidate (NaN where the policy passed) and the new plan.
+:class:`~softreach.filters.ValueFilter` decides, both rules included, by the one-period test and the cells' plans
+(docs/filters.md, "The rule" and "How"), with the kernels the cells' builder runs too; a model must give its
+enclosure and sets' maxima compiled (:meth:`CompiledDecision.missing`). :mod:`softreach.filters.judge` reads the
+table only where it can decide; ``tests/test_filter_reference.py`` checks against ``tests/reference_decision.py``.
 """
 
 from __future__ import annotations
@@ -52,10 +33,8 @@ from .keeps import keeps
 
 
 def decision_space(n: int, m: int, J: int) -> tuple[DecisionSpace, tuple]:
-    """The work space of :func:`decide_rows` (and its ``work`` and ``boxes``, eight boxes, of
-    :func:`~softreach.filters.compiled_starts.start_plan_rows`) for ``n`` states, ``m`` controls and ``J``
-    candidates, the compiled loops allocate nothing: named, and packed as the compiled entry points take it
-    (:func:`~softreach.filters.compiled_args.packed_space`), the same memory."""
+    """The work space of :func:`decide_rows` and :func:`~softreach.filters.compiled_starts.start_plan_rows`, so that
+    the compiled loops allocate nothing: ``(named, packed)``, one memory."""
     packed = (np.empty((N_FLOAT_J, J)), np.empty((N_BOOL_J, J), np.bool_), np.empty((N_FLOAT_N, n)),
               np.empty((N_FLOAT_N1, n + 1)), np.empty((2, J + 1, n)), np.empty(m), np.empty(J, np.int64),
               np.empty((8, n)), box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES))
@@ -65,8 +44,7 @@ def decision_space(n: int, m: int, J: int) -> tuple[DecisionSpace, tuple]:
 
 @njit(inline="always")
 def _stable_order(keys, order):
-    """``order`` = ``np.argsort(keys, kind="stable")`` (NaN last), without allocating: by insertion, which moves
-    an index only past strictly greater keys."""
+    """``order`` = ``np.argsort(keys, kind="stable")`` (NaN last), by insertion, without allocating."""
     for i in range(len(keys)):
         j = i
         while j > 0 and _after(keys[order[j - 1]], keys[i]):
@@ -83,8 +61,7 @@ def _after(a, b):
 
 @njit(inline="always")
 def _blend(act, action, best, lam, pol, r):
-    """:meth:`ValueFilter.blend` of row ``r`` into ``act``: the point ``lam`` of the way from candidate ``best`` to
-    the policy's action, in the normalised space, mapped back as an environment maps it."""
+    """:meth:`ValueFilter.blend` of row ``r`` into ``act``."""
     a_mid, a_half, cands_q = action.mid, action.half, action.cands_q
     for i in range(len(act)):
         act[i] = a_mid[i] + a_half[i] * (cands_q[best, i] + lam * ((pol[r, i] - a_mid[i]) / a_half[i]
@@ -93,8 +70,7 @@ def _blend(act, action, best, lam, pol, r):
 
 @njit(inline="always")
 def _try(s, J, act, action, cands, pol, r, best, mid):
-    """The action row ``r`` tries at step ``s`` of :func:`decide_rows`, into ``act``: the policy's (step 0),
-    candidate ``s - 1`` (steps 1 to ``J``), then the smooth rule's bisection point ``mid`` (:func:`_blend`)."""
+    """Into ``act``, row ``r``'s action at step ``s``: the policy's, candidate ``s - 1``, or the bisection point."""
     if s > J:
         _blend(act, action, best, mid, pol, r)
         return
@@ -114,8 +90,7 @@ def _distance(cands, j, pol, r, a_half):
 
 @njit(inline="always")
 def _keeping(enclose, M, C, cands, smooth, tr, space):
-    """Which candidate keeps (:func:`~softreach.filters.keeps.keeps`), asked in the rule's order of preference
-    (lowest next table value, or nearest the policy's action) up to the first that does; ``-1``: none."""
+    """The first candidate in the rule's order that keeps (:func:`~softreach.filters.keeps.keeps`); ``-1``: none."""
     c_ok, c_kept, c_zend = space.c_ok, space.c_kept, space.c_zend
     _stable_order(space.c_pref, space.c_order)
     for k in space.c_order:
@@ -129,10 +104,8 @@ def _keeping(enclose, M, C, cands, smooth, tr, space):
 
 @njit(inline="always")
 def _choose(enclose, M, C, T, cands, smooth, tr, zr, t_next, space):
-    """Every candidate judged: the rule's choice among them (:meth:`ValueFilter.filter`'s score), its next value
-    and badness. A passing candidate's next value decides among the passing ones, read only where it can decide
-    (the switch rule's least, :func:`~softreach.filters.judge.least_next`); a failing one's badness only where
-    no passing one is chosen (:func:`~softreach.filters.judge.badness`)."""
+    """Every candidate judged: ``(the rule's choice, its next value, its badness)``, each table value read only where
+    it can decide (:func:`~softreach.filters.judge.least_next`, :func:`~softreach.filters.judge.badness`)."""
     J = cands.shape[0]
     work, end_lo, end_hi = space.work, space.end_lo, space.end_hi
     c_ok, c_next, c_bad, c_zend, c_kept = space.c_ok, space.c_next, space.c_bad, space.c_zend, space.c_kept
@@ -165,16 +138,13 @@ def _choose(enclose, M, C, T, cands, smooth, tr, zr, t_next, space):
     return best, c_next[best], c_bad[best]
 
 
-# called, not inlined: it runs once for a row whose policy action does not pass, and numba's typing of one function
-# takes more than linear time in its length, so that it compiles in less time alone than inside decide_rows
-# (softreach.filters.judge, "Inlined or called")
+# called, not inlined: large and run at most once a row (softreach.filters.judge, "Inlined or called")
 @njit(_nrt=False)
 def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, best, best_next, best_bad, lam, act, c_next,
                   new_plans):
-    """The cells' plans of row ``r``: where no candidate passes, the landing cells'
-    plan (the one being followed, else the state's own cell's); then, where the choice's end is not proven safe,
-    the safe cells'. Writes the plan's candidate into ``act`` and the plan into ``new_plans[r]``; returns
-    ``(best, best_next, best_bad, lam, any_ok)``."""
+    """Row ``r``'s cells' plans: the landing cells' where no candidate passes (the one followed, else the state's
+    cell's), then the safe cells' where the choice's end is not proven safe. Writes ``act`` and ``new_plans[r]``;
+    returns ``(best, best_next, best_bad, lam, any_ok)``."""
     J = cands.shape[0]
     for game in (PLAN_LAND, PLAN_SAFE):
         if game == PLAN_LAND:
@@ -207,18 +177,13 @@ def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, best, best_
     return best, best_next, best_bad, lam, any_ok
 
 
-# numba's reference counting (_nrt) is off in the decision and the kernels it calls: they allocate nothing (their
-# work space is the caller's, decision_space), and with it on, every array that a call or an unpacking binds costs
-# two calls (a fifth of the box maximum's time: docs/filters.md, "How")
+# _nrt=False here and in the kernels it calls: reference counting costs, and they allocate nothing (docs/filters.md)
 @njit(nogil=True, _nrt=False)
 def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterations, a_args, t, x, z, pol, plans,
                 has_plans, diagnostics, applied, reason, value, nxt, certified, chosen, blend, new_plans, space_args):
-    """The decision for every row (:meth:`ValueFilter.filter`) by the ``"switch"`` rule, or with ``smooth`` by the
-    ``"smooth"`` rule with ``iterations`` bisection steps, in the work space ``space`` (:func:`decision_space`); see
-    the module docstring. Without ``diagnostics`` the certificate at the state and the next one of a passing
-    policy action, which decide nothing, are not read: both are NaN. ``m_args``, ``c_args``, ``t_args``, ``a_args``
-    and ``space_args``: the model's side, the cells, the table, the control box's map and the work space as plain
-    tuples (:mod:`softreach.filters.compiled_args`)."""
+    """The decision for every row (:meth:`ValueFilter.filter`): the ``"smooth"`` rule with ``iterations`` bisection
+    steps where ``smooth``, else ``"switch"``; ``*_args`` as plain tuples (:mod:`softreach.filters.compiled_args`).
+    Without ``diagnostics`` the value at the state and a passing policy's next value (deciding nothing) are NaN."""
     M, C, T, action = named(m_args, c_args, t_args, a_args)
     space = packed_space(space_args)
     N = x.shape[0]
@@ -229,9 +194,8 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
         value[r] = (certificate_row(T.W, T.z_top, T.z_floor, T.z_left, T.V, T.has_V, tr, xr, zr, point,
                                     work.scratch_W, work.scratch_V) if diagnostics else np.nan)
         new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = -1, 0, 0
-        # one call of judge serves every action a row tries, since each inlined copy costs seconds of the first
-        # compilation: step 0 the policy's action, steps 1 to J every candidate, then the smooth rule's bisection:
-        # the largest step from the chosen candidate towards the policy's action that passes
+        # one inlined judge serves every action a row tries (each copy adds to the first compilation): the policy's,
+        # every candidate, then the smooth rule's bisection towards the policy's action
         passed, any_ok = False, False
         best, best_next, best_bad = 0, np.inf, np.inf
         lo, hi, mid = 0.0, 1.0, 0.0
@@ -268,7 +232,6 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
                 else:
                     hi = mid
                 continue
-            # a candidate: its table values are read in _choose, only where they can decide
             j = s - 1
             space.c_ok[j], space.c_next[j], space.c_zend[j], space.c_kept[j] = a_ok, a_next, a_zend, a_kept
             space.c_in[j], space.c_bounded[j], space.c_proven[j], space.c_c1[j] = a_in, a_bounded, a_proven, a_c1
@@ -280,8 +243,7 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
             continue
         lam = lo
         _blend(act, action, best, lam, pol, r)
-        # np.int64, np.bool_: typed before the loop's types settle, a literal 0 or False would compile
-        # _follow_plans once more
+        # np.int64, np.bool_: a literal 0 or False would compile _follow_plans once more
         best, best_next, best_bad, lam, any_ok = _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans,
                                                                np.bool_(any_ok), np.int64(best), best_next, best_bad,
                                                                lam, act, space.c_next, new_plans)
@@ -296,10 +258,8 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
 
 
 def _writable(v: np.ndarray) -> np.ndarray:
-    """``v``, or a copy where it is read-only. numba types an array by whether it is writable and compiles a loop
-    once per type: the caller's rows reach the loops writable (tables and cells read-only,
-    :func:`~softreach.reach.proof.kernels.frozen`), for one compilation. A copy costs only the rare read-only input; a
-    read-only view of every input would cost every call."""
+    """``v``, or a copy where read-only: numba compiles once per writability, so rows reach the loops writable (tables
+    and cells read-only, :func:`~softreach.reach.proof.kernels.frozen`); only the rare read-only input is copied."""
     return v if v.flags.writeable else v.copy()
 
 
@@ -309,11 +269,10 @@ class CompiledDecision:
     def __init__(self, vf: Any):
         la = vf.lookahead
         self.filter = vf
-        #: the model's enclosure, called by address, and the model's side of the one-period test
+        #: the model's enclosure (an address) and its side of the one-period test
         self.enclose, self.M = motion(la)
         safe, land = vf.safe_cells, vf.landing_cells
-        # without safe cells, the landing cells' arrays in their place, which nothing reads (has_safe), for one
-        # compilation
+        # without safe cells, the landing cells' arrays stand in, unread (has_safe), for one compilation
         safe_args, safe_plan = (safe.kernel_args, safe.plan_args) if safe is not None else (land.kernel_args,
                                                                                             land.plan_args)
         self.C = Cells(safe_args, safe is not None, land.kernel_args, safe_plan, land.plan_args)
@@ -321,22 +280,19 @@ class CompiledDecision:
         has_S = "V_safe" in la.fields
         self.T = TableArgs(W, z_top, z_floor, z_left, V, has_V, kernel_field(*la.fields["V_safe"]) if has_S else V,
                            has_S, inside)
-        # a private writable copy: a candidate row then has the type of the action being judged (a work array),
-        # and the one-period test (judge) compiles once for both
+        # a private writable copy: a candidate row has the type of a judged work array, so judge compiles once
         self.cands = np.array(la.candidates, dtype=np.float64, order="C")
         self.action = ActionMap(frozen(np.ascontiguousarray(la.a_mid)), frozen(np.ascontiguousarray(la.a_half)),
                                 frozen(np.ascontiguousarray(exact_normalized(self.cands, la.a_mid, la.a_half))))
         self.fallback = frozen(np.asarray(vf.fallback_action, dtype=np.float64))
         self.no_plans = np.zeros((1, 3), np.int64)
-        #: the same as the compiled entry points take them (compiled_args.plain)
         self.args = plain((self.M, self.C, self.T, self.action))
         # one work space per thread: decide_rows writes into it
         self._local = threading.local()
 
     @staticmethod
     def missing(model: Any) -> str | None:
-        """What the decision needs that ``model`` does not give, in words naming what to add; ``None``: nothing.
-        :class:`~softreach.filters.ValueFilter` refuses such a model at construction."""
+        """What the decision needs that ``model`` does not give, naming what to add; ``None``: nothing."""
         missing = missing_kernels(model)
         if missing is None and getattr(model, "cell_shape", None) is None:
             return (f"{type(model).__name__} declares no cell_shape: add the number of cells per state axis over "
@@ -359,8 +315,7 @@ class CompiledDecision:
         rows = (t, x, z, pol, self.no_plans if plans is None else plans) + outs
 
         def run(lo: int, hi: int) -> None:
-            # a block of rows; the whole batch, where one thread decides it, goes as it is (slicing thirteen arrays
-            # costs about as much as deciding one row)
+            # a block of rows; a whole batch goes unsliced (slicing costs about as much as deciding a row)
             self._decide(rows if hi - lo == N else tuple(v if v is self.no_plans else v[lo:hi] for v in rows),
                          plans is not None, diagnostics)
 
@@ -387,8 +342,7 @@ class CompiledDecision:
         return rows[5:]
 
     def _decide(self, rows: tuple, has_plans: bool, diagnostics: bool) -> None:
-        """:func:`decide_rows` of ``rows`` (``t, x, z, pol, plans`` and the eight outputs) in this thread's work
-        space."""
+        """:func:`decide_rows` of ``rows`` (``t, x, z, pol, plans``, the outputs) in this thread's work space."""
         vf = self.filter
         M, C, T, action = self.args
         decide_rows(self.enclose, M, C, T, self.cands, self.fallback, vf.rule == "smooth", vf.smooth_iterations,

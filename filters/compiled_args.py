@@ -1,16 +1,10 @@
-"""What the compiled decision reads, by name: the cells, the table, the control box's map, the verdict on one action
-and the work space (:mod:`softreach.filters.compiled`, :mod:`softreach.filters.judge`); the model's side of the
-one-period test, :class:`~softreach.reach.proof.period.Motion`, is the period's bounds' own.
-
-Each is a :class:`typing.NamedTuple`: numba compiles a field read by name to the same code as one by position, and
-keeps caching the functions that take them (their type names the class, which is found again by its module).
-
-The compiled entry points (:func:`~softreach.filters.compiled.decide_rows`, :func:`~softreach.filters.
-compiled_certify.certify_rows`, :func:`~softreach.filters.compiled_starts.start_plan_rows`) take them as plain
-tuples (:func:`plain`) and name them again first thing (:func:`named`, :func:`packed_space`): numba types a plain
-tuple of arrays at each call from a fingerprint computed in C, a named tuple in Python, field by field, which would
-double the fixed cost of a one-row decision. Each array a call hands over is unboxed again at every call, so the
-work space goes packed, its arrays of one kind rows of one array (:func:`packed_space`).
+"""What the compiled decision reads, by name: the cells, the table, the control box's map, the verdict on one action and
+the work space (:mod:`softreach.filters.compiled`, :mod:`softreach.filters.judge`); the model's side is
+:class:`~softreach.reach.proof.period.Motion`. Each is a :class:`typing.NamedTuple`: a field read by name compiles as
+one by position, and numba's cache finds the class again by its module. The compiled entry points take them as plain
+tuples (:func:`plain`) and name them again first thing (:func:`named`, :func:`packed_space`): numba types a plain tuple
+from a fingerprint computed in C, a named one field by field in Python (far slower), at every call. The work space goes
+packed, as every array handed over is unboxed at every call.
 """
 
 from __future__ import annotations
@@ -24,49 +18,40 @@ from softreach.reach.proof.period import Motion
 
 
 class Cells(NamedTuple):
-    """The cells the decision uses (:class:`~softreach.reach.proof.cell_certificate.CellCertificate`'s kernel
-    arguments)."""
+    """The cells' kernel arguments and plans (:class:`~softreach.reach.proof.cell_certificate.CellCertificate`'s)."""
 
-    #: the safe cells' kernel arguments (the landing cells' where there are no safe cells: then unused)
+    #: the safe cells' kernel arguments (the landing cells', unused, where ``has_safe`` is false); plans likewise
     safe: tuple
-    #: whether there are safe cells
     has_safe: bool
-    #: the landing cells' kernel arguments
     land: tuple
-    #: the safe cells' plans (``plan_args``; the landing cells' where there are no safe cells)
     safe_plan: tuple
-    #: the landing cells' plans
     land_plan: tuple
 
 
 class TableArgs(NamedTuple):
-    """A table's fields as the compiled code reads them (:func:`~softreach.reach.proof.kernels.certificate_row`,
-    :func:`~softreach.reach.proof.box_max.kernel_field`, :attr:`~softreach.reach.proof.lookahead.Lookahead.
-    table_args`)."""
+    """A table's fields as the compiled code reads them (:func:`~softreach.reach.proof.box_max.kernel_field`)."""
 
     #: ``W_eps`` over the state and the budget, or a budget surface's ``Q_min - z`` in its shape
     W: tuple
     #: the budget grid's top and bottom [s]
     z_top: float
     z_floor: float
-    #: the horizon where the budget read is at most the time left (a budget surface), else ``+inf``
-    #: (:func:`~softreach.reach.proof.kernels.usable_budget`)
+    #: a budget surface's horizon, which caps the budget read at the time left, else ``+inf`` (``usable_budget``)
     z_left: float
-    #: ``V`` (``W`` again where the table has none)
+    #: ``V`` and the safe value ``V_safe`` (``W`` and ``V`` again where the table has none)
     V: tuple
     has_V: bool
-    #: the safe value ``V_safe`` (``V`` again where the table has none)
     S: tuple
     has_S: bool
-    #: the field whose finite values say where a state lies on the table (:func:`~softreach.filters.judge.on_table`):
-    #: ``W`` itself, or a budget surface's before its nodes where no budget suffices are made infinite
+    #: finite where a state lies on the table (:func:`~softreach.filters.judge.on_table`): ``W``, or a budget
+    #: surface's before its nodes where no budget suffices are made infinite
     inside: tuple
 
 
 class ActionMap(NamedTuple):
     """The control box's map (:func:`~softreach.reach.proof.lookahead.action_map`) and the candidates in it."""
 
-    #: the control box's centre and half-width: an environment applies ``mid + half * q``
+    #: an environment applies ``mid + half * q``
     mid: np.ndarray
     half: np.ndarray
     #: the candidates normalised, each mapped back exactly (:func:`~softreach.reach.proof.lookahead.exact_normalized`)
@@ -76,40 +61,31 @@ class ActionMap(NamedTuple):
 class Verdict(NamedTuple):
     """What :func:`~softreach.filters.judge.judge` finds of one held action without reading the table."""
 
-    #: the action passes: its period keeps ``C1`` and the budget and its end box lies in the landing cells
+    #: passes (keeps ``C1`` and the budget, ends in the landing cells); every run surely lands inside the period
     ok: bool
-    #: every run surely lands inside the period
     lands: bool
-    #: the enclosure bounds the motion (finite boxes)
+    #: the enclosure is finite; ``C1`` kept, ending by the horizon; that and the budget kept; ends in the safe cells
     bounded: bool
-    #: the motion keeps ``C1`` and the period ends by the horizon
     in_c1: bool
-    #: ``in_c1`` and the budget is kept
     kept: bool
-    #: its end keeps inside the safe cells
     proven: bool
-    #: the largest ``c1`` over the motion
+    #: the largest ``c1`` over the motion, the budget at the period's end, the period's end (at most the horizon)
     c1: float
-    #: the budget at the period's end
     z_end: float
-    #: the period's end, at most the horizon
     t_next: float
 
 
 class Work(NamedTuple):
     """One row's work space of the one-period test and the table's reads."""
 
-    #: the box of the period's whole motion
+    #: boxes of the period's whole motion, of part of it, and over the state and the budget
     tube_lo: np.ndarray
     tube_hi: np.ndarray
-    #: a box of part of the motion
     lo: np.ndarray
     hi: np.ndarray
-    #: a box over the state and the budget (one longer than the state)
     box_lo: np.ndarray
     box_hi: np.ndarray
-    #: the box maximum's scratch for ``W_eps`` (over the state and the budget) and ``V`` / ``V_safe``
-    #: (:func:`~softreach.reach.proof.kernels.box_scratch`)
+    #: box maximum scratch for ``W_eps`` and ``V`` / ``V_safe`` (:func:`~softreach.reach.proof.kernels.box_scratch`)
     scratch_W: tuple
     scratch_V: tuple
 
@@ -122,8 +98,7 @@ class Box(NamedTuple):
 
 
 class DecisionSpace(NamedTuple):
-    """The work space of :func:`~softreach.filters.compiled.decide_rows`: the compiled loops allocate nothing.
-    ``c_*`` hold one entry per candidate."""
+    """The work space of :func:`~softreach.filters.compiled.decide_rows`; ``c_*`` hold one entry per candidate."""
 
     work: Work
     #: the end box of a candidate judged from a whole end box (:func:`~softreach.filters.keeps.keeps`)
@@ -131,7 +106,7 @@ class DecisionSpace(NamedTuple):
     #: ``(J + 1, n)``: each candidate's end box, and the policy's (or the bisection's) in the last row
     end_lo: np.ndarray
     end_hi: np.ndarray
-    #: passes, its next value, its badness, its end budget, whether it keeps ``C1`` and the budget
+    #: passes, next value, badness, end budget, keeps ``C1`` and the budget
     c_ok: np.ndarray
     c_next: np.ndarray
     c_bad: np.ndarray
@@ -141,9 +116,8 @@ class DecisionSpace(NamedTuple):
     c_score: np.ndarray
     c_dist: np.ndarray
     c_pref: np.ndarray
-    #: the action being judged
+    #: the action being judged; a point over the state and the budget
     act: np.ndarray
-    #: a point over the state and the budget
     point: np.ndarray
     #: the verdict's ``in_c1``, ``bounded``, ``proven`` and ``c1``
     c_in: np.ndarray
@@ -155,7 +129,7 @@ class DecisionSpace(NamedTuple):
     c_low: np.ndarray
     c_tie: np.ndarray
     c_order: np.ndarray
-    #: ``(8, n)``: the start-plan search's boxes (:func:`~softreach.filters.compiled_starts.start_plan_rows`)
+    #: ``(8, n)``: the start-plan search's boxes
     boxes: np.ndarray
 
 
@@ -171,16 +145,14 @@ def named(M, C, T, action):
     return Motion(*M), Cells(*C), TableArgs(*T), ActionMap(*action)
 
 
-#: rows of the packed work space's arrays (:func:`packed_space`): one float and one boolean per candidate, floats
-#: per state axis, floats per state axis and the budget
+#: rows of the packed arrays (:func:`packed_space`): floats and booleans per candidate, floats per state (and budget)
 N_FLOAT_J, N_BOOL_J, N_FLOAT_N, N_FLOAT_N1 = 9, 6, 6, 3
 
 
 @njit(inline="always")
 def packed_space(packed):
-    """The :class:`DecisionSpace` whose arrays are views of the packed one: ``(floats (N_FLOAT_J, J), booleans
-    (N_BOOL_J, J), floats (N_FLOAT_N, n), floats (N_FLOAT_N1, n + 1), end boxes (2, J + 1, n), act, c_order, boxes,
-    scratch_W, scratch_V)`` (:func:`~softreach.filters.compiled.decision_space`). In Python and compiled alike."""
+    """The :class:`DecisionSpace` whose arrays are views of the packed one
+    (:func:`~softreach.filters.compiled.decision_space`), in Python and compiled alike."""
     fJ, bJ, fn, fn1, ends, act, order, boxes, scratch_W, scratch_V = packed
     work = Work(fn[0], fn[1], fn[2], fn[3], fn1[0], fn1[1], scratch_W, scratch_V)
     return DecisionSpace(work, Box(fn[4], fn[5]), ends[0], ends[1], bJ[0], fJ[0], fJ[1], fJ[2], bJ[1], fJ[3], fJ[4],

@@ -1,12 +1,6 @@
-"""Whether states are certified, compiled: the numbers :meth:`~softreach.filters.ValueFilter.certify` needs of
-each row, by the decision's own parts (:mod:`softreach.filters.judge`) in the same arithmetic:
-
-* the best candidate: the candidate of least badness (a passing one by its worst next table value, else the least
-  bad), whether it passes (its end box in the landing cells, or it surely lands), and its next table value
-  (``+inf`` where it does not pass);
-* the table's value at the state, whether the state lies on the table and whether a landing cell holds it.
-
-``tests/test_filter_reference.py`` compares :meth:`ValueFilter.certify` with the reference of ``docs/filters.md``.
+"""Whether states are certified, compiled: what :meth:`~softreach.filters.ValueFilter.certify` needs of each row
+(the best candidate, whether it passes and its next table value; the value at the state, whether the state lies on
+the table and in a landing cell), by the decision's own parts (:mod:`softreach.filters.judge`), in the same arithmetic.
 """
 
 from __future__ import annotations
@@ -25,11 +19,8 @@ from .judge import badness, judge_once, next_value, on_table
 @njit(nogil=True, _nrt=False)
 def certify_rows(enclose, m_args, c_args, t_args, cands, t, x, z, ok, nxt, value, inside, in_cells, space_args):
     """Per row: ``ok`` and ``nxt`` of the best candidate, ``value`` the certificate at the state, ``inside`` on the
-    table (at the budget ``max(z, 0)``), ``in_cells`` in a landing cell; in the work space ``space``
-    (:func:`~softreach.filters.compiled.decision_space`). Every passing candidate's next value is read: the
-    least of them decides unless it lies above every failing one's badness, which is then read where it can decide
-    (:func:`~softreach.filters.judge.badness`). The arguments as :func:`~softreach.filters.compiled.decide_rows`
-    takes them."""
+    table (at the budget ``max(z, 0)``), ``in_cells`` in a landing cell; arguments as
+    :func:`~softreach.filters.compiled.decide_rows` takes them."""
     M, C, T = Motion(*m_args), Cells(*c_args), TableArgs(*t_args)
     space = packed_space(space_args)
     N = x.shape[0]
@@ -57,12 +48,11 @@ def certify_rows(enclose, m_args, c_args, t_args, cands, t, x, z, ok, nxt, value
             if c_ok[j] and (best < 0 or c_next[j] < least):
                 least, best = c_next[j], j
         if best < 0 or not least < LOWEST_BAD:
-            # no passing candidate is below every failing one's badness: the badness decides
-            # (np.int64, np.bool_: bare literals would compile badness once more, for their literal types)
+            # the badness decides (np.int64, np.bool_: bare literals would compile badness once more)
             badness(T, t_next, end_lo, end_hi, zr, work, c_ok, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend,
                     np.int64(-1), np.bool_(True), c_bad, c_score, space.c_low, space.c_tie)
             best = np.argmin(c_score)
-        # the best candidate's verdict and next value (a failing one's next value certifies nothing)
+        # a failing candidate's next value certifies nothing
         ok[r], nxt[r] = c_ok[best], c_next[best]
         inside[r] = on_table(T.inside, tr, xr, max(zr, 0.0), point, work.scratch_W)
         in_cells[r] = cover_row(C.land, tr, xr, xr, zr)

@@ -1,8 +1,6 @@
-"""The start-plan search of :func:`~softreach.filters.plans.start_plans`, compiled: where no period or cell
-certifies a start, one candidate held for several periods, or two in sequence, whose boxes keep ``C1`` and the
-budget and end in the landing cells. Each period is :func:`~softreach.filters.judge.judge`, which reads no table;
-the search order is :func:`~softreach.filters.plans.start_plans`'s (the shortest first, the first candidate among
-those); ``tests/test_filters_soundness.py`` flies the plans it finds against switching winds.
+"""The start-plan search of :func:`~softreach.filters.plans.start_plans`, compiled, in its order: each period is
+:func:`~softreach.filters.judge.judge_once`, which reads no table. ``tests/test_filters_soundness.py`` flies the
+plans it finds against switching winds.
 """
 
 from __future__ import annotations
@@ -21,10 +19,9 @@ from .plans import PLAN_LAND
 
 @njit(inline="always")
 def _hold_period(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work):
-    """One period of ``a`` held from the box ``[lo, hi]`` at budget ``z``, by :func:`judge`: ``(passes, goes on,
-    z_end)``: whether it passes (or surely lands), and whether it kept ``C1`` and the budget with a finite end box,
-    which then replaces ``[lo, hi]``. Inlined: a few lines around :func:`~softreach.filters.judge.judge_once`, which
-    a function of its own would only link and optimise once more."""
+    """One period of ``a`` held from the box ``[lo, hi]`` at budget ``z``: ``(passes, goes on, z_end)``; goes on: kept
+    ``C1`` and the budget with a finite end box, which then replaces ``[lo, hi]``. Inlined: a few lines around
+    :func:`~softreach.filters.judge.judge_once`, which a function of its own would only link once more."""
     v = judge_once(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work)
     kept = v.kept
     for i in range(len(e_lo)):
@@ -37,8 +34,8 @@ def _hold_period(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work):
 
 @njit(_nrt=False)
 def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, hi, e_lo, e_hi, work):
-    """:func:`~softreach.filters.plans._segment` of one row, each period by :func:`judge` (which reads no table):
-    ``(candidate, periods, once)``, candidate ``-1`` where none."""
+    """One segment's search for one row: ``(candidate or -1, periods, once)``, the first candidate of the fewest
+    periods; ``once``: from the state itself (``from_state``) one passes in one period."""
     n = len(lo0)
     dt = period(M)
     best, best_j, once = periods + 1, -1, False
@@ -46,8 +43,7 @@ def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, 
         for i in range(n):
             lo[i], hi[i] = lo0[i], hi0[i]
         zz, tt = z, t
-        # after k periods held, does the candidate pass from the box they may have reached: a run of k + 1
-        # periods, searched only while shorter than the best so far
+        # does the candidate pass after k periods held: a run of k + 1, searched while shorter than the best
         for k in range(min(periods, best - 1)):
             passes, goes, zz = _hold_period(enclose, M, C, tt, lo, hi, zz, cands[j], e_lo, e_hi, work)
             if passes:
@@ -66,10 +62,8 @@ def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, 
 
 @njit(nogil=True, _nrt=False)
 def start_plan_rows(enclose, m_args, c_args, cands, periods, t, x, z, second, out, work_args, boxes):
-    """:func:`~softreach.filters.plans.start_plans` row by row, the same searches in the same order: per row
-    ``out[r]`` its ``(START_SEGMENTS, 3)`` segments, in the work space ``work`` and ``boxes``
-    (:func:`~softreach.filters.compiled.decision_space`'s); the model's side, the cells and ``work`` as plain
-    tuples (:mod:`softreach.filters.compiled_args`)."""
+    """:func:`~softreach.filters.plans.start_plans` row by row: ``out[r]`` gets its ``(START_SEGMENTS, 3)`` segments;
+    the ``*_args`` as plain tuples (:mod:`softreach.filters.compiled_args`)."""
     M, C, work = Motion(*m_args), Cells(*c_args), Work(*work_args)
     N, n = x.shape
     J = cands.shape[0]
@@ -79,7 +73,7 @@ def start_plan_rows(enclose, m_args, c_args, cands, periods, t, x, z, second, ou
     for r in range(N):
         for g in range(out.shape[1]):
             out[r, g, 0], out[r, g, 1], out[r, g, 2] = -1, 0, 0
-        # np.bool_: a bare True or False is a literal type, for which _segment_row would compile once each
+        # np.bool_: for a literal True or False _segment_row would compile once each
         j1, k1, once = _segment_row(enclose, M, C, cands, periods, t[r], x[r], x[r], z[r], np.bool_(True), lo, hi,
                                     e_lo, e_hi, work)
         # a row some candidate passes from at once is certified by one period: it needs no plan
@@ -90,7 +84,7 @@ def start_plan_rows(enclose, m_args, c_args, cands, periods, t, x, z, second, ou
             continue
         if not second[r]:
             continue
-        # two segments: the shortest first one whose box a second one leaves from, the first candidate among those
+        # two segments: the shortest first one that a second can follow, the first candidate among those
         best1 = periods
         for j in range(J):
             for i in range(n):

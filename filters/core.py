@@ -1,29 +1,8 @@
-"""The batched core of the least-restrictive, sampled-data safety filter.
+"""The batched core of the least-restrictive, sampled-data safety filter: :class:`ValueFilter`.
 
-What the user runs: the policy's action is held for the environment's control period ``dt`` while the wind may
-change at any instant, also inside the period and in answer to the filter. The filter therefore never judges an
-action by the value at the current state (the pointwise ``a*`` of a continuous-time table, held for ``dt``, can
-overshoot the constraint it is riding); it judges the *held* action by where one period of it can go
-(:class:`~softreach.reach.proof.lookahead.Lookahead`):
-
-* an action **passes** when holding it for one period provably keeps the state in ``C1`` and the budget
-  non-negative and ends in the landing cells (:mod:`softreach.reach.proof.cell_certificate`), or surely lands;
-* the policy's action is applied when it passes, or when its period keeps ``C1`` and the budget and some candidate
-  passes again from every possible next state (so the next state is certified whatever the wind did);
-* otherwise the filter applies a candidate held action (:meth:`FilterPart.held_candidates`) that passes: with
-  ``rule="switch"`` the one whose worst next table value is lowest, with ``rule="smooth"`` the point closest to
-  the policy's action on the segment from such a candidate; where none passes, the plan of the state's cell.
-
-A state is **certified** when some candidate passes or a landing cell holds it. The cells are the whole proof;
-the table (any ``W_eps`` or ``Q_min`` table of the model, continuous-time or sampled-data) only ranks the
-candidates.
-
-:class:`ValueFilter` runs this decision compiled, row by row (:mod:`softreach.filters.compiled`,
-:attr:`ValueFilter.compiled`); a model that does not give its enclosure, its sets' maxima compiled and its cells is
-refused at construction, with what to add (:meth:`~softreach.filters.compiled.CompiledDecision.missing`).
-``tests/test_filter_reference.py`` checks the decision against ``tests/reference_decision.py``, a slow transcription
-of ``docs/filters.md``.
-
+The filter judges the policy's action *held* for one period ``dt`` against a wind that may change at any instant,
+by the one-period test and the rule of docs/filters.md ("The one-period test", "The rule"), compiled
+(:mod:`softreach.filters.compiled`): the cells prove, the table (``W_eps`` or ``Q_min``) only ranks the candidates.
 
 Everything works on batches: ``t`` and ``z`` are scalars or ``(N,)``, ``x`` is ``(N, n)`` (or ``(n,)``), actions
 ``(N, m)`` (or ``(m,)``) in physical units unless ``normalized=True``. numpy in, numpy out; torch in, torch out.
@@ -59,8 +38,7 @@ CERTIFY_REASONS = ("certified", "outside_table", "after_horizon", "not_in_set", 
 class ValueFilter:
     """The safety filter's core: one table, one control period, one rule.
 
-    :param table: a table of the model with ``W_eps`` or the budget surface ``Q_min`` (``softreach solve MODEL``,
-        continuous-time or ``--held``): it ranks the candidates; the cells certify
+    :param table: a ``W_eps`` or ``Q_min`` table of the model (``softreach solve MODEL``): it ranks; the cells certify
     :param dt: the control period [s] over which every action is held
     :param margin: ``None`` or 0: the cells' proof needs no tightening (any other value is refused)
     :param rule: ``"switch"`` (most robust certified candidate) or ``"smooth"`` (closest to the policy)
@@ -68,17 +46,13 @@ class ValueFilter:
     :param fallback_action: physical action where no candidate can be bounded; default the control box's centre
     :param smooth_iterations: bisection steps of the smooth rule
     :param eps: the ``h_eps`` width with which the environment drains the budget (default: the table's)
-    :param target_checks: the equally spaced instants per period at which the environment checks for landing
-        (its sub-step ends; :class:`SafetyFilter` passes the env's ``n_substeps``). An action that surely lands
-        at one of them passes. The default 1 (the period's end) is right for any environment.
-    :param safe_cells: ``"auto"`` (built or read from the cache), ``None`` (none: outside the landing cells the
-        choice is not bounded by cells that prove ``C1`` and the budget), or a
-        :class:`~softreach.reach.proof.cell_certificate.CellCertificate` of the ``"safe"`` game for this filter
-    :param landing_cells: ``"auto"`` or a :class:`~softreach.reach.proof.cell_certificate.CellCertificate` of the
-        ``"land"`` game for this filter: the certificate
+    :param target_checks: equally spaced instants per period at which the environment checks for landing (its
+        sub-step ends, :class:`SafetyFilter` passes ``n_substeps``); the default 1, the period's end, is always right
+    :param safe_cells: ``"auto"`` (built or read from the cache), a ``"safe"``-game certificate for this filter, or
+        ``None`` (outside the landing cells the choice is then not bounded by cells that prove ``C1`` and the budget)
+    :param landing_cells: ``"auto"`` or a ``"land"``-game certificate (:mod:`~softreach.reach.proof.cell_certificate`)
     :param start_periods: the longest plan :meth:`certify_start` searches from a start state (0: none)
-    :raises ValueError: the model does not give what the decision needs (a compiled ``held_box_kernel``, its sets'
-        maxima compiled, ``cell_shape``), naming what to add, before any cell is built; a ``margin`` other than 0
+    :raises ValueError: the model lacks what the decision needs (named, before any cell is built); ``margin`` not 0
     """
 
     def __init__(self, table: Table, dt: float, *, margin: float | None = None, rule: str = "switch",
@@ -134,18 +108,13 @@ class ValueFilter:
             self.fallback_action = np.clip(fb, self.a_lo, self.a_hi)
         self.lookahead = Lookahead.from_table(table, self.model, self.dt, self.eps, target_checks=target_checks)
         self.target_checks = self.lookahead.target_checks
-        #: the cells that prove C1 and the budget, and landing by T (:mod:`softreach.reach.proof.cell_certificate`);
-        #: every applied action ends in them where the state is in them
+        #: the cells that prove C1 and the budget, and landing by T (:mod:`softreach.reach.proof.cell_certificate`)
         self.safe_cells = resolve_cells(self, safe_cells, "safe")
         self.landing_cells = resolve_cells(self, landing_cells, "land")
-        #: the decision, compiled (:mod:`softreach.filters.compiled`)
         self.compiled = CompiledDecision(self)
-        #: threads that share a large batch of the compiled decision (blocks of at least
-        #: :data:`~softreach.reach.proof.blocks.PARALLEL_MIN_ROWS` rows); 1: the calling thread alone. By default two
-        #: where the machine has them: ``benchmarks/bench_filter.py`` times 1,024 rows both ways
+        #: threads that share a large batch (:data:`~softreach.reach.proof.blocks.PARALLEL_MIN_ROWS`); 1: the caller's
         self.threads = default_threads()
 
-    # ---------------------------------------------------------------- conversions
     def physical(self, action: Any) -> np.ndarray:
         """Normalised ``[-1, 1]`` actions to physical ones (clipped; the environments' affine map)."""
         return self.a_mid + self.a_half * clip_unit(np.asarray(action, dtype=np.float64))
@@ -155,16 +124,14 @@ class ValueFilter:
         return (np.asarray(physical, dtype=np.float64) - self.a_mid) / self.a_half
 
     def blend(self, best: np.ndarray, pol: np.ndarray, lam: np.ndarray) -> np.ndarray:
-        """The smooth rule's point ``lam`` of the way from the candidates ``best`` to the policy's actions ``pol``
-        (physical, ``(N, m)``), taken in the normalised space and mapped back as an environment maps it: so the
-        point judged is one an environment applies exactly (the candidate itself at ``lam = 0``)."""
+        """The smooth rule's point ``lam`` of the way from candidates ``best`` to policy actions ``pol`` (physical,
+        ``(N, m)``), in the normalised space and mapped back as an environment maps it: the point judged is applied."""
         qb = exact_normalized(best, self.a_mid, self.a_half)
         return self.a_mid + self.a_half * (qb + lam[:, None] * ((pol - self.a_mid) / self.a_half - qb))
 
     def _inputs(self, t: Any, x: Any, z: Any, action: Any | None):
         return batch_inputs(t, x, z, action, self.n, self.m, self.model.state_names)
 
-    # ---------------------------------------------------------------- queries
     def value(self, t: Any, x: Any, z: Any) -> np.ndarray:
         """The table's value ``D = min(V~, W~_eps)`` (``+inf`` outside the table), which ranks; numpy out."""
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
@@ -172,7 +139,7 @@ class ValueFilter:
         return out[0] if single else out
 
     def certify(self, t: Any, x: Any, z: Any) -> tuple[np.ndarray, list[str], np.ndarray]:
-        """Is each state certified: does some candidate held action pass the one-period test there?
+        """Whether each state is certified: some candidate passes the one-period test, or a landing cell holds it.
 
         :return: ``(certified (N,), reasons, best next table value (N,))``; reasons from :data:`CERTIFY_REASONS`
         """
@@ -199,17 +166,11 @@ class ValueFilter:
         return certified, reasons, nxt
 
     def certify_start(self, t: Any, x: Any, z: Any) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
-        """:meth:`certify` for the start of a run, which may also begin with a plan of its own: where no period
-        or cell certifies the state, one candidate held for up to :attr:`start_periods` periods whose boxes keep
-        ``C1`` and the budget and end in the landing cells, or, where the model allows two
-        (:attr:`~softreach.reach.problem.Model.start_segments`) and the table puts the state in its set (reason
-        ``"no_certified_action"``), two in sequence (:func:`~softreach.filters.plans.start_plans`). Such a
-        start is certified only for a run whose :meth:`filter` calls get that plan: the first segment at the first
-        step, the second as the first ends (:func:`~softreach.filters.plans.advance_plan`; :class:`SafetyFilter`
-        does both).
+        """:meth:`certify`, where a start not otherwise certified may begin with a plan of its own
+        (:func:`~softreach.filters.plans.start_plans`), certified only for a run whose :meth:`filter` calls get that
+        plan (:func:`~softreach.filters.plans.advance_plan`; :class:`SafetyFilter` does so).
 
-        :return: ``(certified, reasons, best next table value, plans (N, START_SEGMENTS, 3))``; each row's
-            segments, :data:`NO_PLAN` where none is needed or none was found
+        :return: ``(certified, reasons, best next table value, plans (N, START_SEGMENTS, 3))``; :data:`NO_PLAN`: none
         """
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
         certified, reasons, nxt = self.certify(tt, xs, zz)
@@ -231,7 +192,6 @@ class ValueFilter:
         out = self.table.worst_disturbance(tt, xs, np.maximum(zz, self.table.budget_resolution), outside="nearest")
         return out[0] if single else out
 
-    # ---------------------------------------------------------------- the filter
     def filter(self, t: Any, x: Any, z: Any, action: Any, *, normalized: bool = False, plan: Any = None,
                diagnostics: bool = True):
         """Filter a batch of actions.
@@ -239,23 +199,17 @@ class ValueFilter:
         :param t: time(s) [s], scalar or ``(N,)``
         :param x: state(s), ``(N, n)`` or ``(n,)``, physical units
         :param z: remaining budget(s) [s], scalar or ``(N,)``
-        :param action: the policy's action(s), ``(N, m)`` or ``(m,)``: physical units, or ``[-1, 1]`` with
+        :param action: the policy's action(s), ``(N, m)`` or ``(m,)``: physical, or ``[-1, 1]`` with
             ``normalized=True`` (then every returned action is normalised too)
-        :return: ``(applied, info)``; where the policy's action passes, ``applied`` holds the numbers given (bit for
-            bit). ``info``: ``value`` (the table's ``D`` at the state), ``margin``, ``active`` (the filter
-            changed the action), ``reason`` (codes of :data:`REASONS`), ``optimal_action`` (the candidate the
-            filter chose; NaN where the policy passed and none was needed), ``blend`` (``1`` where the policy's
-            action passed), ``lookahead`` (the worst next table value of the applied action, ``+inf`` where it
-            does not pass), ``certified`` (the applied action passed the test, or follows a landing cell's plan),
-            ``plan`` (numpy ``(N, 3)`` ints: the cells' plan the filter follows: candidate index, periods still to
-            hold it, and whose plan, :data:`PLAN_LAND` or :data:`PLAN_SAFE`; :data:`NO_PLAN`: none)
-        :param plan: the ``info["plan"]`` this filter returned at the previous step of the same runs (``None`` at the
-            first): where no action ends in the landing cells the filter keeps following it, which is what makes
-            landing by ``T`` a proof (:mod:`softreach.reach.proof.cell_certificate`)
-        :param diagnostics: ``False`` leaves out what decides nothing, for batches that want only the actions
-            (about twice as fast where most policy actions pass, ``benchmarks/bench_filter.py``): ``value`` is NaN,
-            and so is ``lookahead`` where the policy's action passed. The applied actions and every other entry are
-            the same.
+        :param plan: the ``info["plan"]`` of the previous step of the same runs (``None`` at the first); following it
+            where no action ends in the landing cells is what makes landing by ``T`` a proof
+        :param diagnostics: ``False`` skips what decides nothing: ``value`` is NaN, and ``lookahead`` where the policy
+            passed; the applied actions and other entries are the same
+        :return: ``(applied, info)``, a passing policy action bit for bit. ``info``: ``value`` (the table's ``D``),
+            ``margin``, ``active`` (changed), ``reason`` (:data:`REASONS`), ``optimal_action`` (the chosen candidate,
+            NaN where the policy passed), ``blend`` (``1`` where it passed), ``lookahead`` (the applied action's worst
+            next table value, ``+inf`` where it fails), ``certified`` (it passed, or follows a landing cell's plan),
+            ``plan`` (``(N, 3)`` ints: candidate, periods left, :data:`PLAN_LAND`/:data:`PLAN_SAFE`; or :data:`NO_PLAN`)
         :raises ValueError: non-finite or wrongly shaped inputs, or :attr:`threads` below 1
         :raises TypeError: ``diagnostics`` is not a bool
         """

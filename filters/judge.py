@@ -1,33 +1,13 @@
-"""One held action judged, compiled: the one-period test (``docs/filters.md``, "The one-period test"; its parameters
-are :class:`~softreach.reach.proof.lookahead.Lookahead`'s) for one row, in parts that :mod:`softreach.filters.compiled`
-calls only where their answer can decide.
+"""One held action judged, compiled: the one-period test (docs/filters.md, "The one-period test") for one row, in
+parts that :mod:`softreach.filters.compiled` calls only where their answer can decide. :func:`judge` reads no table
+(the period's bounds are :mod:`softreach.reach.proof.period`'s); :func:`next_value`, :func:`_safe_end` and
+:func:`on_table` read it; :func:`badness` ranks the actions that do not pass. A value over a box is read only where
+its lower corner's value (:func:`~softreach.reach.proof.kernels.point_value`, at most the box maximum) cannot settle
+the choice, which is that of reading every value.
 
-* :func:`judge` reads no table: the enclosures, ``C1``, the budget, the cells, whether the period surely lands;
-* :func:`next_value` and :func:`_safe_end` read the table over the period's end box;
-* :func:`on_table`: whether the state itself lies on the table;
-* :func:`_rank` and :func:`_tie` make the badness of an action that does not pass, by which the filter chooses
-  where none does; :func:`badness` reads the table for it only where the choice can depend on it.
-
-A value over a box is read only where a cheaper bound cannot settle the choice: the interpolant at the box's lower
-corner, a point of the box maximum's own lattice computed by the same arithmetic (:func:`~softreach.reach.proof.kernels.
-point_value`), is at most the maximum. A safe end whose corner is above 0 is not safe; a candidate whose least
-possible next value (or badness) lies above another's exact one is not the least (:func:`read_least`). The choice
-is the one of reading every value.
-
-The period's bounds (its boxes, ``C1``, the budget, landing inside it) are :mod:`softreach.reach.proof.period`'s,
-which the cells' builder runs too.
-
-Inlined or called: numba inlines a function (``inline="always"``) by copying its body into every caller, where the
-copy is typed and optimised again, so that each copy adds to the first compilation; a call hands over every field of
-the large tuples of arrays, which costs more than the work of the small functions here. So a function that a loop over
-rows or candidates runs is inlined into that loop (:func:`judge` into the decision's loop, :func:`next_value` into
-each loop that reads next values), and each loop is a function of its own, called once a row
-(:func:`~softreach.filters.keeps.keeps`, :func:`badness`, :func:`least_next`, :func:`read_least`). What runs once for
-a row that does not pass is called (:func:`on_table`), and the searches from a whole box or outside the decision
-(:func:`~softreach.filters.keeps.keeps`, a state's certificate, the start plans) call :func:`judge_once`, so that the
-decision's loop holds the one inlined copy of :func:`judge`. And since numba's typing of one function takes more than
-linear time in its length, a part of the decision that runs at most once a row is a function of its own where it is
-large and its arguments few (:mod:`softreach.filters.compiled`'s ``_follow_plans``).
+Inlined or called (:mod:`softreach.reach.proof.kernels`; docs/filters.md, "How"): what a loop runs is inlined into
+it, :func:`judge` once, into the decision's loop; each loop, the other searches (:func:`judge_once`) and large parts
+run at most once a row are called, as every inlined copy is typed again and typing is superlinear in length.
 """
 
 from __future__ import annotations
@@ -74,8 +54,7 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
 
 @njit(_nrt=False)
 def judge_once(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
-    """:func:`judge`, compiled once, for the searches from a whole box or outside the decision (the module
-    docstring)."""
+    """:func:`judge`, compiled once, for the searches from a whole box or outside the decision."""
     return judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work)
 
 
@@ -92,9 +71,8 @@ def next_value(T, t_next, end_lo, end_hi, z_end, z_hi, work):
     box_lo[n], box_hi[n] = z_lo, max(usable_budget(z_hi, T.z_top, T.z_left, t_next), z_lo)
     best = box_max_row(W, t_next, box_lo, box_hi, MAX_NODES, scratch_W)
     if has_V and z_end >= 0 and not math.isnan(best):
-        # V's maximum over the box is at least its value at the box's corner (up to rounding): where that lies
-        # above W's maximum, the minimum is W's, and V's box need not be read (its NaN, which a table cannot hold,
-        # aside: table.py refuses non-finite snapshots)
+        # V's box maximum is at least its corner value (up to rounding): where that lies above W's maximum, V's box
+        # need not be read (a NaN it might hold aside: table.py refuses non-finite snapshots)
         corner = point_value(V, t_next, end_lo, scratch_V[2], scratch_V[8])
         if not corner - _ROUNDING * max(1.0, abs(corner)) >= best:
             v = box_max_row(V, t_next, end_lo, end_hi, MAX_NODES, scratch_V)
@@ -108,7 +86,7 @@ def _safe_end(T, t_next, end_lo, end_hi, work):
     S, scratch = T.S, work.scratch_V
     if not T.has_S:
         return True
-    # the value at the box's corner is at most the box's maximum (up to rounding, which the tolerance covers)
+    # the corner value is at most the box maximum (up to rounding, which the tolerance covers)
     corner = point_value(S, t_next, end_lo, scratch[2], scratch[8])
     if corner > _ROUNDING * max(1.0, abs(corner)):
         return False
@@ -130,18 +108,15 @@ def next_floor(T, t_next, end_lo, z_end, work):
     return -np.inf if math.isnan(low) else low
 
 
-#: relative tolerance of a bound that settles a choice: far above the rounding of the interpolation, far below any
-#: difference between values that decides
+#: relative tolerance of a bound that settles a choice: far above interpolation rounding, far below a deciding gap
 _ROUNDING = 1e-9
 
 
 @njit(_nrt=False)
 def read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, below, ties, out):
-    """The candidates' next values (their ties, :func:`_tie`, where ``ties``) where only the least can decide: each
-    candidate with a finite lower bound ``c_low`` (``+inf``: none to read) is read in the order of the bounds, until
-    the next bound lies above the least so far (from ``least``), while that least is below ``below``. ``out`` gets
-    the value read, or the bound of one not read, which lies above the least: the least, and which candidate has
-    it, are those of reading them all. Leaves ``c_low`` at ``+inf``."""
+    """Into ``out``, the candidates' next values (ties, :func:`_tie`, where ``ties``) in the order of their finite lower
+    bounds ``c_low``, until the next bound lies above a least (from ``least``) below ``below``; one not read gets its
+    bound, so the least is that of reading all. Leaves ``c_low`` at ``+inf``."""
     J = len(c_low)
     while True:
         k = np.argmin(c_low)
@@ -161,26 +136,22 @@ def read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, belo
 
 @njit(_nrt=False)
 def least_next(T, t_next, end_lo, end_hi, z_hi, work, pick, c_next, c_zend, c_low):
-    """:func:`next_value` of the candidates ``pick`` (whose ``c_next`` is ``+inf``) where it can be the least of
-    theirs (:func:`read_least`), while the least is below :data:`~softreach.reach.proof.ranks.NEXT_CAP`, where it wins
-    any score
-    (:mod:`softreach.filters.compiled`); each not read gets its lower bound, above the least. A candidate whose
-    bound is ``+inf`` is off the grid, where its value is ``+inf`` too, as ``c_next`` holds."""
+    """:func:`next_value` of the candidates ``pick`` where it can be the least (:func:`read_least`), while the least
+    is below :data:`~softreach.reach.proof.ranks.NEXT_CAP`; one whose bound is ``+inf`` is off the grid, where its
+    value is ``+inf`` too, as ``c_next`` holds."""
     # the least so far: of those not picked (one that surely lands has -inf)
     least = np.inf
     for k in range(len(pick)):
         c_low[k] = next_floor(T, t_next, end_lo[k], c_zend[k], work) if pick[k] else np.inf
         if not pick[k]:
             least = min(least, c_next[k])
-    # np.bool_: a bare False is a literal type, and read_least would be compiled once for each literal
+    # np.bool_: for a literal False read_least would compile once more
     read_least(T, t_next, end_lo, end_hi, z_hi, work, c_zend, c_low, least, NEXT_CAP, np.bool_(False), c_next)
 
 
 @njit(inline="always")
 def _rank(bounded, in_c1, proven, is_safe, kept, c1):
-    """The badness of an action that does not pass, but for its tie (:func:`_tie`): first those whose end is
-    proven safe, then those the safe value keeps, then the rest; those that keep the budget before those that do
-    not; an action that leaves ``C1`` by how far (:mod:`softreach.reach.proof.ranks`)."""
+    """The badness of an action that does not pass, but for its tie: its rank (:mod:`softreach.reach.proof.ranks`)."""
     if not bounded:
         return np.inf
     if not in_c1:
@@ -197,12 +168,10 @@ def _tie(nxt, z_end):
 @njit(_nrt=False)
 def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend, keeps_j,
              contest, c_bad, c_score, c_low, c_tie):
-    """The badness and score of every candidate that fails (:mod:`softreach.reach.proof.ranks`), the table read only where
-    it can decide: a failing candidate is chosen only where ``contest`` (no other scores below
-    :data:`~softreach.reach.proof.ranks.LOWEST_BAD`), and then from the lowest rank; the smooth rule's failing candidate
-    that keeps (``keeps_j``) is chosen, and its badness decides the safe plans. Every other failing one gets its
-    rank alone, at least :data:`~softreach.reach.proof.ranks.NEXT_CAP` above the lowest rank's badness, so that the
-    choice is the one the exact badness makes. ``c_low``, ``c_tie``: work space of one float a candidate."""
+    """The badness and score of every failing candidate, the table read only where it can decide: where ``contest``
+    (no other scores below :data:`~softreach.reach.proof.ranks.LOWEST_BAD`), for the lowest rank, and for the smooth
+    rule's kept candidate ``keeps_j``, whose badness decides the safe plans. Every other gets its rank alone, at least
+    :data:`~softreach.reach.proof.ranks.NEXT_CAP` above the lowest rank's badness: the exact badness's choice."""
     J = len(c_ok)
     if keeps_j >= 0 and not c_ok[keeps_j]:
         k = keeps_j
@@ -221,8 +190,7 @@ def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_prov
         is_safe = c_in[k] and (proven or not contest or _safe_end(T, t_next, end_lo[k], end_hi[k], work))
         c_bad[k] = _rank(c_bounded[k], c_in[k], c_proven[k], is_safe, c_kept[k], c_c1[k])
         lowest = min(lowest, c_bad[k])
-    # the lowest rank's ties, each read where it can be the least (read_least): a tie not read gets its lower
-    # bound, above the least
+    # the lowest rank's ties, each read where it can be the least (read_least)
     for k in range(J):
         eligible = contest and not c_ok[k] and k != keeps_j and c_in[k] and c_bad[k] == lowest
         c_low[k] = _tie(next_floor(T, t_next, end_lo[k], c_zend[k], work), c_zend[k]) if eligible else np.inf
@@ -236,9 +204,8 @@ def badness(T, t_next, end_lo, end_hi, z_hi, work, c_ok, c_in, c_bounded, c_prov
 
 @njit(_nrt=False)
 def on_table(W, t, x, z, point, scratch):
-    """:meth:`Table.inside` of a ``W_eps`` table: the interpolant of ``W_eps`` is finite at ``(t, x, z)`` (a budget
-    above the grid is read at its top); ``scratch``: ``W``'s work space (:func:`~softreach.reach.proof.kernels.
-    box_scratch`)."""
+    """:meth:`Table.inside` of a ``W_eps`` table: the interpolant of ``W`` is finite at ``(t, x, z)`` (a budget above
+    the grid is read at its top)."""
     # a field's (values, times, shape, glo, ghi, ...) (softreach.reach.proof.box_max.kernel_field)
     times, glo, ghi = W[1], W[3], W[4]
     n = len(x)

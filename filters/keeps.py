@@ -1,7 +1,5 @@
-"""Whether a held action keeps the next state certified, compiled: the rule's "one candidate passes again from every
-possible next state" (``docs/filters.md``, "The filter with cells"). An action whose end box lies in the landing
-cells keeps by the cells themselves; one whose period keeps ``C1`` and the budget keeps where some candidate,
-judged from its whole end box (:func:`~softreach.filters.judge.judge_once`), ends in the landing cells or surely lands.
+"""Whether a held action keeps the next state certified, compiled: the rule's "some candidate passes again from
+every possible next state" (docs/filters.md, "The filter with cells").
 """
 
 from __future__ import annotations
@@ -16,9 +14,9 @@ from .judge import judge_once
 
 @njit(inline="always")
 def _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
-    """Whether :func:`judge` can find that ``a`` passes or surely lands, asked first as it costs a third of it:
-    it passes only where the landing cells cover its end box at the budget left, at most ``z`` (a cell that covers
-    at some budget covers at more), and it lands only where its motion meets the target."""
+    """Whether :func:`~softreach.filters.judge.judge` may find that ``a`` passes or surely lands, a cheaper test asked
+    first: the landing cells cover its end box at ``z``, at least the budget left (a cell that covers at some budget
+    covers at more), or its motion meets the target."""
     params, edges, horizon = M.params, M.edges, M.horizon
     dt = period(M)
     call_held_box(enclose, params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
@@ -31,10 +29,9 @@ def _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
 
 @njit(_nrt=False)
 def keeps(enclose, M, C, cands, t, end_lo, end_hi, z_end, kept, work, work_box):
-    """Whether the next state is certified whatever the wind does, for an action judged from ``t`` that does not
-    pass (an action that passes keeps): where its period keeps ``C1`` and the budget (``kept``), ending in
-    ``[end_lo, end_hi]`` with at least ``z_end`` left, before the horizon, and some candidate passes or surely
-    lands from that whole end box."""
+    """Whether the next state of an action that does not pass is certified whatever the wind does: its period keeps
+    ``C1`` and the budget (``kept``) before the horizon, and some candidate passes or surely lands from the whole end
+    box ``[end_lo, end_hi]`` with ``z_end`` left."""
     horizon = M.horizon
     dt = period(M)
     if not kept or t + dt >= horizon - 1e-9 * max(1.0, horizon):

@@ -1,11 +1,6 @@
-"""The filter's use of the cell certificates (:mod:`softreach.reach.proof.cell_certificate`): which cells a
-:class:`~softreach.filters.ValueFilter` uses, and the multi-period plans it follows where no single period ends
-in them.
-
-A plan travels with its run as ``info["plan"]``: the candidate index, the periods it is still to be held, and
-whose plan it is (:data:`PLAN_LAND` or :data:`PLAN_SAFE`). It is valid only for the run it came from, handed back
-at the next step: the state is then inside the box chain the plan was proven for.
-"""
+"""Which cells (:mod:`softreach.reach.proof.cell_certificate`) a :class:`~softreach.filters.ValueFilter` uses, and
+the plans it follows where no single period ends in them: ``info["plan"]`` = (candidate, periods left, owner), valid
+only handed back at its own run's next step, whose state lies in the box chain the plan was proven for."""
 
 from __future__ import annotations
 
@@ -30,10 +25,8 @@ PLAN_SAFE = 2
 
 
 def resolve_cells(vf: Any, cells: Any, game: str) -> CellCertificate | None:
-    """The cells a filter uses for ``game``: ``"auto"`` builds them (or reads the cache) from the model's
-    ``cell_shape``; ``None`` none (safe cells only: the landing cells are the certificate); a
-    :class:`CellCertificate` is checked against the filter (model, period, ``h_eps``, candidates, checks). The cells
-    read no table: one solved in continuous time serves as well as one of the sampled-data game."""
+    """The cells a filter uses for ``game``: ``"auto"``: built (or cached) from the model's ``cell_shape``; ``None``:
+    none (safe cells only); a :class:`CellCertificate`: checked against the filter. Cells read no table."""
     name = "safe_cells" if game == "safe" else "landing_cells"
     la = vf.lookahead
     if isinstance(cells, str) and cells == "auto":
@@ -55,17 +48,15 @@ def resolve_cells(vf: Any, cells: Any, game: str) -> CellCertificate | None:
 
 
 def check_plans(plan: Any, N: int) -> np.ndarray | None:
-    """``plan`` as an ``(N, 3)`` int64 array (``None`` stays ``None``).
+    """``plan`` as an ``(N, 3)`` int64 array, not copied (the filter only reads it); ``None`` stays ``None``.
 
-    :raises ValueError: not the integer ``(N, 3)`` ``info["plan"]`` of a previous step
-    """
+    :raises ValueError: not the integer ``(N, 3)`` ``info["plan"]`` of a previous step"""
     if plan is None:
         return None
     arr = np.asarray(plan.detach().cpu().numpy() if torch is not None and isinstance(plan, torch.Tensor) else plan)
     arr = arr.reshape(N, 3) if arr.size == 3 * N else arr
     if arr.shape != (N, 3) or not np.issubdtype(arr.dtype, np.integer):
         raise ValueError(f"plan must be the integer (N, 3) info['plan'] of the previous step, got {plan!r}")
-    # the filter only reads it: a previous step's int64 plan is not copied
     return arr.astype(np.int64, copy=False)
 
 
@@ -75,21 +66,13 @@ START_SEGMENTS = 2
 
 def start_plans(vf: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int,
                 second: np.ndarray | None = None) -> np.ndarray:
-    """Plans from a start state itself, for starts that neither one period nor their own cell certifies (compiled,
-    :mod:`softreach.filters.compiled_starts`): one candidate held for ``K = 2 .. periods`` periods from the state,
-    each period keeping ``C1`` and the budget from the box of every state the periods before may have reached and
-    the last passing from its whole box, so that the run ends in the landing cells (or has landed); where there is
-    none and ``second`` asks for it, two in sequence, at most ``periods`` in all: the first held ``K1`` periods that
-    keep ``C1`` and the budget, the second such a one-candidate run from the box of every state the first may have
-    reached. The cells' own plans start from a whole cell; these start from the state, and keep what rounding it
-    out to its cell loses. A plan is valid only as the first ``plan`` of a run from this state, its second segment
-    handed over as the first ends (:func:`advance_plan`).
+    """Plans from a start state itself where neither one period nor its cell certifies it (docs/filters.md, 'A start's
+    own plan'; :mod:`softreach.filters.compiled_starts`), valid only as a run's first ``plan`` from this state, the
+    second segment handed over as the first ends (:func:`advance_plan`).
 
+    :param periods: the most periods a plan holds, its segments together (no plan below 2)
     :param second: per row, whether to search two segments where one does not do (default: no row)
-    :return: ``(N, START_SEGMENTS, 3)``, each segment ``(candidate, periods, PLAN_LAND)`` or :data:`NO_PLAN`: the
-        shortest one-segment plan; else the two-segment plan of the shortest first segment, the first candidate among
-        those, and the shortest second segment from its box
-    """
+    :return: ``(N, START_SEGMENTS, 3)``, each segment ``(candidate, periods, PLAN_LAND)`` or :data:`NO_PLAN`"""
     N = len(x)
     second = np.zeros(N, bool) if second is None else np.asarray(second, bool)
     if vf.landing_cells is None or periods < 2 or N == 0:
@@ -98,9 +81,8 @@ def start_plans(vf: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: i
 
 
 def advance_plan(plan: np.ndarray, queued: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The plan to hand to the next step, and what stays queued, from the plan a step returned (``info["plan"]``)
-    and the start plan's segment still queued: a first segment that ran its course (its periods left 0) hands
-    over to the queued one; a plan the filter dropped (an action passed, :data:`NO_PLAN`) drops it too."""
+    """The next step's plan and what stays queued, from a step's ``info["plan"]`` and the queued start segment: a
+    finished first segment (0 periods left) hands over to the queued one; a dropped plan (:data:`NO_PLAN`) drops it."""
     plan = np.asarray(plan, np.int64).reshape(3)
     if plan[0] < 0:
         return plan, _NO_PLAN

@@ -1,14 +1,6 @@
-"""The filter's compiled decision, compiled ahead of its first use: ``softreach compile TABLE``.
-
-The first decision a machine makes compiles :mod:`softreach.filters.compiled`, and the first reset the start's
-certificate (:mod:`softreach.filters.compiled_certify`; ``benchmarks/first_compile.py filter`` measures both),
-into the package's compiled-code cache (:mod:`softreach.reach.jit`: ``$NUMBA_CACHE_DIR``, else ``numba/`` in
-``$SOFTREACH_CACHE`` or ``~/.cache/softreach``), which every later process loads in a fraction of a second.
-Made on purpose, that compilation does not stall an episode, and environment processes started together (a
-vector of environments, an SB3 ``SubprocVecEnv``) do not each compile at once. One table of each model and
-period is enough: every table of the same value type (``float32`` or ``float64``) shares the compiled decision,
-and each model adds its own enclosure.
-"""
+"""``softreach compile TABLE``: the filter's code compiled into the cache (:mod:`softreach.reach.jit`) ahead of its
+first use, so that no episode stalls on it and processes started together do not each compile it (docs/filters.md,
+'Speed'). One table per model and period is enough: tables of one value type share the compiled decision."""
 
 from __future__ import annotations
 
@@ -20,18 +12,15 @@ import numpy as np
 
 
 def precompile(table: Any, period: float | None = None, cells: bool = True) -> dict[str, Any]:
-    """Make one decision, one certificate of a state and one start-plan search of the filter the environment
-    wraps around ``table``.
+    """Make one decision, state certificate and start-plan search of the filter an environment wraps around ``table``.
 
     :param table: a :class:`~softreach.reach.tables.table.Table` (or its path)
-    :param period: the control period [s] (default: the table's)
-    :param cells: give the filter the model's cells (built or unpacked where missing); ``False``: cells that
-        certify nothing (:meth:`~softreach.reach.proof.cell_certificate.CellCertificate.empty`), with which it runs
-        the same compiled code, which is all that compiling ahead needs
-    :return: ``model``, ``compiled`` (always true: every filter decides compiled; a model without what it needs
-        is refused by :class:`~softreach.filters.ValueFilter`, with ``missing`` then never reached), ``seconds``,
-        ``source`` (``"compiled"`` now, loaded from the ``"cache"``, or already in this ``"process"``) and
-        ``cache`` (the folder of the compiled code, :func:`softreach.reach.jit.compiled_cache_dir`)
+    :param period: the control period [s] (default: the table's, else the model's for a continuous-time table)
+    :param cells: the model's cells (built or unpacked where missing); ``False``: empty ones, which run the same code
+    :return: ``model``, ``seconds``, ``source`` (``"compiled"`` by this call, loaded from the ``"cache"``, or already in
+        this ``"process"``), ``cache`` (the folder, :func:`softreach.reach.jit.compiled_cache_dir`), ``compiled`` (true)
+        and ``missing`` (``None``): :class:`~softreach.filters.ValueFilter` refuses a model it cannot serve compiled
+    :raises ValueError: a table without ``W_eps`` or ``Q_min``, or no control period known
     """
     from softreach.reach import load_table
     from softreach.reach.proof.cell_certificate import CellCertificate
@@ -73,7 +62,6 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
     vf.certify(0.0, x, 0.0)
     vf.compiled.start_plans(np.zeros(1), x[None], np.zeros(1), 1, np.ones(1, bool), START_SEGMENTS)
     out["seconds"] = time.perf_counter() - t0  # the filter's construction with its first decision
-    # compiled now, loaded from the cache, or already in this process
     out["source"] = ("compiled" if sum(decide_rows.stats.cache_misses.values()) > misses else
                      "cache" if sum(decide_rows.stats.cache_hits.values()) > hits else "process")
     out["cache"] = decide_rows.stats.cache_path

@@ -1,6 +1,5 @@
-"""The filter's reason codes: why each decision of :meth:`~softreach.filters.ValueFilter.filter` is what it is
-(``info["reason"]``; the wrapper reports their names as ``info["filter_reason"]``). The compiled decision writes
-the same numbers (:mod:`softreach.filters.compiled`)."""
+"""The reason codes of :meth:`~softreach.filters.ValueFilter.filter`'s decisions (``info["reason"]``; the wrapper's
+``info["filter_reason"]`` is their name in :data:`REASONS`), written alike by :mod:`softreach.filters.compiled`."""
 
 from __future__ import annotations
 
@@ -19,6 +18,6 @@ AFTER_HORIZON = 4
 FALLBACK = 6
 #: inside the table, but no held action passes the test: the least-bad candidate was applied
 UNCERTIFIED = 7
-#: reason code -> name, as reported by the wrapper's ``info["filter_reason"]``
+#: reason code -> name (the wrapper's ``info["filter_reason"]``)
 REASONS = {PASS: "pass", BLEND: "blend", OPTIMAL: "optimal", OUTSIDE: "outside_domain",
            AFTER_HORIZON: "after_horizon", FALLBACK: "fallback", UNCERTIFIED: "uncertified"}

@@ -1,15 +1,6 @@
-"""One row of :meth:`~softreach.filters.ValueFilter.filter` without numpy's fixed costs: an environment's step.
-
-A step decides one state, and the compiled decision of one row takes a few microseconds; around it the batched
-path spends about thirty more on numpy calls that each cost a microsecond whatever their size (conversions, checks,
-the outputs' reasons and normalisation). Here the same is done on Python numbers, into one-row buffers that the
-compiled decision reuses (:meth:`~softreach.filters.compiled.CompiledDecision.one`). The outputs are those of the
-batched path, bit for bit and of the same types (``tests/test_filters_single.py`` compares them row by row).
-
-Only plain inputs take this way: a numpy float state and action of one row, real scalar ``t`` and ``z``, and no
-plan or a ``(3,)`` integer one. Anything else (tensors, batches, other shapes or types, a non-finite number, whose
-message the batched path words, a filter without the compiled decision) goes the batched way.
-"""
+"""One plain row of :meth:`~softreach.filters.ValueFilter.filter` (an environment's step) on Python numbers, into
+the one-row buffers of :meth:`~softreach.filters.compiled.CompiledDecision.one`, without numpy's per-call costs:
+the batched path's outputs bit for bit; other inputs and all error messages stay there (docs/filters.md, 'One row')."""
 
 from __future__ import annotations
 
@@ -27,7 +18,8 @@ _SCALARS = (float, int, np.floating, np.integer)
 
 
 def _plain(vf: Any, t: Any, x: Any, z: Any, action: Any, plan: Any) -> bool:
-    """Whether the inputs are of the kind this module decides (the module docstring)."""
+    """Whether the inputs are plain: numpy float ``x`` and ``action`` of one row, real scalar ``t`` and ``z``, and
+    no plan or a ``(3,)`` integer one."""
     return (type(x) is np.ndarray and x.shape == (vf.n,) and x.dtype.kind == "f"
             and type(action) is np.ndarray and action.shape == (vf.m,) and action.dtype.kind == "f"
             and isinstance(t, _SCALARS) and isinstance(z, _SCALARS)
@@ -36,12 +28,8 @@ def _plain(vf: Any, t: Any, x: Any, z: Any, action: Any, plan: Any) -> bool:
 
 def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, plan: Any,
                diagnostics: bool) -> tuple[np.ndarray, dict[str, Any]] | None:
-    """``vf.filter(t, x, z, action, normalized=normalized, plan=plan, diagnostics=diagnostics)`` of one plain row
-    (the module docstring), or ``None`` where the inputs are of another kind: then the batched path decides.
-
-    :param vf: the :class:`~softreach.filters.ValueFilter`
-    :raises ValueError: :attr:`~softreach.filters.ValueFilter.threads` below 1
-    """
+    """``vf.filter(t, x, z, action, normalized=normalized, plan=plan, diagnostics=diagnostics)`` of one plain, finite
+    row, or ``None`` for the batched path to decide; ``ValueError`` where ``vf.threads`` is below 1."""
     if not _plain(vf, t, x, z, action, plan):
         return None
     t, z = float(t), float(z)

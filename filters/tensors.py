@@ -1,5 +1,4 @@
-"""numpy in, numpy out; torch in, torch out: the conversions around :meth:`~softreach.filters.ValueFilter.filter`,
-the checks of its inputs and the messages naming a bad one."""
+"""Inputs of :meth:`~softreach.filters.ValueFilter.filter` checked and converted: numpy or torch in, the same out."""
 
 from __future__ import annotations
 
@@ -22,16 +21,14 @@ def to_numpy(v: Any) -> tuple[np.ndarray, Any]:
 
 
 def finite(arr: np.ndarray) -> bool:
-    """Whether every entry of ``arr`` (float) is finite. The few numbers of one step are checked in Python:
-    ``np.isfinite(arr).all()`` has a fixed cost of about a microsecond, several times that of the loop."""
+    """Whether every entry of ``arr`` (float) is finite; a step's few in Python, cheaper than numpy's call."""
     if arr.size <= 8:
         return all(map(math.isfinite, arr.ravel().tolist()))
     return bool(np.isfinite(arr).all())
 
 
 def clip_unit(a: np.ndarray) -> np.ndarray:
-    """``a`` clipped to ``[-1, 1]``, in its own dtype: the normalised action range. (``np.clip``'s Python wrapper
-    costs twice as much on the one action of a step.)"""
+    """``a`` clipped to ``[-1, 1]`` (the normalised action range) in its own dtype, without ``np.clip``'s wrapper."""
     return np.minimum(np.maximum(a, a.dtype.type(-1.0)), a.dtype.type(1.0))
 
 
@@ -69,11 +66,9 @@ def to_torch(applied: np.ndarray, info: dict[str, Any], ref: Any, action: Any):
 
 
 def batch_inputs(t: Any, x: Any, z: Any, action: Any | None, n: int, m: int, state_names: Any):
-    """The filter's inputs as a batch: ``(t (N,), x (N, n), z (N,), action (N, m) or None, single, ref)``, float64
-    numpy; ``single``: ``x`` was one state; ``ref``: the tensor the outputs follow (``None``: numpy).
-
-    :raises ValueError: a wrong shape or a non-finite entry, named
-    """
+    """The filter's inputs as a float64 numpy batch ``(t (N,), x (N, n), z (N,), action (N, m) or None, single, ref)``;
+    ``single``: ``x`` was one state; ``ref``: the tensor the outputs follow (``None``: numpy). ``ValueError`` names a
+    wrong shape or a non-finite entry."""
     xs, x_tensor = to_numpy(x)
     single = xs.ndim == 1
     if single:

@@ -1,13 +1,5 @@
-"""``VecSafetyFilter``: one batched filter decision per step for a vector of ``SafetyFilter``-wrapped environments.
-
-A decision costs mostly fixed overhead (the one-period test builds boxes and gathers table blocks for a whole
-batch at once), so deciding for eight environments together costs about as much as deciding for two. Training
-steps many environments in lock step (SB3's ``DummyVecEnv``); this wrapper gathers their states before the step,
-asks the shared :class:`~softreach.filters.ValueFilter` once, and hands each environment's ``SafetyFilter`` its
-row. Each ``SafetyFilter`` then steps exactly as it would alone: same applied action, same ``info`` keys, same
-episode statistics (``ValueFilter.filter`` decides every row independently; ``tests/test_filters_vector.py``
-checks the two paths agree action for action).
-"""
+"""``VecSafetyFilter``: a ``DummyVecEnv``'s ``SafetyFilter`` decisions in one batched call per step (a call's cost is
+mostly fixed), each environment stepping as it would alone (docs/filters.md, 'Many environments at once')."""
 
 from __future__ import annotations
 
@@ -31,15 +23,11 @@ def find_filter(env: Any) -> SafetyFilter | None:
 
 
 class VecSafetyFilter(VecEnvWrapper):
-    """Batch the safety filter's decisions over the environments of a ``DummyVecEnv``.
+    """Batch the safety filter's decisions over a ``DummyVecEnv``: one call per step for each shared ``ValueFilter``.
 
-    Every environment of ``venv`` must hold a :class:`SafetyFilter` in its wrapper stack (wrappers outside it,
-    such as a reward scale, are fine as long as they pass the action through unchanged). Environments whose
-    filters share one ``ValueFilter`` are decided in one call; others in one call per core.
-
-    :param venv: a ``DummyVecEnv`` (environments in this process: the filter reads their states)
-    :raises TypeError: ``venv`` is not a ``DummyVecEnv`` or an environment has no ``SafetyFilter``
-    """
+    :param venv: a ``DummyVecEnv`` (its states are read in this process), each environment holding a
+        :class:`SafetyFilter` under wrappers that pass the action through unchanged
+    :raises TypeError: ``venv`` is not a ``DummyVecEnv`` or an environment has no ``SafetyFilter``"""
 
     def __init__(self, venv: DummyVecEnv):
         if not isinstance(venv, DummyVecEnv):

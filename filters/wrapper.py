@@ -22,40 +22,29 @@ REQUIRED_ATTRIBUTES = ("model", "dt", "eps", "state", "time", "budget")
 
 
 class SafetyFilter(gym.Wrapper):
-    """Filter any policy's actions with a table so that the sampled-data guarantee holds.
-
-    From a start the filter certifies (``info["certified"]`` at ``reset``), for every policy and every wind within
-    its bounds (switching at any instant, also in answer to the filter), each step holds an action that provably
-    keeps the vehicle in ``C1`` for the whole period, spends no more budget than is left, and ends in the model's
-    landing cells, from which a proven plan lands by ``T``; so every run lands by ``T``. The policy's own action
-    passes whenever holding it for one period keeps the state certified. See :mod:`softreach.filters.core`,
-    :mod:`softreach.reach.proof.lookahead` and :mod:`softreach.reach.proof.cell_certificate`.
-
-    A ``gymnasium.Wrapper`` rather than an ``ActionWrapper``, because the filter needs the state, time and
-    remaining budget, which it reads from ``env.unwrapped`` (``state``, ``time``, ``budget``); observations and
-    rewards pass through unchanged. Works under ``gymnasium.vector.SyncVectorEnv`` / ``AsyncVectorEnv`` and
-    Stable-Baselines3's ``make_vec_env(..., wrapper_class=SafetyFilter, wrapper_kwargs={"table": path})``.
+    """Filter any policy's actions with a table so that the sampled-data guarantee holds: from a start certified at
+    ``reset``, for every policy and wind within bounds, each step provably keeps ``C1`` and the budget and every run
+    lands by ``T``; the policy's action passes whenever holding it for one period keeps the state certified
+    (docs/filters.md, 'What the user runs, and what is guaranteed'). The filter reads ``state``, ``time`` and
+    ``budget`` from ``env.unwrapped``; observations and rewards pass unchanged. Works under gymnasium's vector
+    environments and SB3's ``make_vec_env(..., wrapper_class=SafetyFilter, wrapper_kwargs={"table": path})``.
 
     ``info`` of every step adds:
 
     * ``filter_active`` — the filter replaced (or, with ``rule="smooth"``, moved) the policy's action;
     * ``policy_action`` / ``applied_action`` — the normalised action the policy gave / the one applied;
-    * ``value`` — the table's ``min(V~, W~_eps)`` at the state the decision was taken in (``+inf`` outside), which
-      ranks and proves nothing;
-    * ``margin`` (0), ``optimal_action`` (the normalised candidate the filter
-      chose, NaN where the policy passed), ``filter_reason`` (``"pass"``, ``"blend"``, ``"optimal"``,
-      ``"outside_domain"``, ``"after_horizon"``, ``"fallback"``, ``"uncertified"``);
+    * ``value`` — the table's ``min(V~, W~_eps)`` at the decision's state (``+inf`` outside), which proves nothing;
+    * ``margin`` (0); ``optimal_action`` — the normalised candidate the filter chose (NaN where the policy passed);
+    * ``filter_reason`` — why: ``"pass"`` or another name in :data:`~softreach.filters.reasons.REASONS`;
     * ``certified`` — the applied action passed the one-period test (or follows a landing cell's plan);
       ``lookahead`` — its worst next table value;
-    * on the last step of an episode, ``filter_episode``: ``steps``, ``interventions``, ``intervention_rate``,
-      ``min_value`` and ``max_value`` (over the decisions; ``max_value <= 0`` means the episode never left the
-      table's safe set), ``budget_used`` and ``initial_budget``.
+    * at an episode's end, ``filter_episode``: ``steps``, ``interventions``, ``intervention_rate``, ``min_value``
+      and ``max_value`` of the decisions (``max_value <= 0``: the episode never left the table's safe set),
+      ``budget_used``, ``initial_budget`` and ``certified_start``.
 
-    ``reset`` adds ``value``, ``margin``, ``certified`` and ``certified_reason`` (one of
-    :data:`~softreach.filters.core.CERTIFY_REASONS`) of the start, and ``start_plan``: where no single period or
-    cell certifies the start but a candidate held for several periods does (or two in sequence), that plan, which
-    the first steps follow (:meth:`~softreach.filters.ValueFilter.certify_start`: two segments, each ``(candidate,
-    periods, owner)``, ``(-1, 0, 0)`` where none).
+    ``reset`` adds the start's ``value``, ``margin``, ``certified``, ``certified_reason`` (one of
+    :data:`~softreach.filters.core.CERTIFY_REASONS`) and ``start_plan``: the first steps' plan of its own, two
+    ``(candidate, periods, owner)``, ``(-1, 0, 0)`` where none (:meth:`~softreach.filters.ValueFilter.certify_start`).
 
     :param env: a softreach landing environment (possibly wrapped, e.g. by ``TimeLimit`` or ``Monitor``)
     :param table: a :class:`~softreach.reach.Table` with ``W_eps``, or the path of one
@@ -63,13 +52,11 @@ class SafetyFilter(gym.Wrapper):
     :param rule: ``"switch"`` (least restrictive; the default) or ``"smooth"``
     :param filter_kwargs: passed to :class:`~softreach.filters.ValueFilter` (``fallback_action``,
         ``smooth_iterations``, ``eps``, ``safe_cells``, ``landing_cells``, ``start_periods``)
-    :param value_filter: an existing :class:`~softreach.filters.ValueFilter` to share (one core,
-        computed once per table; many environments can use one). Its rule and margin apply; ``table`` may then be
-        ``None``, and ``margin``, ``rule`` and ``filter_kwargs`` must be left out or agree with it
+    :param value_filter: a :class:`~softreach.filters.ValueFilter` to share among environments (its rule and margin
+        apply); ``table`` may then be ``None``, and ``margin``, ``rule`` and ``filter_kwargs`` left out or agreeing
     :raises TableError: the table was solved for another model, other parameters or another ``eps``
-    :raises TypeError: the environment does not expose what the filter needs
-    :raises ValueError: a shared ``value_filter`` made for another control period, rule or margin
-    """
+    :raises TypeError: the environment does not expose what the filter needs, or neither table nor filter is given
+    :raises ValueError: a shared ``value_filter`` that disagrees with the arguments or the environment"""
 
     def __init__(self, env: gym.Env, table: Table | str | os.PathLike | None = None, margin: float | None = None,
                  rule: str | None = None, *, value_filter: ValueFilter | None = None, **filter_kwargs: Any):
@@ -122,7 +109,6 @@ class SafetyFilter(gym.Wrapper):
         self.rule = value_filter.rule
         self._reset_stats()
 
-    # ------------------------------------------------------------------------------------------ episode stats
     def _reset_stats(self) -> None:
         self._steps = 0
         self._interventions = 0
@@ -136,16 +122,14 @@ class SafetyFilter(gym.Wrapper):
         self._queued = np.array(NO_PLAN, np.int64)
 
     def expect(self, action: Any, applied: np.ndarray, decision: dict[str, Any]) -> None:
-        """Hand over the decision for ``action`` at the current state, made in a batch with other environments
-        (:class:`~softreach.filters.VecSafetyFilter`); the next :meth:`step` uses it if it gets the same action
-        in the same state, and decides itself otherwise."""
+        """Hand over a batched decision for ``action`` in this state (:class:`~softreach.filters.VecSafetyFilter`):
+        the next :meth:`step` uses it if it gets that action in that state, and decides itself otherwise."""
         base = self.env.unwrapped
         self._pending = (np.array(action, copy=True), base.time, np.array(base.state, copy=True), base.budget,
                          applied, decision)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        """Reset the environment and the episode statistics; ``info`` adds ``value``, ``margin``, ``certified``,
-        ``certified_reason`` and ``start_plan`` of the start."""
+        """Reset the environment and the episode statistics; ``info`` adds the start's keys (the class docstring)."""
         obs, info = self.env.reset(seed=seed, options=options)
         self._reset_stats()
         base = self.env.unwrapped
@@ -164,10 +148,8 @@ class SafetyFilter(gym.Wrapper):
         return obs, info
 
     def step(self, action: Any):
-        """Filter ``action`` (normalised, as the policy gives it) and step the environment.
-
-        :raises ValueError: a non-finite or wrongly shaped action (as the environment would)
-        """
+        """Filter ``action`` (normalised, as the policy gives it) and step the environment; a non-finite or wrongly
+        shaped action raises ``ValueError`` (as the environment would)."""
         base = self.env.unwrapped
         x = base.state
         if x is None:
@@ -184,9 +166,7 @@ class SafetyFilter(gym.Wrapper):
         # read once a step: each read of a wrapper's action_space goes down the chain of wrappers
         space = self.action_space
         dtype, shape = space.dtype if space.dtype is not None else np.float32, space.shape
-        # the policy's own object passes untouched where the filter does not act (no float round trip); the
-        # filter's own action goes in binary64, the normalised action whose physical image is exactly the one it
-        # judged (a cast to the space's float32 would move it: the hover thrust 9.8 by 4e-7 m/s^2)
+        # the filter's action goes in binary64: the space's float32 would move its physical image off the one judged
         to_env = np.array(applied, dtype=np.float64) if active else action
         obs, reward, terminated, truncated, info = self.env.step(to_env)
 

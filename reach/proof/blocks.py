@@ -1,9 +1,5 @@
-"""Rows computed in blocks, one per thread.
-
-The filter decides every row of a batch independently, and so does a model's enclosure of each row; their compiled
-loops release the GIL (:mod:`softreach.filters.compiled`, :func:`softreach.reach.proof.model_kernels.held_boxes`), so a
-large batch can be cut into blocks of rows that threads compute at once.
-"""
+"""Rows computed in blocks, one per thread, by compiled loops that release the GIL (:mod:`softreach.filters.compiled`,
+:func:`softreach.reach.proof.model_kernels.held_boxes`)."""
 
 from __future__ import annotations
 
@@ -13,8 +9,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-#: the fewest rows a thread takes: handing a block to another thread costs about 50 us, as much as deciding 128
-#: certified rows (``benchmarks/bench_filter.py`` times 16 to 1,024 rows, with one thread and with two)
+#: the fewest rows a thread takes: handing a block over costs as much as deciding many (``benchmarks/bench_filter.py``)
 PARALLEL_MIN_ROWS = 256
 _POOL: dict[str, Any] = {}
 
@@ -46,13 +41,10 @@ def check_threads(threads: Any) -> int:
 
 def run_in_blocks(run: Callable[[int, int], None], rows: int, threads: int, min_rows: int = PARALLEL_MIN_ROWS
                   ) -> None:
-    """Call ``run(lo, hi)`` on consecutive blocks covering ``range(rows)``: one block per thread, as many threads as
-    ``threads`` allows with at least ``min_rows`` rows each; the calling thread takes the first block.
-    An exception of any block is raised here, once every block has ended.
+    """Call ``run(lo, hi)`` on consecutive blocks covering ``range(rows)``, one per thread, at most ``threads`` with
+    at least ``min_rows`` rows each; the calling thread takes the first. A block's exception is raised once all end.
 
     :param run: decides the rows ``lo`` to ``hi - 1``; it must release the GIL for the blocks to overlap
-    :param rows: the batch's rows
-    :param threads: the most threads to use (1: the calling thread alone)
     :raises ValueError: ``threads`` is not a whole number of at least 1
     """
     k = max(1, min(check_threads(threads), rows // min_rows))

@@ -1,42 +1,23 @@
-"""Certificates solved on cells for the held-action game: proofs, not interpolants.
+"""Certificates solved on cells for the held-action game: proofs, where the table only interpolates.
 
-The table's certificate (:class:`~softreach.reach.proof.lookahead.Lookahead`) is an interpolant, which between grid
-nodes can promise slightly more than a held action delivers: a chain of certified steps can break. This module
-solves the sampled-data game again on *cells* and proves what it claims, by construction.
+Cells: ``C1``'s box (:attr:`~softreach.reach.problem.Model.hard_box`) cut into ``shape`` state cells, times budget
+cells ``[j dz, (j + 1) dz]``. A **plan** holds a candidate action for ``K`` periods (``K`` in ``holds``). A cell
+``(c, j)`` is **good at** ``t_k = k dt`` when some plan satisfies, from every state of the cell and for every wind
+(the enclosures :meth:`~softreach.reach.model_filter.FilterPart.held_enclosure_box`, chained, boxes and spends widened
+for the environment's rounding: :func:`~softreach.reach.proof.lookahead.state_allowance`, ``budget_allowance``):
 
-Cells are boxes: the hard-constraint box ``C1`` (:attr:`~softreach.reach.problem.Model.hard_box`) cut into
-``shape`` state cells, times budget cells ``[j dz, (j + 1) dz]``. A **plan** is a candidate held action kept for
-``K`` periods (``K`` in ``holds``). A cell ``(c, j)`` is **good at sample time** ``t_k = k dt`` when some plan
-satisfies, from *every* state of the cell and for every wind signal (the model's box enclosures
-:meth:`~softreach.reach.model_filter.FilterPart.held_enclosure_box`, chained period by period):
+1. every period's motion stays in ``C1`` (the convex ``c1`` at each tube box's corners);
+2. the budget spent ``S`` (each period's pieces charged at their largest ``h_eps``) leaves ``j dz - S >= 0``;
+3. every run surely lands at a check instant, or ``k + K <= N`` and every cell the end box touches is good at
+   ``t_{k+K}`` at every budget the plan can leave.
 
-1. every period's motion stays in ``C1`` (the convex ``c1`` at the corners of each tube box);
-2. the budget spent, bounded as in the one-period test (pieces charged at their largest ``h_eps``) and summed
-   over the periods, leaves ``j dz - S >= 0``;
-3. every run surely lands at a check instant of one of the periods (then the episode ends), or every cell the
-   end box touches, at every budget the plan can leave, is good at ``t_{k+K}``, and ``k + K <= N``.
-
-Every box is widened, and every period that may spend is charged more, by the look-ahead's allowances for the
-environment's rounding (:func:`~softreach.reach.proof.lookahead.state_allowance`,
-:func:`~softreach.reach.proof.lookahead.budget_allowance`; the key records them), so that a cell's claim holds for the
-numbers the environment computes; the next period starts from the widened end box.
-
-Two games differ only at ``T``: in ``"safe"`` every cell inside ``C1`` is good there (stay in ``C1`` within the
-budget until ``T``, or land); in ``"land"`` none is (land by ``T``). More budget never hurts: if ``(c, j)`` is good
-so is ``(c, j + 1)`` (the same plan works, by induction from ``T``). So a cell column is stored as one number,
-``m_k[c]``, the lowest good budget index, and item 3 asks only ``j >= S / dz + max m_{k+K}`` over the touched
-state cells.
-
-**What it proves.** A state at ``t_k`` in a good cell has a plan (:meth:`CellCertificate.plan`) that keeps ``C1``
-and the budget and ends in a good cell (or landed), whatever the wind did. A controller that applies, at every
-step, either an action whose one-period end box is covered by good cells (:meth:`CellCertificate.covered`) or the
-next action of the plan it is following, never leaves ``C1``, never overspends, and (``"land"``) lands by ``T``,
-from any good start, for every wind signal. Only the enclosures and the box corners are used; the table is not.
-
-Plans longer than one period are what let a cell make progress at all where the motion of one period is shorter
-than the cell (the point mass near ``v = 0``): a one-period box from a whole cell overlaps that cell again, and
-would ask the cell to be good at every later time. Plans whose end box touches more than ``span_cap`` cells are
-not used (that only makes the certificate smaller).
+The games differ only at ``T``: every cell inside ``C1`` is good there in ``"safe"``, none in ``"land"``. If ``(c, j)``
+is good so is ``(c, j + 1)`` (the same plan works, by induction from ``T``), so a column is one number ``m_k[c]``, the
+lowest good budget index, and condition 3 reads ``j >= S / dz + max m_{k+K}``. **What it proves:** a controller
+applying at every step an action whose end box good cells cover (:meth:`CellCertificate.covered`) or its plan's next
+action (:meth:`CellCertificate.plan`) keeps ``C1`` and the budget and (``"land"``) lands by ``T``, from any good start
+and for every wind. Plans of several periods let a cell progress where a period moves less than a cell; plans whose
+end box touches over ``span_cap`` cells are not used.
 """
 
 from __future__ import annotations
@@ -72,12 +53,11 @@ class CellCertificate:
 
     :param lo, hi: the cell grid's box (the model's ``hard_box``)
     :param m: ``(N + 1, *shape)`` int16, ``never`` where no budget suffices
-    :param action: ``(N + 1, *shape)`` int8 candidate index of the plan (``-1``: none)
-    :param hold: ``(N + 1, *shape)`` int8 periods the plan holds it
+    :param action, hold: ``(N + 1, *shape)`` int8: the plan's candidate index (``-1``: none) and periods held
     :param candidates: ``(J, m)`` physical held actions
     :param dt, dz, horizon: control period, budget cell, horizon [s]
     :param game: ``"safe"`` or ``"land"``
-    :param key: what the cells were built for (model parameters, period, ``h_eps`` width, candidates, ...)
+    :param key: what the cells were built for (:func:`cell_key`)
     """
 
     def __init__(self, lo: Any, hi: Any, m: np.ndarray, action: np.ndarray, hold: np.ndarray, candidates: Any,
@@ -95,29 +75,25 @@ class CellCertificate:
         self.top = int(round(self.horizon / self.dz))  # no run spends more than the horizon: budgets above are equal
         self.never = self.top + 1
         self.key = dict(key)
-        #: what the compiled cover test (:func:`softreach.reach.proof.kernels.cover_row`) reads: one row of cells per
-        #: sample time (a memory map stays mapped), the grid, and the game's clock and budget cells
+        #: what :func:`softreach.reach.proof.kernels.cover_row` reads: a row of cells per sample (a memmap stays mapped)
         self.kernel_args = (frozen(np.asarray(self.m).reshape(self.steps + 1, -1)),
                             frozen(np.asarray(self.shape, dtype=np.int64)), frozen(self.lo), frozen(self.hi),
                             frozen(self.width), self.dt, self.dz, self.top, self.steps, self.horizon,
                             self.game == "safe")
-        #: the plans, one row of cells per sample time, as :func:`softreach.reach.proof.kernels.plan_row` reads them
+        #: the plans as :func:`softreach.reach.proof.kernels.plan_row` reads them
         self.plan_args = (frozen(np.asarray(self.action).reshape(self.steps + 1, -1)),
                           frozen(np.asarray(self.hold).reshape(self.steps + 1, -1)))
 
-    # ---------------------------------------------------------------- building
     @classmethod
     def build(cls, lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe",
               holds: Any = (1,), span_cap: int = 32) -> "CellCertificate":
-        """Solve the cell game backwards from ``T`` for the look-ahead's model, period, ``h_eps`` and candidates
-        (:func:`softreach.reach.proof.cell_game.solve`).
+        """Solve the cell game backwards from ``T`` (:func:`softreach.reach.proof.cell_game.solve`).
 
-        :param lookahead: a :class:`~softreach.reach.proof.lookahead.Lookahead` (its enclosures and budget bound)
+        :param lookahead: a :class:`~softreach.reach.proof.lookahead.Lookahead` (model, enclosures, budget bound)
         :param shape: cells per state axis over the model's ``hard_box``
         :param dz: budget cell [s]; default a quarter of the period
-        :param game: ``"safe"`` or ``"land"`` (module docstring)
-        :param holds: the plan lengths, in periods
-        :param span_cap: the most cells a plan's end box may touch
+        :param game: ``"safe"`` or ``"land"``
+        :param holds, span_cap: the plan lengths, in periods; the most cells a plan's end box may touch
         """
         la, model = lookahead, lookahead.model
         key = cell_key(la, shape, dz, game, holds, span_cap)
@@ -135,16 +111,14 @@ class CellCertificate:
         N = int(round(T / dt))
         if not math.isclose(N * dt, T, rel_tol=1e-9):
             raise ValueError(f"the horizon {T} s is not a whole number of periods {dt} s")
-        # the cells prove what the model's enclosure claims: compared with simulated runs first
+        # the cells rest on the model's enclosure: checked against simulated runs first
         check_model_for_filter(model, dt, "building the filter's cells", la.pieces, la.target_checks, cells=True,
                                cell_width=(np.asarray(model.hard_box[1]) - model.hard_box[0]) / np.asarray(shape))
         return cell_game.solve(cls, la, key)
 
     @classmethod
     def empty(cls, lookahead: Any, game: str = "land", holds: Any = (1,)) -> "CellCertificate":
-        """Cells that certify nothing: one cell per axis, good at no budget and no time. Sound, and built in no
-        time: a filter with them runs the same compiled code as one with solved cells (what compiling the filter
-        ahead needs, :mod:`softreach.filters.background`)."""
+        """Cells good nowhere: sound, and run by solved cells' compiled code (:mod:`softreach.filters.background`)."""
         la, model = lookahead, lookahead.model
         if model.hard_box is None:
             raise ValueError(f"{model.name} declares no hard_box; the cells tile it")
@@ -156,11 +130,9 @@ class CellCertificate:
         m[...] = cells.never  # the certificate's own "no budget suffices" (its kernel arguments view m)
         return cells
 
-    # ---------------------------------------------------------------- cell arithmetic
     def step_index(self, t: np.ndarray) -> np.ndarray:
-        """The sample index whose game covers time ``t`` (between samples, a model whose motion does not depend on
-        ``t``): ``"safe"`` takes ``floor(t / dt)``, whose plans keep ``C1`` until at least ``T``; ``"land"`` takes
-        ``ceil(t / dt)``, whose plans land by ``T`` at the latest."""
+        """The sample whose game covers time ``t`` (motion independent of ``t``): ``floor(t / dt)`` in ``"safe"``,
+        whose plans keep ``C1`` until at least ``T``; ``ceil(t / dt)`` in ``"land"``, whose plans land by ``T``."""
         t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
         out = np.empty(len(t), np.int64)
         step_rows(t, self.dt, self.steps, self.game == "safe", out)
@@ -172,15 +144,13 @@ class CellCertificate:
         budget_floor_rows(z, self.dz, self.top, out)
         return out
 
-    # ---------------------------------------------------------------- queries
     def contains(self, t: Any, x: Any, z: Any) -> np.ndarray:
         """Is each state ``(t, x, z)`` in a good cell (``False`` off the grid, at a negative budget, after ``T``)?"""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         return self.covered(t, x, x, z)
 
     def covered(self, t_next: Any, end_lo: np.ndarray, end_hi: np.ndarray, z_end: Any) -> np.ndarray:
-        """Does a period end inside good cells: every cell the end box ``[end_lo, end_hi]`` touches at ``t_next``
-        good at the lowest end budget ``z_end`` (and so at every higher one)?"""
+        """Are all cells the box ``[end_lo, end_hi]`` touches at ``t_next`` good at the lowest end budget ``z_end``?"""
         N = len(end_lo)
         out = np.empty(N, bool)
         if N:
@@ -191,8 +161,7 @@ class CellCertificate:
         return out
 
     def plan(self, t: Any, x: Any) -> tuple[np.ndarray, np.ndarray]:
-        """The stored plan of each state's cell: ``(candidate index, periods to hold it)``; ``(-1, 0)`` off the grid
-        or where no budget suffices. It is good for the state when :meth:`contains` says so."""
+        """Each state's cell's plan ``(candidate, periods held)``, ``(-1, 0)`` if none; sound where :meth:`contains`."""
         x = np.ascontiguousarray(np.atleast_2d(np.asarray(x, dtype=np.float64)))
         t = np.ascontiguousarray(np.broadcast_to(np.asarray(t, dtype=np.float64), (len(x),)))
         act, hold = np.empty(len(x), np.int64), np.empty(len(x), np.int64)
@@ -203,11 +172,9 @@ class CellCertificate:
         """The share of ``C1``'s cells good at sample ``k`` with budget ``z``."""
         return float((self.m[k] <= self._budget_floor(np.array([float(z)]))[0]).mean())
 
-    # ---------------------------------------------------------------- files
     def save(self, path: str | Path, compressed: bool = True) -> None:
-        """Write the cells: one numpy ``.npz`` (the key as JSON), or with ``compressed=False`` a folder of ``.npy``
-        arrays beside the rest, which :meth:`load` maps into memory instead of reading (what the cache keeps: the
-        pages a filter touches are read, and shared between processes)."""
+        """Write one ``.npz`` (the key as JSON), or with ``compressed=False`` a folder of ``.npy`` arrays that
+        :meth:`load` memory-maps (the cache's form: only touched pages are read, and shared between processes)."""
         small = dict(format=FORMAT, lo=self.lo, hi=self.hi, candidates=self.candidates, game=self.game,
                      scalars=np.array([self.dt, self.dz, self.horizon]), key=json.dumps(self.key, sort_keys=True))
         if compressed:
@@ -221,10 +188,9 @@ class CellCertificate:
 
     @classmethod
     def load(cls, path: str | Path, key: dict[str, Any] | None = None) -> "CellCertificate":
-        """Read cells written by :meth:`save` (a folder memory-mapped); with ``key``, refuse cells built for
-        anything else.
+        """Read cells written by :meth:`save` (a folder memory-mapped); with ``key``, refuse cells built for another.
 
-        :raises ValueError: not a cell-certificate file, or built for another model, period, game or candidate set
+        :raises ValueError: not a cell-certificate file, or built for another key
         """
         path = Path(path)
         folder = path.is_dir()
@@ -262,23 +228,16 @@ def cell_key(lookahead: Any, shape: Any, dz: float | None = None, game: str = "s
 
 
 def cache_dir() -> Path:
-    """Where built cells are kept: the package's cache folder (:func:`softreach.reach.jit.cache_root`:
-    ``$SOFTREACH_CACHE`` or ``~/.cache/softreach``)."""
+    """Where built cells are kept: the package's cache folder, :func:`softreach.reach.jit.cache_root`."""
     return cache_root()
 
 
-#: cells shipped with the package for the default configurations, so that the first filter on a machine need not
-#: build them (minutes for the glider, ``docs/filters.md``): the point mass at 0.01 s for ``target_checks`` 1 and its
-#: environment's 10, the glider and Dubins at 0.1 s for their environments' 2, what
-#: :class:`~softreach.filters.SafetyFilter` asks. ``tests/test_packaged_cells.py`` rechecks every file against the
-#: recursion and rebuilds one whole; ``tests/test_glider_cells.py`` and ``tests/test_dubins_cells.py`` fly their
-#: claims. Rewritten by ``python benchmarks/cell_certificate.py --table TABLE --write-packaged [--checks N]``
+#: cells shipped for :class:`~softreach.filters.SafetyFilter`'s default configurations (``tests/test_packaged_cells.py``
+#: rechecks them), written by ``python benchmarks/cell_certificate.py --table TABLE --write-packaged [--checks N]``
 PACKAGED = Path(__file__).parent / "cells"
 
 
-#: the file in a cache folder that names what made it: the digest of the package's file of the same key it was
-#: unpacked from, or, for cells built on this machine, ``built:`` and the digest of the code that built them
-#: (:func:`~softreach.reach.jit.source_stamp`, the compiled code's key too)
+#: names a cache folder's origin: the packaged file's digest, or ``built:`` and the building code's ``source_stamp()``
 _MADE_WITH = "packaged.sha256"
 
 
@@ -305,11 +264,8 @@ def cache_file(key: dict[str, Any], folder: Path) -> Path:
 
 def cached(lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe", holds: Any = (1,),
            span_cap: int = 32) -> CellCertificate:
-    """The cells for this look-ahead, memory-mapped from a folder in :func:`cache_dir`; where there is none yet,
-    the package's own (:data:`PACKAGED`) or a build (once per model, period, ``h_eps`` width, candidate set, game
-    and shape) is written there first. A folder made while the package shipped another file for the same key, or
-    none (cells of an earlier version), is replaced by the installed package's. A cache that cannot be written is
-    skipped with a warning. Cells built here by other code (another version of the package) are built again."""
+    """The cells, memory-mapped from a folder in :func:`cache_dir` first written from :data:`PACKAGED` or a build; a
+    folder of another origin (:data:`_MADE_WITH`) is replaced, and an unwritable cache skipped with a warning."""
     key = cell_key(lookahead, shape, dz, game, holds, span_cap)
     folder = cache_file(key, cache_dir()).with_suffix("")
     packaged = cache_file(key, PACKAGED)
@@ -318,8 +274,6 @@ def cached(lookahead: Any, shape: Any, dz: float | None = None, game: str = "saf
     if folder.is_dir():
         made_with = folder / _MADE_WITH
         if (made_with.read_text() if made_with.is_file() else None) != origin:
-            # made before the package shipped these cells, from another version of its file (an upgrade), or
-            # built by other code: the installed package's file, or a build by this code, replaces them
             shutil.rmtree(folder, ignore_errors=True)
         else:
             try:

@@ -1,12 +1,6 @@
-"""The cell game solved backwards from ``T`` (:meth:`CellCertificate.build
-<softreach.reach.proof.cell_certificate.CellCertificate.build>`), and the same recursion asked again of a stored
-certificate (:func:`recheck`): the module docstring of :mod:`softreach.reach.proof.cell_certificate` states the game.
-
-A **plan step** is one candidate held from every cell for ``K`` periods, its boxes chained (:func:`plan_steps`):
-the rows that keep ``C1``, their budget bound and the range of cells their end box touches; one step of the
-recursion (:func:`backward_step`) gives every cell the least budget index over the plan steps from the later
-samples. Both the solve and :func:`recheck` run that step, so a certificate that passes
-:func:`recheck` at every cell is the one the solve gives."""
+"""The cell game of :mod:`softreach.reach.proof.cell_certificate` solved backwards from ``T`` (:func:`solve`) by
+:func:`backward_step` over plan steps (:func:`plan_steps`), and the same step asked again of a stored certificate
+(:func:`recheck`): one that passes at every cell is the one solved."""
 
 from __future__ import annotations
 
@@ -25,8 +19,7 @@ from .period import motion, period_rows
 
 
 class _LastPlans:
-    """The plans' geometry of the last build, for the other game on the same cells (it is the same: only ``T``
-    differs). One entry, handed out once: it is large."""
+    """The last build's plans, for the other game on the same cells (only ``T`` differs); handed out once: large."""
 
     def __init__(self):
         self._key, self._plans = None, None
@@ -56,8 +49,7 @@ def cell_boxes(cells: Any, flat: np.ndarray | None = None) -> tuple[np.ndarray, 
 
 
 def solve(cls: type, lookahead: Any, key: dict[str, Any]) -> Any:
-    """The certificate of the game ``key`` (:func:`~softreach.reach.proof.cell_certificate.cell_key`) for the
-    look-ahead's model, period, ``h_eps`` and candidates; ``cls``: the certificate class."""
+    """The certificate (a ``cls``) of the game ``key`` (:func:`~softreach.reach.proof.cell_certificate.cell_key`)."""
     la, model = lookahead, lookahead.model
     shape, holds, dz, game, span_cap = tuple(key["shape"]), tuple(key["holds"]), key["dz"], key["game"], key["span_cap"]
     dt, T = la.dt, la.horizon
@@ -73,13 +65,12 @@ def solve(cls: type, lookahead: Any, key: dict[str, Any]) -> Any:
     m[N] = terminal(cells, la, cell_lo, cell_hi)
     plans = None
     K_max = max(holds)
-    # minutes for a fine 3-d grid (the glider's): a bar on a terminal, nothing in logs (disable=None)
+    # a bar on a terminal, nothing in logs (disable=None)
     bar = tqdm(total=N + len(la.candidates), desc=f"{model.name} {game} cells", unit="step", disable=None,
                leave=False)
     for k in range(N - 1, -1, -1):
         if k + K_max + 1 <= N and all(np.array_equal(m[k + 1], m[k + 1 + d]) for d in range(1, K_max + 1)):
-            # the recursion reads the next K_max columns with the same plans; they agree, so every earlier one is
-            # the same
+            # the recursion reads the next K_max columns; they agree, so every earlier one is the same
             m[:k + 1], action[:k + 1], hold[:k + 1] = m[k + 1], action[k + 1], hold[k + 1]
             break
         if plans is None:
@@ -116,9 +107,7 @@ def all_plan_steps(cells: Any, la: Any, lo: np.ndarray, hi: np.ndarray, holds: t
 
 def backward_step(cells: Any, plans: list, m: np.ndarray, k: int, N: int, C: int
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One step of the recursion: the least good budget index at sample ``k`` of the ``C`` cells the plan steps
-    start from, and its plan (the first plan step with that index), from the later samples of ``m``
-    (``(N + 1, all cells)``)."""
+    """One step of the recursion: at sample ``k``, from ``m``'s later ones, each cell's least good index and plan."""
     never = cells.never
     best = np.full(C, never, np.int64)
     action = np.full(C, -1, np.int8)
@@ -143,8 +132,8 @@ def backward_step(cells: Any, plans: list, m: np.ndarray, k: int, N: int, C: int
 
 @njit(nogil=True)
 def cell_ranges(shape, clo, chi, width, lo, hi, first, last, on):
-    """Per row and axis the first and last cell the box ``[lo, hi]`` touches (closed cells, :func:`~softreach.reach.
-    proof.kernels.cell_span`, the filter's cover test's), and whether it lies on the grid."""
+    """Per row and axis the first and last cell the box ``[lo, hi]`` touches (closed cells, as the filter's
+    :func:`~softreach.reach.proof.kernels.cell_span`), and whether it lies on the grid."""
     for i in range(lo.shape[0]):
         on[i] = True
         for a in range(len(shape)):
@@ -155,8 +144,7 @@ def cell_ranges(shape, clo, chi, width, lo, hi, first, last, on):
 
 @njit(inline="always")
 def budget_index(spend, needed, dz, never):
-    """The lowest budget index ``j`` with ``j dz - spend >= needed dz``: the start budgets whose lowest end budget
-    still lies in a good cell of index ``needed``; ``never`` where no budget does (or the spend is not finite)."""
+    """The lowest budget index ``j`` with ``j dz - spend >= needed dz``, else (or for a spend not finite) ``never``."""
     if not math.isfinite(spend):
         return never
     j = np.int64(math.ceil(min(spend / dz + needed - 1e-12, float(never))))
@@ -175,9 +163,8 @@ def budget_indices(spend, needed, dz, never, out):
 
 @njit(nogil=True)
 def plan_needs(m_next, shape, first, last, spend, dz, never, out):
-    """For every row of a plan step: the budget index its start needs (:func:`budget_index`) to reach, after
-    spending ``spend[i]``, the cells ``first[i] .. last[i]`` (per axis, inclusive) at the largest of their least
-    good budget indices ``m_next`` (flat, the last axis fastest)."""
+    """Per row: the start budget index (:func:`budget_index`) that, after ``spend[i]``, reaches the cells
+    ``first[i] .. last[i]`` (inclusive) at the largest of their indices in ``m_next`` (flat, the last axis fastest)."""
     d = len(shape)
     idx = np.empty(d, np.int64)
     for i in range(first.shape[0]):
@@ -189,7 +176,6 @@ def plan_needs(m_next, shape, first, last, spend, dz, never, out):
             for a in range(d):
                 flat = flat * shape[a] + idx[a]
             worst = max(worst, np.int64(m_next[flat]))
-            # the next cell of the range, the last axis fastest
             a = d - 1
             while a >= 0 and idx[a] == last[i, a]:
                 idx[a] = first[i, a]
@@ -201,9 +187,7 @@ def plan_needs(m_next, shape, first, last, spend, dz, never, out):
 
 
 def recheck(cells: Any, lookahead: Any, flat: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The recursion asked again of a stored certificate at the cells ``flat`` (flat indices): ``(m, action,
-    hold)``, each ``(N + 1, len(flat))``, at every sample from the certificate's own later samples, and at ``T``
-    from the game. Where they equal the stored ones at every cell, the certificate is the one the solve gives.
+    """The recursion asked again at the cells ``flat``, each sample from the stored later ones: ``(m, action, hold)``.
 
     :raises ValueError: the look-ahead is not the one the certificate was built for
     """
@@ -228,14 +212,9 @@ def recheck(cells: Any, lookahead: Any, flat: Any) -> tuple[np.ndarray, np.ndarr
 
 def plan_steps(cells: Any, bounds: tuple, lo: np.ndarray, hi: np.ndarray, a: np.ndarray, holds: tuple,
                span_cap: int) -> list:
-    """One candidate held from every cell for ``max(holds)`` periods, the boxes chained, each period bounded by
-    :func:`~softreach.reach.proof.period.period_rows` (the filter's own bounds): per plan length ``K`` in ``holds``,
-    whether every period so far keeps ``C1``, the budget bound, the cells the end box touches (and whether they
-    are few enough to use), and whether every run surely lands by then. The same at every sample time: the compiled
-    enclosure and set maxima have no time argument.
-
-    :param bounds: ``(enclosure's address, Motion)`` of the look-ahead (:func:`~softreach.reach.proof.period.motion`)
-    """
+    """Candidate ``a`` held from every cell, each period bounded by :func:`~softreach.reach.proof.period.period_rows`:
+    per ``K`` in ``holds``, the rows that keep ``C1`` and end in at most ``span_cap`` grid cells, their spend and end
+    cells, and the rows that surely land; the same at every sample, as the compiled bounds take no time."""
     enclose, M = bounds
     C, n = lo.shape
     acts = np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64), (C, len(a))))

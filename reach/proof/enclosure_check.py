@@ -1,34 +1,20 @@
 """What the safety filter's proof takes from a model, checked before any long work: that the model gives it
 (:func:`require_filter_extras`) and that its held-period enclosure holds the simulated motion (:func:`check_enclosure`).
 
-Every certificate the filter states (the one-period test of :class:`~softreach.reach.proof.lookahead.Lookahead`, the
-cells of :mod:`~softreach.reach.proof.cell_certificate`, the compiled decision) is sound only if the model's boxes hold
-every motion of a held period: its compiled :attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel` over
-sub-intervals ``[s0, s1]`` of the period, from boxes of starts and from points, from which every enclosure the filter
-reads is derived. Nothing in the proof compares them with the model's ``f``. :func:`check_enclosure` does, by
-simulation:
+The proof trusts the boxes of the model's :attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel` to hold
+every motion of a held period and never compares them with ``f``; :func:`check_enclosure` does, on sampled runs:
 
-* starts uniform over ``C1`` (the model's ``hard_box``, its ``domain`` where ``C1`` is unbounded), some on a face
-  or a corner of it, each the corner or an inner point of a start box up to ``box_cells`` cells wide;
-* held actions at the corners of the control box, among the held candidates, and uniform inside it;
-* piecewise-constant winds with ``switches`` switches at uniform random instants inside the period, each piece at
-  a corner of the disturbance box or uniform inside it, and constant extreme winds (which reach the bounds of an
-  exact enclosure such as the point mass's);
-* the model's own ``f``, integrated by RK4 with ``steps`` (and ``2 steps``) equal steps between consecutive
-  breakpoints: the wind's switches, and every instant a claim starts or ends (the pieces of the period, the
-  landing test's check instants ``dt j / checks`` and the pieces of those shorter periods), so RK4 only ever
-  crosses smooth motion.
+* starts uniform over ``C1`` (``domain`` where unbounded), some on a face or corner, each a corner or inner point of
+  a start box up to ``box_cells`` cells wide; actions at the control box's corners, held candidates, and uniform;
+* winds with ``switches`` random switches, each piece at a corner of the disturbance box or uniform, and constant
+  extreme winds (which reach an exact enclosure's bounds);
+* ``f`` integrated by RK4 with ``steps`` and ``2 steps`` equal steps between breakpoints (the switches and every
+  instant a claim starts or ends), so RK4 crosses only smooth motion.
 
-A simulated state at time ``s`` must lie in every box that claims ``s``, within an **allowance** per run and
-coordinate: the largest difference between the ``steps`` and the ``2 steps`` runs at the breakpoints (RK4's error
-falls 16-fold when the step halves, so the finer run's error is about a fifteenth of that difference), plus
-``(steps taken + 8) eps`` times the largest magnitude the coordinate takes (each RK4 step adds one increment,
-which rounds by at most half an ulp of that magnitude, ``eps`` leaving as much again for the increment's own
-roundings; the model's bound is a few operations on numbers of that size: 8 more).
-A run outside a box by more than the allowance refutes the enclosure: :class:`EnclosureError` names the claim, the
-start, the action, the wind and the coordinate. Passing is evidence, not proof: the samples are finite, the nodes
-are instants, and the runs start at ``t = 0`` (a model whose motion depends on ``t`` is checked there only).
-"""
+A state at time ``s`` must lie in every box claiming ``s`` within an **allowance** per run and coordinate: the two
+runs' largest difference at the breakpoints (RK4's error falls 16-fold as the step halves), plus ``(steps taken + 8)``
+``eps`` times the coordinate's largest magnitude (an ulp per RK4 increment, 8 for the model's bound). Passing is
+evidence, not proof: the samples are finite, the nodes instants, and runs start at ``t = 0``."""
 
 from __future__ import annotations
 
@@ -52,8 +38,7 @@ class EnclosureCheck:
     :param switches: wind switches inside the period per run
     :param steps: RK4 steps between consecutive breakpoints in the coarser run (the finer takes twice as many)
     :param box_cells: start boxes are up to this many cells wide along each axis (a quarter are points)
-    :param face_share: the share of starts put on a face of ``C1`` (a tenth of those on a corner)
-    :param constant_share: the share of runs with one extreme wind for the whole period
+    :param face_share, constant_share: the shares of starts on a face of ``C1`` and of runs with one extreme wind
     :param seed: the random generator's seed: the check is deterministic
     """
 
@@ -79,23 +64,17 @@ class EnclosureCheck:
 
 
 class EnclosureError(ValueError):
-    """A simulated run left the box the model's enclosure claims for it, or the model lacks what the filter needs.
-
-    :attr:`run` (``None`` for a missing method) holds the run: ``claim``, ``period``, ``box_lo``, ``box_hi``
-    (the start box), ``start``, ``action``, ``wind`` (the values), ``until`` (the instant each value ends),
-    ``s``, ``axis``, ``value``, ``side`` (the box side it crossed)."""
+    """A simulated run left the box the model's enclosure claims, or the model lacks what the filter needs. :attr:`run`
+    (``None`` for a missing method): ``claim``, ``period``, ``box_lo``, ``box_hi``, ``start``, ``action``, ``wind``,
+    ``until`` (each wind value's end), ``s``, ``axis``, ``value``, ``side`` (the box side crossed)."""
 
     def __init__(self, message: str, run: dict[str, Any] | None = None):
         super().__init__(message)
         self.run = run
 
 
-# ---------------------------------------------------------------------------------------------- the extras
 def missing_extras(model: Any, cells: bool) -> list[str]:
-    """What the filter's proof needs of ``model`` that it does not give (empty: nothing missing).
-
-    :param cells: the proof on cells is asked for (they tile ``hard_box``)
-    """
+    """What the filter's proof needs of ``model`` that it does not give (with ``cells``, the ``hard_box`` they tile)."""
     out = []
     if getattr(model, "held_box_kernel", None) is None:
         out.append("held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi) with held_box_params: a compiled function "
@@ -119,7 +98,6 @@ def require_filter_extras(model: Any, job: str, cells: bool) -> None:
             f"filter reads from the kernel, as the cart of docs/models.md shows; see {DOCS}")
 
 
-# ---------------------------------------------------------------------------------------------- sampling
 def _region(model: Any) -> tuple[np.ndarray, np.ndarray]:
     """``C1``'s box, the model's domain along the sides ``C1`` leaves unbounded."""
     lo, hi = (np.asarray(v, dtype=np.float64) for v in model.domain)
@@ -169,7 +147,6 @@ def _samples(model: Any, dt: float, cell_width: np.ndarray, s: EnclosureCheck, r
     return b_lo, b_hi, x0, a, tau, wind
 
 
-# ---------------------------------------------------------------------------------------------- simulation
 def _field(model: Any, t: Any, x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The model's ``f`` on rows, stacked ``(N, n)``."""
     out = model.f(t, [x[:, i] for i in range(x.shape[1])], [a[:, i] for i in range(a.shape[1])],
@@ -179,9 +156,7 @@ def _field(model: Any, t: Any, x: np.ndarray, a: np.ndarray, b: np.ndarray) -> n
 
 def _simulate(model: Any, t0: float, x0: np.ndarray, a: np.ndarray, breaks: np.ndarray, wind: np.ndarray,
               steps: int) -> tuple[np.ndarray, np.ndarray]:
-    """RK4 with ``steps`` equal steps between consecutive ``breaks`` (``(N, B)``), the wind ``wind[:, q]`` constant
-    on the ``q``-th gap: the times ``(N, M)`` and states ``(N, M, n)`` of every node, ``M = 1 + (B - 1) steps``
-    (the breakpoints exactly at their own times)."""
+    """RK4 with ``steps`` equal steps between ``breaks``, ``wind[:, q]`` on gap ``q``: every node's times and states."""
     N, B = breaks.shape
     xs, ts = [x0], [breaks[:, 0]]
     x = x0
@@ -203,17 +178,14 @@ def _simulate(model: Any, t0: float, x0: np.ndarray, a: np.ndarray, breaks: np.n
     return np.stack(ts, axis=1), np.stack(xs, axis=1)
 
 
-# ---------------------------------------------------------------------------------------------- the claims
 def _durations(dt: float, checks: int) -> list[float]:
-    """The periods the filter bounds: the landing test's check instants, ``dt`` last (as
-    :attr:`~softreach.reach.proof.period.Motion.check_edges` ends them)."""
+    """The periods the filter bounds: the landing test's check instants, ``dt`` last (as in ``Motion.check_edges``)."""
     return [dt * j / checks for j in range(1, checks + 1)]
 
 
 def _claims(model: Any, b_lo: np.ndarray, b_hi: np.ndarray, x0: np.ndarray, a: np.ndarray, dt: float,
             pieces: int, checks: int) -> list[tuple[str, float, float, float, bool, Any]]:
-    """Every box the filter may read for these runs, from the model's ``held_box_kernel`` over the start boxes and
-    from the start points: ``(name, period, s0, s1, from_box, (lo, hi))``."""
+    """Every box the filter may read for these runs: ``(name, period, s0, s1, from_box, (lo, hi))``."""
     from .model_kernels import held_boxes
 
     out = []
@@ -227,18 +199,14 @@ def _claims(model: Any, b_lo: np.ndarray, b_hi: np.ndarray, x0: np.ndarray, a: n
     return out
 
 
-# ---------------------------------------------------------------------------------------------- the check
 def check_enclosure(model: Any, dt: float, pieces: int = 4, checks: int = 1, cell_width: Any = None,
                     settings: EnclosureCheck = EnclosureCheck()) -> dict[str, Any]:
     """Compare the model's held-period enclosures with simulated runs (the module docstring).
 
     :param dt: the control period [s]
-    :param pieces: the pieces of a period the budget bound charges (:attr:`Lookahead.pieces`)
-    :param checks: the landing test's check instants per period (:attr:`Lookahead.target_checks`)
-    :param cell_width: the width of a cell per axis (start boxes are up to ``box_cells`` of them); ``None``: the
-        model's ``cell_shape`` over ``C1``, else its default grid's spacing
-    :return: ``{"runs", "claims", "tightest", "seconds"}``: ``tightest`` is the largest excess over a box found,
-        the allowance deducted (``<= 0``)
+    :param pieces, checks: the budget bound's pieces and the landing test's instants per period (as in the look-ahead)
+    :param cell_width: a cell's width per axis; ``None``: from the model's ``cell_shape``, else its ``default_shape``
+    :return: ``{"runs", "claims", "tightest", "seconds"}``; ``tightest``: the largest excess over a box less allowance
     :raises EnclosureError: a run outside a box, naming the claim, start, action, wind and coordinate
     """
     started = time.perf_counter()
@@ -271,7 +239,7 @@ def check_enclosure(model: Any, dt: float, pieces: int = 4, checks: int = 1, cel
     B, M, fine = breaks.shape[1], xs.shape[1], 2 * settings.steps
     difference = np.abs(xs[:, ::fine] - coarse[:, ::settings.steps]).max(axis=1)
     allowance = difference + (fine * (B - 1) + 8) * np.finfo(np.float64).eps * np.abs(xs).max(axis=1)
-    # the node of each fixed instant, and each row's extremes between consecutive fixed instants (end excluded)
+    # each fixed instant's node, and each row's extremes between consecutive fixed instants (end excluded)
     node = np.argsort(order, axis=1)[:, :F] * fine
     at = np.take_along_axis(xs, node[:, :, None], axis=1)
     flat = (node + M * np.arange(N)[:, None]).ravel()
@@ -333,15 +301,13 @@ def _refutation(model, name, D, from_box, b_lo, b_hi, x0, a, tau, wind, times, x
             f"({DOCS})"), run
 
 
-# ---------------------------------------------------------------------------------------------- the hook
 _PASSED: set[str] = set()
 
 
 def check_model_for_filter(model: Any, dt: float, job: str, pieces: int = 4, checks: int | None = None,
                            cells: bool = False, cell_width: Any = None, settings: EnclosureCheck | None = None) -> None:
-    """Before ``job`` (a held solve, a cell build) starts: :func:`require_filter_extras`, then
-    :func:`check_enclosure`. A check passed by the same class, parameters, period and settings in this process is
-    not repeated (a model that changes its enclosure another way than through these is checked once).
+    """:func:`require_filter_extras`, then :func:`check_enclosure`, before ``job`` starts; not repeated in a process
+    for the same class, parameters, period and settings (an enclosure changed another way is not checked again).
 
     :param checks: the landing test's check instants per period; ``None``: the model's ``substeps``
     :raises EnclosureError: what is missing, or the run that left a box

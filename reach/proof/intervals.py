@@ -1,6 +1,5 @@
-"""Outward rounding and interval bounds of cos and sin, compiled, for validated enclosures of a model's motion over
-one held control period (:mod:`softreach.reach.models.glider_enclosure`, :func:`softreach.reach.models.dubins.
-held_box_kernel`)."""
+"""Outward rounding and interval bounds of cos and sin, compiled, for validated enclosures
+(:mod:`softreach.reach.models.glider_enclosure`, :func:`softreach.reach.models.dubins.held_box_kernel`)."""
 
 from __future__ import annotations
 
@@ -10,10 +9,8 @@ import numpy as np
 
 from ..jit import njit
 
-# Intervals are ``(lo, hi)`` pairs of floats. Every result is widened outwards by a few units in
-# the last place: arithmetic rounds to nearest, so an unwidened end could sit up to half an ulp inside the true
-# range (and libm's sin/cos up to about one ulp), which would make the enclosure unsound by a rounding error.
-# 4 eps relative plus the smallest normal number covers either.
+# Intervals are ``(lo, hi)`` pairs, every end widened outwards: rounding to nearest (half an ulp) and libm's sin/cos
+# (about one ulp) could put an end inside the true range; 4 eps relative plus the smallest normal covers either.
 ROUND_REL = 4.0 * float(np.finfo(np.float64).eps)
 ROUND_ABS = float(np.finfo(np.float64).tiny)
 HALF_PI = 0.5 * math.pi  # rounds below the true pi/2, so "< HALF_PI" is inside the real open interval
@@ -21,25 +18,23 @@ HALF_PI = 0.5 * math.pi  # rounds below the true pi/2, so "< HALF_PI" is inside 
 
 @njit(inline="always")
 def down(v: float) -> float:
-    """``v`` moved outwards below by the rounding allowance (:data:`ROUND_REL`, :data:`ROUND_ABS`)."""
+    """``v`` moved down by the rounding allowance (:data:`ROUND_REL`, :data:`ROUND_ABS`)."""
     return v - (abs(v) * ROUND_REL + ROUND_ABS)
 
 
 @njit(inline="always")
 def up(v: float) -> float:
-    """``v`` moved outwards above by the rounding allowance."""
+    """``v`` moved up by the rounding allowance."""
     return v + (abs(v) * ROUND_REL + ROUND_ABS)
 
 
 @njit(inline="always")
 def cos_range(lo: float, hi: float) -> tuple[float, float]:
-    """cos over any interval ``[lo, hi]`` (a heading that may turn through several quadrants): the larger end
-    value, or 1 where the interval holds a multiple of ``2 pi``; the smaller, or -1 where it holds an odd multiple
+    """cos over any ``[lo, hi]``: the end values' range widened, and 1 (-1) where it holds an even (odd) multiple
     of ``pi``."""
     two_pi = 2.0 * math.pi
     c_lo, c_hi = math.cos(lo), math.cos(hi)
-    # the first multiple of 2 pi (and of 2 pi shifted by pi) at or above lo, compared with hi; widened by an ulp so
-    # that a peak on the interval's end is counted (the bound is then 1 or -1, never too tight)
+    # widened so that a peak on an end is counted (the bound is then 1 or -1, never too tight)
     has_peak = math.ceil(down(lo) / two_pi) * two_pi <= up(hi)
     has_trough = math.ceil(down(lo - math.pi) / two_pi) * two_pi + math.pi <= up(hi)
     top = 1.0 if has_peak else up(max(c_lo, c_hi))
@@ -49,6 +44,5 @@ def cos_range(lo: float, hi: float) -> tuple[float, float]:
 
 @njit(inline="always")
 def sin_range(lo: float, hi: float) -> tuple[float, float]:
-    """sin over any interval: ``sin(a) = cos(a - pi/2)`` (the shift widened by more than the rounding of ``pi/2``
-    and of the subtraction)."""
+    """sin over any interval as ``cos(a - pi/2)``, the shift widened beyond its rounding."""
     return cos_range(down(lo - HALF_PI) - 1e-15, up(hi - HALF_PI) + 1e-15)

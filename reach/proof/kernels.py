@@ -1,17 +1,11 @@
-"""Compiled loops behind the safety filter's per-decision mechanisms (numba, one row at a time).
+"""Compiled loops behind the safety filter's decisions, one row at a time, where numpy's fixed cost per call would
+dwarf the arithmetic: the interpolant's maximum over a box (:func:`softreach.reach.proof.box_max.box_max`), the
+certificate at a state, the cells' cover test and plans (:mod:`softreach.reach.proof.cell_certificate`).
 
-A filter decision asks a few hundred tiny questions of a table and of the cells; numpy answers each with a dozen
-calls whose fixed cost dwarfs the arithmetic, so they are compiled here, once each, and both the numpy-facing
-functions and the compiled decision (:mod:`softreach.filters.compiled`) call them: the interpolant's maximum over a
-box (:func:`softreach.reach.proof.box_max.box_max`; the certificate at a state is the same with a box of no width), the
-cells' cover test and plans (:class:`~softreach.reach.proof.cell_certificate.CellCertificate`); a model's own compiled
-functions are called through :mod:`softreach.reach.proof.model_kernels`. Compiled code is cached on disk
-(:mod:`softreach.reach.jit`): the first process on a machine compiles it (with the decision; docs/filters.md
-"Speed" gives the time), later ones load it. Small functions that are handed the filter's large tuples of arrays are inlined
-(``inline="always"``): such a call costs more than their work. The box maximum's lattice is inlined into the box
-maximum, which halves the certificate's cost at a point; the box maximum itself is not inlined into its callers,
-which would triple the first compilation. It and the cover test allocate nothing, so that the
-filter's decision runs them without numba's reference counting (``_nrt=False``, :mod:`softreach.filters.compiled`)."""
+Small functions handed the filter's large tuples are inlined (``inline="always"``): the call costs more than their
+work. The lattice is inlined into the box maximum for speed; the box maximum is not inlined into its callers,
+which would lengthen the first compilation. It and the cover test allocate nothing, so the compiled decision
+(:mod:`softreach.filters.compiled`) runs them without numba's reference counting (``_nrt=False``)."""
 
 from __future__ import annotations
 
@@ -21,17 +15,15 @@ import numpy as np
 
 from ..jit import njit
 
-#: tolerance of the grid checks, in cell units, and of the time-span checks, in seconds
-#: (:data:`softreach.reach.tables.interpolation.TOL`)
+#: tolerance of the grid checks [cells] and time-span checks [s] (:data:`softreach.reach.tables.interpolation.TOL`)
 TOL = 1e-9
-#: the table's box maximum reads boxes with at most this many nodes per axis exactly (:func:`box_max`'s default)
+#: the most nodes per axis of a box whose maximum is exact
 MAX_NODES = 3
 
 
 def frozen(a: np.ndarray) -> np.ndarray:
-    """A read-only view of ``a``. numba types an array by whether it is writable, and compiles a loop once per
-    type: the tables and cells reach the loops read-only, whether loaded (a read-only memory map) or made in this
-    process, so that each loop compiles once, not once per origin."""
+    """A read-only view of ``a``: numba compiles once per writability, so loaded (memory-mapped) and made arrays
+    both reach the loops read-only, and each loop compiles once."""
     view = np.asarray(a).view()
     view.flags.writeable = False
     return view
@@ -46,8 +38,7 @@ def snapshot(times, t):
         return 0, 0.0
     t_first, t_last = times[0], times[n_t - 1]
     if t_first <= t < t_last:
-        # the last snapshot at or before t (searchsorted's), found from where evenly spaced snapshots put it: a
-        # table's are, and the walk makes it exact for any others
+        # the last snapshot at or before t, guessed as if evenly spaced, the walk exact for any spacing
         k = min(int((t - t_first) / (t_last - t_first) * (n_t - 1)), n_t - 2)
         while times[k] > t:
             k -= 1
@@ -63,9 +54,8 @@ def snapshot(times, t):
 
 @njit(inline="always")
 def _blend(a, b, f):
-    """``(1 - f) a + f b``, the node of weight 0 left out: the same number for finite nodes, and an infinite node
-    (a budget surface's where no budget suffices, :func:`~softreach.reach.proof.lookahead.surface_fields`) counts
-    only where its weight is positive, not as the NaN of ``0 * inf``."""
+    """``(1 - f) a + f b``, a node of weight 0 left out: an infinite node (:func:`~softreach.reach.proof.lookahead.
+    surface_fields`) counts only where its weight is positive, not as the NaN of ``0 * inf``."""
     if f == 0.0:
         return a
     if f == 1.0:
@@ -75,8 +65,7 @@ def _blend(a, b, f):
 
 @njit(inline="always")
 def _node_offset(q, first, extent, shape, periodic):
-    """The flat index of the ``q``-th node (the last axis fastest) of the block of ``extent`` nodes from ``first``
-    along each axis: wrapped along a periodic axis, held at the grid's last node along another."""
+    """The flat index of the ``q``-th node (last axis fastest) of the block of ``extent`` nodes from ``first``."""
     off, stride = 0, 1
     for a in range(len(shape) - 1, -1, -1):
         node = first[a] + q % extent[a]
@@ -90,11 +79,9 @@ def _node_offset(q, first, extent, shape, periodic):
 @njit(inline="always")
 def _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first, count, buf_a, buf_b, coord_cell,
                  coord_frac, axes, contrib):
-    """The interpolant's largest value on the lattice of a box (along each axis ``a`` its two ends and the
-    ``count[a]`` nodes from ``first[a]`` between them; one coordinate where the box has no width), which holds every
-    corner of every sub-box the grid cuts the box into. The interpolant is multilinear, so the lattice values are
-    the block of nodes around the box (blended between the two snapshots) contracted axis by axis with each
-    coordinate's two linear weights."""
+    """The interpolant's largest value on a box's lattice (per axis its two ends and the ``count[a]`` nodes from
+    ``first[a]`` between them): every corner of the sub-boxes the grid cuts it into, where a multilinear maximum is.
+    The block of nodes, blended in time, is contracted axis by axis with each coordinate's linear weights."""
     D = len(shape)
     dims, base, span, idx = axes[0], axes[1], axes[2], axes[3]
     for a in range(D):
@@ -112,20 +99,20 @@ def _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first
                 coord_cell[a, p] = min(int(S), shape[a] - 2)
                 coord_frac[a, p] = S - coord_cell[a, p]
         if periodic[a]:
-            # the cells along the lattice, unwrapped: each at least the previous (the box may cross the seam)
+            # unwrapped: the box may cross the seam
             for p in range(1, L):
                 while coord_cell[a, p] < coord_cell[a, p - 1]:
                     coord_cell[a, p] += shape[a]
         base[a] = coord_cell[a, 0]
         dims[a] = coord_cell[a, L - 1] + 2 - base[a]
-        # each block node's share of the flat index along this axis: wrapped, or held at the grid's last node
+        # each block node's share of the flat index along this axis
         stride = 1
         for b in range(a + 1, D):
             stride *= shape[b]
         for j in range(dims[a]):
             node = base[a] + j
             contrib[a, j] = (node % shape[a] if periodic[a] else min(node, shape[a] - 1)) * stride
-    # the block of nodes (the last axis fastest), blended in time; the flat index kept as a running sum
+    # the block of nodes blended in time, the flat index kept as a running sum
     size = 1
     off = 0
     for a in range(D):
@@ -145,7 +132,7 @@ def _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first
             idx[a] = 0
             off += contrib[a, 0]
             a -= 1
-    # contract axis by axis: each lattice coordinate reads its cell's two nodes
+    # contract axis by axis
     src, dst = buf_a, buf_b
     for a in range(D):
         outer = 1
@@ -180,9 +167,7 @@ def _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first
 
 @njit
 def box_scratch(D, max_nodes):
-    """Work space of :func:`box_max_row` for ``D`` axes: a block of at most ``max_nodes + 3`` nodes per axis, and
-    each axis' lattice coordinates located, the block's extent and each node's share of the flat index, and a
-    point's block of nodes (:func:`point_value`)."""
+    """Work space of :func:`box_max_row` (and :func:`point_value`) for ``D`` axes."""
     return (np.empty(D, np.int64), np.empty(D, np.int64), np.empty((max_nodes + 3) ** D),
             np.empty((max_nodes + 3) ** D), np.empty((D, max_nodes + 2), np.int64), np.empty((D, max_nodes + 2)),
             np.empty((4, D), np.int64), np.empty((D, max_nodes + 3), np.int64), np.empty(1 << D, np.int64))
@@ -190,13 +175,8 @@ def box_scratch(D, max_nodes):
 
 @njit(_nrt=False)
 def box_max_row(field, t, lo, hi, max_nodes, scratch):
-    """The interpolant's maximum over the box ``[lo, hi]`` at time ``t``: exact where the box holds at most
-    ``max_nodes`` nodes along every axis, else the largest node value of the cells it touches at both snapshots
-    around ``t``; ``+inf`` for a box off the grid (:func:`softreach.reach.proof.box_max.box_max`).
-
-    :param field: ``(flat, times, shape, glo, ghi, h, inv_h, periodic)`` (the module docstring)
-    :param scratch: :func:`box_scratch`
-    """
+    """The interpolant's maximum over ``[lo, hi]`` at time ``t`` (:func:`softreach.reach.proof.box_max.box_max`);
+    ``field`` as :func:`~softreach.reach.proof.box_max.kernel_field` makes it, ``scratch`` :func:`box_scratch`."""
     flat, times, shape, glo, ghi, h, inv_h, periodic = field
     first, count, buf_a, buf_b, coord_cell, coord_frac, axes, contrib, _ = scratch
     D = len(shape)
@@ -216,7 +196,7 @@ def box_max_row(field, t, lo, hi, max_nodes, scratch):
     if exact:
         return _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first, count, buf_a, buf_b,
                             coord_cell, coord_frac, axes, contrib)
-    # wide: the largest node of every cell the box touches, at both snapshots around t
+    # wide: the largest node of every cell the box touches, at both snapshots
     k2 = min(k + 1, len(times) - 1) if wt > 0.0 else k
     P = 1
     for a in range(D):
@@ -247,10 +227,8 @@ def box_max_rows(field, t, lo, hi, max_nodes, out):
 
 @njit(inline="always")
 def point_value(field, t, x, buf, node):
-    """The interpolant at the point ``x`` at time ``t``: :func:`box_max_row` of a box of no width (the same grid
-    check, the same arithmetic in the same order: each node blended in time, then the axes contracted from the
-    first), without its lattice and inlined, as the certificate at a state is asked on every row; ``+inf`` off the
-    grid. ``buf``, ``node``: work space of ``2 ** D`` floats and integers."""
+    """The interpolant at ``x`` at time ``t``: :func:`box_max_row` of a box of no width, the same arithmetic in the
+    same order, without the lattice and inlined, as it is asked on every row; ``+inf`` off the grid."""
     flat, times, shape, glo, ghi, h, inv_h, periodic = field
     D = len(shape)
     for a in range(D):
@@ -263,7 +241,7 @@ def point_value(field, t, x, buf, node):
     size = 1 << D
     for q in range(size):
         node[q] = 0
-    # the block's flat indices, the last axis fastest: each axis adds its lower or its upper node's share
+    # each axis adds its lower or its upper node's share of the flat indices
     stride = 1
     for a in range(D - 1, -1, -1):
         if periodic[a]:
@@ -296,19 +274,15 @@ def point_value(field, t, x, buf, node):
 
 @njit(inline="always")
 def usable_budget(z, z_top, z_left, t):
-    """The budget at which a table is read at time ``t``: ``z``, at most the budget grid's top ``z_top`` (``W_eps``
-    falls with the budget, so reading above it at the top is conservative) and at most the time left
-    ``z_left - t`` (``z_left`` the horizon for a budget surface, where no run spends more than the time left;
-    ``+inf`` for ``W_eps``, which changes nothing there)."""
+    """The budget at which a table is read: ``z``, at most ``z_top`` (conservative: ``W_eps`` falls with the
+    budget) and the time left ``z_left - t`` (``z_left`` the horizon of a budget surface, else ``+inf``)."""
     return min(z, z_top, max(z_left - t, 0.0))
 
 
 @njit(inline="always")
 def certificate_row(W, z_top, z_floor, z_left, V, has_V, t, x, z, point, scratch_W, scratch_V):
-    """``D(t, x, z) = min(V~(t, x), W~(t, x, min(z, z_top, z_left - t)))`` (:meth:`~softreach.reach.proof.lookahead.
-    Lookahead.certificate`; ``z_left`` the horizon where the budget a run can use is at most the time left,
-    :func:`usable_budget`, else ``+inf``); ``+inf`` off the grid or the time span, at a budget below the table's
-    (``W``) or a negative one (``V``), or where not finite."""
+    """``D(t, x, z) = min(V~(t, x), W~(t, x, z))``, ``W~`` read at :func:`usable_budget`; ``+inf`` off the grid or
+    time span, below the table's budget (``W``) or at a negative one (``V``), or where not finite."""
     times = W[1]
     if not (t >= times[0] - TOL and t <= times[-1] + TOL):
         return np.inf
@@ -338,8 +312,7 @@ def certificate_rows(W, z_top, z_floor, z_left, V, has_V, t, x, z, out):
 
 @njit
 def step_index(t, dt, steps, safe):
-    """The sample index whose cell game covers time ``t`` (:meth:`~softreach.reach.proof.cell_certificate.
-    CellCertificate.step_index`): ``floor(t / dt)`` for the safe game, ``ceil(t / dt)`` for the landing game."""
+    """The sample index whose cell game covers ``t``: ``floor(t / dt)`` for the safe game, else ``ceil``."""
     r = t / dt
     k = math.floor(r + 1e-9) if safe else math.ceil(r - 1e-9)
     return min(max(k, 0), steps)
@@ -372,15 +345,10 @@ def cell_span(lo, hi, clo, chi, width, n):
 
 @njit(inline="always")
 def cover_row(cells, t, lo, hi, z):
-    """Whether every cell the box ``[lo, hi]`` touches (closed cells; a box reaching the grid's upper end exactly
-    touches the last cell only) is good at sample time ``t`` with budget ``z``: on the grid, ``t`` not past the
-    horizon, and ``z``'s budget cell at least the largest lowest good budget index ``m`` of those cells. It
-    allocates nothing, so that the filter's kernels run without numba's reference counting (``_nrt=False``). The
-    cells are read as runs along the last axis (contiguous in ``m``), each run's start decoded from the other axes'
-    spans, which are computed again for each run (a box touches a few runs).
-
-    :param cells: :attr:`~softreach.reach.proof.cell_certificate.CellCertificate.kernel_args`
-    """
+    """Whether every (closed) cell the box ``[lo, hi]`` touches is good at sample time ``t`` with budget ``z``: on
+    the grid, ``t`` not past the horizon, ``z``'s budget cell at least each cell's lowest good index in ``m``. Cells
+    are read as runs along the last axis, the other axes' spans recomputed per run so that nothing is allocated
+    (``cells``: :attr:`~softreach.reach.proof.cell_certificate.CellCertificate.kernel_args`)."""
     m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
     D = len(shape)
     on = True
@@ -397,7 +365,7 @@ def cover_row(cells, t, lo, hi, z):
         return False
     k = step_index(t, dt, steps, safe)
     floor = budget_floor(z, dz, top)
-    # the first cell that needs more budget decides: a wide box need not read the rest
+    # the first cell that needs more budget decides
     for p in range(runs):
         rest = p
         off = 0
@@ -416,9 +384,8 @@ def cover_row(cells, t, lo, hi, z):
 
 @njit(inline="always")
 def plan_row(cells, action, hold, t, x):
-    """The stored plan of the cell holding ``x`` at sample time ``t``: ``(candidate index, periods to hold it)``,
-    ``(-1, 0)`` off the grid or where no budget suffices (:meth:`~softreach.reach.proof.cell_certificate.CellCertificate.
-    plan`; ``action``, ``hold`` its ``plan_args``)."""
+    """The plan ``(candidate index, periods)`` of the cell holding ``x`` at time ``t``; ``(-1, 0)`` off the grid or
+    where no budget suffices (:meth:`~softreach.reach.proof.cell_certificate.CellCertificate.plan`)."""
     m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
     off, stride = 0, 1
     for a in range(len(shape) - 1, -1, -1):

@@ -1,11 +1,6 @@
-"""A model's compiled functions as the safety filter calls them: its held-action enclosure
-(:attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel`) and its sets' largest values over boxes
-(:attr:`~softreach.reach.problem.Model.set_max_kernel`), each called through the address of a C callback, and the
-set-maximum kernel of a model whose sets are box distances.
-
-Compiled code that takes a model's function as an argument is compiled again in every process (numba keys its
-disk cache by the function's identity), so the function is handed over as the address of a C callback instead,
-and called through it: one cached compilation serves every model."""
+"""A model's compiled enclosure and set maxima as the safety filter calls them, through a C callback's address
+(:func:`held_box_address`, :func:`set_max_address`): numba keys its disk cache by a function argument's identity, so
+an argument would compile again in every process. Also the set-maximum kernel of box-distance sets."""
 
 from __future__ import annotations
 
@@ -22,7 +17,7 @@ from .blocks import default_threads, run_in_blocks
 from ..jit import njit
 
 _P = types.CPointer(types.float64)
-#: the fewest rows an enclosure thread takes: a row costs 0.1 to 0.5 us, handing a block to a thread about 50 us
+#: the fewest rows an enclosure thread takes: enough that a row's cost outweighs handing a block to a thread
 ENCLOSE_MIN_ROWS = 4096
 #: the C signature of :func:`held_box_address`'s callbacks: ``(params, x_lo, x_hi, a, s0, s1, lo, hi)``
 HELD_BOX_SIGNATURE = types.void(_P, _P, _P, _P, types.float64, types.float64, _P, _P)
@@ -30,8 +25,7 @@ _CALLBACKS: dict[Any, Any] = {}
 
 
 def held_box_address(model: Any) -> int:
-    """The address of a C callback running ``model.held_box_kernel`` (:attr:`~softreach.reach.dynamics.Dynamics.
-    held_box_kernel`) for :func:`call_held_box`; built once per kernel and dimensions (a fraction of a second)."""
+    """The address of a C callback running ``model.held_box_kernel`` for :func:`call_held_box` (built once)."""
     kernel, n, m, k = model.held_box_kernel, model.state_dim, model.control_dim, len(model.held_box_params)
     key = (kernel, n, m, k)
     if key not in _CALLBACKS:
@@ -45,8 +39,7 @@ def held_box_address(model: Any) -> int:
 
 
 def _call_by_address(returns: Any):
-    """Code that calls the C function at the first argument's address with the others, arrays as their data
-    pointers, returning ``returns`` (``None``: nothing)."""
+    """Code calling the C function at the first argument's address with the others (arrays as data pointers)."""
     def codegen(context, builder, signature, args):
         values = []
         for ty, val in zip(signature.args[1:], args[1:]):
@@ -62,26 +55,20 @@ def _call_by_address(returns: Any):
 
 @intrinsic
 def call_held_box(typingctx, address, params, x_lo, x_hi, a, s0, s1, lo, hi):
-    """Call the callback at ``address`` (:func:`held_box_address`) on contiguous 1-d float64 arrays and two
-    times: the enclosure writes the box into ``lo`` and ``hi``."""
+    """Call the callback at ``address`` (:func:`held_box_address`) on contiguous 1-d arrays, filling ``lo``, ``hi``."""
     return types.void(address, params, x_lo, x_hi, a, s0, s1, lo, hi), _call_by_address(None)
 
 
 @njit(nogil=True)
 def held_box_rows(address, params, x_lo, x_hi, a, s0, s1, lo, hi):
-    """:func:`call_held_box` for every row (2-d C-contiguous arrays, and ``s0``, ``s1`` one time per row)."""
+    """:func:`call_held_box` for every row (2-d C-contiguous arrays; ``s0``, ``s1`` one time per row)."""
     for r in range(x_lo.shape[0]):
         call_held_box(address, params, x_lo[r], x_hi[r], a[r], s0[r], s1[r], lo[r], hi[r])
 
 
 def held_boxes(model: Any, x_lo: Any, x_hi: Any, a: Any, s0: Any, s1: Any) -> tuple[np.ndarray, np.ndarray]:
-    """The box of every state reachable at some time in ``[s0, s1]`` of a held period from ``[x_lo, x_hi]``, by the
-    model's :attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel`: what a model's numpy enclosure methods
-    return, on the same kernel as the filter's compiled decision. ``s0``, ``s1`` are floats, or arrays that
-    broadcast against the rows (``(P, 1)``: one box per piece and row).
-
-    :return: ``(lo, hi)``, each of the broadcast shape plus the state axis
-    """
+    """``(lo, hi)`` holding every state at some time in ``[s0, s1]`` of a held period from ``[x_lo, x_hi]``, by the
+    filter's own ``held_box_kernel``; ``s0``, ``s1`` broadcast against the rows (``(P, 1)``: per piece and row)."""
     n, m = model.state_dim, model.control_dim
     x_lo, x_hi, a = (np.asarray(v, dtype=np.float64) for v in (x_lo, x_hi, a))
     shape = np.broadcast_shapes(x_lo.shape[:-1], x_hi.shape[:-1], a.shape[:-1], np.shape(s0), np.shape(s1))
@@ -94,7 +81,7 @@ def held_boxes(model: Any, x_lo: Any, x_hi: Any, a: Any, s0: Any, s1: Any) -> tu
     address, params = held_box_address(model), np.ascontiguousarray(model.held_box_params, dtype=np.float64)
     args = (rows(x_lo, n), rows(x_hi, n), rows(a, m), rows(np.asarray(s0, dtype=np.float64)[..., None], 1)[:, 0],
             rows(np.asarray(s1, dtype=np.float64)[..., None], 1)[:, 0], lo, hi)
-    # the rows are independent and the loop releases the GIL: a large batch (a cell solve's) in blocks, one a thread
+    # the rows are independent and the loop releases the GIL: one block a thread
     run_in_blocks(lambda i, j: held_box_rows(address, params, *(v[i:j] for v in args)), size, default_threads(),
                   ENCLOSE_MIN_ROWS)
     return lo.reshape(shape + (n,)), hi.reshape(shape + (n,))
@@ -102,10 +89,8 @@ def held_boxes(model: Any, x_lo: Any, x_hi: Any, a: Any, s0: Any, s1: Any) -> tu
 
 def kernel_boxes(model: Any, method: str, x_lo: Any, x_hi: Any, a: Any, dt: Any, pieces: int | None = None
                  ) -> tuple[np.ndarray, ...]:
-    """What :class:`~softreach.reach.model_filter.FilterPart` derives from a model's ``held_box_kernel``, on checked
-    arguments (:func:`checked_rows`): with ``pieces=None`` ``(tube_lo, tube_hi, end_lo, end_hi)``, the boxes over
-    ``[0, dt]`` and ``[dt, dt]``; else ``(lo, hi)``, each ``(pieces, N, n)``, the boxes over each of ``pieces``
-    equal parts of the period."""
+    """:class:`~softreach.reach.model_filter.FilterPart`'s boxes on checked arguments: the tube over ``[0, dt]`` and
+    the end ``[dt, dt]``, ``(tube_lo, tube_hi, end_lo, end_hi)``; with ``pieces``, ``(lo, hi)`` over each equal part."""
     x_lo, x_hi, a, dt = checked_rows(model, method, x_lo, x_hi, a, dt)
     if pieces is None:
         return held_boxes(model, x_lo, x_hi, a, 0.0, dt) + held_boxes(model, x_lo, x_hi, a, dt, dt)
@@ -115,8 +100,7 @@ def kernel_boxes(model: Any, method: str, x_lo: Any, x_hi: Any, a: Any, dt: Any,
 
 def checked_rows(model: Any, method: str, x_lo: Any, x_hi: Any, a: Any, dt: Any
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """The arguments of ``model.method`` checked (shapes, a box's corners in order, the period, and the model's
-    ``validate_state`` / ``validate_control``), as float64 arrays with the controls ``(N, m)``.
+    """``model.method``'s arguments checked (shapes, corners, period, the model's validators), controls ``(N, m)``.
 
     :raises NotImplementedError: the model gives no ``held_box_kernel``
     :raises ValueError: naming the bad value
@@ -151,8 +135,7 @@ def checked_rows(model: Any, method: str, x_lo: Any, x_hi: Any, a: Any, dt: Any
 
 def refuse_unbounded_rows(model: Any, x: Any, a: Any, dt: float, boxes: tuple[np.ndarray, ...]
                           ) -> tuple[np.ndarray, ...]:
-    """``boxes`` (``held_enclosure``'s four) where every row is bounded; else ``ValueError`` naming the first row
-    with a NaN box (the kernel found none), which the look-ahead reads as not admissible."""
+    """``boxes`` if every row is bounded, else ``ValueError`` naming the first NaN row (look-ahead: not admissible)."""
     failed = ~(np.isfinite(boxes[0]).all(axis=1) & np.isfinite(boxes[2]).all(axis=1))
     if not failed.any():
         return boxes
@@ -164,9 +147,7 @@ def refuse_unbounded_rows(model: Any, x: Any, a: Any, dt: float, boxes: tuple[np
                      f"found no box for this period (too long for that state); shorten dt")
 
 
-# ---------------------------------------------------------------- a model's sets over boxes, compiled
-#: the index of each set function in a set-maximum kernel's ``which`` (:attr:`~softreach.reach.problem.Model.
-#: set_max_kernel`)
+#: the index of each set function in a set-maximum kernel's ``which``
 SET_INDEX = {"target": 0, "hard_constraint": 1, "soft_constraint": 2}
 #: the C signature of :func:`set_max_address`'s callbacks: ``(params, which, lo, hi) -> largest value``
 SET_MAX_SIGNATURE = types.float64(_P, types.int64, _P, _P)
@@ -174,11 +155,8 @@ SET_MAX_SIGNATURE = types.float64(_P, types.int64, _P, _P)
 
 @njit(inline="always")
 def box_distance_max(params, offset, lo, hi):
-    """The largest value over the box ``[lo, hi]`` of the box distance :func:`~softreach.reach.sets.box` whose
-    lower bounds, upper bounds and scales are ``params[offset:]`` (``n`` of each): per axis the larger of the
-    corners' terms over the scale, the largest over the axes (``-inf`` where every axis is unbounded; NaN where a
-    bounded axis of the box is NaN, an enclosure that failed). It is the largest value at the box's corners, to the
-    bit: each corner term is one of the same differences."""
+    """The largest value over ``[lo, hi]`` of :func:`~softreach.reach.sets.box` with bounds and scales from
+    ``params[offset:]``, exactly its largest at the corners; ``-inf`` if no axis is bounded, NaN for a failed box."""
     n = len(lo)
     out = -np.inf
     for a in range(n):
@@ -202,8 +180,7 @@ def boxes_set_max(params, which, lo, hi):
 
 
 def box_params(boxes: dict[str, Any], n: int) -> np.ndarray:
-    """:func:`boxes_set_max`'s numbers for ``{"target": (lo, hi[, scale]), ...}`` (the three sets of
-    :data:`SET_INDEX`; no scale: 1, which divides exactly)."""
+    """:func:`boxes_set_max`'s numbers for ``{"target": (lo, hi[, scale]), ...}``; scale 1 by default (exact)."""
     out = []
     for name in SET_INDEX:
         box = boxes[name]
@@ -216,8 +193,7 @@ def box_params(boxes: dict[str, Any], n: int) -> np.ndarray:
 
 
 def set_max_address(model: Any) -> int:
-    """The address of a C callback running ``model.set_max_kernel`` for :func:`call_set_max` (built once per
-    kernel and dimensions)."""
+    """The address of a C callback running ``model.set_max_kernel`` for :func:`call_set_max` (built once)."""
     kernel, n, k = model.set_max_kernel, model.state_dim, len(model.set_max_params)
     key = ("sets", kernel, n, k)
     if key not in _CALLBACKS:
@@ -231,8 +207,7 @@ def set_max_address(model: Any) -> int:
 
 @intrinsic
 def call_set_max(typingctx, address, params, which, lo, hi):
-    """Call the callback at ``address`` (:func:`set_max_address`): the largest value of set ``which`` over the
-    box ``[lo, hi]`` (contiguous 1-d float64 arrays)."""
+    """Call the callback at ``address`` (:func:`set_max_address`): set ``which``'s largest value over ``[lo, hi]``."""
     return types.float64(address, params, which, lo, hi), _call_by_address(types.float64)
 
 

@@ -1,13 +1,7 @@
 """One held period bounded, compiled: the box of its motion, the largest ``c1`` over it, the budget it may spend,
-and whether every run surely lands inside it (``docs/filters.md``, "The one-period test"; the module docstring of
-:mod:`softreach.reach.proof.lookahead` states the test). The one implementation of these bounds: the filter's
-decision (:mod:`softreach.filters.judge`) runs them for a state, the cells' builder
-(:mod:`softreach.reach.proof.cell_game`) for boxes of starts (:func:`period_rows`).
-
-Every box compared with a set or a cell holds the environment's own numbers, rounding included: it is widened by
-the allowance :attr:`Motion.slack` (:func:`~softreach.reach.proof.lookahead.state_allowance`), and a charge that may
-be positive gets :attr:`Motion.budget_slack` more (:func:`~softreach.reach.proof.lookahead.budget_allowance`).
-"""
+and whether every run surely lands inside it (the test: :mod:`softreach.reach.proof.lookahead`). The filter's
+decision (:mod:`softreach.filters.judge`) runs these for a state, the cells' builder
+(:mod:`softreach.reach.proof.cell_game`) for boxes of starts (:func:`period_rows`)."""
 
 from __future__ import annotations
 
@@ -26,39 +20,37 @@ _TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_I
 
 
 class Motion(NamedTuple):
-    """The model's side of the one-period test (:class:`~softreach.reach.proof.lookahead.Lookahead`'s numbers as
-    the compiled code reads them, :func:`motion`)."""
+    """The look-ahead's numbers as the compiled code reads them (:func:`motion`)."""
 
-    #: the model's ``held_box_params``: the parameters its compiled enclosure reads
+    #: the model's ``held_box_params``
     params: np.ndarray
     #: the ``h_eps`` width with which the environment drains the budget
     eps: float
     #: the parameters of the model's compiled set maxima
     set_params: Any
-    #: the address of the model's compiled set maxima (:func:`~softreach.reach.proof.model_kernels.call_set_max`)
+    #: the address of the model's compiled set maxima
     set_address: int
     #: the target box's lower and upper corners (``-inf`` / ``+inf`` where the model has none)
     target_lo: np.ndarray
     target_hi: np.ndarray
-    #: the instants ``0, dt / P, ..., dt`` that cut the period into the budget's ``P`` pieces: the last is ``dt``
+    #: the instants ``0, dt / P, ..., dt`` that cut the period into the budget's ``P`` pieces
     edges: np.ndarray
-    #: per landing check instant ``s`` (a row), the instants that cut ``[0, s]`` into the same number of pieces
+    #: per landing check instant ``s`` (a row), the instants that cut ``[0, s]`` into ``P`` pieces
     check_edges: np.ndarray
     #: the table's horizon ``T`` [s]
     horizon: float
-    #: the rounding allowance that widens every box compared with a set or a cell, per state axis
+    #: the rounding allowance per state axis (:func:`~softreach.reach.proof.lookahead.state_allowance`)
     slack: np.ndarray
     #: the environment's first check instant inside a period [s]
     first_check: float
-    #: the budget's rounding allowance, added to a positive charge
+    #: added to a positive charge (:func:`~softreach.reach.proof.lookahead.budget_allowance`)
     budget_slack: float
-    #: the environment computes as the test assumes (:attr:`Lookahead.exact_env`): the allowances apply
+    #: the allowances apply (:attr:`~softreach.reach.proof.lookahead.Lookahead.exact_env`)
     exact_env: bool
 
 
 def missing_kernels(model: Any) -> str | None:
-    """What the compiled bounds need that ``model`` does not give, in words naming what to add; ``None``:
-    nothing."""
+    """What the compiled bounds need that ``model`` does not give, in words; ``None``: nothing."""
     name = type(model).__name__
     if getattr(model, "held_box_kernel", None) is None:
         return (f"{name} gives no compiled held_box_kernel (with held_box_params): add one that bounds every state a "
@@ -67,8 +59,7 @@ def missing_kernels(model: Any) -> str | None:
     if getattr(model, "set_max_kernel", None) is None:
         return (f"{name} gives no compiled set maxima: declare set_boxes (box-distance sets) or add a set_max_kernel "
                 f"with set_max_params")
-    # a model's own set_box_max (sets not convex along each axis) must be what its own compiled kernel computes: the
-    # default kernel (box distances) does not know of it
+    # the default kernel (box distances) does not know of a model's own set_box_max
     n = model.state_dim
     if model.set_max_kernel is boxes_set_max and any(
             model.set_box_max(w, 0.0, np.zeros((1, n)), np.zeros((1, n))) is not None for w in SET_INDEX):
@@ -78,8 +69,7 @@ def missing_kernels(model: Any) -> str | None:
 
 
 def motion(la: Any) -> tuple[int, Motion]:
-    """The address of the model's compiled enclosure (:func:`~softreach.reach.proof.model_kernels.held_box_address`)
-    and the :class:`Motion` of the look-ahead ``la`` (:class:`~softreach.reach.proof.lookahead.Lookahead`).
+    """The address of the model's compiled enclosure and the :class:`Motion` of the look-ahead ``la``.
 
     :raises ValueError: the model lacks a compiled kernel (:func:`missing_kernels`)
     """
@@ -107,8 +97,7 @@ def period(M):
 
 @njit(inline="always")
 def widen(lo, hi, slack):
-    """The box ``[lo, hi]`` grown in place by the rounding allowance ``slack``: it then holds the environment's
-    states, not only the exact motion."""
+    """The box ``[lo, hi]`` grown in place by ``slack``, so that it holds the environment's states."""
     for i in range(len(lo)):
         lo[i] -= slack[i]
         hi[i] += slack[i]
@@ -122,25 +111,22 @@ def set_max(M, which, lo, hi):
 
 @njit(inline="always")
 def checked_c1(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
-    """The largest ``c1`` over the motion of ``length`` seconds: over the tube (the exact motion, from the start
-    on), and over the box of the states from the environment's first check instant on, widened: those are the
-    environment's own numbers where it checks ``C1``; the start is its own number and needs no allowance.
-    ``lo``, ``hi``: work space."""
+    """The largest ``c1`` over the motion of ``length`` seconds: over the exact tube, and over the widened box of
+    the states from the environment's first check instant on (the start is its own number, exact)."""
     c1 = set_max(M, _HARD, tube_lo, tube_hi)
     if not M.exact_env:  # no allowance: the tube alone
         return c1
     call_held_box(enclose, M.params, x_lo, x_hi, a, min(M.first_check, length), length, lo, hi)
     widen(lo, hi, M.slack)
     moved = set_max(M, _HARD, lo, hi)
-    # a NaN from either side
+    # a NaN from either side wins
     return moved if (moved > c1 or math.isnan(moved)) else c1
 
 
 @njit(inline="always")
 def may_spend(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
-    """Whether the environment's cost of the motion of ``length`` seconds may be positive: the tube, or the widened
-    box of the states from half the first sub-step on (the first stage states the environment computes), may leave
-    ``C2``. Elsewhere every rate it reads is 0, its cost exactly 0. ``lo``, ``hi``: work space."""
+    """Whether the environment's cost over ``length`` seconds may be positive: the tube, or the widened box from
+    half the first sub-step on (its first stage states), may leave ``C2``; else every rate it reads is 0."""
     if not set_max(M, _SOFT, tube_lo, tube_hi) <= 0:
         return True
     if not M.exact_env:  # no allowance: the tube alone
@@ -152,9 +138,8 @@ def may_spend(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
 
 @njit(inline="always")
 def spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
-    """The budget the motion over the pieces ``[edges[j], edges[j + 1]]`` may spend: each piece charged its share
-    of the length times the largest ``h_eps`` over its widened box (at a corner: ``c2`` is convex), the shares added
-    piece by piece, and the rounding allowance where the charge is positive."""
+    """The budget the motion over the pieces ``[edges[j], edges[j + 1]]`` may spend: each its share of the length
+    times the largest ``h_eps`` over its widened box, plus the rounding allowance where positive."""
     P = len(edges) - 1
     length = edges[P]
     out = 0.0
@@ -167,9 +152,8 @@ def spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
 
 @njit(inline="always")
 def enclose_period(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, end_lo, end_hi):
-    """The tube over ``[0, length]`` of the action ``a`` held from the box ``[x_lo, x_hi]`` and its end box, widened,
-    written into the arrays given: whether the tube is bounded (finite; the enclosure writes NaN where it finds no
-    box)."""
+    """Writes the tube over ``[0, length]`` of ``a`` held from ``[x_lo, x_hi]`` and its widened end box; returns
+    whether the tube is finite (the enclosure writes NaN where it finds no box)."""
     call_held_box(enclose, M.params, x_lo, x_hi, a, 0.0, length, tube_lo, tube_hi)
     call_held_box(enclose, M.params, x_lo, x_hi, a, length, length, end_lo, end_hi)
     widen(end_lo, end_hi, M.slack)
@@ -181,8 +165,7 @@ def enclose_period(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, end_lo, 
 
 @njit(inline="always")
 def c1_and_charge(enclose, M, x_lo, x_hi, a, edges, tube_lo, tube_hi, lo, hi):
-    """The largest ``c1`` over the motion until ``edges[-1]`` (:func:`checked_c1`) and the budget it spends
-    (:func:`spent` where it :func:`may_spend`, else 0) given its tube; ``lo``, ``hi``: work space."""
+    """:func:`checked_c1` until ``edges[-1]`` and the charge (:func:`spent` where it :func:`may_spend`, else 0)."""
     length = edges[len(edges) - 1]
     c1 = checked_c1(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi)
     charge = spent(enclose, M, x_lo, x_hi, a, edges, lo, hi) if may_spend(
@@ -201,12 +184,10 @@ def meets_target(M, tube_lo, tube_hi):
 
 @njit(_nrt=False)
 def lands(enclose, M, x_lo, x_hi, z, a, tube_lo, tube_hi, end_lo, end_hi, lo, hi):
-    """Whether every run of ``a`` held from the box surely lands at one of the environment's check instants ``s``
-    (:attr:`Motion.check_edges`): the widened box of the states at ``s`` lies in the target inside ``C2`` (every
-    corner: the target and ``c2`` are convex or monotone along each axis on such boxes), the motion until ``s`` kept
-    ``C1`` and the budget spent until ``s`` is at most ``z``. The episode ends at the first instant in the target,
-    so every run then ends landed at ``s`` at the latest, whatever the wind did. The arrays after ``a``: work
-    space."""
+    """Whether every run of ``a`` held from the box surely lands at a check instant ``s`` (:attr:`Motion.check_edges`):
+    the widened box at ``s`` lies in the target inside ``C2`` (maxima at corners: these sets are convex or monotone
+    along each axis), the motion until ``s`` keeps ``C1`` and spends at most ``z``. The episode ends at the first
+    instant in the target, so every run ends landed by ``s``."""
     for j in range(M.check_edges.shape[0]):
         edges = M.check_edges[j]
         s = edges[len(edges) - 1]
@@ -222,11 +203,9 @@ def lands(enclose, M, x_lo, x_hi, z, a, tube_lo, tube_hi, end_lo, end_hi, lo, hi
 
 @njit(nogil=True)
 def period_rows(enclose, M, x_lo, x_hi, a, ask, kept, charge, end_lo, end_hi, landed):
-    """The cells' builder's period for every row (2-d C-contiguous arrays): the action ``a[r]`` held for one period
-    from the box ``[x_lo[r], x_hi[r]]``. Writes ``kept`` (the tube is bounded and keeps ``C1``), ``charge`` (the
-    budget it may spend; ``+inf`` where no bound is a number), the widened end box, and, where ``ask[r]`` and the
-    period is kept, ``landed`` (every run surely lands inside it, with any budget: the plan's own bound is charged
-    for it by the builder; elsewhere ``False``)."""
+    """The cells' builder's period per row (2-d C-contiguous arrays): ``a[r]`` held from ``[x_lo[r], x_hi[r]]``.
+    Writes ``kept`` (bounded, keeps ``C1``), ``charge`` (``+inf`` for NaN), the widened end box, and ``landed``
+    where ``ask[r]`` and kept (surely lands with any budget; the builder charges the plan's own bound)."""
     n = x_lo.shape[1]
     tube_lo, tube_hi, lo, hi = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     w_lo, w_hi = np.empty(n), np.empty(n)
