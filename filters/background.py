@@ -17,16 +17,15 @@ ENV_SWITCH = "SOFTREACH_COMPILE_AHEAD"
 
 
 def compiled_functions() -> tuple:
-    """The filter's three compiled entry points: the decision, the certificate, the start-plan search."""
+    """The filter's compiled entry points: the decision (also a state's certificate) and the start-plan search."""
     from .compiled import decide_rows
-    from .compiled_certify import certify_rows
     from .compiled_starts import start_plan_rows
 
-    return decide_rows, certify_rows, start_plan_rows
+    return decide_rows, start_plan_rows
 
 
 def filter_code_cached() -> bool | None:
-    """Whether the compiled decision, certificate and start-plan search are in numba's on-disk cache (or already
+    """Whether the compiled decision and start-plan search are in numba's on-disk cache (or already
     compiled in this process): ``False`` when one must be compiled, ``None`` when the cache cannot be read."""
     try:
         # an index that numba loads for these sources (it reads an empty one where the sources changed)

@@ -24,7 +24,6 @@ from softreach.reach.proof.ranks import LOWEST_BAD, NEXT_CAP, PASSES_ONLY, RANK_
 
 from .compiled_args import (N_BOOL_J, N_FLOAT_J, N_FLOAT_N, N_FLOAT_N1, ActionMap, Cells, DecisionSpace, TableArgs,
                             named, packed_space, plain)
-from .compiled_certify import certify_rows
 from .compiled_starts import start_plan_rows
 from .judge import badness, judge, least_next, next_value, on_table
 from .plans import PLAN_LAND, PLAN_SAFE
@@ -180,10 +179,13 @@ def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, best, best_
 # _nrt=False here and in the kernels it calls: reference counting costs, and they allocate nothing (docs/filters.md)
 @njit(nogil=True, _nrt=False)
 def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterations, a_args, t, x, z, pol, plans,
-                has_plans, diagnostics, applied, reason, value, nxt, certified, chosen, blend, new_plans, space_args):
+                has_plans, diagnostics, with_policy, applied, reason, value, nxt, certified, chosen, blend, new_plans,
+                space_args):
     """The decision for every row (:meth:`ValueFilter.filter`): the ``"smooth"`` rule with ``iterations`` bisection
     steps where ``smooth``, else ``"switch"``; ``*_args`` as plain tuples (:mod:`softreach.filters.compiled_args`).
-    Without ``diagnostics`` the value at the state and a passing policy's next value (deciding nothing) are NaN."""
+    Without ``diagnostics`` the value at the state and a passing policy's next value (deciding nothing) are NaN.
+    Without ``with_policy`` only the candidates are judged: the certificate at a state (:meth:`CompiledDecision.
+    certify`)."""
     M, C, T, action = named(m_args, c_args, t_args, a_args)
     space = packed_space(space_args)
     N = x.shape[0]
@@ -199,7 +201,7 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
         passed, any_ok = False, False
         best, best_next, best_bad = 0, np.inf, np.inf
         lo, hi, mid = 0.0, 1.0, 0.0
-        for s in range(1 + J + (iterations if smooth else 0)):
+        for s in range(0 if with_policy else 1, 1 + J + (iterations if smooth else 0)):
             slot = s - 1 if 1 <= s <= J else J
             if s > J:
                 mid = 0.5 * (lo + hi)
@@ -301,9 +303,10 @@ class CompiledDecision:
         return missing
 
     def __call__(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, pol: np.ndarray, plans: np.ndarray | None,
-                 diagnostics: bool = True):
+                 diagnostics: bool = True, with_policy: bool = True):
         """``(applied, reason, value, next_value, certified, chosen, blend, new_plans)`` for ``N`` rows (physical
-        policy actions; ``plans`` the previous step's or ``None``; ``diagnostics`` as :func:`decide_rows`)."""
+        policy actions; ``plans`` the previous step's or ``None``; ``diagnostics``, ``with_policy`` as
+        :func:`decide_rows`, which then decides by the switch rule)."""
         N, m = len(x), self.cands.shape[1]
         applied, chosen = np.empty((N, m)), np.empty((N, m))
         reason, new_plans = np.empty(N, np.int64), np.empty((N, 3), np.int64)
@@ -317,7 +320,7 @@ class CompiledDecision:
         def run(lo: int, hi: int) -> None:
             # a block of rows; a whole batch goes unsliced (slicing costs about as much as deciding a row)
             self._decide(rows if hi - lo == N else tuple(v if v is self.no_plans else v[lo:hi] for v in rows),
-                         plans is not None, diagnostics)
+                         plans is not None, diagnostics, with_policy)
 
         # each thread in its own work space (decide_rows releases the GIL)
         run_in_blocks(run, N, self.filter.threads)
@@ -341,29 +344,20 @@ class CompiledDecision:
                      diagnostics)
         return rows[5:]
 
-    def _decide(self, rows: tuple, has_plans: bool, diagnostics: bool) -> None:
+    def _decide(self, rows: tuple, has_plans: bool, diagnostics: bool, with_policy: bool = True) -> None:
         """:func:`decide_rows` of ``rows`` (``t, x, z, pol, plans``, the outputs) in this thread's work space."""
         vf = self.filter
         M, C, T, action = self.args
-        decide_rows(self.enclose, M, C, T, self.cands, self.fallback, vf.rule == "smooth", vf.smooth_iterations,
-                    action, *rows[:5], has_plans, diagnostics, *rows[5:], self._space()[1])
+        decide_rows(self.enclose, M, C, T, self.cands, self.fallback, with_policy and vf.rule == "smooth",
+                    vf.smooth_iterations, action, *rows[:5], has_plans, diagnostics, with_policy, *rows[5:],
+                    self._space()[1])
 
     def certify(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple:
-        """:func:`~softreach.filters.compiled_certify.certify_rows` for ``N`` rows: ``(ok, next_value, value,
-        inside, in_cells)``."""
-        N = len(x)
-        ok, inside, in_cells = np.empty(N, bool), np.empty(N, bool), np.empty(N, bool)
-        nxt, value = np.empty(N), np.empty(N)
-        t, x, z = (_writable(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z))
-
-        M, C, T, _ = self.args
-
-        def run(lo: int, hi: int) -> None:
-            certify_rows(self.enclose, M, C, T, self.cands, t[lo:hi], x[lo:hi], z[lo:hi], ok[lo:hi], nxt[lo:hi],
-                         value[lo:hi], inside[lo:hi], in_cells[lo:hi], self._space()[1])
-
-        run_in_blocks(run, N, self.filter.threads)
-        return ok, nxt, value, inside, in_cells
+        """``(certified, next_value, value, inside)`` for ``N`` rows: the decision without a policy's action, whose
+        candidates the switch rule ranks; certified where one passes or the state's landing cell has a plan."""
+        pol = np.zeros((len(x), self.cands.shape[1]))
+        _, reason, value, nxt, certified, _, _, _ = self(t, x, z, pol, None, True, with_policy=False)
+        return certified, nxt, value, reason != OUTSIDE
 
     def start_plans(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int, second: np.ndarray,
                     segments: int) -> np.ndarray:

@@ -144,9 +144,7 @@ class ValueFilter:
         :return: ``(certified (N,), reasons, best next table value (N,))``; reasons from :data:`CERTIFY_REASONS`
         """
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
-        ok, nxt, value, inside, in_cells = self.compiled.certify(tt, xs, zz)
-        # a state in a landing cell has its cell's plan even where no single period ends in the cells
-        ok = ok | in_cells
+        ok, nxt, value, inside = self.compiled.certify(tt, xs, zz)
         after = tt >= self.lookahead.horizon - 1e-9
         reasons = []
         for i in range(len(xs)):

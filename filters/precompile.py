@@ -28,7 +28,6 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
 
     from . import ValueFilter
     from .compiled import decide_rows
-    from .compiled_certify import certify_rows
     from .compiled_starts import start_plan_rows
     from .plans import START_SEGMENTS
 
@@ -65,7 +64,7 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
     out["source"] = ("compiled" if sum(decide_rows.stats.cache_misses.values()) > misses else
                      "cache" if sum(decide_rows.stats.cache_hits.values()) > hits else "process")
     out["cache"] = decide_rows.stats.cache_path
-    if not (decide_rows.signatures and certify_rows.signatures and start_plan_rows.signatures):
+    if not (decide_rows.signatures and start_plan_rows.signatures):
         raise RuntimeError(f"{model.name}: the filter made a decision without its compiled code")
     return out
 

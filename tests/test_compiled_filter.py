@@ -311,7 +311,6 @@ def test_softreach_compile_leaves_the_decision_in_numbas_cache(pointmass_held_ta
     process finds it (``load_overload`` reads the cache files, not this process's code)."""
     from softreach.cli import main
     from softreach.filters.compiled import CompiledDecision, decide_rows
-    from softreach.filters.compiled_certify import certify_rows
     from softreach.filters.compiled_starts import start_plan_rows
 
     calls = []
@@ -325,6 +324,6 @@ def test_softreach_compile_leaves_the_decision_in_numbas_cache(pointmass_held_ta
     out = capsys.readouterr().out.splitlines()
     assert "pointmass's filter" in out[0] and str(decide_rows.stats.cache_path) in out[0]
     assert "dubins's filter" in out[1] and str(decide_rows.stats.cache_path) in out[1]
-    for kernel in (decide_rows, certify_rows, start_plan_rows):
+    for kernel in (decide_rows, start_plan_rows):
         assert kernel.signatures
         assert all(kernel._cache.load_overload(sig, kernel.targetctx) is not None for sig in kernel.signatures)

@@ -68,7 +68,7 @@ def test_no_source_writes_a_rank_offset_or_a_reason_code_of_its_own():
 
 def test_compiled_code_reads_its_arguments_by_name():
     positional = re.compile(r"\b(M|C|T|space|work|work_box|action)\[\d")
-    for name in ("compiled.py", "compiled_certify.py", "compiled_starts.py", "judge.py"):
+    for name in ("compiled.py", "compiled_starts.py", "judge.py"):
         code = _code(ROOT / "filters" / name)
         assert not positional.findall(code), (name, positional.findall(code))
 
