@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from ..sim.rk4 import rk4_rows
+
 #: where a model's author reads what the filter needs
 DOCS = "docs/models.md, '2. The motion bound the filter needs'"
 
@@ -147,13 +149,6 @@ def _samples(model: Any, dt: float, cell_width: np.ndarray, s: EnclosureCheck, r
     return b_lo, b_hi, x0, a, tau, wind
 
 
-def _field(model: Any, t: Any, x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The model's ``f`` on rows, stacked ``(N, n)``."""
-    out = model.f(t, [x[:, i] for i in range(x.shape[1])], [a[:, i] for i in range(a.shape[1])],
-                  [b[:, i] for i in range(b.shape[1])])
-    return np.stack([np.broadcast_to(np.asarray(o, dtype=np.float64), (len(x),)) for o in out], axis=1)
-
-
 def _simulate(model: Any, t0: float, x0: np.ndarray, a: np.ndarray, breaks: np.ndarray, wind: np.ndarray,
               steps: int) -> tuple[np.ndarray, np.ndarray]:
     """RK4 with ``steps`` equal steps between ``breaks``, ``wind[:, q]`` on gap ``q``: every node's times and states."""
@@ -166,13 +161,8 @@ def _simulate(model: Any, t0: float, x0: np.ndarray, a: np.ndarray, breaks: np.n
         b = wind[:, q]
         for i in range(steps):
             s = breaks[:, q] + i * h
-            tt = (t0 + s) if varying else t0
-            th = (t0 + s + 0.5 * h) if varying else t0
-            k1 = _field(model, tt, x, a, b)
-            k2 = _field(model, th, x + (0.5 * h)[:, None] * k1, a, b)
-            k3 = _field(model, th, x + (0.5 * h)[:, None] * k2, a, b)
-            k4 = _field(model, (t0 + s + h) if varying else t0, x + h[:, None] * k3, a, b)
-            x = x + (h / 6.0)[:, None] * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            tc, tm, te = (t0 + s, t0 + s + 0.5 * h, t0 + s + h) if varying else (t0, t0, t0)
+            x = rk4_rows(model.f, tc, tm, te, h, x, a, b)
             xs.append(x)
             ts.append(breaks[:, q + 1] if i == steps - 1 else s + h)
     return np.stack(ts, axis=1), np.stack(xs, axis=1)

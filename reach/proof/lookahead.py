@@ -24,6 +24,7 @@ from .box_max import kernel_field
 from ..numerics.grid import Grid
 from ..boxes import check_action_box
 from .kernels import certificate_rows
+from ..sim.rk4 import rk4_rows
 
 
 #: the fields that say how much budget suffices, in order of preference
@@ -77,14 +78,7 @@ def rk4_exact(model: Any, h: float, samples: int = 64) -> bool:
     M = 2.0 * np.maximum(*(np.abs(np.asarray(b, dtype=np.float64)) for b in model.domain))
 
     def step(x0: np.ndarray, a: np.ndarray, b: np.ndarray, dt: float) -> np.ndarray:
-        def f(y: np.ndarray) -> np.ndarray:
-            out = model.f(0.0, list(y.T), list(a.T), list(b.T))
-            return np.stack([np.broadcast_to(np.asarray(c, dtype=np.float64), (len(y),)) for c in out], axis=1)
-        k1 = f(x0)
-        k2 = f(x0 + 0.5 * dt * k1)
-        k3 = f(x0 + 0.5 * dt * k2)
-        k4 = f(x0 + dt * k3)
-        return x0 + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        return rk4_rows(model.f, 0.0, 0.0, 0.0, dt, x0, a, b)
 
     def levels(bounds: Any) -> list[np.ndarray]:
         b_lo, b_hi = (np.asarray(v, dtype=np.float64) for v in bounds)

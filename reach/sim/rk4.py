@@ -10,6 +10,8 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import numpy as np
+
 
 def rk4_step(f: Callable, tc: float, tm: float, te: float, hh: float, hs: float, h6: float, xc: Sequence[Any],
              a: Sequence[Any], b: Sequence[Any]) -> tuple[list[Any], list[Any], list[Any], list[Any]]:
@@ -43,6 +45,14 @@ def rk4_step(f: Callable, tc: float, tm: float, te: float, hh: float, hs: float,
     for i in each:
         xn[i] = xc[i] + h6 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
     return xn, x2, x3, x4
+
+
+def rk4_rows(f: Callable, tc: Any, tm: Any, te: Any, h: Any, x: np.ndarray, a: np.ndarray, b: np.ndarray
+             ) -> np.ndarray:
+    """:func:`rk4_step` on rows: ``x``, ``a``, ``b`` of shape ``(N, n)``, ``(N, m)``, ``(N, k)``, the step ``h`` (and the
+    times) floats or ``(N,)``; the ``(N, n)`` states at ``te``."""
+    out = rk4_step(f, tc, tm, te, 0.5 * h, h, h / 6.0, list(x.T), list(a.T), list(b.T))[0]
+    return np.stack([np.broadcast_to(np.asarray(c, dtype=np.float64), (len(x),)) for c in out], axis=1)
 
 
 def rk4_stages(f: Callable, t: float, x: Sequence[Any], a: Sequence[Any], b: Sequence[Any],
