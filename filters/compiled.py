@@ -19,7 +19,8 @@ from softreach.reach.proof.box_max import kernel_field
 from softreach.reach.jit import njit
 from softreach.reach.proof.kernels import MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row
 from softreach.reach.proof.lookahead import exact_normalized
-from softreach.reach.proof.period import missing_kernels, motion
+from softreach.reach.proof.enclosure_check import lacking
+from softreach.reach.proof.period import motion
 from softreach.reach.proof.ranks import LOWEST_BAD, NEXT_CAP, PASSES_ONLY, RANK_PROVEN, RANK_SAFE, SMOOTH_PASSES_ONLY
 
 from .compiled_args import (N_BOOL_J, N_FLOAT_J, N_FLOAT_N, N_FLOAT_N1, ActionMap, Cells, DecisionSpace, TableArgs,
@@ -294,13 +295,9 @@ class CompiledDecision:
 
     @staticmethod
     def missing(model: Any) -> str | None:
-        """What the decision needs that ``model`` does not give, naming what to add; ``None``: nothing."""
-        missing = missing_kernels(model)
-        if missing is None and getattr(model, "cell_shape", None) is None:
-            return (f"{type(model).__name__} declares no cell_shape: add the number of cells per state axis over "
-                    f"hard_box on which the filter proves what it certifies, as docs/models.md's cart does "
-                    f"(cell_shape = (320, 320))")
-        return missing
+        """What the decision needs that ``model`` does not give, naming what to add; ``None``: nothing
+        (:func:`~softreach.reach.proof.enclosure_check.lacking`)."""
+        return lacking(model)
 
     def __call__(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, pol: np.ndarray, plans: np.ndarray | None,
                  diagnostics: bool = True, with_policy: bool = True):

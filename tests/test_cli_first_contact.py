@@ -108,7 +108,7 @@ def test_compile_says_which_table_it_needs(tiny_table, capsys, monkeypatch):
     without_cells(monkeypatch)
     assert main(["compile", str(tiny_table)]) == 2
     err = _one_line_error(capsys)
-    assert "declares no cell_shape" in err and "docs/models.md" in err
+    assert "cell_shape = (cells per state axis" in err and "docs/models.md" in err
 
 
 @pytest.mark.parametrize("start,words", [
@@ -267,7 +267,7 @@ def test_train_refuses_a_filter_without_cells_and_warns_of_rounded_steps(tiny_ta
     assert train_notes(TrainSpec(timesteps=4096, n_envs=8)) == []
     # a model without cells has no certificate: refused before any training, naming what to add
     without_cells(monkeypatch)
-    with pytest.raises(ValueError, match="--filter .*declares no cell_shape"):
+    with pytest.raises(ValueError, match=r"--filter .*cell_shape = \(cells per state axis"):
         train_notes(TrainSpec(filter=str(tiny_table), timesteps=4096, n_envs=8))
 
 

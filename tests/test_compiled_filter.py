@@ -250,9 +250,9 @@ def test_a_model_without_an_enclosure_is_refused_first(dubins_held_table, monkey
         raise AssertionError("cells built for a model the filter refuses")
 
     monkeypatch.setattr(core, "resolve_cells", no_cells)
-    with pytest.raises(ValueError, match="model 'dubins': Dubins gives no compiled held_box_kernel") as err:
+    with pytest.raises(ValueError, match=r"model 'dubins': add to Dubins: held_box_kernel\(params") as err:
         ValueFilter(dubins_held_table, 0.1, model=model)
-    assert "\n" not in str(err.value) and "add one" in str(err.value)
+    assert "\n" not in str(err.value) and "docs/models.md" in str(err.value)
 
 
 def test_the_decisions_order_of_candidates_is_numpys_stable_argsort():

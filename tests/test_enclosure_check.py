@@ -218,6 +218,6 @@ def test_a_model_without_set_maxima_is_refused_before_the_held_solve(tmp_path, m
     monkeypatch.setattr(compute, "solve", _no_solve)
     cfg = SolveConfig(shape=(11, 11), budget_points=8, control_period=0.05,
                       settings=SolverSettings.from_accuracy("low", compile=False))
-    with pytest.raises(ValueError, match="gives no compiled set maxima: declare set_boxes"):
+    with pytest.raises(ValueError, match=r"add to the class: set_boxes \(box-distance sets\), or a set_max_kernel"):
         compute.solve_table(NoSetMaxima(), cfg, tmp_path / "cart.srt", progress=False)
     assert not list(tmp_path.iterdir())

@@ -50,7 +50,7 @@ def test_certified_starts_need_cells(pointmass_table_path, monkeypatch):
     assert ValueFilter(load_table(pointmass_table_path), 0.01).certify(0.0, starts, 0.3)[0].all()
     # a model without cells has no certificate: refused, naming what to add
     without_cells(monkeypatch)
-    with pytest.raises(ValueError, match="declares no cell_shape"):
+    with pytest.raises(ValueError, match=r"cell_shape = \(cells per state axis"):
         evaluate(spec)
 
 

@@ -155,17 +155,10 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
     kappa = cfg.budget_scale if cfg.budget_scale is not None else model.budget_scale
     held = cfg.control_period is not None
     if held:
-        # the filter's proof rests on the model's enclosure: refuse a model without one, or a wrong one, now
-        from softreach.filters.compiled import CompiledDecision
-
+        # a table of the sampled-data game is made for a filter: a model without what the filter needs (its cells
+        # included), or whose enclosure a simulation refutes, is refused now, not after the solve
         from ..proof.enclosure_check import check_model_for_filter
-        check_model_for_filter(model, cfg.control_period, "softreach solve --held", cells=model.cell_shape is not None)
-        # a table of the sampled-data game is made for a filter: a model the filter cannot decide for is refused
-        # now, not after the solve
-        lacking = CompiledDecision.missing(model)
-        if lacking is not None:
-            raise ValueError(f"softreach solve --held: the safety filter cannot decide for model {model.name!r}: "
-                             f"{lacking}")
+        check_model_for_filter(model, cfg.control_period, "softreach solve --held", cells=True)
         times = sample_times(model.horizon, cfg.control_period)
         controls = [list(a) for a in model.held_candidates(cfg.held_levels)]
     else:

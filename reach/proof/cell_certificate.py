@@ -111,8 +111,8 @@ class CellCertificate:
         N = int(round(T / dt))
         if not math.isclose(N * dt, T, rel_tol=1e-9):
             raise ValueError(f"the horizon {T} s is not a whole number of periods {dt} s")
-        # the cells rest on the model's enclosure: checked against simulated runs first
-        check_model_for_filter(model, dt, "building the filter's cells", la.pieces, la.target_checks, cells=True,
+        # the cells rest on the model's enclosure: checked against simulated runs first (hard_box is asked above)
+        check_model_for_filter(model, dt, "building the filter's cells", la.pieces, la.target_checks, cells=False,
                                cell_width=(np.asarray(model.hard_box[1]) - model.hard_box[0]) / np.asarray(shape))
         return cell_game.solve(cls, la, key)
 

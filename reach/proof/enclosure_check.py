@@ -75,16 +75,36 @@ class EnclosureError(ValueError):
         self.run = run
 
 
-def missing_extras(model: Any, cells: bool) -> list[str]:
-    """What the filter's proof needs of ``model`` that it does not give (with ``cells``, the ``hard_box`` they tile)."""
+def missing_extras(model: Any, cells: bool = True) -> list[str]:
+    """What the filter needs of ``model`` that it does not give, each naming what to add (with ``cells``, also what
+    the cells need); empty: nothing."""
+    from .model_kernels import SET_INDEX, boxes_set_max
+
     out = []
     if getattr(model, "held_box_kernel", None) is None:
         out.append("held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi) with held_box_params: a compiled function "
                    "writing into lo, hi a box that holds every state at some time in [s0, s1] of a period with the "
                    "action a held, from every start in [x_lo, x_hi], for every wind signal")
+    kernel, n = getattr(model, "set_max_kernel", None), model.state_dim
+    if kernel is None:
+        out.append("set_boxes (box-distance sets), or a set_max_kernel(params, which, lo, hi) with set_max_params: "
+                   "each set's largest value over a box, compiled")
+    # the default kernel knows box distances only, not a model's own set_box_max
+    elif kernel is boxes_set_max and any(model.set_box_max(w, 0.0, np.zeros((1, n)), np.zeros((1, n))) is not None
+                                         for w in SET_INDEX):
+        out.append("set_max_kernel(params, which, lo, hi) with set_max_params computing what set_box_max does")
     if cells and model.hard_box is None:
         out.append("hard_box = ((lo, ...), (hi, ...)): the box holding C1, which the cells tile")
+    if cells and getattr(model, "cell_shape", None) is None:
+        out.append("cell_shape = (cells per state axis over hard_box, ...): the cells on which the filter proves what "
+                   "it certifies (docs/models.md's cart: (320, 320))")
     return out
+
+
+def lacking(model: Any) -> str | None:
+    """What the safety filter needs that ``model`` lacks, in one line naming what to add; ``None``: nothing."""
+    missing = missing_extras(model)
+    return f"add to {type(model).__name__}: " + "; ".join(missing) + f" ({DOCS})" if missing else None
 
 
 def require_filter_extras(model: Any, job: str, cells: bool) -> None:
@@ -300,6 +320,7 @@ def check_model_for_filter(model: Any, dt: float, job: str, pieces: int = 4, che
     for the same class, parameters, period and settings (an enclosure changed another way is not checked again).
 
     :param checks: the landing test's check instants per period; ``None``: the model's ``substeps``
+    :param cells: also ask what the filter's own cells need (:func:`missing_extras`)
     :raises EnclosureError: what is missing, or the run that left a box
     """
     require_filter_extras(model, job, cells)
@@ -308,7 +329,7 @@ def check_model_for_filter(model: Any, dt: float, job: str, pieces: int = 4, che
     width = None if cell_width is None else [float(v) for v in np.ravel(cell_width)]
     key = json.dumps([type(model).__module__, type(model).__qualname__, id(type(model)), model.parameters(),
                       np.asarray(model.held_box_params, dtype=np.float64).tolist(), float(dt), int(pieces), checks,
-                      bool(cells), width, asdict(settings)], sort_keys=True, default=str)
+                      width, asdict(settings)], sort_keys=True, default=str)
     if key in _PASSED:
         return
     check_enclosure(model, dt, pieces, checks, cell_width, settings)

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..jit import njit
 from .kernels import frozen
-from .model_kernels import (SET_INDEX, boxes_set_max, call_held_box, call_set_max, held_box_address,
+from .model_kernels import (SET_INDEX, call_held_box, call_set_max, held_box_address,
                             set_max_address)
 
 # the sets' indices in the model's set-maximum kernel
@@ -49,34 +49,11 @@ class Motion(NamedTuple):
     exact_env: bool
 
 
-def missing_kernels(model: Any) -> str | None:
-    """What the compiled bounds need that ``model`` does not give, in words; ``None``: nothing."""
-    name = type(model).__name__
-    if getattr(model, "held_box_kernel", None) is None:
-        return (f"{name} gives no compiled held_box_kernel (with held_box_params): add one that bounds every state a "
-                f"held period reaches from a box of starts, as reach/models/pointmass.py and the cart of "
-                f"docs/models.md write it")
-    if getattr(model, "set_max_kernel", None) is None:
-        return (f"{name} gives no compiled set maxima: declare set_boxes (box-distance sets) or add a set_max_kernel "
-                f"with set_max_params")
-    # the default kernel (box distances) does not know of a model's own set_box_max
-    n = model.state_dim
-    if model.set_max_kernel is boxes_set_max and any(
-            model.set_box_max(w, 0.0, np.zeros((1, n)), np.zeros((1, n))) is not None for w in SET_INDEX):
-        return (f"{name} bounds its sets with set_box_max but gives no set_max_kernel computing the same: add one "
-                f"(with set_max_params)")
-    return None
-
-
 def motion(la: Any) -> tuple[int, Motion]:
     """The address of the model's compiled enclosure and the :class:`Motion` of the look-ahead ``la``.
 
-    :raises ValueError: the model lacks a compiled kernel (:func:`missing_kernels`)
     """
     model = la.model
-    missing = missing_kernels(model)
-    if missing is not None:
-        raise ValueError(f"the one-period bounds of model {model.name!r} are compiled: {missing}")
     tb = model.target_box
     t_lo, t_hi = ((np.full(la.n, -np.inf), np.full(la.n, np.inf)) if tb is None
                   else (np.asarray(tb[0], dtype=np.float64), np.asarray(tb[1], dtype=np.float64)))
