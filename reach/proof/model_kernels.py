@@ -87,66 +87,6 @@ def held_boxes(model: Any, x_lo: Any, x_hi: Any, a: Any, s0: Any, s1: Any) -> tu
     return lo.reshape(shape + (n,)), hi.reshape(shape + (n,))
 
 
-def kernel_boxes(model: Any, method: str, x_lo: Any, x_hi: Any, a: Any, dt: Any, pieces: int | None = None
-                 ) -> tuple[np.ndarray, ...]:
-    """:class:`~softreach.reach.model_filter.FilterPart`'s boxes on checked arguments: the tube over ``[0, dt]`` and
-    the end ``[dt, dt]``, ``(tube_lo, tube_hi, end_lo, end_hi)``; with ``pieces``, ``(lo, hi)`` over each equal part."""
-    x_lo, x_hi, a, dt = checked_rows(model, method, x_lo, x_hi, a, dt)
-    if pieces is None:
-        return held_boxes(model, x_lo, x_hi, a, 0.0, dt) + held_boxes(model, x_lo, x_hi, a, dt, dt)
-    edges = np.linspace(0.0, dt, int(pieces) + 1)[:, None]  # every piece at once: (pieces, 1) against N rows
-    return held_boxes(model, x_lo, x_hi, a, edges[:-1], edges[1:])
-
-
-def checked_rows(model: Any, method: str, x_lo: Any, x_hi: Any, a: Any, dt: Any
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """``model.method``'s arguments checked (shapes, corners, period, the model's validators), controls ``(N, m)``.
-
-    :raises NotImplementedError: the model gives no ``held_box_kernel``
-    :raises ValueError: naming the bad value
-    """
-    if model.held_box_kernel is None:
-        raise NotImplementedError(f"{model.name} gives no held_box_kernel, from which {method} is derived; the safety "
-                                  f"filter needs a validated bound of its motion over a held period")
-    n, m = model.state_dim, model.control_dim
-    x_lo, x_hi, a = (np.asarray(v, dtype=np.float64) for v in (x_lo, x_hi, a))
-    if x_lo.ndim != 2 or x_lo.shape[1] != n or x_hi.shape != x_lo.shape:
-        raise ValueError(f"{model.name}: states must have shape (N, {n}) ({', '.join(model.state_names)}), got "
-                         f"{x_lo.shape}" + (f" (upper corners {x_hi.shape})" if x_hi.shape != x_lo.shape else ""))
-    N = len(x_lo)
-    if a.shape != (N, m) and not (m == 1 and a.shape == (N,)):
-        raise ValueError(f"{model.name}: controls must have shape ({N}, {m}), one row per state, got {a.shape}")
-    if x_hi is not x_lo and np.any(x_hi < x_lo):
-        i = int(np.flatnonzero((x_hi < x_lo).any(axis=1))[0])
-        raise ValueError(f"{model.name}: start box {i} has an upper corner below its lower one: {x_lo[i].tolist()} "
-                         f".. {x_hi[i].tolist()}")
-    dt = float(dt)
-    if not (math.isfinite(dt) and dt > 0):
-        raise ValueError(f"{model.name}: dt must be a finite positive period [s], got {dt!r}")
-    validate_state = getattr(model, "validate_state", None)  # a Model's (reach.problem); plain Dynamics have none
-    if N and validate_state is not None:
-        validate_state(x_lo)
-        if x_hi is not x_lo:
-            validate_state(x_hi)
-    if N:
-        model.validate_control(a)
-    return x_lo, x_hi, a.reshape(N, m), dt
-
-
-def refuse_unbounded_rows(model: Any, x: Any, a: Any, dt: float, boxes: tuple[np.ndarray, ...]
-                          ) -> tuple[np.ndarray, ...]:
-    """``boxes`` if every row is bounded, else ``ValueError`` naming the first NaN row (look-ahead: not admissible)."""
-    failed = ~(np.isfinite(boxes[0]).all(axis=1) & np.isfinite(boxes[2]).all(axis=1))
-    if not failed.any():
-        return boxes
-    i = int(np.flatnonzero(failed)[0])
-    state = ", ".join(repr(float(v)) for v in np.asarray(x, dtype=np.float64)[i])
-    action = ", ".join(repr(float(v)) for v in np.asarray(a, dtype=np.float64).reshape(len(failed), -1)[i])
-    raise ValueError(f"{model.name}: no enclosure for row {i}: state ({', '.join(model.state_names)}) = ({state}), "
-                     f"action ({action}), dt = {float(dt)!r} s ({int(failed.sum())} rows failed): its held_box_kernel "
-                     f"found no box for this period (too long for that state); shorten dt")
-
-
 #: the index of each set function in a set-maximum kernel's ``which``
 SET_INDEX = {"target": 0, "hard_constraint": 1, "soft_constraint": 2}
 #: the C signature of :func:`set_max_address`'s callbacks: ``(params, which, lo, hi) -> largest value``
