@@ -18,26 +18,8 @@ from .model_kernels import ENCLOSE_MIN_ROWS, SET_INDEX, set_max_rows
 from .period import motion, period_rows
 
 
-class _LastPlans:
-    """The last build's plans, for the other game on the same cells (only ``T`` differs); handed out once: large."""
-
-    def __init__(self):
-        self._key, self._plans = None, None
-
-    @staticmethod
-    def _norm(key: dict[str, Any]) -> str:
-        return json.dumps({k: v for k, v in key.items() if k != "game"}, sort_keys=True)
-
-    def get(self, key: dict[str, Any]):
-        plans = self._plans if self._key == self._norm(key) else None
-        self._key, self._plans = None, None
-        return plans
-
-    def put(self, key: dict[str, Any], plans: Any) -> None:
-        self._key, self._plans = self._norm(key), plans
-
-
-_SHARED = _LastPlans()
+#: the last build's plans, for the other game on the same cells (only ``T`` differs): one entry, as it is large
+_LAST_PLANS: dict[str, Any] = {}
 
 
 def cell_boxes(cells: Any, flat: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -74,10 +56,12 @@ def solve(cls: type, lookahead: Any, key: dict[str, Any]) -> Any:
             m[:k + 1], action[:k + 1], hold[:k + 1] = m[k + 1], action[k + 1], hold[k + 1]
             break
         if plans is None:
-            plans = _SHARED.get(key)
+            same = json.dumps({name: v for name, v in key.items() if name != "game"}, sort_keys=True)
+            plans = _LAST_PLANS.pop(same, None)
             if plans is None:
                 plans = all_plan_steps(cells, la, cell_lo, cell_hi, holds, span_cap, bar)
-                _SHARED.put(key, plans)
+            _LAST_PLANS.clear()
+            _LAST_PLANS[same] = plans
         bar.update(1)
         m[k], action[k], hold[k] = backward_step(cells, plans, m, k, N, C)
     bar.close()
