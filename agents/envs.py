@@ -176,7 +176,7 @@ def make_env(model: str, *, wind: str = "none", wind_table: Any = None, budget: 
 #: CPU seconds the safety filter's first decision, certificate and start-plan search take to compile with an empty
 #: compile cache, as ``benchmarks/first_compile.py filter`` measures them (docs/agents.md quotes the measurement):
 #: the notice's estimate of the wall time on an idle core
-FILTER_COMPILE_S = 80
+FILTER_COMPILE_S = 60
 _announced = False
 
 
