@@ -50,9 +50,8 @@ class Motion(NamedTuple):
 
 
 def motion(la: Any) -> tuple[int, Motion]:
-    """The address of the model's compiled enclosure and the :class:`Motion` of the look-ahead ``la``.
-
-    """
+    """The address of the model's compiled enclosure and the :class:`Motion` of the look-ahead ``la`` (whose model
+    gives what the filter needs: :func:`~softreach.reach.proof.enclosure_check.missing_extras`)."""
     model = la.model
     tb = model.target_box
     t_lo, t_hi = ((np.full(la.n, -np.inf), np.full(la.n, np.inf)) if tb is None

@@ -49,8 +49,8 @@ def rk4_step(f: Callable, tc: float, tm: float, te: float, hh: float, hs: float,
 
 def rk4_rows(f: Callable, tc: Any, tm: Any, te: Any, h: Any, x: np.ndarray, a: np.ndarray, b: np.ndarray
              ) -> np.ndarray:
-    """:func:`rk4_step` on rows: ``x``, ``a``, ``b`` of shape ``(N, n)``, ``(N, m)``, ``(N, k)``, the step ``h`` (and the
-    times) floats or ``(N,)``; the ``(N, n)`` states at ``te``."""
+    """:func:`rk4_step` on rows: ``x``, ``a``, ``b`` of shape ``(N, n)``, ``(N, m)``, ``(N, k)``, the step ``h``
+    (and the times) floats or ``(N,)``; the ``(N, n)`` states at ``te``."""
     out = rk4_step(f, tc, tm, te, 0.5 * h, h, h / 6.0, list(x.T), list(a.T), list(b.T))[0]
     return np.stack([np.broadcast_to(np.asarray(c, dtype=np.float64), (len(x),)) for c in out], axis=1)
 
