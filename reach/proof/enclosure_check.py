@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..sim.rk4 import rk4_rows
+from .model_kernels import SET_INDEX, boxes_set_max, held_boxes
 
 #: where a model's author reads what the filter needs
 DOCS = "docs/models.md, '2. The motion bound the filter needs'"
@@ -78,8 +79,6 @@ class EnclosureError(ValueError):
 def missing_extras(model: Any, cells: bool = True) -> list[str]:
     """What the filter needs of ``model`` that it does not give, each naming what to add (with ``cells``, also what
     the cells need); empty: nothing."""
-    from .model_kernels import SET_INDEX, boxes_set_max
-
     out = []
     if getattr(model, "held_box_kernel", None) is None:
         out.append("held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi) with held_box_params: a compiled function "
@@ -196,8 +195,6 @@ def _durations(dt: float, checks: int) -> list[float]:
 def _claims(model: Any, b_lo: np.ndarray, b_hi: np.ndarray, x0: np.ndarray, a: np.ndarray, dt: float,
             pieces: int, checks: int) -> list[tuple[str, float, float, float, bool, Any]]:
     """Every box the filter may read for these runs: ``(name, period, s0, s1, from_box, (lo, hi))``."""
-    from .model_kernels import held_boxes
-
     out = []
     for D in _durations(dt, checks):
         edges = np.linspace(0.0, D, pieces + 1)
