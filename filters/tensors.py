@@ -47,21 +47,11 @@ def first_bad(arr: np.ndarray) -> str:
 def to_torch(applied: np.ndarray, info: dict[str, Any], ref: Any, action: Any):
     """Convert the outputs to tensors on the reference tensor's device, in its floating dtype."""
     dtype = ref.dtype if ref.dtype.is_floating_point else torch.float32
-    if torch is not None and isinstance(action, torch.Tensor) and action.dtype.is_floating_point:
-        dtype_a = action.dtype
-    else:
-        dtype_a = dtype
+    is_float = isinstance(action, torch.Tensor) and action.dtype.is_floating_point
+    dtype_a = action.dtype if is_float else dtype
+    kinds = {"active": torch.bool, "reason": torch.int64, "optimal_action": dtype_a}
     dev = ref.device
-    out = {}
-    for key, v in info.items():
-        if key == "active":
-            out[key] = torch.as_tensor(np.asarray(v), dtype=torch.bool, device=dev)
-        elif key == "reason":
-            out[key] = torch.as_tensor(np.asarray(v), dtype=torch.int64, device=dev)
-        elif key == "optimal_action":
-            out[key] = torch.as_tensor(np.asarray(v), dtype=dtype_a, device=dev)
-        else:
-            out[key] = torch.as_tensor(np.asarray(v), dtype=dtype, device=dev)
+    out = {key: torch.as_tensor(np.asarray(v), dtype=kinds.get(key, dtype), device=dev) for key, v in info.items()}
     return torch.as_tensor(np.asarray(applied), dtype=dtype_a, device=dev), out
 
 
