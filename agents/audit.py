@@ -18,10 +18,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from softreach.reach.sim.integrator import integrate_period
-
 from softreach.filters.core import PASS, ValueFilter
 from softreach.filters.plans import advance_plan
+from softreach.reach.sim.integrator import integrate_period
 
 POLICIES = ("always_min", "always_max", "bang_bang", "random", "anti_optimal", "budget_burner")
 WINDS = ("worst_case", "constant_min", "constant_max", "random_step", "switch_inside", "switch_on_filter",
