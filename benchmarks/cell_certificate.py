@@ -2,8 +2,8 @@
 and, for the point mass, the exact sets.
 
     OMP_NUM_THREADS=1 python benchmarks/cell_certificate.py --table pointmass-held.srt
-        [--shape 150 1440 --holds 1 2 4 | --cached] [--states 20000] [--times 0 0.5 0.9] [--exact-pointmass]
-        [--later 0.5 1 2]
+        [--shape 300 2880 --holds 1 2 4 --dz 0.00015625 | --cached] [--states 20000] [--times 0 0.5 0.9]
+        [--exact-pointmass] [--later 0.5 1 2]
     python benchmarks/cell_certificate.py --table pointmass-held.srt --write-packaged [--checks 2]
 
 Certified means ``ValueFilter.certify`` (the landing cells, proven), against the table's set (``Table.contains``: its
@@ -38,6 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--table", required=True, help="a held table (softreach solve MODEL --held)")
     ap.add_argument("--shape", type=int, nargs="+", help="cells per state axis (default: the model's cell_shape)")
     ap.add_argument("--holds", type=int, nargs="+", help="plan lengths in periods (default: the model's cell_holds)")
+    ap.add_argument("--dz", type=float, help="budget cell [s] (default: cell_certificate.default_dz)")
     ap.add_argument("--states", type=int, default=20000)
     ap.add_argument("--times", type=float, nargs="+", default=[0.0, 0.5, 0.9])
     ap.add_argument("--budgets", type=float, nargs="+", help="default: the model's default budgets")
@@ -60,17 +61,17 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"{model.name} declares no cell_shape; give --shape")
     holds = tuple(args.holds) if args.holds else model.cell_holds
     if args.cached:
-        if args.shape or args.holds:
-            ap.error("--cached uses the model's cell_shape and cell_holds; leave out --shape and --holds")
+        if args.shape or args.holds or args.dz:
+            ap.error("--cached uses the model's cell_shape and cell_holds; leave out --shape, --holds and --dz")
         vf = ValueFilter(table, table.control_period, target_checks=model.substeps)
         built = {"safe": vf.safe_cells, "land": vf.landing_cells}
     else:
         built = {}
         for game in ("safe", "land"):
             t0 = time.perf_counter()
-            built[game] = CellCertificate.build(la, shape, game=game, holds=holds)
-            print(f"{game} cells {shape}, plans of {list(holds)} periods: built in "
-                  f"{time.perf_counter() - t0:.1f} s")
+            built[game] = CellCertificate.build(la, shape, dz=args.dz, game=game, holds=holds)
+            print(f"{game} cells {shape}, budget cells of {built[game].dz:g} s, plans of {list(holds)} periods: "
+                  f"built in {time.perf_counter() - t0:.1f} s")
         vf = ValueFilter(table, table.control_period, target_checks=model.substeps, safe_cells=built["safe"],
                          landing_cells=built["land"])
     budgets = args.budgets or list(model.default_budgets)

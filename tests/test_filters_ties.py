@@ -59,16 +59,18 @@ def test_the_env_applies_exactly_the_candidate_judged(vf):
     cands = vf.lookahead.candidates[:, 0]
     assert 9.8 in cands.tolist()
     applied = []
-    # the fall at the speed limit: the filter rides it with the hover thrust, among other candidates
-    env = SafetyFilter(gym.make(ENV, wind="constant", wind_value=-10.0), value_filter=vf)
-    env.reset(options={"state": [-14.9, 11.38525635681534], "budget": 0.6})
-    for _ in range(100):
-        _, _, terminated, truncated, info = env.step(np.array([-1.0], np.float32))
-        if info["filter_active"]:
-            applied.append(float(info["action_physical"][0]))
-            assert applied[-1] in cands.tolist(), applied[-1]
-        if terminated or truncated:
-            break
+    # the fall at the speed limit, under a policy that pushes down and one that pushes up: the filter
+    # replaces their actions by candidates, the hover thrust among them
+    for push in (-1.0, 1.0):
+        env = SafetyFilter(gym.make(ENV, wind="constant", wind_value=-10.0), value_filter=vf)
+        env.reset(options={"state": [-14.9, 11.38525635681534], "budget": 0.6})
+        for _ in range(100):
+            _, _, terminated, truncated, info = env.step(np.array([push], np.float32))
+            if info["filter_active"]:
+                applied.append(float(info["action_physical"][0]))
+                assert applied[-1] in cands.tolist(), applied[-1]
+            if terminated or truncated:
+                break
     assert 9.8 in applied, applied  # the hover thrust itself was applied, not a float32 neighbour
     # every candidate of every built-in model is the image of a normalised action (the env's map, binary64)
     for name in ("pointmass", "glider", "dubins"):

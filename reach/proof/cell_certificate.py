@@ -46,6 +46,17 @@ FORMAT = "softreach-cell-certificate-1"
 _LARGE = ("m", "action", "hold")
 #: the games: stay in ``C1`` within the budget until ``T`` (or land), or land by ``T``
 GAMES = ("safe", "land")
+#: budget cells per control period by default: a plan's spend is rounded up to whole budget cells, so each plan step
+#: gives away less than ``1 / BUDGET_CELLS_PER_PERIOD`` of a period of budget
+BUDGET_CELLS_PER_PERIOD = 64
+#: the most budget cells a horizon may hold: ``m`` is int16 and ``never`` is one past the top
+MAX_BUDGET_CELLS = 32000
+
+
+def default_dz(dt: float, horizon: float) -> float:
+    """The budget cell [s]: :data:`BUDGET_CELLS_PER_PERIOD` a period, coarser only where the horizon would hold more
+    than :data:`MAX_BUDGET_CELLS`."""
+    return max(dt / BUDGET_CELLS_PER_PERIOD, horizon / MAX_BUDGET_CELLS)
 
 
 class CellCertificate:
@@ -91,7 +102,7 @@ class CellCertificate:
 
         :param lookahead: a :class:`~softreach.reach.proof.lookahead.Lookahead` (model, enclosures, budget bound)
         :param shape: cells per state axis over the model's ``hard_box``
-        :param dz: budget cell [s]; default a quarter of the period
+        :param dz: budget cell [s]; default :func:`default_dz`
         :param game: ``"safe"`` or ``"land"``
         :param holds, span_cap: the plan lengths, in periods; the most cells a plan's end box may touch
         """
@@ -106,8 +117,9 @@ class CellCertificate:
         if not holds or min(holds) < 1 or max(holds) > 127:
             raise ValueError(f"holds must be periods in 1..127, got {holds!r}")
         dt, T, dz = la.dt, la.horizon, key["dz"]
-        if not (math.isfinite(dz) and dz > 0):
-            raise ValueError(f"dz must be a positive number of seconds, got {dz!r}")
+        if not (math.isfinite(dz) and dz > 0 and T / dz <= MAX_BUDGET_CELLS):
+            raise ValueError(f"dz must be a positive number of seconds, at least the horizon / {MAX_BUDGET_CELLS} = "
+                             f"{T / MAX_BUDGET_CELLS:g} s, got {dz!r}")
         N = int(round(T / dt))
         if not math.isclose(N * dt, T, rel_tol=1e-9):
             raise ValueError(f"the horizon {T} s is not a whole number of periods {dt} s")
@@ -219,7 +231,7 @@ def cell_key(lookahead: Any, shape: Any, dz: float | None = None, game: str = "s
     key = {"model": model.name, "parameters": model.parameters(), "dt": la.dt, "eps": la.eps,
            "horizon": la.horizon, "candidates": la.candidates.tolist(), "pieces": la.pieces,
            "target_checks": la.target_checks, "shape": [int(v) for v in shape],
-           "dz": la.dt / 4 if dz is None else float(dz), "game": game,
+           "dz": default_dz(la.dt, la.horizon) if dz is None else float(dz), "game": game,
            "holds": sorted({int(h) for h in holds}), "span_cap": int(span_cap)}
     if la.exact_env:  # the allowances for the environment's rounding (Lookahead.exact_env)
         key["allowance"] = {"state": la.slack.tolist(), "budget": la.budget_slack, "c1_from": la.first_check,
