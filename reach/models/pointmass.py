@@ -90,11 +90,13 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         self.hard_box = ((p.hard_speed[0], p.altitude[0]), (p.hard_speed[1], p.altitude[1]))
         self.target_box = ((p.target_speed[0], p.target_altitude[0]), (p.target_speed[1], p.target_altitude[1]))
         self.default_shape = (101, 101)
-        # the cell certificates: 0.1 m/s x 6.25 mm. A run that rides a speed limit keeps a cell's width from it, and
-        # landing rides the stopping boundary near the ground, where the altitude cell decides how much of it the
-        # cells keep; plans of 2 and 4 periods let a cell slower than 6.25 mm per period make progress; 8 certified
-        # no more (docs/filters.md, "Certificates on cells")
-        self.cell_shape = (300, 2880)
+        # the cell certificates: 0.0857 m/s x 6.25 mm. A run that rides a speed limit keeps a cell's width from it,
+        # and landing rides the stopping boundary near the ground, where the altitude cell decides how much of it the
+        # cells keep. Candidates 30 m/s^2 apart end a period 0.3 m/s apart, 3.5 cells: where one candidate's range
+        # of passing states ends, the next one's overlaps it by half a cell instead of abutting it, which the test
+        # of a whole end box needs. Plans of 2 and 4 periods let a cell slower than 6.25 mm per period make
+        # progress; 8 certified no more (docs/filters.md, "Certificates on cells")
+        self.cell_shape = (350, 2880)
         self.cell_holds = (1, 2, 4)
         self.default_budget_points = 111
         # softreach solve --held: the filter's cells prove its certificate and the held table only ranks candidates,
