@@ -177,7 +177,8 @@ def _lookahead(model, monkeypatch):
     """What :meth:`CellCertificate.build` reads of a look-ahead before it solves (the key's parts from elsewhere in
     the look-ahead replaced by the few the build reads)."""
     monkeypatch.setattr(cell_certificate, "cell_key", lambda la, shape, dz=None, game="safe", holds=(1,), span_cap=32:
-                        {"shape": list(shape), "holds": sorted(holds), "dz": cell_certificate.default_dz(la.dt, la.horizon)})
+                        {"shape": list(shape), "holds": sorted(holds),
+                         "dz": cell_certificate.default_dz(la.dt, la.horizon)})
     return types.SimpleNamespace(model=model, dt=model.control_period, horizon=model.horizon, pieces=4,
                                  target_checks=model.substeps)
 

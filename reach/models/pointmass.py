@@ -92,10 +92,11 @@ class PointMass(Model, ControlAndDisturbanceAffine):
         self.default_shape = (101, 101)
         # the cell certificates: 0.0857 m/s x 6.25 mm. A run that rides a speed limit keeps a cell's width from it,
         # and landing rides the stopping boundary near the ground, where the altitude cell decides how much of it the
-        # cells keep. Candidates 30 m/s^2 apart end a period 0.3 m/s apart, 3.5 cells: where one candidate's range
-        # of passing states ends, the next one's overlaps it by half a cell instead of abutting it, which the test
-        # of a whole end box needs. Plans of 2 and 4 periods let a cell slower than 6.25 mm per period make
-        # progress; 8 certified no more (docs/filters.md, "Certificates on cells")
+        # cells keep. Candidates 30 m/s^2 apart end a period 0.3 m/s apart, 3.5 cells (at 300 cells, 3: there the
+        # states two neighbouring candidates pass from abut at one cell edge, and no single candidate passes from
+        # an end box across it, which made more interventions needless). Plans of 2 and 4 periods let a cell
+        # slower than 6.25 mm per period make progress; 8 certified no more (docs/filters.md, "Certificates on
+        # cells", and the audit's table by cell shape)
         self.cell_shape = (350, 2880)
         self.cell_holds = (1, 2, 4)
         self.default_budget_points = 111
