@@ -226,3 +226,22 @@ def test_empty_cells_certify_nothing(pointmass_held_table):
     np.testing.assert_array_equal(passes, lands)
     np.testing.assert_array_equal(certified, lands.any(axis=1))
     assert 0 < certified.sum() < len(x)
+
+
+def test_the_default_budget_cell_fits_long_horizons_and_a_finer_one_is_refused(pointmass_held_table, monkeypatch):
+    """The default budget cell is accepted at horizons where it is set by the stored indices' bound (``horizon /
+    MAX_BUDGET_CELLS``, where ``horizon / dz`` rounds either way), and a finer one is refused, naming it, before
+    anything is solved."""
+    from softreach.reach.proof import cell_certificate, cell_game
+
+    monkeypatch.setattr(cell_game, "solve", lambda cls, la, key: key["dz"])
+    monkeypatch.setattr(cell_certificate, "check_model_for_filter", lambda *a, **k: None)
+    model = get_model("pointmass")
+    la = Lookahead.from_table(pointmass_held_table, model, DT, pointmass_held_table.eps)
+    for horizon in (1.0, 579.76, 589.73, 729.31, 2000.0):
+        la.horizon = horizon
+        dz = CellCertificate.build(la, SHAPE)
+        assert dz == cell_certificate.default_dz(DT, horizon)
+        assert cell_certificate.budget_top(dz, horizon) <= cell_certificate.MAX_BUDGET_CELLS
+    with pytest.raises(ValueError, match=r"dz must be .* got 0\.0125"):
+        CellCertificate.build(la, SHAPE, dz=0.0125)  # 2000 s in budget cells of 12.5 ms: 160,000

@@ -59,6 +59,11 @@ def default_dz(dt: float, horizon: float) -> float:
     return max(dt / BUDGET_CELLS_PER_PERIOD, horizon / MAX_BUDGET_CELLS)
 
 
+def budget_top(dz: float, horizon: float) -> int:
+    """The highest budget index the cells store: no run spends more than the horizon, so budgets above are equal."""
+    return int(round(horizon / dz))
+
+
 class CellCertificate:
     """The lowest good budget index ``m[k, c]`` and a plan ``(action[k, c], hold[k, c])`` per sample time and cell.
 
@@ -83,7 +88,7 @@ class CellCertificate:
         self.dt, self.dz, self.horizon = float(dt), float(dz), float(horizon)
         self.game = game
         self.steps = self.m.shape[0] - 1
-        self.top = int(round(self.horizon / self.dz))  # no run spends more than the horizon: budgets above are equal
+        self.top = budget_top(self.dz, self.horizon)
         self.never = self.top + 1
         self.key = dict(key)
         #: what :func:`softreach.reach.proof.kernels.cover_row` reads: a row of cells per sample (a memmap stays mapped)
@@ -117,7 +122,7 @@ class CellCertificate:
         if not holds or min(holds) < 1 or max(holds) > 127:
             raise ValueError(f"holds must be periods in 1..127, got {holds!r}")
         dt, T, dz = la.dt, la.horizon, key["dz"]
-        if not (math.isfinite(dz) and dz > 0 and T / dz <= MAX_BUDGET_CELLS):
+        if not (math.isfinite(dz) and dz > 0 and budget_top(dz, T) <= MAX_BUDGET_CELLS):
             raise ValueError(f"dz must be a positive number of seconds, at least the horizon / {MAX_BUDGET_CELLS} = "
                              f"{T / MAX_BUDGET_CELLS:g} s, got {dz!r}")
         N = int(round(T / dt))
