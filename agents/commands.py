@@ -93,7 +93,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--filter", metavar="TABLE", default=None, help="apply the safety filter of this table")
     p.add_argument("--rule", choices=RULE_CHOICES, default="switch",
                    help="filter rule where the policy's action fails the filter's one-period test: switch (apply "
-                        "the held candidate action whose worst next certificate is lowest; default) or smooth (the "
+                        "the passing held candidate action whose next table value is lowest; default) or smooth (the "
                         "point closest to the policy's action on the segment to such a candidate)")
     p.add_argument("--budget", type=float, default=None, metavar="Q",
                    help="budget Q of every episode (default: drawn from the environment's range)")

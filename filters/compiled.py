@@ -2,8 +2,9 @@
 
 :class:`~softreach.filters.ValueFilter` decides, both rules included, by the one-period test and the cells' plans
 (docs/filters.md, "The rule" and "How"), with the kernels the cells' builder runs too; a model must give its
-enclosure and sets' maxima compiled (:meth:`CompiledDecision.missing`). :mod:`softreach.filters.judge` reads the
-table only where it can decide; ``tests/test_filter_reference.py`` checks against ``tests/reference_decision.py``.
+enclosure and sets' maxima compiled (:meth:`CompiledDecision.missing`). The table only ranks
+(:func:`~softreach.filters.judge.next_value`); ``tests/test_filter_reference.py`` checks against
+``tests/reference_decision.py``.
 """
 
 from __future__ import annotations
@@ -14,19 +15,17 @@ from typing import Any
 
 import numpy as np
 
-from softreach.reach.proof.blocks import run_in_blocks
-from softreach.reach.proof.box_max import kernel_field
 from softreach.reach.jit import njit
-from softreach.reach.proof.kernels import MAX_NODES, box_scratch, certificate_row, cover_row, frozen, plan_row
-from softreach.reach.proof.lookahead import exact_normalized
+from softreach.reach.proof.blocks import run_in_blocks
 from softreach.reach.proof.enclosure_check import lacking
+from softreach.reach.proof.kernels import certificate_row, cover_row, frozen, plan_row, point_scratch
+from softreach.reach.proof.lookahead import exact_normalized
 from softreach.reach.proof.period import motion
-from softreach.reach.proof.ranks import LOWEST_BAD, NEXT_CAP, PASSES_ONLY, RANK_PROVEN, RANK_SAFE, SMOOTH_PASSES_ONLY
 
 from .compiled_args import (N_BOOL_J, N_FLOAT_J, N_FLOAT_N, N_FLOAT_N1, ActionMap, Cells, DecisionSpace, TableArgs,
                             named, packed_space, plain)
 from .compiled_starts import start_plan_rows
-from .judge import badness, judge, least_next, next_value, on_table
+from .judge import badness, judge, next_value, on_table
 from .plans import PLAN_LAND, PLAN_SAFE
 from .reasons import BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, UNCERTIFIED
 from .keeps import keeps
@@ -37,7 +36,7 @@ def decision_space(n: int, m: int, J: int) -> tuple[DecisionSpace, tuple]:
     the compiled loops allocate nothing: ``(named, packed)``, one memory."""
     packed = (np.empty((N_FLOAT_J, J)), np.empty((N_BOOL_J, J), np.bool_), np.empty((N_FLOAT_N, n)),
               np.empty((N_FLOAT_N1, n + 1)), np.empty((2, J + 1, n)), np.empty(m), np.empty(J, np.int64),
-              np.empty((8, n)), box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES))
+              np.empty((8, n))) + point_scratch(n + 1)
     # the named views in Python: the compiled function's own code, run by the interpreter
     return packed_space.py_func(packed), packed
 
@@ -103,78 +102,66 @@ def _keeping(enclose, M, C, cands, smooth, tr, space):
 
 
 @njit(inline="always")
-def _choose(enclose, M, C, T, cands, smooth, tr, zr, t_next, space):
-    """Every candidate judged: ``(the rule's choice, its next value, its badness)``, each table value read only where
-    it can decide (:func:`~softreach.filters.judge.least_next`, :func:`~softreach.filters.judge.badness`)."""
+def _choose(enclose, M, C, T, cands, smooth, tr, t_next, space):
+    """Every candidate judged: ``(the rule's choice, whether it is bounded)``. The switch rule's is the passing
+    candidate of lowest next value; the smooth rule's the nearest to the policy's action that passes or keeps, else
+    the nearest passing one; where none passes or keeps, the least bad (:func:`~softreach.filters.judge.badness`)."""
     J = cands.shape[0]
     work, end_lo, end_hi = space.work, space.end_lo, space.end_hi
-    c_ok, c_next, c_bad, c_zend, c_kept = space.c_ok, space.c_next, space.c_bad, space.c_zend, space.c_kept
-    c_score, c_dist, c_pref, c_pick = space.c_score, space.c_dist, space.c_pref, space.c_pick
+    c_ok, c_next, c_kept, c_dist, c_bad = space.c_ok, space.c_next, space.c_kept, space.c_dist, space.c_bad
     for k in range(J):
-        c_pick[k] = c_ok[k] and c_next[k] == np.inf
-        if c_pick[k] and smooth:
-            c_next[k] = next_value(T, t_next, end_lo[k], end_hi[k], c_zend[k], zr, work)
-    if not smooth:
-        least_next(T, t_next, end_lo, end_hi, zr, work, c_pick, c_next, c_zend, space.c_low)
-    for k in range(J):
-        c_bad[k] = c_next[k]
+        if c_ok[k] and c_next[k] == np.inf:
+            c_next[k] = next_value(T, t_next, end_lo[k], end_hi[k], space.c_zend[k], work)
         if smooth:
-            c_pref[k] = c_dist[k] if (c_ok[k] or c_kept[k]) else np.inf
+            space.c_pref[k] = c_dist[k] if (c_ok[k] or c_kept[k]) else np.inf
         else:
-            c_pref[k] = c_next[k] if c_ok[k] else np.inf
-    keeps_j = _keeping(enclose, M, C, cands, smooth, tr, space)
-    floor = np.inf
+            space.c_pref[k] = c_next[k] if c_ok[k] else np.inf
+    best = _keeping(enclose, M, C, cands, smooth, tr, space)
+    if best >= 0:
+        return best, True
+    nearest = -1
     for k in range(J):
-        if k == keeps_j:
-            c_score[k] = c_dist[k] if smooth else c_next[k]
-        elif c_ok[k]:
-            c_score[k] = SMOOTH_PASSES_ONLY + c_dist[k] if smooth else PASSES_ONLY + min(c_next[k], NEXT_CAP)
-        else:
-            continue
-        floor = min(floor, c_score[k])
-    badness(T, t_next, end_lo, end_hi, zr, work, c_ok, space.c_in, space.c_bounded, space.c_proven, c_kept,
-             space.c_c1, c_zend, keeps_j, floor >= LOWEST_BAD, c_bad, c_score, space.c_low, space.c_tie)
-    best = np.argmin(c_score)
-    return best, c_next[best], c_bad[best]
+        if c_ok[k] and (nearest < 0 or c_dist[k] < c_dist[nearest]):
+            nearest = k
+    if nearest >= 0:
+        return nearest, True
+    badness(T, t_next, end_lo, end_hi, work, space.c_in, space.c_bounded, space.c_proven, c_kept, space.c_c1,
+            space.c_zend, c_bad)
+    best = np.argmin(c_bad)
+    return best, c_bad[best] < np.inf
 
 
 # called, not inlined: large and run at most once a row (softreach.filters.judge, "Inlined or called")
 @njit(_nrt=False)
-def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, best, best_next, best_bad, lam, act, c_next,
+def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, proven, best, best_next, lam, act, c_next,
                   new_plans):
-    """Row ``r``'s cells' plans: the landing cells' where no candidate passes (the one followed, else the state's
-    cell's), then the safe cells' where the choice's end is not proven safe. Writes ``act`` and ``new_plans[r]``;
-    returns ``(best, best_next, best_bad, lam, any_ok)``."""
+    """Row ``r``'s cells' plans where no candidate passes: the landing cells' (the one followed, else the state's
+    cell's), else the safe cells' where the choice's end box is not ``proven`` to lie in them. Writes ``act`` and
+    ``new_plans[r]``; returns ``(best, best_next, lam, any_ok, followed)``."""
     J = cands.shape[0]
+    if any_ok:
+        return best, best_next, lam, any_ok, False
     for game in (PLAN_LAND, PLAN_SAFE):
         if game == PLAN_LAND:
-            weak, cells, plan_cells = not any_ok, C.land, C.land_plan
+            cells, plan_cells = C.land, C.land_plan
+        elif C.has_safe and not proven:
+            cells, plan_cells = C.safe, C.safe_plan
         else:
-            weak, cells, plan_cells = C.has_safe and best_bad >= RANK_SAFE, C.safe, C.safe_plan
-        if not weak:
             continue
-        pj, pk = -1, 0
-        follow = False
-        if has_plans:
-            pj, pk = plans[r, 0], plans[r, 1]
-            follow = pk > 0 and 0 <= pj < J and plans[r, 2] == game
-        if follow:
-            jj, left = pj, pk - 1
+        if has_plans and plans[r, 1] > 0 and 0 <= plans[r, 0] < J and plans[r, 2] == game:
+            jj, left = plans[r, 0], plans[r, 1] - 1
         else:
             cj, ck = plan_row(cells, plan_cells[0], plan_cells[1], tr, xr)
             # (a candidate index past the set can only come from a damaged file: no plan, never a wild read)
             if not (0 <= cj < J and cover_row(cells, tr, xr, xr, zr)):
                 continue
             jj, left = cj, ck - 1
-        best, best_next = jj, c_next[jj]
         for i in range(cands.shape[1]):
             act[i] = cands[jj, i]
-        lam = 0.0  # the plan's candidate itself is applied, not a blend towards the policy's action
-        best_bad = -1.0 if game == PLAN_LAND else RANK_PROVEN
         new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = jj, left, game
-        if game == PLAN_LAND:
-            any_ok = True
-    return best, best_next, best_bad, lam, any_ok
+        # the plan's candidate itself is applied, not a blend towards the policy's action
+        return jj, c_next[jj], 0.0, game == PLAN_LAND, True
+    return best, best_next, lam, any_ok, False
 
 
 # _nrt=False here and in the kernels it calls: reference counting costs, and they allocate nothing (docs/filters.md)
@@ -191,16 +178,16 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
     space = packed_space(space_args)
     N = x.shape[0]
     J, m = cands.shape
-    work, end_lo, end_hi, act, point = space.work, space.end_lo, space.end_hi, space.act, space.point
+    work, end_lo, end_hi, act = space.work, space.end_lo, space.end_hi, space.act
     for r in range(N):
         tr, xr, zr = t[r], x[r], z[r]
-        value[r] = (certificate_row(T.W, T.z_top, T.z_floor, T.z_left, T.V, T.has_V, tr, xr, zr, point,
-                                    work.scratch_W, work.scratch_V) if diagnostics else np.nan)
+        value[r] = (certificate_row(T.W, T.z_top, T.z_floor, T.z_left, T.V, T.has_V, tr, xr, zr, work.point,
+                                    work.buf, work.node) if diagnostics else np.nan)
         new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = -1, 0, 0
         # one inlined judge serves every action a row tries (each copy adds to the first compilation): the policy's,
         # every candidate, then the smooth rule's bisection towards the policy's action
-        passed, any_ok = False, False
-        best, best_next, best_bad = 0, np.inf, np.inf
+        passed, any_ok, bounded = False, False, False
+        best, best_next = 0, np.inf
         lo, hi, mid = 0.0, 1.0, 0.0
         for s in range(0 if with_policy else 1, 1 + J + (iterations if smooth else 0)):
             slot = s - 1 if 1 <= s <= J else J
@@ -216,7 +203,7 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
             a_kept = v.kept or a_lands
             # the policy's and the bisection's next value (the policy's, a diagnostic, only with diagnostics)
             if a_ok and not a_lands and (s > J or (s == 0 and diagnostics)):
-                a_next = next_value(T, t_next, end_lo[slot], end_hi[slot], a_zend, zr, work)
+                a_next = next_value(T, t_next, end_lo[slot], end_hi[slot], a_zend, work)
             # a passing action keeps: the call of keeps, with its large tuples, is skipped
             if s == 0:
                 if a_ok or keeps(enclose, M, C, cands, tr, end_lo[J], end_hi[J], a_zend, a_kept, work,
@@ -241,22 +228,24 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
             any_ok = any_ok or a_ok
             space.c_dist[j] = _distance(cands, j, pol, r, action.half)
             if s == J:
-                best, best_next, best_bad = _choose(enclose, M, C, T, cands, smooth, tr, zr, t_next, space)
+                best, bounded = _choose(enclose, M, C, T, cands, smooth, tr, t_next, space)
+                best_next = space.c_next[best]
         if passed:
             continue
         lam = lo
         _blend(act, action, best, lam, pol, r)
         # np.int64, np.bool_: a literal 0 or False would compile _follow_plans once more
-        best, best_next, best_bad, lam, any_ok = _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans,
-                                                               np.bool_(any_ok), np.int64(best), best_next, best_bad,
-                                                               lam, act, space.c_next, new_plans)
-        bounded = best_bad < np.inf
+        best, best_next, lam, any_ok, followed = _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans,
+                                                               np.bool_(any_ok), np.bool_(space.c_proven[best]),
+                                                               np.int64(best), best_next, lam, act, space.c_next,
+                                                               new_plans)
+        bounded = bounded or followed
         for i in range(m):
             applied[r, i] = act[i] if bounded else fallback[i]
             chosen[r, i] = cands[best, i]
         nxt[r], certified[r], blend[r] = best_next, any_ok, lam
         reason[r] = ((BLEND if lam > 0 else OPTIMAL) if any_ok else UNCERTIFIED) if bounded else FALLBACK
-        if not on_table(T.inside, tr, xr, max(zr, 0.0), point, work.scratch_W):
+        if not on_table(T.inside, tr, xr, max(zr, 0.0), work.point, work.buf, work.node):
             reason[r] = OUTSIDE
 
 
@@ -279,10 +268,7 @@ class CompiledDecision:
         safe_args, safe_plan = (safe.kernel_args, safe.plan_args) if safe is not None else (land.kernel_args,
                                                                                             land.plan_args)
         self.C = Cells(safe_args, safe is not None, land.kernel_args, safe_plan, land.plan_args)
-        W, z_top, z_floor, z_left, V, has_V, inside = la.table_args
-        has_S = "V_safe" in la.fields
-        self.T = TableArgs(W, z_top, z_floor, z_left, V, has_V, kernel_field(*la.fields["V_safe"]) if has_S else V,
-                           has_S, inside)
+        self.T = TableArgs(*la.table_args)
         # a private writable copy: a candidate row has the type of a judged work array, so judge compiles once
         self.cands = np.array(la.candidates, dtype=np.float64, order="C")
         self.action = ActionMap(frozen(np.ascontiguousarray(la.a_mid)), frozen(np.ascontiguousarray(la.a_half)),

@@ -29,7 +29,7 @@ class Cells(NamedTuple):
 
 
 class TableArgs(NamedTuple):
-    """A table's fields as the compiled code reads them (:func:`~softreach.reach.proof.box_max.kernel_field`)."""
+    """A table's fields as the compiled code reads them (:func:`~softreach.reach.proof.lookahead.kernel_field`)."""
 
     #: ``W_eps`` over the state and the budget, or a budget surface's ``Q_min - z`` in its shape
     W: tuple
@@ -38,11 +38,9 @@ class TableArgs(NamedTuple):
     z_floor: float
     #: a budget surface's horizon, which caps the budget read at the time left, else ``+inf`` (``usable_budget``)
     z_left: float
-    #: ``V`` and the safe value ``V_safe`` (``W`` and ``V`` again where the table has none)
+    #: ``V`` (``W`` again where the table has none)
     V: tuple
     has_V: bool
-    S: tuple
-    has_S: bool
     #: finite where a state lies on the table (:func:`~softreach.filters.judge.on_table`): ``W``, or a budget
     #: surface's before its nodes where no budget suffices are made infinite
     inside: tuple
@@ -85,9 +83,12 @@ class Work(NamedTuple):
     hi: np.ndarray
     box_lo: np.ndarray
     box_hi: np.ndarray
-    #: box maximum scratch for ``W_eps`` and ``V`` / ``V_safe`` (:func:`~softreach.reach.proof.kernels.box_scratch`)
-    scratch_W: tuple
-    scratch_V: tuple
+    #: a corner of a box; a point over the state and the budget; the table's reads' scratch
+    #: (:func:`~softreach.reach.proof.kernels.point_scratch`)
+    corner: np.ndarray
+    point: np.ndarray
+    buf: np.ndarray
+    node: np.ndarray
 
 
 class Box(NamedTuple):
@@ -112,23 +113,17 @@ class DecisionSpace(NamedTuple):
     c_bad: np.ndarray
     c_zend: np.ndarray
     c_kept: np.ndarray
-    #: the rule's score, the normalised distance to the policy's action, the order of preference's key
-    c_score: np.ndarray
+    #: the normalised distance to the policy's action, the order of preference and its key
     c_dist: np.ndarray
+    c_order: np.ndarray
     c_pref: np.ndarray
-    #: the action being judged; a point over the state and the budget
+    #: the action being judged
     act: np.ndarray
-    point: np.ndarray
     #: the verdict's ``in_c1``, ``bounded``, ``proven`` and ``c1``
     c_in: np.ndarray
     c_bounded: np.ndarray
     c_proven: np.ndarray
     c_c1: np.ndarray
-    #: candidates whose next value is to be read; lower bounds; ties; the order of preference
-    c_pick: np.ndarray
-    c_low: np.ndarray
-    c_tie: np.ndarray
-    c_order: np.ndarray
     #: ``(8, n)``: the start-plan search's boxes
     boxes: np.ndarray
 
@@ -146,14 +141,14 @@ def named(M, C, T, action):
 
 
 #: rows of the packed arrays (:func:`packed_space`): floats and booleans per candidate, floats per state (and budget)
-N_FLOAT_J, N_BOOL_J, N_FLOAT_N, N_FLOAT_N1 = 9, 6, 6, 3
+N_FLOAT_J, N_BOOL_J, N_FLOAT_N, N_FLOAT_N1 = 6, 5, 7, 3
 
 
 @njit(inline="always")
 def packed_space(packed):
     """The :class:`DecisionSpace` whose arrays are views of the packed one
     (:func:`~softreach.filters.compiled.decision_space`), in Python and compiled alike."""
-    fJ, bJ, fn, fn1, ends, act, order, boxes, scratch_W, scratch_V = packed
-    work = Work(fn[0], fn[1], fn[2], fn[3], fn1[0], fn1[1], scratch_W, scratch_V)
-    return DecisionSpace(work, Box(fn[4], fn[5]), ends[0], ends[1], bJ[0], fJ[0], fJ[1], fJ[2], bJ[1], fJ[3], fJ[4],
-                         fJ[5], act, fn1[2], bJ[2], bJ[3], bJ[4], fJ[6], bJ[5], fJ[7], fJ[8], order, boxes)
+    fJ, bJ, fn, fn1, ends, act, order, boxes, buf, node = packed
+    work = Work(fn[0], fn[1], fn[2], fn[3], fn1[0], fn1[1], fn[6], fn1[2], buf, node)
+    return DecisionSpace(work, Box(fn[4], fn[5]), ends[0], ends[1], bJ[0], fJ[0], fJ[1], fJ[2], bJ[1], fJ[3], order,
+                         fJ[4], act, bJ[2], bJ[3], bJ[4], fJ[5], boxes)

@@ -11,8 +11,7 @@ Names from the paper, used across softreach:
   ``(x, z)`` with target function ``l = max(c2, -kappa z, g)`` and constraint ``c1``. Its zero sublevel set at
   ``z = Q`` is ``RA~_Q``, the states that can land spending at most ``Q`` seconds outside ``C2``.
 * ``V(t, x)`` — the classical value (Prop. 2): target ``g``, constraint ``max(c1, c2)``. ``{V <= 0} = RA~_0``.
-* ``V_safe(t, x)`` — the value of staying in ``C1`` until ``T`` (no target, no budget): the states from which a
-  safety filter can still keep the hard constraint after its landing guarantee is lost.
+* ``V_safe(t, x)`` — the value of staying in ``C1`` until ``T`` (no target, no budget), :func:`avoid_problem`.
 """
 
 from __future__ import annotations

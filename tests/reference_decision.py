@@ -6,9 +6,9 @@ It shares with the filter only what is configuration or the model's, never the d
 (``held_boxes``, the model's own ``held_box_kernel``) and set functions, the cells' stored arrays, the table's
 snapshots, and the filter's settings (candidates, period, allowances, rule). Everything the decision does with them is
 written again here: the set maxima at box corners (``c1``, ``c2`` and the target are convex along each axis),
-the budget charge piece by piece, whether a box lies in good cells, a cell's plan, the table's interpolant over a
-box (by :func:`softreach.reach.tables.interpolation.interpolate` at the box's lattice points, the table's own
-engine), the admissibility of an action, the rule's choice and the plans followed where no action is admissible.
+the budget charge piece by piece, whether a box lies in good cells, a cell's plan, the table's value at a box's
+corners (by :func:`softreach.reach.tables.interpolation.interpolate`, the table's own engine), the admissibility of
+an action, the rule's choice and the plans followed where no action is admissible.
 
 The choice among candidates is made by lexicographic keys instead of the filter's numeric rank offsets
 (``softreach.reach.proof.ranks``); where two keys lie within the interpolation's rounding of each other the
@@ -29,10 +29,6 @@ from softreach.reach.proof.lookahead import exact_normalized
 from softreach.reach.proof.model_kernels import held_boxes
 from softreach.reach.tables.interpolation import interpolate
 
-#: the table's box maximum is exact for boxes with at most this many grid nodes strictly inside, per axis
-#: (``softreach.reach.proof.box_max.box_max``'s documented ``max_nodes``); wider boxes get the largest node value of
-#: every cell they touch
-MAX_NODES = 3
 #: relative closeness below which two keys count as tied: the interpolation's rounding, far below any difference
 #: between values that decides
 TIE = 1e-9
@@ -188,55 +184,11 @@ class ReferenceDecision:
         return (j, int(np.asarray(cells.hold[k])[idx])) if j >= 0 else (-1, 0)
 
     # ------------------------------------------------------------ the table
-    def box_max(self, name, t, lo, hi):
-        """The largest value of the field's interpolant over the box at time ``t``: at the box's lattice points
-        (its ends and the grid nodes strictly inside, per axis) where each axis holds at most :data:`MAX_NODES`
-        nodes, else the largest node of the cells it touches at the snapshots around ``t``; ``+inf`` off the grid."""
-        values, times, grid = self.fields[name]
-        glo, ghi = np.asarray(grid.lo, float), np.asarray(grid.hi, float)
-        shape, h, periodic = np.asarray(grid.shape), np.asarray(grid.spacing, float), grid.periodic
-        axes, wide = [], False
-        for i in range(len(lo)):
-            s_lo, s_hi = (lo[i] - glo[i]) / h[i], (hi[i] - glo[i]) / h[i]
-            tol = 1e-9 * max(1.0, shape[i])
-            if not periodic[i] and not (s_lo >= -tol and s_hi <= shape[i] - 1 + tol):
-                return math.inf
-            inner = list(range(math.floor(s_lo) + 1, math.ceil(s_hi)))
-            wide = wide or len(inner) > MAX_NODES
-            axes.append((s_lo, s_hi, inner))
-        if wide:
-            k = min(max(int(np.searchsorted(times, t, side="right")) - 1, 0), len(times) - 2)
-            wt = min(max((t - times[k]) / (times[k + 1] - times[k]), 0.0), 1.0)
-            snaps = [k, k + 1] if wt > 0 else [k]
-            nodes = []
-            for i, (a, b, _) in enumerate(axes):
-                if periodic[i]:  # every node the box touches, wrapped (at most the whole ring)
-                    nodes.append(sorted({n % shape[i] for n in range(math.floor(a), math.ceil(b) + 1)}))
-                else:
-                    nodes.append(list(range(max(math.floor(a), 0), min(math.ceil(b), shape[i] - 1) + 1)))
-            return float(max(np.asarray(values[s])[np.ix_(*nodes)].max() for s in snaps))
-        # the box's ends and the nodes strictly between (unwrapped along a periodic axis: the engine wraps them)
-        points = [[lo[i]] + [glo[i] + n * h[i] for n in inner] + [hi[i]] for i, (_, _, inner) in enumerate(axes)]
-        pts = np.array(list(itertools.product(*points)), dtype=np.float64)
-        pts = np.where(np.asarray(periodic, bool), pts, np.clip(pts, glo, ghi))
-        v, _ = interpolate(values, times, grid, np.full(len(pts), t), pts)
-        return float(np.max(v)) if not np.isnan(v).any() else math.nan
-
-    def next_value(self, t_next, end_lo, end_hi, z_end, z_hi):
-        """The worst certificate ``min(max W_eps, max V)`` over the end box and the budgets ``[z_end, z_hi]``
-        (``V`` only at a budget kept); ``+inf`` where the table has no number."""
-        _, _, w_grid = self.fields["W_eps"]
-        z_floor, z_top = float(w_grid.lo[-1]), float(w_grid.hi[-1])
-        z_lo = max(z_end, z_floor)
-        best = self.box_max("W_eps", t_next, np.r_[end_lo, z_lo], np.r_[end_hi, max(min(z_hi, z_top), z_lo)])
-        if "V" in self.fields and z_end >= 0 and not math.isnan(best):
-            v = self.box_max("V", t_next, end_lo, end_hi)
-            best = math.nan if math.isnan(v) else min(best, v)
-        return math.inf if math.isnan(best) else best
-
-    def safe_value_keeps(self, t_next, end_lo, end_hi):
-        """``V_safe <= 0`` over the end box (true where the table has no ``V_safe``)."""
-        return "V_safe" not in self.fields or self.box_max("V_safe", t_next, end_lo, end_hi) <= 0
+    def next_value(self, t_next, end_lo, end_hi, z_end):
+        """The largest certificate ``D`` at the end box's corners at the budget ``z_end``: ``+inf`` where a corner
+        has none (off the table, or a budget overspent)."""
+        return max(self.certificate(t_next, np.array(c, float), z_end)
+                   for c in itertools.product(*zip(end_lo, end_hi)))
 
     def certificate(self, t, x, z):
         """``D = min(W_eps(x, min(z, z_top)), V(x))`` at the state (``+inf`` off the table)."""
@@ -256,7 +208,8 @@ class ReferenceDecision:
         W, Wt, Wg = self.fields["W_eps"]
         if not (Wt[0] - 1e-9 <= t <= Wt[-1] + 1e-9) or not z >= Wg.lo[-1]:
             return False
-        return math.isfinite(self.box_max("W_eps", t, np.r_[x, min(z, Wg.hi[-1])], np.r_[x, min(z, Wg.hi[-1])]))
+        w, inside = interpolate(W, Wt, Wg, np.array([t]), np.r_[x, min(z, Wg.hi[-1])][None])
+        return bool(inside[0]) and math.isfinite(w[0])
 
     # ------------------------------------------------------------ the one-period test
     def judge(self, t, lo, hi, z, a) -> Judged:
@@ -314,27 +267,24 @@ class ReferenceDecision:
         z_lo = max(v.z_end, 0.0)
         return any(self.judge(t + self.dt, v.end_lo, v.end_hi, z_lo, c).passes for c in self.cands)
 
-    def _next(self, v: Judged, z):
+    def _next(self, v: Judged):
         """The next value the filter reports for an action: ``-inf`` where it lands; the table's over its end box
         where it passes, ``+inf`` otherwise."""
         if v.lands:
             return -math.inf
-        return self.next_value(v.t_next, v.end_lo, v.end_hi, v.z_end, z) if v.ok else math.inf
+        return self.next_value(v.t_next, v.end_lo, v.end_hi, v.z_end) if v.ok else math.inf
 
-    def _bad_key(self, v: Judged, z):
-        """Where no candidate passes: end in safe cells first, then ``V_safe`` keeps the end box, then the rest;
-        budget kept before overspent; within those the lower next value, then the smaller overspend; then those
-        that may leave ``C1``, the least far first; last those the enclosure cannot bound."""
+    def _bad_key(self, v: Judged):
+        """Where no candidate passes: end in safe cells first, then budget kept before overspent; within those the
+        lower next value, then the smaller overspend; then those that may leave ``C1``, the least far first; last
+        those the enclosure cannot bound."""
         if not v.bounded:
-            return (7, 0.0)
+            return (4, 0.0)
         if not v.in_c1:
-            return (6, max(v.c1, 0.0))
-        nxt = self.next_value(v.t_next, v.end_lo, v.end_hi, v.z_end, z)
+            return (3, max(v.c1, 0.0))
+        nxt = self.next_value(v.t_next, v.end_lo, v.end_hi, v.z_end)
         tie = math.atan(1e12 if nxt == math.inf else nxt) / math.pi + 1e3 * max(-v.z_end, 0.0)
-        if v.proven:
-            return (0, tie)
-        cls = 1 if self.safe_value_keeps(v.t_next, v.end_lo, v.end_hi) else 3
-        return (cls + (0 if v.kept else 1), tie)
+        return (0 if v.proven else 1 if v.kept else 2, tie)
 
     def blend(self, j, pol, lam):
         q = exact_normalized(self.cands[j], self.a_mid, self.a_half)
@@ -347,40 +297,35 @@ class ReferenceDecision:
         after = t >= self.horizon - 1e-9
         v = self.judge(t, x, x, z, pol)
         if self.keeps(t, v, z):
-            nxt = self._next(v, z)
-            return Decision(pol, AFTER_HORIZON if after else PASS, not after, -1, 1.0, nxt, NO_PLAN)
+            return Decision(pol, AFTER_HORIZON if after else PASS, not after, -1, 1.0, self._next(v), NO_PLAN)
         J = len(self.cands)
         judged = [self.judge(t, x, x, z, c) for c in self.cands]
         any_ok = any(c.passes for c in judged)
+        dist = [float(np.linalg.norm((c - pol) / self.a_half)) for c in self.cands]
         tied: set = set()
+        keeping = -1
         if self.rule == "switch" and any_ok:
-            # the passing candidate of lowest next value that keeps the next state certified, else of lowest next value
-            keys = {j: self._next(judged[j], z) for j in range(J) if judged[j].passes}
-            order = sorted(keys, key=lambda j: (keys[j], j))
-            best = next((j for j in order if self.keeps(t, judged[j], z)), order[0])
-            tied = {j for j in keys if _close(keys[j], keys[best])}
-            best_bad = keys[best]
-            best_next = keys[best]
+            # the passing candidate of lowest next value (a passing one keeps the next state certified)
+            keys = {j: self._next(judged[j]) for j in range(J) if judged[j].passes}
+            keeping = min(keys, key=lambda j: (keys[j], j))
+            tied = {j for j in keys if _close(keys[j], keys[keeping])}
+        elif self.rule == "smooth":
+            # the nearest candidate to the policy's action that passes, or keeps the next state certified
+            for j in sorted((j for j in range(J) if judged[j].passes or judged[j].kept), key=lambda j: dist[j]):
+                if self.keeps(t, judged[j], z):
+                    keeping = j
+                    break
+        bounded = True
+        if keeping >= 0:
+            best = keeping
+        elif any_ok:  # the smooth rule, where no passing candidate keeps: the nearest passing one
+            best = min((j for j in range(J) if judged[j].passes), key=lambda j: (dist[j], j))
         else:
-            keeping = -1
-            if self.rule == "smooth":
-                dist = [float(np.linalg.norm((c - pol) / self.a_half)) for c in self.cands]
-                for j in sorted((j for j in range(J) if judged[j].passes or judged[j].kept), key=lambda j: dist[j]):
-                    if self.keeps(t, judged[j], z):
-                        keeping = j
-                        break
-            if keeping >= 0:
-                best = keeping
-                best_next = self._next(judged[best], z)
-                best_bad = best_next if judged[best].passes else self._bad_key(judged[best], z)
-            elif any_ok:  # the smooth rule, where no passing candidate keeps: the nearest passing one
-                best = min((j for j in range(J) if judged[j].passes), key=lambda j: (dist[j], j))
-                best_next = best_bad = self._next(judged[best], z)
-            else:
-                keys = {j: self._bad_key(judged[j], z) for j in range(J)}
-                best = min(keys, key=lambda j: (keys[j], j))
-                tied = {j for j in keys if keys[j][0] == keys[best][0] and _close(keys[j][1], keys[best][1])}
-                best_next, best_bad = self._next(judged[best], z), keys[best]
+            keys = {j: self._bad_key(judged[j]) for j in range(J)}
+            best = min(keys, key=lambda j: (keys[j], j))
+            tied = {j for j in keys if keys[j][0] == keys[best][0] and _close(keys[j][1], keys[best][1])}
+            bounded = keys[best] != (4, 0.0)
+        best_next = self._next(judged[best])
         lam = 0.0
         if self.rule == "smooth" and self.iterations:
             lo, hi = 0.0, 1.0
@@ -388,19 +333,16 @@ class ReferenceDecision:
                 mid = 0.5 * (lo + hi)
                 b = self.judge(t, x, x, z, self.blend(best, pol, mid))
                 if any_ok and self.keeps(t, b, z):
-                    lo, best_next = mid, self._next(b, z)
+                    lo, best_next = mid, self._next(b)
                 else:
                     hi = mid
             lam = lo
         act = self.blend(best, pol, lam)
         new_plan = NO_PLAN
-        # the safe cells' plan where the choice's end is not proven safe (a passing choice with a finite next
-        # value, or one ending in safe cells, is)
-        proven_or_better = best_bad < math.inf if isinstance(best_bad, float) else best_bad[0] == 0
-        for game, cells, weak in ((PLAN_LAND, self.land, not any_ok), (PLAN_SAFE, self.safe, None)):
-            if game == PLAN_SAFE:
-                weak = not proven_or_better
-            if cells is None or not weak:
+        # where no candidate passes: the landing cells' plan, else the safe cells' where the choice's end box does
+        # not lie in them
+        for game, cells in ((PLAN_LAND, self.land), (PLAN_SAFE, self.safe)):
+            if any_ok or cells is None or (game == PLAN_SAFE and judged[best].proven):
                 continue
             if plan is not None and plan[1] > 0 and 0 <= plan[0] < J and plan[2] == game:
                 jj, left = int(plan[0]), int(plan[1]) - 1
@@ -409,13 +351,11 @@ class ReferenceDecision:
                 if not (0 <= cj < J and self.covered(cells, t, x, x, z)):
                     continue
                 jj, left = cj, ck - 1
-            best, act, lam, tied = jj, self.cands[jj].copy(), 0.0, set()
-            best_next = self._next(judged[jj], z) if judged[jj].passes else math.inf
+            best, act, lam, tied, bounded = jj, self.cands[jj].copy(), 0.0, set(), True
+            best_next = self._next(judged[jj])
             new_plan = (jj, left, game)
-            proven_or_better, best_bad = True, -1.0
-            if game == PLAN_LAND:
-                any_ok = True
-        bounded = best_bad != (7, 0.0) and best_bad != math.inf
+            any_ok = game == PLAN_LAND
+            break
         reason = ((BLEND if lam > 0 else OPTIMAL) if any_ok else UNCERTIFIED) if bounded else FALLBACK
         if not self.on_table(t, x, max(z, 0.0)):
             reason = OUTSIDE

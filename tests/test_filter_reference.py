@@ -18,7 +18,7 @@ from softreach.reach.sim.integrator import integrate_period
 
 def _agree(vf, ref, t, x, z, a, plans=None):
     """Each row's decision, batch and one row at a time, is the reference's: the applied action bit for bit, the
-    reason, whether certified, the candidate, the blend, the plan, and the worst next value (to the interpolation's
+    reason, whether certified, the candidate, the blend, the plan, and the next value (to the interpolation's
     rounding). Where the reference finds the chosen candidate's key tied with another's (equal to its rounding) the
     filter may pick either. :return: the reasons' counts and the number of tied rows."""
     applied, info = vf.filter(t, x, z, a, plan=plans)
@@ -146,9 +146,9 @@ def test_point_mass_edge_faces_and_late_states(pm):
 
 def test_point_mass_closed_loop_with_plans(pm):
     """Runs from landing-cell states under policies that act at random and dive, with winds that jump between
-    their extremes three times inside every period (the env's integrator): at every step the filter's decision,
-    fed back its own plan, is the reference's with the same plan, and every run keeps ``C1`` and the budget and
-    has no uncertified step."""
+    their extremes inside every period (the env's integrator, landing checked where the env checks it): at every
+    step the filter's decision, fed back its own plan, is the reference's with the same plan, and every run keeps
+    ``C1`` and the budget and has no uncertified step."""
     vf, ref = pm
     model = vf.model
     rng = np.random.default_rng(11)
@@ -171,6 +171,8 @@ def test_point_mass_closed_loop_with_plans(pm):
     followed = 0
     d_lo, d_hi = model.disturbance_bounds[0][0], model.disturbance_bounds[1][0]
     alive = np.ones(n, bool)
+    checks = vf.dt * np.arange(1, vf.target_checks) / vf.target_checks
+    checks_and_end = set(checks.tolist()) | {vf.dt}
     for step in range(35):
         a = np.where(np.arange(n)[:, None] % 2 == 0, rng.uniform(-60, 60, (n, 1)), -60.0)
         rows = np.nonzero(alive)[0]
@@ -184,7 +186,10 @@ def test_point_mass_closed_loop_with_plans(pm):
         plans = new
         followed += int((info["plan"][:, 0] >= 0).sum())
         for r, u in zip(rows, applied):
-            cuts = np.sort(rng.uniform(0, vf.dt, 3))
+            # segments end at the wind's switches and at the env's landing checks (its sub-step ends), where alone
+            # a landing ends the run, as in the env; C1 is checked at every segment end
+            switches = np.sort(rng.uniform(0, vf.dt, 3))
+            cuts = np.union1d(switches, checks)
             xs, tt, spent = list(map(float, x[r])), float(t[r]), 0.0
             for s0, s1 in zip(np.r_[0, cuts], np.r_[cuts, vf.dt]):
                 xs, cost, _, _ = integrate_period(model, tt, xs, [float(u[0])], [float(rng.choice([d_lo, d_hi]))],
@@ -193,7 +198,7 @@ def test_point_mass_closed_loop_with_plans(pm):
                 tt += s1 - s0
                 pt = [np.float64(v) for v in xs]
                 assert float(model.hard_constraint(tt, pt)) <= 0 and z[r] - spent >= 0, (r, step, xs)
-                if model.landed(tt, pt):
+                if s1 in checks_and_end and model.landed(tt, pt):
                     alive[r] = False
                     break
             x[r], z[r], t[r] = xs, z[r] - spent, t[r] + vf.dt

@@ -1,4 +1,4 @@
-"""The sampled-data filter's core: enclosures, the exact box maximum, the one-period test, the rules, inputs."""
+"""The sampled-data filter's core: enclosures, the next value, the one-period test, the rules, inputs."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ from reference_decision import ReferenceDecision
 from softreach.reach.sim.integrator import integrate_period
 from softreach.filters import AFTER_HORIZON, BLEND, OPTIMAL, OUTSIDE, PASS, UNCERTIFIED, ValueFilter
 from softreach.reach import TableError, get_model, load_table
-from softreach.reach.proof.box_max import box_max
 from softreach.reach.tables.interpolation import interpolate
 
 DT = 0.01
@@ -28,7 +27,7 @@ def by_reference(vf, t, x, z, a):
     out = []
     for ti, xi, zi, ai in zip(np.broadcast_to(t, (len(x),)), x, np.broadcast_to(z, (len(x),)), a):
         v = ref.judge(float(ti), xi, xi, float(zi), np.asarray(ai, dtype=np.float64))
-        out.append((v.passes, ref.keeps(float(ti), v, float(zi)), ref._next(v, float(zi))))
+        out.append((v.passes, ref.keeps(float(ti), v, float(zi)), ref._next(v)))
     return tuple(np.array(c) for c in zip(*out))
 
 
@@ -122,78 +121,38 @@ def test_a_period_spends_budget_only_where_its_box_may_leave_c2(vfilter, pointma
         assert (np.abs(shares - np.round(shares)) > 1e-3).mean() > 0.5
 
 
-# ------------------------------------------------------------------------------------------ the box maximum
-def test_box_max_is_the_exact_maximum_of_the_interpolant(pointmass_held_table):
+# ------------------------------------------------------------------------------------------ the next value
+def test_the_next_value_is_the_largest_certificate_at_the_end_boxs_corners(pointmass_held_table):
+    """The value that ranks an action (:func:`softreach.filters.judge.next_value`): ``min(V, W_eps)`` of the table's
+    own interpolation at each corner of the end box, at the budget the period may leave, the largest; ``+inf``
+    where a corner is off the grid (a budget below the table's budget grid too)."""
+    import itertools
+
+    from softreach.filters.compiled import decision_space
+    from softreach.filters.judge import next_value
+
     table = pointmass_held_table
-    vals, times, g = table.values("W_eps"), table.times("W_eps"), table.grid("W_eps")
+    vf = ValueFilter(table, 0.01)
+    work = decision_space(2, 1, len(vf.compiled.cands))[0].work
+    fields = {f: (table.values(f), table.times(f), table.grid(f)) for f in ("V", "W_eps")}
+    z_top = fields["W_eps"][2].hi[-1]
     rng = np.random.default_rng(1)
-    N = 200
-    lo = np.c_[rng.uniform(-15, 14, N), rng.uniform(0, 17, N), rng.uniform(0, 0.9, N)]
-    width = np.c_[rng.uniform(0, 1.5, N), rng.uniform(0, 0.5, N), rng.uniform(0, 0.02, N)]
-    t = np.full(N, times[30])
-    t[N // 2:] = 0.3 * times[30] + 0.7 * times[31]  # between snapshots: a blend of two multilinear fields
-    got = box_max(vals, times, g, t, lo, lo + width)
-    for i in range(N):
-        axes = []
-        for a in range(3):
-            pts = np.linspace(lo[i, a], lo[i, a] + width[i, a], 7)
-            nodes = g.lo[a] + g.spacing[a] * np.arange(g.shape[a])
-            inner = nodes[(nodes > lo[i, a]) & (nodes < lo[i, a] + width[i, a])]
-            axes.append(np.concatenate([pts, inner]))
-        P = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-        v, _ = interpolate(vals, times, g, np.full(len(P), t[i]), P)
-        # the lattice holds every corner of every sub-box: its maximum is the exact one (boxes holding more than
-        # three nodes along an axis: an upper bound)
-        assert got[i] >= v.max() - 1e-9
-        if all(len(ax) <= 7 + 3 for ax in axes):
-            assert got[i] == pytest.approx(v.max(), abs=1e-9)
-    off = box_max(vals, times, g, t[:1], np.array([[19.0, 5.0, 0.3]]), np.array([[21.0, 5.0, 0.3]]))
-    assert off[0] == np.inf
-
-
-def test_box_max_of_wide_boxes_is_the_largest_node_of_the_cells_touched(pointmass_held_table):
-    """Boxes holding more than three nodes along an axis (a period's budget range ``[z_end, z]``) get the largest
-    node value of every cell they touch at the two snapshots around ``t``: an upper bound of the interpolant."""
-    table = pointmass_held_table
-    vals, times, g = table.values("W_eps"), table.times("W_eps"), table.grid("W_eps")
-    rng = np.random.default_rng(4)
-    N = 150
-    lo = np.c_[rng.uniform(-15, 14, N), rng.uniform(0, 17, N), rng.uniform(0, 0.5, N)]
-    hi = lo + np.c_[rng.uniform(0, 0.3, N), rng.uniform(0, 0.3, N), rng.uniform(0.1, 0.4, N)]
-    t = rng.uniform(times[0], times[-2], N)
-    got = box_max(vals, times, g, t, lo, hi)
-    nodes = [g.lo[a] + g.spacing[a] * np.arange(g.shape[a]) for a in range(3)]
-    for i in range(N):
-        k = int(np.searchsorted(times, t[i], side="right") - 1)
-        cells = [np.nonzero((ax >= ax[ax <= lo[i, a]].max()) & (ax <= ax[ax >= hi[i, a]].min()))[0]
-                 for a, ax in enumerate(nodes)]
-        expect = max(np.asarray(vals[kk])[np.ix_(*cells)].max() for kk in (k, k + 1))
-        assert got[i] == pytest.approx(expect, abs=1e-6)
-        P = np.stack(np.meshgrid(*[np.linspace(lo[i, a], hi[i, a], 5) for a in range(3)], indexing="ij"),
-                     -1).reshape(-1, 3)
-        v, _ = interpolate(vals, times, g, np.full(len(P), t[i]), P)
-        assert got[i] >= v.max() - 1e-9
-
-
-def test_box_max_wraps_a_periodic_axis():
-    from softreach.reach.numerics.grid import Grid
-
-    g = Grid((0.0, 0.0), (2 * np.pi, 1.0), (16, 5), (True, False))
-    th = g.lo[0] + g.spacing[0] * np.arange(16)
-    vals = np.stack([np.cos(th)[:, None] * np.linspace(1, 2, 5)[None, :]] * 2)
-    times = np.array([0.0, 1.0])
-    rng = np.random.default_rng(3)
-    N = 60
-    lo = np.c_[rng.uniform(-7, 7, N), rng.uniform(0, 0.7, N)]
-    hi = lo + np.c_[rng.uniform(0, 1.2, N), rng.uniform(0, 0.3, N)]
-    got = box_max(vals, times, g, np.full(N, 0.5), lo, hi)
-    for i in range(N):
-        P = np.stack(np.meshgrid(np.linspace(lo[i, 0], hi[i, 0], 301), np.linspace(lo[i, 1], hi[i, 1], 5),
-                                 indexing="ij"), -1).reshape(-1, 2)
-        v, inside = interpolate(vals, times, g, np.full(len(P), 0.5), P)
-        assert inside.all()
-        # the fine lattice passes through every node inside the box up to 0.004 rad; cos' slope is at most 2
-        assert v.max() - 1e-12 <= got[i] <= v.max() + 2 * (hi[i, 0] - lo[i, 0]) / 300 + 1e-9
+    times = fields["W_eps"][1]
+    for i in range(200):
+        lo = rng.uniform([-15, 0], [14, 17])
+        hi = lo + rng.uniform([0, 0], [0.5, 0.3])
+        z = rng.uniform(0, 0.9)
+        t = float(times[30]) if i % 2 else 0.3 * times[30] + 0.7 * times[31]  # between snapshots: a blend
+        want = -np.inf
+        for c in itertools.product(*zip(lo, hi)):
+            w, _ = interpolate(*fields["W_eps"], np.array([t]), np.r_[c, min(z, z_top)][None])
+            v, _ = interpolate(*fields["V"], np.array([t]), np.array(c)[None])
+            want = max(want, min(w[0], v[0]))
+        got = next_value(vf.compiled.T, t, lo, hi, z, work)
+        assert got == pytest.approx(want, abs=1e-9), (i, got, want)
+    lo, hi = np.array([19.0, 5.0]), np.array([21.0, 5.1])  # reaches past the grid's 20 m/s
+    assert next_value(vf.compiled.T, 0.1, lo, hi, 0.3, work) == np.inf
+    assert next_value(vf.compiled.T, 0.1, np.array([0.0, 5.0]), np.array([0.1, 5.1]), -0.2, work) == np.inf
 
 
 # ------------------------------------------------------------------------------------------ the held game
@@ -418,12 +377,19 @@ def test_torch_in_torch_out(vfilter):
 
 
 def test_the_safety_value_keeps_c1_where_braking_can(pointmass_held_table):
-    """``V_safe``: stay in C1 until T. Falling at speed v from height y can be stopped before the ground iff
-    v^2 / (2 (u_max - g - d_max)) < y (full thrust against the worst wind)."""
+    """``V_safe`` (:func:`~softreach.reach.problem.avoid_problem`) of the sampled-data game: stay in C1 until T.
+    Falling at speed v from height y can be stopped before the ground iff v^2 / (2 (u_max - g - d_max)) < y (full
+    thrust against the worst wind)."""
+    from softreach.reach import SolverSettings
+    from softreach.reach.numerics.held import solve_held
+    from softreach.reach.problem import avoid_problem
+
     table = pointmass_held_table
-    assert table.header["fields"]["V_safe"]["problem"]["kind"] == "avoid"
-    S = np.asarray(table.values("V_safe")[0])
-    g = table.grid("V_safe")
+    g = table.grid("V")
+    spec = table.header["fields"]["V"]
+    S = solve_held(avoid_problem(get_model("pointmass")), g, table.times("V"), SolverSettings(**spec["settings"]),
+                   np.asarray(spec["held_controls"]))
+    S = S.cpu().numpy() if hasattr(S, "cpu") else np.asarray(S)
     v, y = np.meshgrid(g.lo[0] + g.spacing[0] * np.arange(g.shape[0]), g.lo[1] + g.spacing[1] * np.arange(g.shape[1]),
                        indexing="ij")
     stop = v ** 2 / (2 * (60.0 - 9.8 - 10.0))

@@ -67,8 +67,8 @@ def test_the_key_is_a_digest_of_every_package_source():
     assert {ROOT / "reach/proof/kernels.py", ROOT / "filters/judge.py", ROOT / "reach/models/glider.py",
             ROOT / "src/softreach/cli.py"} <= set(expected)
     assert jit.source_files() == expected
-    from softreach.reach.proof.kernels import box_max_row
-    assert box_max_row._cache._impl.locator.get_source_stamp() == jit.source_stamp()
+    from softreach.reach.proof.kernels import certificate_rows
+    assert certificate_rows._cache._impl.locator.get_source_stamp() == jit.source_stamp()
     jit.source_stamp.cache_clear()  # read the files again now (the stamp is computed once per process)
     assert jit.source_stamp() == jit.digest(expected)
 

@@ -12,7 +12,6 @@ from softreach.reach import SolveConfig, get_model
 from softreach.reach.numerics.compute import validate
 from softreach.reach.numerics.derivatives import upwind_derivatives
 from softreach.reach.numerics.grid import Grid
-from softreach.reach.proof.box_max import box_max
 from softreach.reach.tables.interpolation import interpolate
 from softreach.reach.problem import classical_problem
 from softreach.reach.numerics.solver import HamiltonianOperator, SolverSettings
@@ -69,25 +68,26 @@ def test_interpolation_wraps_the_periodic_coordinate():
     assert not out[0]
 
 
-def test_box_max_over_a_box_across_the_seam_is_the_interpolants_maximum():
-    """The filter's exact box maximum (:func:`box_max`) on boxes that cross the seam, and a sound bound on a box
-    longer than the period."""
+def test_the_filters_compiled_interpolant_wraps_the_seam_as_the_table_does():
+    """The filter's compiled read of a table (:func:`softreach.reach.proof.kernels.point_value`) at points on both
+    sides of the seam, beyond it and several periods away, against the table's own interpolation."""
+    from softreach.reach.proof.kernels import point_scratch, point_value
+    from softreach.reach.proof.lookahead import kernel_field
+
     grid = _periodic_grid()
     rng = np.random.default_rng(1)
-    values = rng.normal(size=(1,) + grid.shape)
-    times = np.array([0.0])
-    lo = np.array([[0.2, math.pi - 0.5], [0.0, -math.pi - 0.3], [0.4, 2.0]])
-    hi = np.array([[0.7, math.pi + 0.4], [1.0, -math.pi + 0.2], [0.6, 2.0 + 2 * math.pi]])
-    best = box_max(values, times, grid, np.zeros(3), lo, hi)
-    for r in range(3):
-        s = np.linspace(0, 1, 201)
-        X, Y = np.meshgrid(lo[r, 0] + s * (hi[r, 0] - lo[r, 0]), lo[r, 1] + s * (hi[r, 1] - lo[r, 1]), indexing="ij")
-        pts = np.column_stack([X.ravel(), Y.ravel()])
-        v, inside = interpolate(values, times, grid, np.zeros(len(pts)), pts)
-        assert inside.all()
-        assert best[r] >= v.max() - 1e-12, r  # sound everywhere
-        if r < 2:  # boxes across the seam with at most two nodes inside along theta: exact
-            assert best[r] <= v.max() + 1e-9, r
+    values = rng.normal(size=(2,) + grid.shape)
+    times = np.array([0.0, 1.0])
+    field = kernel_field(values, times, grid)
+    buf, node = point_scratch(2)
+    last = grid.axis(1)[-1]
+    thetas = np.r_[last + 0.3 * grid.spacing[1], -math.pi, math.pi, 3 * math.pi + 0.2, -7.0, rng.uniform(-9, 9, 20)]
+    for th in thetas:
+        x = np.array([rng.uniform(0, 1), th])
+        t = float(rng.uniform(0, 1))
+        want, inside = interpolate(values, times, grid, np.array([t]), x[None])
+        assert inside[0]
+        assert point_value(field, t, x, buf, node) == pytest.approx(want[0], abs=1e-12), th
 
 
 def test_env_wraps_the_heading_and_follows_the_exact_circle():

@@ -15,7 +15,7 @@ import numpy as np
 
 from .. import backend as B
 from .grid import Grid, budget_axis
-from ..problem import Model, avoid_problem, check_edges, classical_problem, soft_problem
+from ..problem import Model, check_edges, classical_problem, soft_problem
 from .budget_surface import budget_problem, solve_budget_surface
 from .held import solve_held
 from .solver import SolverSettings, solve
@@ -169,11 +169,6 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
     fields["V"] = {"grid": state_grid.to_dict(), "times": times, "problem": classical_problem(model).metadata(),
                    "settings": cfg.settings.to_dict(), **game}
     problems["V"] = (classical_problem(model), state_grid)
-    if held:
-        # where the landing guarantee is lost, the filter still keeps C1 as long as it can (reach/proof/lookahead.py)
-        fields["V_safe"] = {"grid": state_grid.to_dict(), "times": times, "problem": avoid_problem(model).metadata(),
-                            "settings": cfg.settings.to_dict(), **game}
-        problems["V_safe"] = (avoid_problem(model), state_grid)
     if cfg.budget_surface:
         bp = budget_problem(model, cfg.eps)
         fields["Q_min"] = {"grid": state_grid.to_dict(), "times": times, "problem": bp.metadata(),
@@ -210,9 +205,7 @@ def solve_table(model: Model, cfg: SolveConfig, out: str | os.PathLike, *, resum
 
             def store(kk, values, _n=name, _grid=grid):
                 writer.write_snapshot(_n, kk, values)
-                # the certificates only: Q_min >= 0 (its ghosts, extrapolated away from zero, only rise), and
-                # V_safe ranks the fallback where nothing is certified, promising nothing (C1 may be unbounded,
-                # as the glider's is above)
+                # the certificates only: Q_min >= 0 (its ghosts, extrapolated away from zero, only rise)
                 if _n in ("V", "W_eps"):
                     check_edges(_n, values, _grid.periodic, _grid.names or model.state_names, model.state_dim)
 

@@ -1,11 +1,7 @@
 """Compiled loops behind the safety filter's decisions, one row at a time, where numpy's fixed cost per call would
-dwarf the arithmetic: the interpolant's maximum over a box (:func:`softreach.reach.proof.box_max.box_max`), the
-certificate at a state, the cells' cover test and plans (:mod:`softreach.reach.proof.cell_certificate`).
-
-Small functions handed the filter's large tuples are inlined (``inline="always"``): the call costs more than their
-work. The lattice is inlined into the box maximum for speed; the box maximum is not inlined into its callers,
-which would lengthen the first compilation. It and the cover test allocate nothing, so the compiled decision
-(:mod:`softreach.filters.compiled`) runs them without numba's reference counting (``_nrt=False``)."""
+dwarf the arithmetic: the table's interpolant at a point and the certificate at a state, which rank; the cells'
+cover test and plans (:mod:`softreach.reach.proof.cell_certificate`), which prove. They allocate nothing, so the
+compiled decision (:mod:`softreach.filters.compiled`) runs them without numba's reference counting (``_nrt=False``)."""
 
 from __future__ import annotations
 
@@ -17,8 +13,6 @@ from ..jit import njit
 
 #: tolerance of the grid checks [cells] and time-span checks [s] (:data:`softreach.reach.tables.interpolation.TOL`)
 TOL = 1e-9
-#: the most nodes per axis of a box whose maximum is exact
-MAX_NODES = 3
 
 
 def frozen(a: np.ndarray) -> np.ndarray:
@@ -63,172 +57,17 @@ def _blend(a, b, f):
     return (1.0 - f) * a + f * b
 
 
-@njit(inline="always")
-def _node_offset(q, first, extent, shape, periodic):
-    """The flat index of the ``q``-th node (last axis fastest) of the block of ``extent`` nodes from ``first``."""
-    off, stride = 0, 1
-    for a in range(len(shape) - 1, -1, -1):
-        node = first[a] + q % extent[a]
-        q //= extent[a]
-        node = node % shape[a] if periodic[a] else min(node, shape[a] - 1)
-        off += node * stride
-        stride *= shape[a]
-    return off
-
-
-@njit(inline="always")
-def _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first, count, buf_a, buf_b, coord_cell,
-                 coord_frac, axes, contrib):
-    """The interpolant's largest value on a box's lattice (per axis its two ends and the ``count[a]`` nodes from
-    ``first[a]`` between them): every corner of the sub-boxes the grid cuts it into, where a multilinear maximum is.
-    The block of nodes, blended in time, is contracted axis by axis with each coordinate's linear weights."""
-    D = len(shape)
-    dims, base, span, idx = axes[0], axes[1], axes[2], axes[3]
-    for a in range(D):
-        L = 1 if (count[a] == 0 and lo[a] == hi[a]) else count[a] + 2
-        span[a] = L
-        for p in range(L):
-            x = lo[a] if p == 0 else (hi[a] if p == L - 1 else glo[a] + h[a] * (first[a] + p - 1))
-            if periodic[a]:
-                S = ((x - glo[a]) * inv_h[a]) % shape[a]
-                low = math.floor(S)
-                coord_frac[a, p] = S - low
-                coord_cell[a, p] = int(low)
-            else:
-                S = min((min(max(x, glo[a]), ghi[a]) - glo[a]) * inv_h[a], shape[a] - 1.0)
-                coord_cell[a, p] = min(int(S), shape[a] - 2)
-                coord_frac[a, p] = S - coord_cell[a, p]
-        if periodic[a]:
-            # unwrapped: the box may cross the seam
-            for p in range(1, L):
-                while coord_cell[a, p] < coord_cell[a, p - 1]:
-                    coord_cell[a, p] += shape[a]
-        base[a] = coord_cell[a, 0]
-        dims[a] = coord_cell[a, L - 1] + 2 - base[a]
-        # each block node's share of the flat index along this axis
-        stride = 1
-        for b in range(a + 1, D):
-            stride *= shape[b]
-        for j in range(dims[a]):
-            node = base[a] + j
-            contrib[a, j] = (node % shape[a] if periodic[a] else min(node, shape[a] - 1)) * stride
-    # the block of nodes blended in time, the flat index kept as a running sum
-    size = 1
-    off = 0
-    for a in range(D):
-        size *= dims[a]
-        idx[a] = 0
-        off += contrib[a, 0]
-    for q in range(size):
-        v = flat[k, off]
-        buf_a[q] = (1.0 - wt) * v + wt * flat[k + 1, off] if wt > 0.0 else v
-        a = D - 1
-        while a >= 0:
-            off -= contrib[a, idx[a]]
-            idx[a] += 1
-            if idx[a] < dims[a]:
-                off += contrib[a, idx[a]]
-                break
-            idx[a] = 0
-            off += contrib[a, 0]
-            a -= 1
-    # contract axis by axis
-    src, dst = buf_a, buf_b
-    for a in range(D):
-        outer = 1
-        for b in range(a):
-            outer *= span[b]
-        inner = 1
-        for b in range(a + 1, D):
-            inner *= dims[b]
-        L = span[a]
-        n_a = dims[a]
-        for o in range(outer):
-            for p in range(L):
-                j = coord_cell[a, p] - base[a]
-                f = coord_frac[a, p]
-                s0 = (o * n_a + j) * inner
-                d0 = (o * L + p) * inner
-                for i in range(inner):
-                    dst[d0 + i] = _blend(src[s0 + i], src[s0 + inner + i], f)
-        src, dst = dst, src
-    total = 1
-    for a in range(D):
-        total *= span[a]
-    best = -np.inf
-    for q in range(total):
-        v = src[q]
-        if math.isnan(v):
-            return v
-        if v > best:
-            best = v
-    return best
-
-
 @njit
-def box_scratch(D, max_nodes):
-    """Work space of :func:`box_max_row` (and :func:`point_value`) for ``D`` axes."""
-    return (np.empty(D, np.int64), np.empty(D, np.int64), np.empty((max_nodes + 3) ** D),
-            np.empty((max_nodes + 3) ** D), np.empty((D, max_nodes + 2), np.int64), np.empty((D, max_nodes + 2)),
-            np.empty((4, D), np.int64), np.empty((D, max_nodes + 3), np.int64), np.empty(1 << D, np.int64))
-
-
-@njit(_nrt=False)
-def box_max_row(field, t, lo, hi, max_nodes, scratch):
-    """The interpolant's maximum over ``[lo, hi]`` at time ``t`` (:func:`softreach.reach.proof.box_max.box_max`);
-    ``field`` as :func:`~softreach.reach.proof.box_max.kernel_field` makes it, ``scratch`` :func:`box_scratch`."""
-    flat, times, shape, glo, ghi, h, inv_h, periodic = field
-    first, count, buf_a, buf_b, coord_cell, coord_frac, axes, contrib, _ = scratch
-    D = len(shape)
-    exact = True
-    for a in range(D):
-        s_lo = (lo[a] - glo[a]) / h[a]
-        s_hi = (hi[a] - glo[a]) / h[a]
-        if not periodic[a]:
-            tol = TOL * max(1.0, shape[a])
-            if not (s_lo >= -tol and s_hi <= shape[a] - 1 + tol):
-                return np.inf
-        first[a] = math.floor(s_lo) + 1  # the first node strictly above lo (or lo itself, once)
-        count[a] = max(math.ceil(s_hi) - first[a], 0)  # nodes strictly inside (lo, hi)
-        if count[a] > max_nodes:
-            exact = False
-    k, wt = snapshot(times, t)
-    if exact:
-        return _lattice_max(flat, k, wt, shape, glo, ghi, h, inv_h, periodic, lo, hi, first, count, buf_a, buf_b,
-                            coord_cell, coord_frac, axes, contrib)
-    # wide: the largest node of every cell the box touches, at both snapshots
-    k2 = min(k + 1, len(times) - 1) if wt > 0.0 else k
-    P = 1
-    for a in range(D):
-        i0 = math.floor((lo[a] - glo[a]) / h[a])
-        i1 = math.ceil((hi[a] - glo[a]) / h[a])
-        if not periodic[a]:
-            i0, i1 = max(i0, 0), min(i1, shape[a] - 1)
-        first[a] = i0
-        count[a] = min(i1 - i0 + 1, shape[a])
-        P *= count[a]
-    best = -np.inf
-    for p in range(P):
-        off = _node_offset(p, first, count, shape, periodic)
-        v0, v1 = flat[k, off], flat[k2, off]
-        if math.isnan(v0) or math.isnan(v1):
-            return np.nan
-        best = max(best, v0, v1)
-    return best
-
-
-@njit
-def box_max_rows(field, t, lo, hi, max_nodes, out):
-    """:func:`box_max_row` for every row."""
-    scratch = box_scratch(lo.shape[1], max_nodes)
-    for r in range(len(lo)):
-        out[r] = box_max_row(field, t[r], lo[r], hi[r], max_nodes, scratch)
+def point_scratch(D):
+    """Work space of :func:`point_value` for ``D`` axes: the ``2**D`` corner values and flat indices."""
+    return np.empty(1 << D), np.empty(1 << D, np.int64)
 
 
 @njit(inline="always")
 def point_value(field, t, x, buf, node):
-    """The interpolant at ``x`` at time ``t``: :func:`box_max_row` of a box of no width, the same arithmetic in the
-    same order, without the lattice and inlined, as it is asked on every row; ``+inf`` off the grid."""
+    """The table's multilinear interpolant at ``x`` at time ``t`` (:func:`softreach.reach.tables.interpolation.
+    interpolate`), blended linearly between the snapshots around ``t``; ``+inf`` off the grid. ``buf`` and ``node``:
+    :func:`point_scratch`."""
     flat, times, shape, glo, ghi, h, inv_h, periodic = field
     D = len(shape)
     for a in range(D):
@@ -280,7 +119,7 @@ def usable_budget(z, z_top, z_left, t):
 
 
 @njit(inline="always")
-def certificate_row(W, z_top, z_floor, z_left, V, has_V, t, x, z, point, scratch_W, scratch_V):
+def certificate_row(W, z_top, z_floor, z_left, V, has_V, t, x, z, point, buf, node):
     """``D(t, x, z) = min(V~(t, x), W~(t, x, z))``, ``W~`` read at :func:`usable_budget`; ``+inf`` off the grid or
     time span, below the table's budget (``W``) or at a negative one (``V``), or where not finite."""
     times = W[1]
@@ -290,10 +129,10 @@ def certificate_row(W, z_top, z_floor, z_left, V, has_V, t, x, z, point, scratch
     for a in range(n):
         point[a] = x[a]
     point[n] = usable_budget(z, z_top, z_left, t)
-    w = point_value(W, t, point, scratch_W[2], scratch_W[8])
+    w = point_value(W, t, point, buf, node)
     out = w if (z >= z_floor and math.isfinite(w)) else np.inf
     if has_V:
-        v = point_value(V, t, x, scratch_V[2], scratch_V[8])
+        v = point_value(V, t, x, buf, node)
         if z >= 0 and math.isfinite(v):
             out = min(out, v)
     return out
@@ -304,10 +143,9 @@ def certificate_rows(W, z_top, z_floor, z_left, V, has_V, t, x, z, out):
     """:func:`certificate_row` for every row."""
     n = x.shape[1]
     point = np.empty(n + 1)
-    scratch_W, scratch_V = box_scratch(n + 1, MAX_NODES), box_scratch(n, MAX_NODES)
+    buf, node = point_scratch(n + 1)
     for r in range(len(x)):
-        out[r] = certificate_row(W, z_top, z_floor, z_left, V, has_V, t[r], x[r], z[r], point, scratch_W,
-                                 scratch_V)
+        out[r] = certificate_row(W, z_top, z_floor, z_left, V, has_V, t[r], x[r], z[r], point, buf, node)
 
 
 @njit

@@ -10,8 +10,8 @@ every disturbance signal in its box (``docs/filters.md``, "What the user runs, a
 3. ``E x [z', z]``, ``E`` the end box, lies in the landing cells at the next sample time
    (:mod:`softreach.reach.proof.cell_certificate`).
 
-The table only ranks: ``D = min(V~, W~)`` maximised over the end box (:func:`softreach.reach.proof.box_max.box_max`;
-``Q~_min - min(z, T - t)`` for ``W~`` on a budget surface, :func:`surface_fields`). Boxes are widened by
+The table only ranks: ``D = min(V~, W~)`` at the end box's corners (``Q~_min - min(z, T - t)`` for ``W~`` on a budget
+surface, :func:`surface_fields`). Boxes are widened by
 :func:`state_allowance`, charges raised by :func:`budget_allowance`; candidates are :func:`representable`."""
 
 from __future__ import annotations
@@ -20,11 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from .box_max import kernel_field
-from ..numerics.grid import Grid
 from ..boxes import check_action_box
-from .kernels import certificate_rows
+from ..numerics.grid import Grid
 from ..sim.rk4 import rk4_rows
+from ..tables.interpolation import geometry
+from .kernels import certificate_rows, frozen
 
 
 #: the fields that say how much budget suffices, in order of preference
@@ -114,11 +114,18 @@ def budget_allowance(dt: float, horizon: float, pieces: int, samples: int = 128)
     return UNIT_ROUNDOFF * ((2 * samples + 8 + 2 * int(pieces)) * float(dt) + 4.0 * float(horizon))
 
 
+def kernel_field(values: Any, times: Any, grid: Grid) -> tuple:
+    """A field as the compiled loops read it: values ``(n_times, size)`` (a memory map stays mapped), times, grid."""
+    g = geometry(grid)
+    return (frozen(np.asarray(values).reshape(len(times), -1)), frozen(np.asarray(times, dtype=np.float64)), g.shape,
+            g.lo, g.hi, g.h, g.inv_h, g.periodic)
+
+
 def surface_fields(values: Any, times: Any, grid: Grid, horizon: float) -> tuple[tuple, tuple]:
     """A budget surface ``Q_min`` as the compiled code reads ``W_eps``: a budget axis with nodes ``z = 0``
     (``Q_min``) and ``z = T`` (``Q_min - T``, rounded up in float32, so at or above ``Q~_min - z``). Linear in the
     budget, so the interpolant at ``min(z, T - t)`` (:func:`~softreach.reach.proof.kernels.usable_budget`) is the
-    certificate ``Q~_min - min(z, T - t)``, box maxima included. Where no budget suffices both nodes hold ``+inf``,
+    certificate ``Q~_min - min(z, T - t)``. Where no budget suffices both nodes hold ``+inf``,
     so every cell with such a corner reads ``+inf`` (NaN read as ``+inf``): nothing says where feasibility ends.
 
     :return: ``(W, inside)``: the field, and without its infinite nodes (:meth:`~softreach.reach.Table.inside`)
@@ -194,7 +201,7 @@ class Lookahead:
     def from_table(cls, table: Any, model: Any, dt: float, eps: float, target_checks: int = 1) -> "Lookahead":
         """The test against a solved table's ``V`` and ``W_eps``, with the candidates it was solved with."""
         fields = {name: (table.values(name), table.times(name), table.grid(name))
-                  for name in ("V", "W_eps", "Q_min", "V_safe") if name in table.header["fields"]}
+                  for name in ("V", "W_eps", "Q_min") if name in table.header["fields"]}
         budget = next((f for f in BUDGET_FIELDS if f in fields), None)
         if budget is None:
             raise ValueError(f"table {table.path} holds only the classical V; the filter needs W_eps or Q_min")
