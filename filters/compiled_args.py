@@ -104,6 +104,8 @@ class DecisionSpace(NamedTuple):
     work: Work
     #: the end box of a candidate judged from a whole end box (:func:`~softreach.filters.keeps.keeps`)
     work_box: Box
+    #: the part of an end box that :func:`~softreach.filters.keeps.keeps` covers by one candidate (a slab)
+    slab_box: Box
     #: ``(J + 1, n)``: each candidate's end box, and the policy's (or the bisection's) in the last row
     end_lo: np.ndarray
     end_hi: np.ndarray
@@ -141,7 +143,7 @@ def named(M, C, T, action):
 
 
 #: rows of the packed arrays (:func:`packed_space`): floats and booleans per candidate, floats per state (and budget)
-N_FLOAT_J, N_BOOL_J, N_FLOAT_N, N_FLOAT_N1 = 6, 5, 7, 3
+N_FLOAT_J, N_BOOL_J, N_FLOAT_N, N_FLOAT_N1 = 6, 5, 9, 3
 
 
 @njit(inline="always")
@@ -150,5 +152,5 @@ def packed_space(packed):
     (:func:`~softreach.filters.compiled.decision_space`), in Python and compiled alike."""
     fJ, bJ, fn, fn1, ends, act, order, boxes, buf, node = packed
     work = Work(fn[0], fn[1], fn[2], fn[3], fn1[0], fn1[1], fn[6], fn1[2], buf, node)
-    return DecisionSpace(work, Box(fn[4], fn[5]), ends[0], ends[1], bJ[0], fJ[0], fJ[1], fJ[2], bJ[1], fJ[3], order,
-                         fJ[4], act, bJ[2], bJ[3], bJ[4], fJ[5], boxes)
+    return DecisionSpace(work, Box(fn[4], fn[5]), Box(fn[7], fn[8]), ends[0], ends[1], bJ[0], fJ[0], fJ[1], fJ[2],
+                         bJ[1], fJ[3], order, fJ[4], act, bJ[2], bJ[3], bJ[4], fJ[5], boxes)

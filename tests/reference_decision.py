@@ -29,6 +29,8 @@ from softreach.reach.proof.lookahead import exact_normalized
 from softreach.reach.proof.model_kernels import held_boxes
 from softreach.reach.tables.interpolation import interpolate
 
+#: the slab cover of an end box (docs/filters.md, "The rule"): bisection steps for a slab's upper edge, most slabs
+SLAB_STEPS, MAX_SLABS = 8, 4
 #: relative closeness below which two keys count as tied: the interpolation's rounding, far below any difference
 #: between values that decides
 TIE = 1e-9
@@ -258,14 +260,61 @@ class ReferenceDecision:
     def keeps(self, t, v: Judged, z) -> bool:
         """The next state is certified whatever the wind does: where the action passes (its end lies in landing
         cells, or it surely lands); else where its period keeps ``C1`` and the budget before the horizon and one
-        candidate passes from every state of its end box."""
+        candidate passes from every state of its end box, or slabs of it each pass (:meth:`slabs_cover`)."""
         if v.passes:
             return True
         last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
         if not v.kept or last:
             return False
         z_lo = max(v.z_end, 0.0)
-        return any(self.judge(t + self.dt, v.end_lo, v.end_hi, z_lo, c).passes for c in self.cands)
+        return (any(self.judge(t + self.dt, v.end_lo, v.end_hi, z_lo, c).passes for c in self.cands)
+                or self.slabs_cover(t + self.dt, v.end_lo, v.end_hi, z_lo))
+
+    def slab_certified(self, t, lo, hi, z, j):
+        """Every state of the box is certified at ``t`` with ``z`` left: candidate ``j`` passes from all of it, or
+        (``j = -1``) it lies in the landing cells (and the safe cells, where the filter has them)."""
+        if j >= 0:
+            return self.judge(t, lo, hi, z, self.cands[j]).passes
+        t_in = min(t, self.horizon)
+        return self.covered(self.land, t_in, lo, hi, z) and (self.safe is None or
+                                                             self.covered(self.safe, t_in, lo, hi, z))
+
+    def slabs_cover(self, t, end_lo, end_hi, z):
+        """At most :data:`MAX_SLABS` slabs ``[a, b] x`` (the end box's other axes), consecutive along the first
+        axis from ``end_lo[0]`` to ``end_hi[0]``, each certified (:meth:`slab_certified`) by one option (the cells,
+        then each candidate), found greedily: each slab's upper edge is the largest that :data:`SLAB_STEPS`
+        bisection steps find over the options that are certified on the slab so far; where both corners of the
+        box are not certified by some option, none is sought."""
+        options = range(-1, len(self.cands))
+
+        def slab(a, b):
+            lo, hi = np.array(end_lo, float), np.array(end_hi, float)
+            lo[0], hi[0] = a, b
+            return lo, hi
+
+        for corner in (end_lo, end_hi):
+            if not any(self.slab_certified(t, corner, corner, z, j) for j in options):
+                return False
+        cur, top = end_lo[0], end_hi[0]
+        for k in range(MAX_SLABS):
+            best = cur
+            for j in options:
+                if not self.slab_certified(t, *slab(cur, best), z, j):
+                    continue
+                if k > 0 and self.slab_certified(t, *slab(cur, top), z, j):
+                    return True
+                good, bad = best, top
+                for _ in range(SLAB_STEPS):
+                    mid = 0.5 * (good + bad)
+                    if self.slab_certified(t, *slab(cur, mid), z, j):
+                        good = mid
+                    else:
+                        bad = mid
+                best = max(best, good)
+            if not best > cur:
+                return False
+            cur = best
+        return False
 
     def _next(self, v: Judged):
         """The next value the filter reports for an action: ``-inf`` where it lands; the table's over its end box

@@ -144,6 +144,66 @@ def test_point_mass_edge_faces_and_late_states(pm):
     assert tied <= len(x) // 20
 
 
+#: states of closed loops under full thrust (the audit's always_max policy) where the policy's action kept the next
+#: state certified only by slabs: no candidate passes again from its whole end box ((t, (v, y), z))
+SLAB_STATES = [(0.55, (-9.55322950613404, 3.8255449253475415), 0.0),
+               (0.79, (-8.221229506134193, 1.5994298438753423), 0.0),
+               (0.98, (-0.9244080230167944, 0.7105745440062653), 0.0),
+               (0.87, (-4.954277047146485, 1.0545221424530882), 0.5662373197953584),
+               (0.64, (-13.892671210503593, 3.279192076892608), 0.42841573672771127),
+               (0.94, (-2.232671210503752, 0.7793907137414988), 0.3222334907120929),
+               (0.72, (-10.693613785503098, 2.2719413448251604), 0.11978070592731493),
+               (0.97, (-1.0609801304443534, 0.7204356893140811), 0.08536515328321018)]
+
+
+def test_slabs_keep_what_no_single_candidate_keeps(pointmass_held_table):
+    """Braking at full thrust near the landing cells' edge: the policy's action passes (as the reference decides)
+    although neither it nor any candidate from its whole end box passes, by slabs; and every end state of its period
+    (constant winds across the wind box, and winds that switch at the extremes inside the period, integrated by the
+    env's integrator with landing checked where the env checks it) is certified at the next step."""
+    vf = ValueFilter(pointmass_held_table, 0.01, target_checks=get_model("pointmass").substeps)
+    ref = ReferenceDecision(vf)
+    model = vf.model
+    t = np.array([s[0] for s in SLAB_STATES])
+    x = np.array([s[1] for s in SLAB_STATES])
+    z = np.array([s[2] for s in SLAB_STATES])
+    a = np.full((len(x), 1), 60.0)
+    counts, _ = _agree(vf, ref, t, x, z, a)
+    assert counts == {PASS: len(x)}, counts
+    d_lo, d_hi = model.disturbance_bounds[0][0], model.disturbance_bounds[1][0]
+    winds = [[(1.0, d)] for d in np.linspace(d_lo, d_hi, 5)]
+    winds += [[(f, d_lo), (1.0 - f, d_hi)] for f in (0.25, 0.5, 0.75)] + [[(f, d_hi), (1.0 - f, d_lo)]
+                                                                         for f in (0.25, 0.5, 0.75)]
+    checks = vf.dt * np.arange(1, vf.target_checks + 1) / vf.target_checks
+    for i in range(len(x)):
+        v = ref.judge(t[i], x[i], x[i], z[i], a[i])
+        z_lo = max(v.z_end, 0.0)
+        assert not v.passes and v.kept
+        assert not any(ref.judge(t[i] + vf.dt, v.end_lo, v.end_hi, z_lo, c).passes for c in ref.cands), i
+        assert ref.slabs_cover(t[i] + vf.dt, v.end_lo, v.end_hi, z_lo)
+        ends, budgets = [], []
+        for wind in winds:
+            # segments end at the wind's switch and at the env's landing checks
+            switch = np.cumsum([f for f, _ in wind])[:-1] * vf.dt
+            cuts = np.union1d(switch, checks)
+            xs, tt, spent, landed = list(map(float, x[i])), float(t[i]), 0.0, False
+            for s0, s1 in zip(np.r_[0.0, cuts[:-1]], cuts):
+                d = wind[int(np.searchsorted(switch, s0, side="right"))][1]
+                xs, cost, _, _ = integrate_period(model, tt, xs, [60.0], [float(d)], s1 - s0, 4, vf.eps, 1e-9)
+                spent, tt = spent + cost, tt + s1 - s0
+                pt = [np.float64(q) for q in xs]
+                assert float(model.hard_constraint(tt, pt)) <= 0, (i, wind, xs)
+                if np.isclose(checks, s1).any() and model.landed(tt, pt):
+                    landed = True
+                    break
+            if not landed:
+                ends.append(xs)
+                budgets.append(z[i] - spent)
+        assert ends, i
+        ok, why, _ = vf.certify(np.full(len(ends), t[i] + vf.dt), np.array(ends), np.array(budgets))
+        assert ok.all(), (i, why)
+
+
 def test_point_mass_closed_loop_with_plans(pm):
     """Runs from landing-cell states under policies that act at random and dive, with winds that jump between
     their extremes inside every period (the env's integrator, landing checked where the env checks it): at every
