@@ -103,14 +103,19 @@ def certified_region(vf: ValueFilter, table, budgets: list[float], continuous=No
     return out
 
 
+def _ratio(a: float, b: float) -> float:
+    """``a / b``, NaN where ``b`` is 0 (a coarse table's empty set)."""
+    return a / b if b else math.nan
+
+
 def print_reference_notes(region: list[dict[str, Any]]) -> None:
     """The region at the budget where the grid reads ``RA~_Q``, and ``Q = 0`` against the classical sets."""
     for r in region:
         if "reference_budget" in r:
             c = r["certified_at_reference_budget"]
             line = (f"Q = {r['Q']:g}: the held table reads RA~_Q at {r['reference_budget']:.4g} s (half a budget cell); at that "
-                    f"budget the filter certifies {c:.2f} ({c / r['set']:.3f} of the held RA~_Q")
-            line += f", {c / r['continuous_set']:.3f} of the continuous one)" if "continuous_set" in r else ")"
+                    f"budget the filter certifies {c:.2f} ({_ratio(c, r['set']):.3f} of the held RA~_Q")
+            line += f", {_ratio(c, r['continuous_set']):.3f} of the continuous one)" if "continuous_set" in r else ")"
             print(line)
         parts = [f"{name} {r[key]:.2f} (certified at Q = 0: {r['certified'] / r[key]:.3f} of it)"
                  for key, name in (("classical_set", "held"), ("continuous_classical_set", "continuous"))

@@ -83,7 +83,7 @@ class Work(NamedTuple):
     hi: np.ndarray
     box_lo: np.ndarray
     box_hi: np.ndarray
-    #: a corner of a box; a point over the state and the budget; the table's reads' scratch
+    #: a box's centre; a point over the state and the budget; the table's reads' scratch
     #: (:func:`~softreach.reach.proof.kernels.point_scratch`)
     corner: np.ndarray
     point: np.ndarray

@@ -56,18 +56,14 @@ def judge_once(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
 
 @njit(_nrt=False)
 def next_value(T, t_next, end_lo, end_hi, z_end, work):
-    """An action's next value, which ranks: the largest certificate ``D`` (:func:`~softreach.reach.proof.kernels.
-    certificate_row`) at the corners of its end box, at the budget ``z_end`` the period may leave (``D`` falls with
-    the budget); ``+inf`` where a corner is off the table (a budget below its budget grid too)."""
-    corner, point, buf, node = work.corner, work.point, work.buf, work.node
-    n = len(end_lo)
-    best = -np.inf
-    for q in range(1 << n):
-        for i in range(n):
-            corner[i] = end_hi[i] if (q >> i) & 1 else end_lo[i]
-        v = certificate_row(T.W, T.z_top, T.z_floor, T.z_left, T.V, T.has_V, t_next, corner, z_end, point, buf, node)
-        best = max(best, v)
-    return best
+    """An action's next value, which ranks: the certificate ``D`` (:func:`~softreach.reach.proof.kernels.
+    certificate_row`) at the centre of its end box, at the budget ``z_end`` the period may leave; ``+inf`` off the
+    table (a budget below its budget grid too)."""
+    centre = work.corner
+    for i in range(len(end_lo)):
+        centre[i] = 0.5 * (end_lo[i] + end_hi[i])
+    return certificate_row(T.W, T.z_top, T.z_floor, T.z_left, T.V, T.has_V, t_next, centre, z_end, work.point,
+                           work.buf, work.node)
 
 
 @njit(inline="always")

@@ -37,7 +37,7 @@ class SafetyFilter(gym.Wrapper):
     * ``margin`` (0); ``optimal_action`` — the normalised candidate the filter chose (NaN where the policy passed);
     * ``filter_reason`` — why: ``"pass"`` or another name in :data:`~softreach.filters.reasons.REASONS`;
     * ``certified`` — the applied action passed the one-period test (or follows a landing cell's plan);
-      ``lookahead`` — its next table value (the largest at its end box's corners), which ranks;
+      ``lookahead`` — its next table value (at its end box's centre), which ranks;
     * at an episode's end, ``filter_episode``: ``steps``, ``interventions``, ``intervention_rate``, ``min_value``
       and ``max_value`` of the decisions (``max_value <= 0``: the episode never left the table's safe set),
       ``budget_used``, ``initial_budget`` and ``certified_start``.

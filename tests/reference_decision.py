@@ -7,7 +7,7 @@ It shares with the filter only what is configuration or the model's, never the d
 snapshots, and the filter's settings (candidates, period, allowances, rule). Everything the decision does with them is
 written again here: the set maxima at box corners (``c1``, ``c2`` and the target are convex along each axis),
 the budget charge piece by piece, whether a box lies in good cells, a cell's plan, the table's value at a box's
-corners (by :func:`softreach.reach.tables.interpolation.interpolate`, the table's own engine), the admissibility of
+centre (by :func:`softreach.reach.tables.interpolation.interpolate`, the table's own engine), the admissibility of
 an action, the rule's choice and the plans followed where no action is admissible.
 
 The choice among candidates is made by lexicographic keys instead of the filter's numeric rank offsets
@@ -187,10 +187,8 @@ class ReferenceDecision:
 
     # ------------------------------------------------------------ the table
     def next_value(self, t_next, end_lo, end_hi, z_end):
-        """The largest certificate ``D`` at the end box's corners at the budget ``z_end``: ``+inf`` where a corner
-        has none (off the table, or a budget overspent)."""
-        return max(self.certificate(t_next, np.array(c, float), z_end)
-                   for c in itertools.product(*zip(end_lo, end_hi)))
+        """The certificate ``D`` at the end box's centre at the budget ``z_end`` (``+inf`` off the table)."""
+        return self.certificate(t_next, 0.5 * (np.asarray(end_lo, float) + np.asarray(end_hi, float)), z_end)
 
     def certificate(self, t, x, z):
         """``D = min(W_eps(x, min(z, z_top)), V(x))`` at the state (``+inf`` off the table)."""

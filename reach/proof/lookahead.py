@@ -10,7 +10,7 @@ every disturbance signal in its box (``docs/filters.md``, "What the user runs, a
 3. ``E x [z', z]``, ``E`` the end box, lies in the landing cells at the next sample time
    (:mod:`softreach.reach.proof.cell_certificate`).
 
-The table only ranks: ``D = min(V~, W~)`` at the end box's corners (``Q~_min - min(z, T - t)`` for ``W~`` on a budget
+The table only ranks: ``D = min(V~, W~)`` at the end box's centre (``Q~_min - min(z, T - t)`` for ``W~`` on a budget
 surface, :func:`surface_fields`). Boxes are widened by
 :func:`state_allowance`, charges raised by :func:`budget_allowance`; candidates are :func:`representable`."""
 
