@@ -96,7 +96,7 @@ def _keeping(enclose, M, C, cands, smooth, tr, space):
         if not (c_ok[k] or (smooth and c_kept[k])):
             break
         if c_ok[k] or keeps(enclose, M, C, cands, tr, space.end_lo[k], space.end_hi[k], c_zend[k], c_kept[k],
-                            space.work, space.work_box, space.slab_box):
+                            space.work, space.work_box, space.slab_box, np.bool_(False)):
             return k
     return -1
 
@@ -206,8 +206,9 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
                 a_next = next_value(T, t_next, end_lo[slot], end_hi[slot], a_zend, work)
             # a passing action keeps: the call of keeps, with its large tuples, is skipped
             if s == 0:
+                # slabs for the policy's own action only: the filter's own choices need one candidate
                 if a_ok or keeps(enclose, M, C, cands, tr, end_lo[J], end_hi[J], a_zend, a_kept, work,
-                                 space.work_box, space.slab_box):
+                                 space.work_box, space.slab_box, np.bool_(True)):
                     for i in range(m):
                         applied[r, i] = pol[r, i]
                     reason[r], nxt[r], certified[r], blend[r] = PASS, a_next if diagnostics else np.nan, True, 1.0
@@ -217,7 +218,7 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
                 continue
             if s > J:
                 if any_ok and (a_ok or keeps(enclose, M, C, cands, tr, end_lo[J], end_hi[J], a_zend, a_kept, work,
-                                             space.work_box, space.slab_box)):
+                                             space.work_box, space.slab_box, np.bool_(False))):
                     lo, best_next = mid, a_next
                 else:
                     hi = mid

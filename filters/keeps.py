@@ -106,10 +106,11 @@ def _covers(enclose, M, C, cands, t, end_lo, end_hi, z, work, e_lo, e_hi, s_lo, 
 
 
 @njit(_nrt=False)
-def keeps(enclose, M, C, cands, t, end_lo, end_hi, z_end, kept, work, work_box, slab_box):
+def keeps(enclose, M, C, cands, t, end_lo, end_hi, z_end, kept, work, work_box, slab_box, slabs):
     """Whether the next state of an action that does not pass is certified whatever the wind does: its period keeps
     ``C1`` and the budget (``kept``) before the horizon, and some candidate passes or surely lands from the whole end
-    box ``[end_lo, end_hi]`` with ``z_end`` left, or from each of consecutive slabs covering it (:func:`_covers`)."""
+    box ``[end_lo, end_hi]`` with ``z_end`` left, or, where ``slabs`` (the policy's own action), from each of
+    consecutive slabs covering it (:func:`_covers`)."""
     horizon = M.horizon
     dt = period(M)
     if not kept or t + dt >= horizon - 1e-9 * max(1.0, horizon):
@@ -122,7 +123,8 @@ def keeps(enclose, M, C, cands, t, end_lo, end_hi, z_end, kept, work, work_box, 
         v = judge_once(enclose, M, C, t + dt, end_lo, end_hi, z_lo, cands[j], e_lo, e_hi, work)
         if v.ok or v.lands:
             return True
-    return _covers(enclose, M, C, cands, t + dt, end_lo, end_hi, z_lo, work, e_lo, e_hi, slab_box.lo, slab_box.hi)
+    return slabs and _covers(enclose, M, C, cands, t + dt, end_lo, end_hi, z_lo, work, e_lo, e_hi, slab_box.lo,
+                             slab_box.hi)
 
 
 __all__ = ["keeps"]

@@ -255,10 +255,11 @@ class ReferenceDecision:
                 return True
         return False
 
-    def keeps(self, t, v: Judged, z) -> bool:
+    def keeps(self, t, v: Judged, z, slabs=False) -> bool:
         """The next state is certified whatever the wind does: where the action passes (its end lies in landing
         cells, or it surely lands); else where its period keeps ``C1`` and the budget before the horizon and one
-        candidate passes from every state of its end box, or slabs of it each pass (:meth:`slabs_cover`)."""
+        candidate passes from every state of its end box, or (``slabs``: the policy's own action) slabs of it each
+        are certified (:meth:`slabs_cover`)."""
         if v.passes:
             return True
         last = t + self.dt >= self.horizon - 1e-9 * max(1.0, self.horizon)
@@ -266,7 +267,7 @@ class ReferenceDecision:
             return False
         z_lo = max(v.z_end, 0.0)
         return (any(self.judge(t + self.dt, v.end_lo, v.end_hi, z_lo, c).passes for c in self.cands)
-                or self.slabs_cover(t + self.dt, v.end_lo, v.end_hi, z_lo))
+                or (slabs and self.slabs_cover(t + self.dt, v.end_lo, v.end_hi, z_lo)))
 
     def slab_certified(self, t, lo, hi, z, j):
         """Every state of the box is certified at ``t`` with ``z`` left: candidate ``j`` passes from all of it, or
@@ -343,7 +344,7 @@ class ReferenceDecision:
         pol = np.minimum(np.maximum(np.asarray(pol, dtype=np.float64), self.a_lo), self.a_hi)
         after = t >= self.horizon - 1e-9
         v = self.judge(t, x, x, z, pol)
-        if self.keeps(t, v, z):
+        if self.keeps(t, v, z, slabs=True):
             return Decision(pol, AFTER_HORIZON if after else PASS, not after, -1, 1.0, self._next(v), NO_PLAN)
         J = len(self.cands)
         judged = [self.judge(t, x, x, z, c) for c in self.cands]

@@ -27,7 +27,7 @@ def by_reference(vf, t, x, z, a):
     out = []
     for ti, xi, zi, ai in zip(np.broadcast_to(t, (len(x),)), x, np.broadcast_to(z, (len(x),)), a):
         v = ref.judge(float(ti), xi, xi, float(zi), np.asarray(ai, dtype=np.float64))
-        out.append((v.passes, ref.keeps(float(ti), v, float(zi)), ref._next(v)))
+        out.append((v.passes, ref.keeps(float(ti), v, float(zi), slabs=True), ref._next(v)))
     return tuple(np.array(c) for c in zip(*out))
 
 
