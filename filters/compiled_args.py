@@ -85,7 +85,7 @@ class Work(NamedTuple):
     box_hi: np.ndarray
     #: a box's centre; a point over the state and the budget; the table's reads' scratch
     #: (:func:`~softreach.reach.proof.kernels.point_scratch`)
-    corner: np.ndarray
+    centre: np.ndarray
     point: np.ndarray
     buf: np.ndarray
     node: np.ndarray

@@ -59,7 +59,7 @@ def next_value(T, t_next, end_lo, end_hi, z_end, work):
     """An action's next value, which ranks: the certificate ``D`` (:func:`~softreach.reach.proof.kernels.
     certificate_row`) at the centre of its end box, at the budget ``z_end`` the period may leave; ``+inf`` off the
     table (a budget below its budget grid too)."""
-    centre = work.corner
+    centre = work.centre
     for i in range(len(end_lo)):
         centre[i] = 0.5 * (end_lo[i] + end_hi[i])
     return certificate_row(T.W, T.z_top, T.z_floor, T.z_left, T.V, T.has_V, t_next, centre, z_end, work.point,
