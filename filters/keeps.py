@@ -1,10 +1,10 @@
 """Whether a held action keeps the next state certified, compiled: the rule's "some candidate passes again from
 every possible next state" (docs/filters.md, "The filter with cells").
 
-Where no single candidate passes from the whole end box, the end box is covered by consecutive slabs along the
-first state axis, each with a candidate that passes from the whole slab (or lying in the landing cells itself):
-every end state lies in some slab, from which that slab's candidate passes, so the next state is certified as
-before. The slabs are found greedily from the box's lower edge, each as long as a bisection finds.
+For the policy's own action, where no single candidate passes from the whole end box, the end box may be covered
+by consecutive slabs along the first state axis, each with a candidate that passes from the whole slab (or lying
+in the landing cells itself): every end state lies in some slab, from which that slab's candidate passes, so the
+next state is certified. The slabs are found greedily from the box's lower edge, each as long as a bisection finds.
 """
 
 from __future__ import annotations
