@@ -64,19 +64,13 @@ def main(argv: list[str] | None = None) -> int:
         if args.shape or args.holds or args.dz:
             ap.error("--cached uses the model's cell_shape and cell_holds; leave out --shape, --holds and --dz")
         vf = ValueFilter(table, table.control_period, target_checks=model.substeps)
-        built = {"safe": vf.safe_cells, "land": vf.landing_cells}
     else:
-        built = {}
-        for game in ("safe", "land"):
-            t0 = time.perf_counter()
-            built[game] = CellCertificate.build(la, shape, dz=args.dz, game=game, holds=holds)
-            print(f"{game} cells {shape}, budget cells of {built[game].dz:g} s, plans of {list(holds)} periods: "
-                  f"built in {time.perf_counter() - t0:.1f} s")
-        vf = ValueFilter(table, table.control_period, target_checks=model.substeps, safe_cells=built["safe"],
-                         landing_cells=built["land"])
+        t0 = time.perf_counter()
+        land = CellCertificate.build(la, shape, dz=args.dz, holds=holds)
+        print(f"landing cells {shape}, budget cells of {land.dz:g} s, plans of {list(holds)} periods: "
+              f"built in {time.perf_counter() - t0:.1f} s")
+        vf = ValueFilter(table, table.control_period, target_checks=model.substeps, landing_cells=land)
     budgets = args.budgets or list(model.default_budgets)
-    print("share of C1's cells safe at t = 0: " + ", ".join(f"Q = {q:g}: {built['safe'].fraction(0, q):.1%}"
-                                                              for q in budgets))
     rng = np.random.default_rng(0)
     lo, hi = (np.asarray(b, float) for b in model.hard_box)
     x = rng.uniform(lo, hi, (args.states, len(lo)))
@@ -108,18 +102,17 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def write_packaged(table, checks_list: list[int] | None = None) -> int:
-    """Build the model's default cells for ``target_checks`` 1 and the model's sub-steps (or ``checks_list``), both
-    games, into :data:`PACKAGED`."""
+    """Build the model's default cells for ``target_checks`` 1 and the model's sub-steps (or ``checks_list``) into
+    :data:`PACKAGED`."""
     model = table.model
     PACKAGED.mkdir(exist_ok=True)
     for checks in checks_list or sorted({1, model.substeps}):
         la = Lookahead.from_table(table, model, table.control_period, table.eps, target_checks=checks)
-        for game in ("land", "safe"):
-            t0 = time.perf_counter()
-            cells = CellCertificate.build(la, model.cell_shape, game=game, holds=model.cell_holds)
-            path = cache_file(cell_key(la, model.cell_shape, game=game, holds=model.cell_holds), PACKAGED)
-            cells.save(path)
-            print(f"{path}: built in {time.perf_counter() - t0:.1f} s")
+        t0 = time.perf_counter()
+        cells = CellCertificate.build(la, model.cell_shape, holds=model.cell_holds)
+        path = cache_file(cell_key(la, model.cell_shape, holds=model.cell_holds), PACKAGED)
+        cells.save(path)
+        print(f"{path}: built in {time.perf_counter() - t0:.1f} s")
     return 0
 
 

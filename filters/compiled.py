@@ -26,7 +26,7 @@ from .compiled_args import (N_BOOL_J, N_FLOAT_J, N_FLOAT_N, N_FLOAT_N1, ActionMa
                             named, packed_space, plain)
 from .compiled_starts import start_plan_rows
 from .judge import badness, judge, next_value, on_table
-from .plans import PLAN_LAND, PLAN_SAFE
+from .plans import PLAN_LAND
 from .reasons import BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, UNCERTIFIED
 from .keeps import keeps
 
@@ -125,43 +125,30 @@ def _choose(enclose, M, C, T, cands, smooth, tr, t_next, space):
             nearest = k
     if nearest >= 0:
         return nearest, True
-    badness(T, t_next, end_lo, end_hi, work, space.c_in, space.c_bounded, space.c_proven, c_kept, space.c_c1,
-            space.c_zend, c_bad)
+    badness(T, t_next, end_lo, end_hi, work, space.c_in, space.c_bounded, c_kept, space.c_c1, space.c_zend, c_bad)
     best = np.argmin(c_bad)
     return best, c_bad[best] < np.inf
 
 
 # called, not inlined: large and run at most once a row (softreach.filters.judge, "Inlined or called")
 @njit(_nrt=False)
-def _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans, any_ok, proven, best, best_next, lam, act, c_next,
-                  new_plans):
-    """Row ``r``'s cells' plans where no candidate passes: the landing cells' (the one followed, else the state's
-    cell's), else the safe cells' where the choice's end box is not ``proven`` to lie in them. Writes ``act`` and
-    ``new_plans[r]``; returns ``(best, best_next, lam, any_ok, followed)``."""
+def _follow_plan(C, cands, r, tr, xr, zr, plans, has_plans, best, best_next, lam, act, c_next, new_plans):
+    """Row ``r``'s landing-cell plan where no candidate passes: the one followed, else the state's cell's. Writes
+    ``act`` and ``new_plans[r]``; returns ``(best, best_next, lam, followed)``."""
     J = cands.shape[0]
-    if any_ok:
-        return best, best_next, lam, any_ok, False
-    for game in (PLAN_LAND, PLAN_SAFE):
-        if game == PLAN_LAND:
-            cells, plan_cells = C.land, C.land_plan
-        elif C.has_safe and not proven:
-            cells, plan_cells = C.safe, C.safe_plan
-        else:
-            continue
-        if has_plans and plans[r, 1] > 0 and 0 <= plans[r, 0] < J and plans[r, 2] == game:
-            jj, left = plans[r, 0], plans[r, 1] - 1
-        else:
-            cj, ck = plan_row(cells, plan_cells[0], plan_cells[1], tr, xr)
-            # (a candidate index past the set can only come from a damaged file: no plan, never a wild read)
-            if not (0 <= cj < J and cover_row(cells, tr, xr, xr, zr)):
-                continue
-            jj, left = cj, ck - 1
-        for i in range(cands.shape[1]):
-            act[i] = cands[jj, i]
-        new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = jj, left, game
-        # the plan's candidate itself is applied, not a blend towards the policy's action
-        return jj, c_next[jj], 0.0, game == PLAN_LAND, True
-    return best, best_next, lam, any_ok, False
+    if has_plans and plans[r, 1] > 0 and 0 <= plans[r, 0] < J and plans[r, 2] == PLAN_LAND:
+        jj, left = plans[r, 0], plans[r, 1] - 1
+    else:
+        cj, ck = plan_row(C.land, C.plan[0], C.plan[1], tr, xr)
+        # (a candidate index past the set can only come from a damaged file: no plan, never a wild read)
+        if not (0 <= cj < J and cover_row(C.land, tr, xr, xr, zr)):
+            return best, best_next, lam, False
+        jj, left = cj, ck - 1
+    for i in range(cands.shape[1]):
+        act[i] = cands[jj, i]
+    new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = jj, left, PLAN_LAND
+    # the plan's candidate itself is applied, not a blend towards the policy's action
+    return jj, c_next[jj], 0.0, True
 
 
 # _nrt=False here and in the kernels it calls: reference counting costs, and they allocate nothing (docs/filters.md)
@@ -199,7 +186,7 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
             a_ok = v.ok or a_lands
             # a surely landing action's next value is -inf; a passing one's is read below where it is needed
             a_next = -np.inf if a_lands else np.inf
-            a_bounded, a_in, a_proven, a_c1, a_zend, t_next = v.bounded, v.in_c1, v.proven, v.c1, v.z_end, v.t_next
+            a_bounded, a_in, a_c1, a_zend, t_next = v.bounded, v.in_c1, v.c1, v.z_end, v.t_next
             a_kept = v.kept or a_lands
             # the policy's and the bisection's next value (the policy's, a diagnostic, only with diagnostics)
             if a_ok and not a_lands and (s > J or (s == 0 and diagnostics)):
@@ -225,7 +212,7 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
                 continue
             j = s - 1
             space.c_ok[j], space.c_next[j], space.c_zend[j], space.c_kept[j] = a_ok, a_next, a_zend, a_kept
-            space.c_in[j], space.c_bounded[j], space.c_proven[j], space.c_c1[j] = a_in, a_bounded, a_proven, a_c1
+            space.c_in[j], space.c_bounded[j], space.c_c1[j] = a_in, a_bounded, a_c1
             any_ok = any_ok or a_ok
             space.c_dist[j] = _distance(cands, j, pol, r, action.half)
             if s == J:
@@ -235,12 +222,11 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
             continue
         lam = lo
         _blend(act, action, best, lam, pol, r)
-        # np.int64, np.bool_: a literal 0 or False would compile _follow_plans once more
-        best, best_next, lam, any_ok, followed = _follow_plans(C, cands, r, tr, xr, zr, plans, has_plans,
-                                                               np.bool_(any_ok), np.bool_(space.c_proven[best]),
-                                                               np.int64(best), best_next, lam, act, space.c_next,
-                                                               new_plans)
-        bounded = bounded or followed
+        if not any_ok:
+            # np.int64: a literal 0 would compile _follow_plan once more
+            best, best_next, lam, any_ok = _follow_plan(C, cands, r, tr, xr, zr, plans, has_plans, np.int64(best),
+                                                        best_next, lam, act, space.c_next, new_plans)
+            bounded = bounded or any_ok
         for i in range(m):
             applied[r, i] = act[i] if bounded else fallback[i]
             chosen[r, i] = cands[best, i]
@@ -264,11 +250,7 @@ class CompiledDecision:
         self.filter = vf
         #: the model's enclosure (an address) and its side of the one-period test
         self.enclose, self.M = motion(la)
-        safe, land = vf.safe_cells, vf.landing_cells
-        # without safe cells, the landing cells' arrays stand in, unread (has_safe), for one compilation
-        safe_args, safe_plan = (safe.kernel_args, safe.plan_args) if safe is not None else (land.kernel_args,
-                                                                                            land.plan_args)
-        self.C = Cells(safe_args, safe is not None, land.kernel_args, safe_plan, land.plan_args)
+        self.C = Cells(vf.landing_cells.kernel_args, vf.landing_cells.plan_args)
         self.T = TableArgs(*la.table_args)
         # a private writable copy: a candidate row has the type of a judged work array, so judge compiles once
         self.cands = np.array(la.candidates, dtype=np.float64, order="C")

@@ -18,14 +18,11 @@ from softreach.reach.proof.period import Motion
 
 
 class Cells(NamedTuple):
-    """The cells' kernel arguments and plans (:class:`~softreach.reach.proof.cell_certificate.CellCertificate`'s)."""
+    """The landing cells' kernel arguments and plans (:class:`~softreach.reach.proof.cell_certificate.
+    CellCertificate`'s ``kernel_args`` and ``plan_args``)."""
 
-    #: the safe cells' kernel arguments (the landing cells', unused, where ``has_safe`` is false); plans likewise
-    safe: tuple
-    has_safe: bool
     land: tuple
-    safe_plan: tuple
-    land_plan: tuple
+    plan: tuple
 
 
 class TableArgs(NamedTuple):
@@ -62,11 +59,10 @@ class Verdict(NamedTuple):
     #: passes (keeps ``C1`` and the budget, ends in the landing cells); every run surely lands inside the period
     ok: bool
     lands: bool
-    #: the enclosure is finite; ``C1`` kept, ending by the horizon; that and the budget kept; ends in the safe cells
+    #: the enclosure is finite; ``C1`` kept, ending by the horizon; that and the budget kept
     bounded: bool
     in_c1: bool
     kept: bool
-    proven: bool
     #: the largest ``c1`` over the motion, the budget at the period's end, the period's end (at most the horizon)
     c1: float
     z_end: float
@@ -121,10 +117,9 @@ class DecisionSpace(NamedTuple):
     c_pref: np.ndarray
     #: the action being judged
     act: np.ndarray
-    #: the verdict's ``in_c1``, ``bounded``, ``proven`` and ``c1``
+    #: the verdict's ``in_c1``, ``bounded`` and ``c1``
     c_in: np.ndarray
     c_bounded: np.ndarray
-    c_proven: np.ndarray
     c_c1: np.ndarray
     #: ``(8, n)``: the start-plan search's boxes
     boxes: np.ndarray
@@ -143,7 +138,7 @@ def named(M, C, T, action):
 
 
 #: rows of the packed arrays (:func:`packed_space`): floats and booleans per candidate, floats per state (and budget)
-N_FLOAT_J, N_BOOL_J, N_FLOAT_N, N_FLOAT_N1 = 6, 5, 9, 3
+N_FLOAT_J, N_BOOL_J, N_FLOAT_N, N_FLOAT_N1 = 6, 4, 9, 3
 
 
 @njit(inline="always")
@@ -153,4 +148,4 @@ def packed_space(packed):
     fJ, bJ, fn, fn1, ends, act, order, boxes, buf, node = packed
     work = Work(fn[0], fn[1], fn[2], fn[3], fn1[0], fn1[1], fn[6], fn1[2], buf, node)
     return DecisionSpace(work, Box(fn[4], fn[5]), Box(fn[7], fn[8]), ends[0], ends[1], bJ[0], fJ[0], fJ[1], fJ[2],
-                         bJ[1], fJ[3], order, fJ[4], act, bJ[2], bJ[3], bJ[4], fJ[5], boxes)
+                         bJ[1], fJ[3], order, fJ[4], act, bJ[2], bJ[3], fJ[5], boxes)

@@ -48,8 +48,8 @@ class ValueFilter:
     :param eps: the ``h_eps`` width with which the environment drains the budget (default: the table's)
     :param target_checks: equally spaced instants per period at which the environment checks for landing (its
         sub-step ends, :class:`SafetyFilter` passes ``n_substeps``); the default 1, the period's end, is always right
-    :param safe_cells: ``"auto"`` (built or read from the cache), a ``"safe"``-game certificate for this filter, or
-        ``None`` (outside the landing cells the choice is then not bounded by cells that prove ``C1`` and the budget)
+    :param safe_cells: ``"auto"`` or ``None``, alike: the filter proves and plans with the landing cells alone
+        (docs/filters.md, "The filter with cells"); :attr:`safe_cells` is ``None``
     :param landing_cells: ``"auto"`` or a ``"land"``-game certificate (:mod:`~softreach.reach.proof.cell_certificate`)
     :param start_periods: the longest plan :meth:`certify_start` searches from a start state (0: none)
     :raises ValueError: the model lacks what the decision needs (named, before any cell is built); ``margin`` not 0
@@ -75,6 +75,9 @@ class ValueFilter:
         if not (isinstance(start_periods, (int, np.integer)) and not isinstance(start_periods, bool)
                 and start_periods >= 0):
             raise ValueError(f"start_periods must be a non-negative integer, got {start_periods!r}")
+        if not (safe_cells is None or (isinstance(safe_cells, str) and safe_cells == "auto")):
+            raise ValueError(f"safe_cells must be 'auto' or None: the filter reads no safe cells, only the landing "
+                             f"cells (landing_cells), got {type(safe_cells).__name__}")
         if not (table.has_budget or table.has_budget_surface):
             raise TableError(f"table {table.path} holds only the classical V; the filter needs W_eps or Q_min (solve "
                              f"it without --classical)")
@@ -108,9 +111,9 @@ class ValueFilter:
             self.fallback_action = np.clip(fb, self.a_lo, self.a_hi)
         self.lookahead = Lookahead.from_table(table, self.model, self.dt, self.eps, target_checks=target_checks)
         self.target_checks = self.lookahead.target_checks
-        #: the cells that prove C1 and the budget, and landing by T (:mod:`softreach.reach.proof.cell_certificate`)
-        self.safe_cells = resolve_cells(self, safe_cells, "safe")
-        self.landing_cells = resolve_cells(self, landing_cells, "land")
+        #: the cells that prove C1, the budget and landing by T (:mod:`softreach.reach.proof.cell_certificate`)
+        self.landing_cells = resolve_cells(self, landing_cells)
+        self.safe_cells = None
         self.compiled = CompiledDecision(self)
         #: threads that share a large batch (:data:`~softreach.reach.proof.blocks.PARALLEL_MIN_ROWS`); 1: the caller's
         self.threads = default_threads()
@@ -207,7 +210,7 @@ class ValueFilter:
             ``margin``, ``active`` (changed), ``reason`` (:data:`REASONS`), ``optimal_action`` (the chosen candidate,
             NaN where the policy passed), ``blend`` (``1`` where it passed), ``lookahead`` (the applied action's worst
             next table value, ``+inf`` where it fails), ``certified`` (it passed, or follows a landing cell's plan),
-            ``plan`` (``(N, 3)`` ints: candidate, periods left, :data:`PLAN_LAND`/:data:`PLAN_SAFE`; or :data:`NO_PLAN`)
+            ``plan`` (``(N, 3)`` ints: candidate, periods left, :data:`PLAN_LAND`; or :data:`NO_PLAN`)
         :raises ValueError: non-finite or wrongly shaped inputs, or :attr:`threads` below 1
         :raises TypeError: ``diagnostics`` is not a bool
         """

@@ -16,8 +16,7 @@ import numpy as np
 from softreach.reach.jit import njit
 from softreach.reach.proof.kernels import certificate_row, cover_row, point_value
 from softreach.reach.proof.period import c1_and_charge, enclose_period, lands, meets_target, period
-from softreach.reach.proof.ranks import (RANK_LEAVES_C1, RANK_OVERSPENT, RANK_PROVEN, RANK_UNSAFE, TIE_INF,
-                                         TIE_OVERSPEND)
+from softreach.reach.proof.ranks import RANK_KEPT, RANK_LEAVES_C1, RANK_OVERSPENT, TIE_INF, TIE_OVERSPEND
 
 from .compiled_args import Verdict
 
@@ -40,12 +39,11 @@ def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     t_next = min(t_next, horizon)
     kept = bounded and c1 <= 0 and z_end >= 0 and in_time
     in_c1 = bounded and c1 <= 0 and in_time
-    safe_end = kept and (not C.has_safe or cover_row(C.safe, t_next, end_lo, end_hi, z_end))
-    ok = safe_end and cover_row(C.land, t_next, end_lo, end_hi, z_end)
+    ok = kept and cover_row(C.land, t_next, end_lo, end_hi, z_end)
     landed = False
     if not ok and bounded and in_time and meets_target(M, tube_lo, tube_hi):
         landed = lands(enclose, M, x_lo, x_hi, z, a, tube_lo, tube_hi, work.box_lo[:n], work.box_hi[:n], lo, hi)
-    return Verdict(ok, landed, bounded, in_c1, kept, safe_end and C.has_safe, c1, z_end, t_next)
+    return Verdict(ok, landed, bounded, in_c1, kept, c1, z_end, t_next)
 
 
 @njit(_nrt=False)
@@ -67,13 +65,13 @@ def next_value(T, t_next, end_lo, end_hi, z_end, work):
 
 
 @njit(inline="always")
-def _rank(bounded, in_c1, proven, kept, c1):
+def _rank(bounded, in_c1, kept, c1):
     """The badness of an action that does not pass, but for its tie: its rank (:mod:`softreach.reach.proof.ranks`)."""
     if not bounded:
         return np.inf
     if not in_c1:
         return RANK_LEAVES_C1 + max(c1, 0.0)
-    return RANK_PROVEN if proven else RANK_UNSAFE + (0.0 if kept else RANK_OVERSPENT)
+    return RANK_KEPT if kept else RANK_OVERSPENT
 
 
 @njit(inline="always")
@@ -83,11 +81,11 @@ def _tie(nxt, z_end):
 
 
 @njit(_nrt=False)
-def badness(T, t_next, end_lo, end_hi, work, c_in, c_bounded, c_proven, c_kept, c_c1, c_zend, c_bad):
+def badness(T, t_next, end_lo, end_hi, work, c_in, c_bounded, c_kept, c_c1, c_zend, c_bad):
     """Into ``c_bad``, the badness of every candidate where none passes: its rank, plus its tie where it keeps
     ``C1``."""
     for k in range(len(c_bad)):
-        c_bad[k] = _rank(c_bounded[k], c_in[k], c_proven[k], c_kept[k], c_c1[k])
+        c_bad[k] = _rank(c_bounded[k], c_in[k], c_kept[k], c_c1[k])
         if c_in[k]:
             c_bad[k] += _tie(next_value(T, t_next, end_lo[k], end_hi[k], c_zend[k], work), c_zend[k])
 

@@ -39,12 +39,9 @@ def _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
 @njit(_nrt=False)
 def _passes(enclose, M, C, cands, j, t, x_lo, x_hi, z, e_lo, e_hi, work):
     """Whether candidate ``j`` passes or surely lands from the whole box ``[x_lo, x_hi]`` at ``t`` with ``z`` left;
-    ``j = -1``: whether the box itself lies in the landing cells (and the safe cells, where there are) at ``t``,
-    where the state is certified by its cell."""
+    ``j = -1``: whether the box itself lies in the landing cells at ``t``, where the state is certified by its cell."""
     if j < 0:
-        t_in = min(t, M.horizon)
-        return (cover_row(C.land, t_in, x_lo, x_hi, z)
-                and (not C.has_safe or cover_row(C.safe, t_in, x_lo, x_hi, z)))
+        return cover_row(C.land, min(t, M.horizon), x_lo, x_hi, z)
     a = cands[j]
     if not _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, e_lo, e_hi, work):
         return False

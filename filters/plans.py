@@ -1,5 +1,5 @@
-"""Which cells (:mod:`softreach.reach.proof.cell_certificate`) a :class:`~softreach.filters.ValueFilter` uses, and
-the plans it follows where no single period ends in them: ``info["plan"]`` = (candidate, periods left, owner), valid
+"""Which landing cells (:mod:`softreach.reach.proof.cell_certificate`) a :class:`~softreach.filters.ValueFilter`
+uses, and the plans it follows where no single period ends in them: ``info["plan"]`` = (candidate, periods left, owner), valid
 only handed back at its own run's next step, whose state lies in the box chain the plan was proven for."""
 
 from __future__ import annotations
@@ -20,30 +20,22 @@ except ImportError:  # pragma: no cover - exercised only without torch
 NO_PLAN = (-1, 0, 0)
 #: following a landing cell's plan (the step is certified: the run lands by ``T``)
 PLAN_LAND = 1
-#: following a safe cell's plan (``C1`` and the budget are kept; landing is not certified)
+#: the owner code of a plan that keeps ``C1`` and the budget without landing, which the filter never follows
 PLAN_SAFE = 2
 
 
-def resolve_cells(vf: Any, cells: Any, game: str) -> CellCertificate | None:
-    """The cells a filter uses for ``game``: ``"auto"``: built (or cached) from the model's ``cell_shape``; ``None``:
-    none (safe cells only); a :class:`CellCertificate`: checked against the filter. Cells read no table."""
-    name = "safe_cells" if game == "safe" else "landing_cells"
+def resolve_cells(vf: Any, cells: Any) -> CellCertificate:
+    """The landing cells a filter uses: ``"auto"``: built (or cached) from the model's ``cell_shape``; a
+    :class:`CellCertificate`: checked against the filter. Cells read no table."""
     la = vf.lookahead
     if isinstance(cells, str) and cells == "auto":
-        return cached(la, vf.model.cell_shape, game=game, holds=vf.model.cell_holds)
-    if cells is None and game == "safe":
-        return None
-    if cells is None:
-        raise ValueError("landing_cells must be 'auto' or a CellCertificate, got None: the landing cells are the "
-                         "filter's certificate, without them it certifies nothing")
+        return cached(la, vf.model.cell_shape, holds=vf.model.cell_holds)
     if not isinstance(cells, CellCertificate):
-        raise TypeError(f"{name} must be 'auto'{', None' if game == 'safe' else ''} or a CellCertificate, got "
-                        f"{type(cells).__name__}")
-    if cells.game != game:
-        raise ValueError(f"{name} must be cells of the {game!r} game, got {cells.game!r}")
-    want = cell_key(la, cells.shape, cells.dz, game, cells.key.get("holds", (1,)), cells.key.get("span_cap", 32))
+        raise TypeError(f"landing_cells must be 'auto' or a CellCertificate (the landing cells are the filter's "
+                        f"certificate), got {type(cells).__name__}")
+    want = cell_key(la, cells.shape, cells.dz, cells.key.get("holds", (1,)), cells.key.get("span_cap", 32))
     if json.dumps(cells.key, sort_keys=True) != json.dumps(want, sort_keys=True):
-        raise ValueError(f"{name} built for {cells.key}, not for this filter's {want}")
+        raise ValueError(f"landing_cells built for {cells.key}, not for this filter's {want}")
     return cells
 
 

@@ -50,7 +50,7 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
     empty = {}
     if not cells:
         la = Lookahead.from_table(table, model, dt, table.eps, target_checks=checks)
-        empty = {"safe_cells": None, "landing_cells": CellCertificate.empty(la)}
+        empty = {"landing_cells": CellCertificate.empty(la)}
     vf = ValueFilter(table, dt, target_checks=checks, **empty)
     out: dict[str, Any] = {"model": model.name, "compiled": True, "seconds": 0.0, "source": None, "cache": None,
                            "missing": None}

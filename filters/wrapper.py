@@ -51,7 +51,7 @@ class SafetyFilter(gym.Wrapper):
     :param margin: ``None`` or 0 (any other is refused: the cells compare no table value with a margin)
     :param rule: ``"switch"`` (least restrictive; the default) or ``"smooth"``
     :param filter_kwargs: passed to :class:`~softreach.filters.ValueFilter` (``fallback_action``,
-        ``smooth_iterations``, ``eps``, ``safe_cells``, ``landing_cells``, ``start_periods``)
+        ``smooth_iterations``, ``eps``, ``landing_cells``, ``start_periods``)
     :param value_filter: a :class:`~softreach.filters.ValueFilter` to share among environments (its rule and margin
         apply); ``table`` may then be ``None``, and ``margin``, ``rule`` and ``filter_kwargs`` left out or agreeing
     :raises TableError: the table was solved for another model, other parameters or another ``eps``

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from softreach.filters.plans import NO_PLAN, PLAN_LAND, PLAN_SAFE
+from softreach.filters.plans import NO_PLAN, PLAN_LAND
 from softreach.filters.reasons import AFTER_HORIZON, BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, UNCERTIFIED
 from softreach.reach.proof.lookahead import exact_normalized
 from softreach.reach.proof.model_kernels import held_boxes
@@ -45,7 +45,6 @@ class Judged:
     kept: bool
     ok: bool
     lands: bool
-    proven: bool
     c1: float
     z_end: float
     t_next: float
@@ -84,7 +83,7 @@ class ReferenceDecision:
         self.a_lo, self.a_hi = vf.a_lo, vf.a_hi
         self.a_mid, self.a_half = la.a_mid, la.a_half
         self.rule, self.iterations, self.fallback = vf.rule, vf.smooth_iterations, vf.fallback_action
-        self.land, self.safe = vf.landing_cells, vf.safe_cells
+        self.land = vf.landing_cells
         self.fields = la.fields
         tb = self.model.target_box
         self.target = None if tb is None else (np.asarray(tb[0], float), np.asarray(tb[1], float))
@@ -160,10 +159,8 @@ class ReferenceDecision:
 
     @staticmethod
     def _sample(cells, t):
-        """The safe game's sample at or before ``t``, the landing game's at or after it."""
-        r = t / cells.dt
-        k = math.floor(r + 1e-9) if cells.game == "safe" else math.ceil(r - 1e-9)
-        return min(max(k, 0), cells.steps)
+        """The sample at or after ``t``: a plan that lands by ``T`` from it lands by ``T`` from ``t``."""
+        return min(max(math.ceil(t / cells.dt - 1e-9), 0), cells.steps)
 
     def covered(self, cells, t, lo, hi, z):
         """Every cell the box touches at ``t`` is good at the budget cell holding ``z``."""
@@ -224,13 +221,11 @@ class ReferenceDecision:
         t_next = min(t + dt, self.horizon)
         in_c1 = bounded and c1 <= 0 and in_time
         kept = in_c1 and z_end >= 0
-        safe_end = kept and (self.safe is None or self.covered(self.safe, t_next, end_lo, end_hi, z_end))
-        ok = safe_end and self.covered(self.land, t_next, end_lo, end_hi, z_end)
+        ok = kept and self.covered(self.land, t_next, end_lo, end_hi, z_end)
         lands = False
         if not ok and bounded and in_time and self._meets_target(tube_lo, tube_hi):
             lands = self._lands(lo, hi, z, a)
-        return Judged(bounded, in_c1, kept, ok, lands, safe_end and self.safe is not None, c1, z_end, t_next,
-                      end_lo, end_hi)
+        return Judged(bounded, in_c1, kept, ok, lands, c1, z_end, t_next, end_lo, end_hi)
 
     def _meets_target(self, lo, hi):
         if self.target is None:
@@ -271,12 +266,10 @@ class ReferenceDecision:
 
     def slab_certified(self, t, lo, hi, z, j):
         """Every state of the box is certified at ``t`` with ``z`` left: candidate ``j`` passes from all of it, or
-        (``j = -1``) it lies in the landing cells (and the safe cells, where the filter has them)."""
+        (``j = -1``) it lies in the landing cells."""
         if j >= 0:
             return self.judge(t, lo, hi, z, self.cands[j]).passes
-        t_in = min(t, self.horizon)
-        return self.covered(self.land, t_in, lo, hi, z) and (self.safe is None or
-                                                             self.covered(self.safe, t_in, lo, hi, z))
+        return self.covered(self.land, min(t, self.horizon), lo, hi, z)
 
     def slabs_cover(self, t, end_lo, end_hi, z):
         """At most :data:`MAX_SLABS` slabs ``[a, b] x`` (the end box's other axes), consecutive along the first
@@ -323,16 +316,16 @@ class ReferenceDecision:
         return self.next_value(v.t_next, v.end_lo, v.end_hi, v.z_end) if v.ok else math.inf
 
     def _bad_key(self, v: Judged):
-        """Where no candidate passes: end in safe cells first, then budget kept before overspent; within those the
-        lower next value, then the smaller overspend; then those that may leave ``C1``, the least far first; last
-        those the enclosure cannot bound."""
+        """Where no candidate passes: budget kept before overspent; within those the lower next value, then the
+        smaller overspend; then those that may leave ``C1``, the least far first; last those the enclosure cannot
+        bound."""
         if not v.bounded:
-            return (4, 0.0)
+            return (3, 0.0)
         if not v.in_c1:
-            return (3, max(v.c1, 0.0))
+            return (2, max(v.c1, 0.0))
         nxt = self.next_value(v.t_next, v.end_lo, v.end_hi, v.z_end)
         tie = math.atan(1e12 if nxt == math.inf else nxt) / math.pi + 1e3 * max(-v.z_end, 0.0)
-        return (0 if v.proven else 1 if v.kept else 2, tie)
+        return (0 if v.kept else 1, tie)
 
     def blend(self, j, pol, lam):
         q = exact_normalized(self.cands[j], self.a_mid, self.a_half)
@@ -387,23 +380,21 @@ class ReferenceDecision:
             lam = lo
         act = self.blend(best, pol, lam)
         new_plan = NO_PLAN
-        # where no candidate passes: the landing cells' plan, else the safe cells' where the choice's end box does
-        # not lie in them
-        for game, cells in ((PLAN_LAND, self.land), (PLAN_SAFE, self.safe)):
-            if any_ok or cells is None or (game == PLAN_SAFE and judged[best].proven):
-                continue
-            if plan is not None and plan[1] > 0 and 0 <= plan[0] < J and plan[2] == game:
-                jj, left = int(plan[0]), int(plan[1]) - 1
-            else:
-                cj, ck = self.cell_plan(cells, t, x)
-                if not (0 <= cj < J and self.covered(cells, t, x, x, z)):
-                    continue
+        # where no candidate passes: the plan followed, else the landing cell's plan
+        jj = -1
+        if any_ok:
+            pass
+        elif plan is not None and plan[1] > 0 and 0 <= plan[0] < J and plan[2] == PLAN_LAND:
+            jj, left = int(plan[0]), int(plan[1]) - 1
+        else:
+            cj, ck = self.cell_plan(self.land, t, x)
+            if 0 <= cj < J and self.covered(self.land, t, x, x, z):
                 jj, left = cj, ck - 1
+        if jj >= 0:
             best, act, lam, tied, bounded = jj, self.cands[jj].copy(), 0.0, set(), True
             best_next = self._next(judged[jj])
-            new_plan = (jj, left, game)
-            any_ok = game == PLAN_LAND
-            break
+            new_plan = (jj, left, PLAN_LAND)
+            any_ok = True
         reason = ((BLEND if lam > 0 else OPTIMAL) if any_ok else UNCERTIFIED) if bounded else FALLBACK
         if not self.on_table(t, x, max(z, 0.0)):
             reason = OUTSIDE

@@ -26,30 +26,29 @@ HOLDS = (1, 2, 4)
 def vf(pointmass_held_table):
     model = get_model("pointmass")
     la = Lookahead.from_table(pointmass_held_table, model, DT, pointmass_held_table.eps, target_checks=model.substeps)
-    safe = CellCertificate.build(la, SHAPE, game="safe", holds=HOLDS)
-    land = CellCertificate.build(la, SHAPE, game="land", holds=HOLDS)
-    return ValueFilter(pointmass_held_table, DT, target_checks=model.substeps, safe_cells=safe, landing_cells=land)
+    land = CellCertificate.build(la, SHAPE, holds=HOLDS)
+    return ValueFilter(pointmass_held_table, DT, target_checks=model.substeps, landing_cells=land)
 
 
-def test_no_safe_cell_holds_a_state_that_must_hit_the_ground(vf):
+def test_no_landing_cell_holds_a_state_that_must_hit_the_ground(vf):
     # descending at v < 0, the best the vehicle can do against the worst wind is u_max - g - d_max upwards: below
     # the stopping altitude v^2 / (2 a) it reaches y < 0 within |v| / a < T, whatever the budget
     p = vf.model.params
     a = p.u_max - p.gravity - p.d_max
-    lo, hi, m = cell_boxes(vf.safe_cells, 0)
-    safe = m < vf.safe_cells.never
+    lo, hi, m = cell_boxes(vf.landing_cells, 0)
+    good = m < vf.landing_cells.never
     doomed = (lo[:, 0] < 0) & (lo[:, 1] < lo[:, 0] ** 2 / (2 * a))
-    assert not (safe & doomed).any()
-    # and the cells are not empty of such starts by accident: near the ground slow cells are safe
-    assert (safe & (hi[:, 1] < 1.0) & (np.abs(lo[:, 0]) < 2)).any()
+    assert not (good & doomed).any()
+    # and the cells are not empty of such starts by accident: near the ground slow cells are good
+    assert (good & (hi[:, 1] < 1.0) & (np.abs(lo[:, 0]) < 2)).any()
 
 
 def test_outside_the_soft_band_needs_budget(vf):
-    # outside C2 (|v| > 10) the budget drains at once: no such cell is safe with none, and some are with some
-    lo, hi, m = cell_boxes(vf.safe_cells, 0)
+    # outside C2 (|v| > 10) the budget drains at once: no such cell is good with none, and some are with some
+    lo, hi, m = cell_boxes(vf.landing_cells, 0)
     band = (lo[:, 0] >= vf.model.params.soft_speed[1]) | (hi[:, 0] <= vf.model.params.soft_speed[0])
     assert band.any() and (m[band] > 0).all()
-    assert (m[band] < vf.safe_cells.never).any()
+    assert (m[band] < vf.landing_cells.never).any()
 
 
 @pytest.mark.parametrize("t", [0.0, 0.4, 0.8, 0.95])
@@ -67,16 +66,12 @@ def test_landing_cells_lie_inside_the_exact_sets_and_grow_with_the_budget(vf, t)
         if before is not None:
             assert not (before & ~inside).any()
         before = inside
-    # landing by T keeps C1 and the budget until then: the landing cells lie inside the safe cells
-    assert not (vf.landing_cells.contains(t, x, 0.3) & ~vf.safe_cells.contains(t, x, 0.3)).any()
 
 
-@pytest.mark.parametrize("game", ["safe", "land"])
-def test_a_cells_plan_keeps_its_promise_under_switching_winds(vf, game):
-    cells = vf.safe_cells if game == "safe" else vf.landing_cells
+def test_a_cells_plan_keeps_its_promise_under_switching_winds(vf):
     rng = np.random.default_rng(0)
     for _ in range(300):
-        fly_plan_from_a_good_cell(cells, vf.model, vf.eps, rng)
+        fly_plan_from_a_good_cell(vf.landing_cells, vf.model, vf.eps, rng)
 
 
 @pytest.mark.parametrize("policy", ["always_min", "always_max", "random", "anti_optimal"])
@@ -96,26 +91,12 @@ def test_filter_lands_every_run_from_landing_cells(vf, policy):
                 assert row.uncertified_steps == 0, (x0, q, wind)
 
 
-@pytest.mark.parametrize("policy", ["always_max", "random"])
-def test_filter_keeps_safe_starts_outside_the_landing_cells_safe(vf, policy):
-    rng = np.random.default_rng(7)
-    x = rng.uniform([-15, 0], [15, 18], (4000, 2))
-    q = 0.06
-    starts = x[vf.safe_cells.contains(0.0, x, q) & ~vf.landing_cells.contains(0.0, x, q)][:3]
-    assert len(starts) == 3
-    for x0 in starts:
-        for wind in ("worst_case", "switch_inside", "switch_on_filter"):
-            row = Row(policy, wind, "safe", True)
-            out = run_episode(vf, vf, x0, q, _policy(policy, vf, rng), _wind(wind, vf, rng, 4), 4, 2, row, False)
-            assert not out["hard"] and out["budget_used"] <= q + 1e-9, (x0, wind, out)
-
-
 def test_files_and_arguments_are_checked(vf, tmp_path):
     sc = vf.landing_cells
     path = tmp_path / "cells.npz"
     sc.save(path)
     back = CellCertificate.load(path, sc.key)
-    assert np.array_equal(back.m, sc.m) and np.array_equal(back.hold, sc.hold) and back.game == "land"
+    assert np.array_equal(back.m, sc.m) and np.array_equal(back.hold, sc.hold) and back.key["game"] == "land"
     other = dict(sc.key, dt=0.1)
     with pytest.raises(ValueError, match="built for"):
         CellCertificate.load(path, other)
@@ -132,13 +113,13 @@ def test_files_and_arguments_are_checked(vf, tmp_path):
     (folder / "hold.npy").write_bytes((folder / "hold.npy").read_bytes()[:200])
     with pytest.raises(ValueError, match="cells is not a readable"):
         CellCertificate.load(folder)
-    with pytest.raises(TypeError, match="safe_cells"):
-        ValueFilter(vf.table, DT, safe_cells="yes", landing_cells=None)
-    with pytest.raises(ValueError, match="'land' game"):
-        ValueFilter(vf.table, DT, safe_cells=None, landing_cells=vf.safe_cells)
+    with pytest.raises(ValueError, match="safe_cells must be 'auto' or None"):
+        ValueFilter(vf.table, DT, safe_cells=sc, landing_cells=sc)
+    with pytest.raises(TypeError, match="landing_cells must be 'auto' or a CellCertificate"):
+        ValueFilter(vf.table, DT, landing_cells=None)
     with pytest.raises(ValueError, match="not for this filter"):
-        ValueFilter(vf.table, DT, safe_cells=None, landing_cells=CellCertificate(
-            sc.lo, sc.hi, sc.m, sc.action, sc.hold, sc.candidates, DT, sc.dz, sc.horizon, "land", other))
+        ValueFilter(vf.table, DT, landing_cells=CellCertificate(
+            sc.lo, sc.hi, sc.m, sc.action, sc.hold, sc.candidates, DT, sc.dz, sc.horizon, other))
     with pytest.raises(ValueError, match="plan"):
         vf.filter(0.0, [0.0, 5.0], 0.3, [0.0], plan=[1.5, 2.0])
 
@@ -181,7 +162,7 @@ def test_the_cover_test_is_every_touched_cell_good_at_the_budget(vf):
     of one cell, of runs along either axis and of blocks, on and past the grid's edges, with budgets at, below and
     above the cells' own."""
     rng = np.random.default_rng(11)
-    for cells in (vf.landing_cells, vf.safe_cells):
+    for cells in (vf.landing_cells,):
         n = 3000
         lo = rng.uniform(cells.lo - 0.05 * (cells.hi - cells.lo), cells.hi, (n, 2))
         hi = lo + rng.uniform(0, 6, (n, 2)) * cells.width * (rng.random((n, 2)) < 0.8)
@@ -215,7 +196,7 @@ def test_empty_cells_certify_nothing(pointmass_held_table):
     model = get_model("pointmass")
     la = Lookahead.from_table(pointmass_held_table, model, DT, pointmass_held_table.eps, target_checks=model.substeps)
     empty = CellCertificate.empty(la)
-    vf = ValueFilter(pointmass_held_table, DT, target_checks=model.substeps, safe_cells=None, landing_cells=empty)
+    vf = ValueFilter(pointmass_held_table, DT, target_checks=model.substeps, landing_cells=empty)
     rng = np.random.default_rng(0)
     lo, hi = (np.asarray(b, float) for b in model.hard_box)
     x = rng.uniform(lo, hi, (500, 2))

@@ -108,13 +108,13 @@ def test_without_diagnostics_the_same_decisions(pointmass_held_table, rule):
 def _reference_key(bad):
     """A compiled badness as the reference's key ``(class, tie)`` (``tests/reference_decision.py``,
     ``ReferenceDecision._bad_key``): the rank offsets of :mod:`softreach.reach.proof.ranks` named by class."""
-    from softreach.reach.proof.ranks import RANK_LEAVES_C1, RANK_OVERSPENT, RANK_PROVEN, RANK_UNSAFE
+    from softreach.reach.proof.ranks import RANK_KEPT, RANK_LEAVES_C1, RANK_OVERSPENT
 
     if bad == np.inf:
-        return 4, 0.0
+        return 3, 0.0
     if bad >= RANK_LEAVES_C1:
-        return 3, bad - RANK_LEAVES_C1
-    ranks = {RANK_PROVEN: 0, RANK_UNSAFE: 1, RANK_UNSAFE + RANK_OVERSPENT: 2}
+        return 2, bad - RANK_LEAVES_C1
+    ranks = {RANK_KEPT: 0, RANK_OVERSPENT: 1}
     rank = min(ranks, key=lambda r: abs(bad - r))
     return ranks[rank], bad - rank
 
@@ -125,9 +125,8 @@ def _same_key(a, b):
 
 def test_badness_is_the_references(pointmass_held_table):
     """The compiled badness of candidates where none passes (:func:`softreach.filters.judge.badness`) against the
-    reference's order of failing actions (``tests/reference_decision.py``: end in safe cells, the budget kept, the
-    next value and the overspend, then how far ``C1`` may be left), candidate by candidate, on rows where few
-    states pass."""
+    reference's order of failing actions (``tests/reference_decision.py``: the budget kept, the next value and the
+    overspend, then how far ``C1`` may be left), candidate by candidate, on rows where few states pass."""
     from reference_decision import ReferenceDecision
     from softreach.filters.compiled import decision_space
     from softreach.filters.judge import badness, judge
@@ -142,23 +141,21 @@ def test_badness_is_the_references(pointmass_held_table):
     for r in range(len(x)):
         judged = [ref.judge(float(t[r]), x[r], x[r], float(z[r]), c) for c in fast.cands]
         end_lo, end_hi = np.empty((J, la.n)), np.empty((J, la.n))
-        in_c1, bounded, proven, kept = (np.empty(J, bool) for _ in range(4))
+        in_c1, bounded, kept = (np.empty(J, bool) for _ in range(3))
         c1, z_end = np.empty(J), np.empty(J)
         for j in range(J):
             v = judge(fast.enclose, fast.M, fast.C, t[r], x[r], x[r], z[r], fast.cands[j], end_lo[j], end_hi[j],
                       work)
-            bounded[j], in_c1[j], kept[j], proven[j], c1[j], z_end[j] = (v.bounded, v.in_c1, v.kept or v.lands,
-                                                                         v.proven, v.c1, v.z_end)
+            bounded[j], in_c1[j], kept[j], c1[j], z_end[j] = v.bounded, v.in_c1, v.kept or v.lands, v.c1, v.z_end
         got = np.full(J, np.nan)
-        badness(fast.T, min(t[r] + 0.01, la.horizon), end_lo, end_hi, work, in_c1, bounded, proven, kept, c1, z_end,
-                got)
+        badness(fast.T, min(t[r] + 0.01, la.horizon), end_lo, end_hi, work, in_c1, bounded, kept, c1, z_end, got)
         for k in range(J):
             if judged[k].passes:
                 continue
             want = ref._bad_key(judged[k])
             assert _same_key(_reference_key(got[k]), want), (r, k, got[k], want)
             classes.add(want[0])
-    assert {0, 1, 3} <= classes  # ends proven safe, kept only, leaving C1: each with next values that move the tie
+    assert {0, 2} <= classes  # the budget kept, leaving C1: each with next values that move the tie
 
 
 def test_blocks_cover_every_row_once_and_raise_a_blocks_error():
@@ -284,8 +281,8 @@ def test_tables_and_inputs_made_in_this_process_reuse_the_compiled_decision(poin
         assert table.values(name).flags.writeable
     cells = loaded.landing_cells
     land = CellCertificate(cells.lo, cells.hi, np.array(cells.m), np.array(cells.action), np.array(cells.hold),
-                           cells.candidates, cells.dt, cells.dz, cells.horizon, cells.game, cells.key)
-    made = ValueFilter(table, table.control_period, landing_cells=land, safe_cells=loaded.safe_cells)
+                           cells.candidates, cells.dt, cells.dz, cells.horizon, cells.key)
+    made = ValueFilter(table, table.control_period, landing_cells=land)
     frozen_x = x.copy()
     frozen_x.flags.writeable = False
     applied, _ = made.filter(t, frozen_x, z, a)

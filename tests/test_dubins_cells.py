@@ -28,7 +28,7 @@ DT = 0.1
 def vf(dubins_held_table):
     # what SafetyFilter asks: landing checked at the environment's sub-step ends
     out = ValueFilter(dubins_held_table, DT, target_checks=dubins_held_table.model.substeps)
-    assert out.landing_cells is not None and out.safe_cells is not None
+    assert out.landing_cells is not None and out.safe_cells is None
     assert out.landing_cells.shape == tuple(out.model.cell_shape)
     return out
 
@@ -52,9 +52,8 @@ def test_no_landing_cell_is_farther_from_the_goal_than_the_vehicle_can_fly_by_T(
     assert (_box_distance(lo[good], hi[good], p.goal) <= p.goal_radius + reach + 1e-9).all()
 
 
-@pytest.mark.parametrize("game", ["safe", "land"])
-def test_no_good_cell_lies_inside_the_obstacle_or_the_cells_change_with_the_heading_period(vf, game):
-    cells = vf.safe_cells if game == "safe" else vf.landing_cells
+def test_no_good_cell_lies_inside_the_obstacle_or_the_cells_change_with_the_heading_period(vf):
+    cells = vf.landing_cells
     p = vf.model.params
     lo, hi, m = cell_boxes(cells, 0)
     # a cell whose farthest corner from the obstacle's centre is inside the obstacle violates C1 everywhere
@@ -66,7 +65,7 @@ def test_no_good_cell_lies_inside_the_obstacle_or_the_cells_change_with_the_head
     assert cells.lo[2] == -math.pi and cells.hi[2] == math.pi
 
 
-def test_landing_cells_grow_with_the_budget_and_lie_in_the_safe_cells(vf):
+def test_landing_cells_grow_with_the_budget(vf):
     assert_landing_cells_nested(vf, (0.0, 1.0, 2.0), least=501)
 
 
@@ -88,16 +87,14 @@ def test_the_heading_seam_is_looked_up_on_the_grid_and_nothing_off_it_is_certifi
         # the plan and the membership are those of the cell column that holds the seam
         inner = at.copy()
         inner[:, 2] = theta + (0.5 if column == 0 else -0.5) * cells.width[2]
-        for game in (vf.landing_cells, vf.safe_cells):
-            np.testing.assert_array_equal(game.plan(0.0, at)[0], game.plan(0.0, inner)[0])
-            np.testing.assert_array_equal(game.contains(0.0, at, 1.0), game.contains(0.0, inner, 1.0))
+        np.testing.assert_array_equal(cells.plan(0.0, at)[0], cells.plan(0.0, inner)[0])
+        np.testing.assert_array_equal(cells.contains(0.0, at, 1.0), cells.contains(0.0, inner, 1.0))
     assert cells.contains(0.0, x[:200] * [1, 1, 0] + [0, 0, -math.pi], 2.0).any()
     for theta in (np.nextafter(-math.pi, -4.0), np.nextafter(math.pi, 4.0), 3.5, -7.0):
         off = x.copy()
         off[:, 2] = theta
-        for game in (vf.landing_cells, vf.safe_cells):
-            assert not game.contains(0.0, off, 2.0).any()
-            assert (game.plan(0.0, off)[0] == -1).all()
+        assert not cells.contains(0.0, off, 2.0).any()
+        assert (cells.plan(0.0, off)[0] == -1).all()
     # an end box across the seam, however good the cells at both of its ends
     box_lo, box_hi = x[:200].copy(), x[:200].copy()
     box_lo[:, 2], box_hi[:, 2] = math.pi - 0.01, math.pi + 0.01
@@ -131,9 +128,8 @@ def test_no_admitted_period_crosses_the_heading_seam(vf):
     assert (c1[:2] > 0).all() and c1[2] < 0
 
 
-@pytest.mark.parametrize("game", ["safe", "land"])
-def test_a_cells_plan_keeps_its_promise_under_switching_winds(vf, game):
-    cells = vf.safe_cells if game == "safe" else vf.landing_cells
+def test_a_cells_plan_keeps_its_promise_under_switching_winds(vf):
+    cells = vf.landing_cells
     rng = np.random.default_rng(0)
     flown = sum(fly_plan_from_a_good_cell(cells, vf.model, vf.eps, rng, faces=True) for _ in range(150))
     assert flown >= 100
@@ -220,15 +216,14 @@ def test_safety_filter_on_the_env_keeps_its_promise_at_the_seam(dubins_held_tabl
     assert seam == 4
 
 
-@pytest.mark.parametrize("game", ["safe", "land"])
-def test_the_packaged_cells_are_what_the_recursion_gives(vf, game):
+def test_the_packaged_cells_are_what_the_recursion_gives(vf):
     """The package's files at 1,500 random cells and the 2 x 60 x 60 cells on the heading's seam, at every sample:
     the least good budget index and the plan are those one step of the game's recursion gives from the file's own
     later samples (``cell_game.recheck``), so the file is the build's answer there for this model, its enclosure
     and its ``c1`` bound."""
     from softreach.reach.proof import cell_game
 
-    cells = vf.safe_cells if game == "safe" else vf.landing_cells
+    cells = vf.landing_cells
     n = cells.shape[2]
     grid = np.arange(int(np.prod(cells.shape))).reshape(cells.shape)
     flat = np.r_[np.random.default_rng(1).choice(grid.size, 1500, replace=False), grid[:, :, 0].ravel(),

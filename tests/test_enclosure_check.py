@@ -176,7 +176,7 @@ def test_the_cells_ask_for_a_hard_box():
 def _lookahead(model, monkeypatch):
     """What :meth:`CellCertificate.build` reads of a look-ahead before it solves (the key's parts from elsewhere in
     the look-ahead replaced by the few the build reads)."""
-    monkeypatch.setattr(cell_certificate, "cell_key", lambda la, shape, dz=None, game="safe", holds=(1,), span_cap=32:
+    monkeypatch.setattr(cell_certificate, "cell_key", lambda la, shape, dz=None, holds=(1,), span_cap=32:
                         {"shape": list(shape), "holds": sorted(holds),
                          "dz": cell_certificate.default_dz(la.dt, la.horizon)})
     return types.SimpleNamespace(model=model, dt=model.control_period, horizon=model.horizon, pieces=4,
@@ -200,7 +200,7 @@ def test_a_right_enclosure_goes_on_to_the_cells_and_is_checked_once(monkeypatch)
                         lambda *a, **k: checks.append(1) or real(*a, **k))
     model = PointMass(d_max=9.0)  # parameters no other test checks
     assert CellCertificate.build(_lookahead(model, monkeypatch), (30, 40)) == "solved"
-    assert CellCertificate.build(_lookahead(model, monkeypatch), (30, 40), game="land") == "solved"
+    assert CellCertificate.build(_lookahead(model, monkeypatch), (30, 40), holds=(1, 2)) == "solved"
     assert calls == [[30, 40], [30, 40]] and checks == [1]
     check_model_for_filter(model, 0.01, "a job", checks=model.substeps, cells=True,
                            cell_width=np.array([30.0 / 30, 18.0 / 40]))

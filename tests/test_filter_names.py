@@ -26,7 +26,7 @@ def test_ranks_leave_room_for_every_tie():
     surviving any tie of a budget-kept action (an overspend's tie of at most a period's budget, ``1e3 dt``, too)."""
     r = ranks
     # each kind of failing action, in the order the filter prefers them
-    order = [r.RANK_PROVEN, r.RANK_UNSAFE, r.RANK_UNSAFE + r.RANK_OVERSPENT, r.RANK_LEAVES_C1]
+    order = [r.RANK_KEPT, r.RANK_OVERSPENT, r.RANK_LEAVES_C1]
     for lower, upper in zip(order, order[1:]):
         assert upper - lower >= 1e6 > 2 * TIE + r.TIE_OVERSPEND * 10.0, (lower, upper)
     assert order[0] > 2 * TIE

@@ -88,8 +88,7 @@ def test_a_period_spends_budget_only_where_its_box_may_leave_c2(vfilter, pointma
         from softreach.reach.proof.lookahead import Lookahead
 
         la = Lookahead.from_table(pointmass_held_table, pointmass_held_table.model, DT, eps)
-        vfilter = ValueFilter(pointmass_held_table, DT, eps=eps, safe_cells=None,
-                              landing_cells=CellCertificate.empty(la))
+        vfilter = ValueFilter(pointmass_held_table, DT, eps=eps, landing_cells=CellCertificate.empty(la))
     la = vfilter.lookahead
     rng = np.random.default_rng(3)
     x = np.c_[np.r_[rng.uniform(-10.8, -9.2, 300), rng.uniform(-14, 14, 300)], rng.uniform(1, 17, 600)]

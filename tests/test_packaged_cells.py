@@ -23,26 +23,10 @@ TABLES = {"pointmass": "pointmass_held_table", "glider": "glider_held_table", "d
 
 def test_the_package_ships_the_default_cells():
     # the point mass: the filter's default target_checks (1) and the environment's (its 10 sub-steps); the glider
-    # and Dubins: their environment's 2 sub-steps (SafetyFilter's). Both games each
+    # and Dubins: their environment's 2 sub-steps (SafetyFilter's)
     keys = [json.loads(str(np.load(f)["key"])) for f in sorted(PACKAGED.glob("cells-*.npz"))]
     assert sorted((k["model"], k["game"], k["target_checks"]) for k in keys) == [
-        ("dubins", "land", 2), ("dubins", "safe", 2), ("glider", "land", 2), ("glider", "safe", 2),
-        ("pointmass", "land", 1), ("pointmass", "land", 10), ("pointmass", "safe", 1), ("pointmass", "safe", 10)]
-
-
-@pytest.mark.slow
-def test_packaged_cells_equal_a_fresh_build(pointmass_held_table):
-    """The default filter's safe cells, rebuilt whole; the other files are rechecked below."""
-    path = next(f for f in FILES if "pointmass-safe-" in f.name and CellCertificate.load(f).key["target_checks"] == 1)
-    stored = CellCertificate.load(path)
-    table = pointmass_held_table
-    la = Lookahead.from_table(table, table.model, table.control_period, table.eps,
-                              target_checks=stored.key["target_checks"])
-    key = cell_key(la, stored.shape, game=stored.game, holds=stored.key["holds"])
-    assert key == stored.key  # the test table's candidates, period and horizon are the default ones
-    fresh = CellCertificate.build(la, stored.shape, game=stored.game, holds=stored.key["holds"])
-    for name in ("m", "action", "hold", "lo", "hi"):
-        np.testing.assert_array_equal(getattr(fresh, name), getattr(stored, name), err_msg=name)
+        ("dubins", "land", 2), ("glider", "land", 2), ("pointmass", "land", 1), ("pointmass", "land", 10)]
 
 
 @pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
@@ -89,12 +73,12 @@ def test_a_new_machine_reads_the_packaged_cells_without_building(table, request,
     monkeypatch.setattr(cell_certificate.CellCertificate, "build", no_build)
     # what SafetyFilter asks: landing checked at the environment's sub-step ends
     vf = ValueFilter(table, table.control_period, target_checks=table.model.substeps)
-    assert vf.landing_cells is not None and vf.safe_cells is not None
+    assert vf.landing_cells is not None and vf.safe_cells is None
     assert vf.landing_cells.key["target_checks"] == table.model.substeps
-    # the package's cells were unpacked into the cache, one folder per game, and are read memory-mapped (the cache
-    # also holds compiled code where the filter compiled in it)
-    assert sorted(p.name.split("-")[2] for p in cache.glob("cells-*")) == ["land", "safe"]
-    assert isinstance(vf.landing_cells.m.base, np.memmap) and isinstance(vf.safe_cells.hold.base, np.memmap)
+    # the package's cells were unpacked into the cache, one folder, and are read memory-mapped (the cache also holds
+    # compiled code where the filter compiled in it)
+    assert sorted(p.name.split("-")[2] for p in cache.glob("cells-*")) == ["land"]
+    assert isinstance(vf.landing_cells.m.base, np.memmap) and isinstance(vf.landing_cells.hold.base, np.memmap)
     # a later filter reads the cache alone, not the package's file
     load = CellCertificate.load
 
@@ -137,7 +121,7 @@ def test_cells_unpacked_from_another_package_file_are_replaced(pointmass_held_ta
     m = np.array(old.m)
     good = int(np.flatnonzero(m[0] < old.never)[0])
     m[0].flat[good] = old.never
-    CellCertificate(old.lo, old.hi, m, old.action, old.hold, old.candidates, old.dt, old.dz, old.horizon, old.game,
+    CellCertificate(old.lo, old.hi, m, old.action, old.hold, old.candidates, old.dt, old.dz, old.horizon,
                     old.key).save(shipped)
     again = ValueFilter(table, table.control_period)
     assert again.landing_cells.m[0].flat[good] == old.never
@@ -152,19 +136,19 @@ def test_cells_built_by_other_code_are_built_again(pointmass_held_table, tmp_pat
     la = Lookahead.from_table(table, table.model, 0.01, table.eps, target_checks=3)  # checks the package lacks
     builds = []
 
-    def build(lookahead, shape, dz=None, game="safe", holds=(1,), span_cap=32):
+    def build(lookahead, shape, dz=None, holds=(1,), span_cap=32):
         # a stand-in build whose cells say which build made them
         builds.append(shape)
-        key = cell_key(lookahead, shape, dz, game, holds, span_cap)
+        key = cell_key(lookahead, shape, dz, holds, span_cap)
         m = np.full((round(lookahead.horizon / lookahead.dt) + 1,) + tuple(shape), len(builds), np.int16)
         lo, hi = lookahead.model.hard_box
         return CellCertificate(lo, hi, m, np.zeros(m.shape, np.int8), np.ones(m.shape, np.int8),
-                               lookahead.candidates, lookahead.dt, key["dz"], lookahead.horizon, game, key)
+                               lookahead.candidates, lookahead.dt, key["dz"], lookahead.horizon, key)
 
     monkeypatch.setattr(CellCertificate, "build", staticmethod(build))
-    first = cell_certificate.cached(la, (3, 4), game="land")
+    first = cell_certificate.cached(la, (3, 4))
     assert len(builds) == 1 and (first.m == 1).all()
-    assert (cell_certificate.cached(la, (3, 4), game="land").m == 1).all() and len(builds) == 1
+    assert (cell_certificate.cached(la, (3, 4)).m == 1).all() and len(builds) == 1
     monkeypatch.setattr(cell_certificate, "source_stamp", lambda: "another version of the package")
-    again = cell_certificate.cached(la, (3, 4), game="land")
+    again = cell_certificate.cached(la, (3, 4))
     assert len(builds) == 2 and (again.m == 2).all()

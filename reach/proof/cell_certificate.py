@@ -11,12 +11,11 @@ for the environment's rounding: :func:`~softreach.reach.proof.lookahead.state_al
 3. every run surely lands at a check instant, or ``k + K <= N`` and every cell the end box touches is good at
    ``t_{k+K}`` at every budget the plan can leave.
 
-The games differ only at ``T``: every cell inside ``C1`` is good there in ``"safe"``, none in ``"land"``. If ``(c, j)``
-is good so is ``(c, j + 1)`` (the same plan works, by induction from ``T``), so a column is one number ``m_k[c]``, the
-lowest good budget index, and condition 3 reads ``j >= S / dz + max m_{k+K}``. **What it proves:** a controller
-applying at every step an action whose end box good cells cover (:meth:`CellCertificate.covered`) or its plan's next
-action (:meth:`CellCertificate.plan`) keeps ``C1`` and the budget and (``"land"``) lands by ``T``, from any good start
-and for every wind. Plans of several periods let a cell progress where a period moves less than a cell; plans whose
+No cell is good at ``T``. If ``(c, j)`` is good so is ``(c, j + 1)`` (the same plan works, by induction from ``T``), so
+a column is one number ``m_k[c]``, the lowest good budget index, and condition 3 reads ``j >= S / dz + max m_{k+K}``.
+**What it proves:** a controller applying at every step an action whose end box good cells cover
+(:meth:`CellCertificate.covered`) or its plan's next action (:meth:`CellCertificate.plan`) keeps ``C1`` and the budget
+and lands by ``T``, from any good start and for every wind. Plans of several periods let a cell progress where a period moves less than a cell; plans whose
 end box touches over ``span_cap`` cells are not used.
 """
 
@@ -37,15 +36,15 @@ import numpy as np
 from . import cell_game
 from .enclosure_check import check_model_for_filter
 from ..jit import cache_root, source_stamp
-from .kernels import budget_floor_rows, cover_rows, frozen, plan_rows, step_rows
+from .kernels import cover_rows, frozen, plan_rows, step_rows
 
 
 #: file format of :meth:`CellCertificate.save`
 FORMAT = "softreach-cell-certificate-1"
 #: the arrays of a cell certificate that scale with the cells (memory-mapped from a cache folder)
 _LARGE = ("m", "action", "hold")
-#: the games: stay in ``C1`` within the budget until ``T`` (or land), or land by ``T``
-GAMES = ("safe", "land")
+#: the game the cells are solved for, named in their key and files: land by ``T``
+GAME = "land"
 #: budget cells per control period by default: a plan's spend is rounded up to whole budget cells, so each plan step
 #: gives away less than ``1 / BUDGET_CELLS_PER_PERIOD`` of a period of budget
 BUDGET_CELLS_PER_PERIOD = 64
@@ -72,21 +71,17 @@ class CellCertificate:
     :param action, hold: ``(N + 1, *shape)`` int8: the plan's candidate index (``-1``: none) and periods held
     :param candidates: ``(J, m)`` physical held actions
     :param dt, dz, horizon: control period, budget cell, horizon [s]
-    :param game: ``"safe"`` or ``"land"``
     :param key: what the cells were built for (:func:`cell_key`)
     """
 
     def __init__(self, lo: Any, hi: Any, m: np.ndarray, action: np.ndarray, hold: np.ndarray, candidates: Any,
-                 dt: float, dz: float, horizon: float, game: str, key: dict[str, Any]):
-        if game not in GAMES:
-            raise ValueError(f"game must be one of {GAMES}, got {game!r}")
+                 dt: float, dz: float, horizon: float, key: dict[str, Any]):
         self.lo, self.hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
         self.m, self.action, self.hold = np.asarray(m), np.asarray(action), np.asarray(hold)
         self.shape = self.m.shape[1:]
         self.width = (self.hi - self.lo) / np.asarray(self.shape, dtype=np.float64)
         self.candidates = np.asarray(candidates, dtype=np.float64)
         self.dt, self.dz, self.horizon = float(dt), float(dz), float(horizon)
-        self.game = game
         self.steps = self.m.shape[0] - 1
         self.top = budget_top(self.dz, self.horizon)
         self.never = self.top + 1
@@ -94,25 +89,23 @@ class CellCertificate:
         #: what :func:`softreach.reach.proof.kernels.cover_row` reads: a row of cells per sample (a memmap stays mapped)
         self.kernel_args = (frozen(np.asarray(self.m).reshape(self.steps + 1, -1)),
                             frozen(np.asarray(self.shape, dtype=np.int64)), frozen(self.lo), frozen(self.hi),
-                            frozen(self.width), self.dt, self.dz, self.top, self.steps, self.horizon,
-                            self.game == "safe")
+                            frozen(self.width), self.dt, self.dz, self.top, self.steps, self.horizon)
         #: the plans as :func:`softreach.reach.proof.kernels.plan_row` reads them
         self.plan_args = (frozen(np.asarray(self.action).reshape(self.steps + 1, -1)),
                           frozen(np.asarray(self.hold).reshape(self.steps + 1, -1)))
 
     @classmethod
-    def build(cls, lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe",
-              holds: Any = (1,), span_cap: int = 32) -> "CellCertificate":
+    def build(cls, lookahead: Any, shape: Any, dz: float | None = None, holds: Any = (1,),
+              span_cap: int = 32) -> "CellCertificate":
         """Solve the cell game backwards from ``T`` (:func:`softreach.reach.proof.cell_game.solve`).
 
         :param lookahead: a :class:`~softreach.reach.proof.lookahead.Lookahead` (model, enclosures, budget bound)
         :param shape: cells per state axis over the model's ``hard_box``
         :param dz: budget cell [s]; default :func:`default_dz`
-        :param game: ``"safe"`` or ``"land"``
         :param holds, span_cap: the plan lengths, in periods; the most cells a plan's end box may touch
         """
         la, model = lookahead, lookahead.model
-        key = cell_key(la, shape, dz, game, holds, span_cap)
+        key = cell_key(la, shape, dz, holds, span_cap)
         if model.hard_box is None:
             raise ValueError(f"{model.name} declares no hard_box; the cells tile it")
         shape = tuple(key["shape"])
@@ -134,31 +127,25 @@ class CellCertificate:
         return cell_game.solve(cls, la, key)
 
     @classmethod
-    def empty(cls, lookahead: Any, game: str = "land", holds: Any = (1,)) -> "CellCertificate":
+    def empty(cls, lookahead: Any, holds: Any = (1,)) -> "CellCertificate":
         """Cells good nowhere: sound, and run by solved cells' compiled code (:mod:`softreach.filters.background`)."""
         la, model = lookahead, lookahead.model
         if model.hard_box is None:
             raise ValueError(f"{model.name} declares no hard_box; the cells tile it")
         shape = (1,) * model.state_dim
-        key = cell_key(la, shape, None, game, holds)
+        key = cell_key(la, shape, None, holds)
         m = np.zeros((int(round(la.horizon / la.dt)) + 1,) + shape, np.int16)
         cells = cls(model.hard_box[0], model.hard_box[1], m, np.full(m.shape, -1, np.int8),
-                    np.zeros(m.shape, np.int8), la.candidates, la.dt, key["dz"], la.horizon, game, key)
+                    np.zeros(m.shape, np.int8), la.candidates, la.dt, key["dz"], la.horizon, key)
         m[...] = cells.never  # the certificate's own "no budget suffices" (its kernel arguments view m)
         return cells
 
     def step_index(self, t: np.ndarray) -> np.ndarray:
-        """The sample whose game covers time ``t`` (motion independent of ``t``): ``floor(t / dt)`` in ``"safe"``,
-        whose plans keep ``C1`` until at least ``T``; ``ceil(t / dt)`` in ``"land"``, whose plans land by ``T``."""
+        """The sample whose cells cover time ``t``: ``ceil(t / dt)`` (:func:`~softreach.reach.proof.kernels.
+        step_index`)."""
         t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
         out = np.empty(len(t), np.int64)
-        step_rows(t, self.dt, self.steps, self.game == "safe", out)
-        return out
-
-    def _budget_floor(self, z: np.ndarray) -> np.ndarray:
-        z = np.ascontiguousarray(z, dtype=np.float64).reshape(-1)
-        out = np.empty(len(z), np.int64)
-        budget_floor_rows(z, self.dz, self.top, out)
+        step_rows(t, self.dt, self.steps, out)
         return out
 
     def contains(self, t: Any, x: Any, z: Any) -> np.ndarray:
@@ -185,14 +172,10 @@ class CellCertificate:
         plan_rows(self.kernel_args, *self.plan_args, t, x, act, hold)
         return act, hold
 
-    def fraction(self, k: int, z: float) -> float:
-        """The share of ``C1``'s cells good at sample ``k`` with budget ``z``."""
-        return float((self.m[k] <= self._budget_floor(np.array([float(z)]))[0]).mean())
-
     def save(self, path: str | Path, compressed: bool = True) -> None:
         """Write one ``.npz`` (the key as JSON), or with ``compressed=False`` a folder of ``.npy`` arrays that
         :meth:`load` memory-maps (the cache's form: only touched pages are read, and shared between processes)."""
-        small = dict(format=FORMAT, lo=self.lo, hi=self.hi, candidates=self.candidates, game=self.game,
+        small = dict(format=FORMAT, lo=self.lo, hi=self.hi, candidates=self.candidates, game=GAME,
                      scalars=np.array([self.dt, self.dz, self.horizon]), key=json.dumps(self.key, sort_keys=True))
         if compressed:
             np.savez_compressed(path, **{name: getattr(self, name) for name in _LARGE}, **small)
@@ -213,13 +196,14 @@ class CellCertificate:
         folder = path.is_dir()
         try:
             with np.load(path / "meta.npz" if folder else path, allow_pickle=False) as f:
-                if str(f["format"]) != FORMAT:
-                    raise ValueError(f"format {str(f['format'])!r}, expected {FORMAT!r}")
+                if str(f["format"]) != FORMAT or str(f["game"]) != GAME:
+                    raise ValueError(f"format {str(f['format'])!r} of the {str(f['game'])!r} game, expected "
+                                     f"{FORMAT!r} of the {GAME!r} game")
                 stored = json.loads(str(f["key"]))
                 dt, dz, T = (float(v) for v in f["scalars"])
                 large = [np.load(path / f"{n}.npy", mmap_mode="r", allow_pickle=False) if folder else f[n]
                          for n in _LARGE]
-                out = cls(f["lo"], f["hi"], *large, f["candidates"], dt, dz, T, str(f["game"]), stored)
+                out = cls(f["lo"], f["hi"], *large, f["candidates"], dt, dz, T, stored)
         except (OSError, KeyError, EOFError, ValueError) as err:
             raise ValueError(f"{path} is not a readable cell-certificate file: {err}") from err
         if key is not None and json.dumps(key, sort_keys=True) != json.dumps(stored, sort_keys=True):
@@ -227,16 +211,14 @@ class CellCertificate:
         return out
 
 
-def cell_key(lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe", holds: Any = (1,),
-             span_cap: int = 32) -> dict[str, Any]:
+def cell_key(lookahead: Any, shape: Any, dz: float | None = None, holds: Any = (1,), span_cap: int = 32
+             ) -> dict[str, Any]:
     """What :meth:`CellCertificate.build` records for these arguments (the cache's key)."""
     la, model = lookahead, lookahead.model
-    if game not in GAMES:
-        raise ValueError(f"game must be one of {GAMES}, got {game!r}")
     key = {"model": model.name, "parameters": model.parameters(), "dt": la.dt, "eps": la.eps,
            "horizon": la.horizon, "candidates": la.candidates.tolist(), "pieces": la.pieces,
            "target_checks": la.target_checks, "shape": [int(v) for v in shape],
-           "dz": default_dz(la.dt, la.horizon) if dz is None else float(dz), "game": game,
+           "dz": default_dz(la.dt, la.horizon) if dz is None else float(dz), "game": GAME,
            "holds": sorted({int(h) for h in holds}), "span_cap": int(span_cap)}
     if la.exact_env:  # the allowances for the environment's rounding (Lookahead.exact_env)
         key["allowance"] = {"state": la.slack.tolist(), "budget": la.budget_slack, "c1_from": la.first_check,
@@ -279,11 +261,11 @@ def cache_file(key: dict[str, Any], folder: Path) -> Path:
     return folder / f"cells-{key['model']}-{key['game']}-{digest}.npz"
 
 
-def cached(lookahead: Any, shape: Any, dz: float | None = None, game: str = "safe", holds: Any = (1,),
-           span_cap: int = 32) -> CellCertificate:
+def cached(lookahead: Any, shape: Any, dz: float | None = None, holds: Any = (1,), span_cap: int = 32
+           ) -> CellCertificate:
     """The cells, memory-mapped from a folder in :func:`cache_dir` first written from :data:`PACKAGED` or a build; a
     folder of another origin (:data:`_MADE_WITH`) is replaced, and an unwritable cache skipped with a warning."""
-    key = cell_key(lookahead, shape, dz, game, holds, span_cap)
+    key = cell_key(lookahead, shape, dz, holds, span_cap)
     folder = cache_file(key, cache_dir()).with_suffix("")
     packaged = cache_file(key, PACKAGED)
     shipped = _file_digest(packaged) if packaged.is_file() else None
@@ -305,7 +287,7 @@ def cached(lookahead: Any, shape: Any, dz: float | None = None, game: str = "saf
         except ValueError as err:
             warnings.warn(f"rebuilding the cells: {err}", stacklevel=2)
     if cells is None:
-        cells = CellCertificate.build(lookahead, shape, dz, game, holds, span_cap)
+        cells = CellCertificate.build(lookahead, shape, dz, holds, span_cap)
     tmp = folder.with_name(folder.name + f".{os.getpid()}.tmp")
     try:
         folder.parent.mkdir(parents=True, exist_ok=True)

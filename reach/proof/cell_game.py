@@ -4,7 +4,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from typing import Any
 
@@ -14,12 +13,8 @@ from tqdm.auto import tqdm
 from ..jit import njit
 from .blocks import default_threads, run_in_blocks
 from .kernels import cell_span
-from .model_kernels import ENCLOSE_MIN_ROWS, SET_INDEX, set_max_rows
+from .model_kernels import ENCLOSE_MIN_ROWS
 from .period import motion, period_rows
-
-
-#: the last build's plans, for the other game on the same cells (only ``T`` differs): one entry, as it is large
-_LAST_PLANS: dict[str, Any] = {}
 
 
 def cell_boxes(cells: Any, flat: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -33,48 +28,34 @@ def cell_boxes(cells: Any, flat: np.ndarray | None = None) -> tuple[np.ndarray, 
 def solve(cls: type, lookahead: Any, key: dict[str, Any]) -> Any:
     """The certificate (a ``cls``) of the game ``key`` (:func:`~softreach.reach.proof.cell_certificate.cell_key`)."""
     la, model = lookahead, lookahead.model
-    shape, holds, dz, game, span_cap = tuple(key["shape"]), tuple(key["holds"]), key["dz"], key["game"], key["span_cap"]
+    shape, holds, dz, span_cap = tuple(key["shape"]), tuple(key["holds"]), key["dz"], key["span_cap"]
     dt, T = la.dt, la.horizon
     N = int(round(T / dt))
     lo, hi = (np.asarray(b, dtype=np.float64) for b in model.hard_box)
     blank = np.zeros((1,) + shape, np.int8)
-    cells = cls(lo, hi, blank.astype(np.int16), blank, blank, la.candidates, dt, dz, T, game, {})
+    cells = cls(lo, hi, blank.astype(np.int16), blank, blank, la.candidates, dt, dz, T, {})
     cell_lo, cell_hi = cell_boxes(cells)
     C = len(cell_lo)
     m = np.empty((N + 1, C), np.int16)
     action = np.full((N + 1, C), -1, np.int8)
     hold = np.zeros((N + 1, C), np.int8)
-    m[N] = terminal(cells, la, cell_lo, cell_hi)
+    m[N] = cells.never  # no cell is good at T
     plans = None
     K_max = max(holds)
     # a bar on a terminal, nothing in logs (disable=None)
-    bar = tqdm(total=N + len(la.candidates), desc=f"{model.name} {game} cells", unit="step", disable=None,
-               leave=False)
+    bar = tqdm(total=N + len(la.candidates), desc=f"{model.name} cells", unit="step", disable=None, leave=False)
     for k in range(N - 1, -1, -1):
         if k + K_max + 1 <= N and all(np.array_equal(m[k + 1], m[k + 1 + d]) for d in range(1, K_max + 1)):
             # the recursion reads the next K_max columns; they agree, so every earlier one is the same
             m[:k + 1], action[:k + 1], hold[:k + 1] = m[k + 1], action[k + 1], hold[k + 1]
             break
         if plans is None:
-            same = json.dumps({name: v for name, v in key.items() if name != "game"}, sort_keys=True)
-            plans = _LAST_PLANS.pop(same, None)
-            if plans is None:
-                plans = all_plan_steps(cells, la, cell_lo, cell_hi, holds, span_cap, bar)
-            _LAST_PLANS.clear()
-            _LAST_PLANS[same] = plans
+            plans = all_plan_steps(cells, la, cell_lo, cell_hi, holds, span_cap, bar)
         bar.update(1)
         m[k], action[k], hold[k] = backward_step(cells, plans, m, k, N, C)
     bar.close()
     return cls(lo, hi, m.reshape((N + 1,) + shape), action.reshape((N + 1,) + shape),
-               hold.reshape((N + 1,) + shape), la.candidates, dt, dz, T, game, key)
-
-
-def terminal(cells: Any, la: Any, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """The cells' least good budget index at ``T``: 0 inside ``C1`` in the ``"safe"`` game, else ``never``."""
-    M, c1 = motion(la)[1], np.empty(len(lo))
-    set_max_rows(M.set_address, M.set_params, SET_INDEX["hard_constraint"], np.ascontiguousarray(lo),
-                 np.ascontiguousarray(hi), c1)
-    return np.where((c1 <= 0) & (cells.game == "safe"), 0, cells.never)
+               hold.reshape((N + 1,) + shape), la.candidates, dt, dz, T, key)
 
 
 def all_plan_steps(cells: Any, la: Any, lo: np.ndarray, hi: np.ndarray, holds: tuple, span_cap: int,
@@ -178,7 +159,7 @@ def recheck(cells: Any, lookahead: Any, flat: Any) -> tuple[np.ndarray, np.ndarr
     from .cell_certificate import cell_key  # (that module imports this one)
 
     key = cells.key
-    asked = cell_key(lookahead, key["shape"], key["dz"], key["game"], key["holds"], key["span_cap"])
+    asked = cell_key(lookahead, key["shape"], key["dz"], key["holds"], key["span_cap"])
     if asked != key:
         differ = {k: (asked.get(k), key.get(k)) for k in sorted(set(asked) | set(key)) if asked.get(k) != key.get(k)}
         raise ValueError(f"the look-ahead is not the one the cells were built for: (look-ahead, cells) {differ}")
@@ -187,7 +168,7 @@ def recheck(cells: Any, lookahead: Any, flat: Any) -> tuple[np.ndarray, np.ndarr
     m_all = np.asarray(cells.m).reshape(N + 1, -1)
     lo, hi = cell_boxes(cells, flat)
     m, action, hold = np.empty((N + 1, C), np.int64), np.full((N + 1, C), -1, np.int8), np.zeros((N + 1, C), np.int8)
-    m[N] = terminal(cells, la, lo, hi)
+    m[N] = cells.never
     plans = all_plan_steps(cells, la, lo, hi, tuple(key["holds"]), key["span_cap"])
     for k in range(N - 1, -1, -1):
         m[k], action[k], hold[k] = backward_step(cells, plans, m_all, k, N, C)

@@ -149,11 +149,10 @@ def certificate_rows(W, z_top, z_floor, z_left, V, has_V, t, x, z, out):
 
 
 @njit
-def step_index(t, dt, steps, safe):
-    """The sample index whose cell game covers ``t``: ``floor(t / dt)`` for the safe game, else ``ceil``."""
-    r = t / dt
-    k = math.floor(r + 1e-9) if safe else math.ceil(r - 1e-9)
-    return min(max(k, 0), steps)
+def step_index(t, dt, steps):
+    """The sample index whose cells cover ``t``: ``ceil(t / dt)``, whose plans land by ``T`` from ``t`` too (the
+    motion does not depend on time)."""
+    return min(max(math.ceil(t / dt - 1e-9), 0), steps)
 
 
 @njit
@@ -187,7 +186,7 @@ def cover_row(cells, t, lo, hi, z):
     the grid, ``t`` not past the horizon, ``z``'s budget cell at least each cell's lowest good index in ``m``. Cells
     are read as runs along the last axis, the other axes' spans recomputed per run so that nothing is allocated
     (``cells``: :attr:`~softreach.reach.proof.cell_certificate.CellCertificate.kernel_args`)."""
-    m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
+    m, shape, clo, chi, width, dt, dz, top, steps, horizon = cells
     D = len(shape)
     on = True
     runs = 1
@@ -201,7 +200,7 @@ def cover_row(cells, t, lo, hi, z):
             runs *= gi - fi + 1
     if not on or not t <= horizon + 1e-9 * dt:
         return False
-    k = step_index(t, dt, steps, safe)
+    k = step_index(t, dt, steps)
     floor = budget_floor(z, dz, top)
     # the first cell that needs more budget decides
     for p in range(runs):
@@ -224,7 +223,7 @@ def cover_row(cells, t, lo, hi, z):
 def plan_row(cells, action, hold, t, x):
     """The plan ``(candidate index, periods)`` of the cell holding ``x`` at time ``t``; ``(-1, 0)`` off the grid or
     where no budget suffices (:meth:`~softreach.reach.proof.cell_certificate.CellCertificate.plan`)."""
-    m, shape, clo, chi, width, dt, dz, top, steps, horizon, safe = cells
+    m, shape, clo, chi, width, dt, dz, top, steps, horizon = cells
     off, stride = 0, 1
     for a in range(len(shape) - 1, -1, -1):
         fi, _, on = cell_span(x[a], x[a], clo[a], chi[a], width[a], shape[a])
@@ -232,7 +231,7 @@ def plan_row(cells, action, hold, t, x):
             return -1, 0
         off += fi * stride
         stride *= shape[a]
-    k = step_index(t, dt, steps, safe)
+    k = step_index(t, dt, steps)
     j = int(action[k, off])
     return (j, int(hold[k, off])) if j >= 0 else (-1, 0)
 
@@ -252,12 +251,6 @@ def cover_rows(cells, t, lo, hi, z, out):
 
 
 @njit
-def step_rows(t, dt, steps, safe, out):
+def step_rows(t, dt, steps, out):
     for r in range(len(t)):
-        out[r] = step_index(t[r], dt, steps, safe)
-
-
-@njit
-def budget_floor_rows(z, dz, top, out):
-    for r in range(len(z)):
-        out[r] = budget_floor(z[r], dz, top)
+        out[r] = step_index(t[r], dt, steps)

@@ -6,12 +6,10 @@ numba compiles these globals as constants.
 
 from __future__ import annotations
 
-#: badness rank of an action whose period keeps ``C1`` and the budget and whose end box lies in the safe cells
-RANK_PROVEN = 1e6
-#: badness rank of an action that keeps ``C1`` only
-RANK_UNSAFE = 3e6
-#: added to the rank of an action whose period may overspend the budget (``z_end < 0``)
-RANK_OVERSPENT = 1e6
+#: badness rank of an action whose period keeps ``C1`` and the budget
+RANK_KEPT = 1e6
+#: badness rank of an action whose period keeps ``C1`` but may overspend the budget (``z_end < 0``)
+RANK_OVERSPENT = 3e6
 #: badness of an action whose motion may leave ``C1``: this plus the largest ``c1``
 RANK_LEAVES_C1 = 5e6
 #: a tie's next value of ``+inf`` is read as this
