@@ -30,9 +30,11 @@ def resolve_cells(vf: Any, cells: Any) -> CellCertificate:
     la = vf.lookahead
     if isinstance(cells, str) and cells == "auto":
         return cached(la, vf.model.cell_shape, holds=vf.model.cell_holds)
+    if cells is None:
+        raise ValueError("landing_cells must be 'auto' or a CellCertificate, got None: the landing cells are the "
+                         "filter's certificate, without them it certifies nothing")
     if not isinstance(cells, CellCertificate):
-        raise TypeError(f"landing_cells must be 'auto' or a CellCertificate (the landing cells are the filter's "
-                        f"certificate), got {type(cells).__name__}")
+        raise TypeError(f"landing_cells must be 'auto' or a CellCertificate, got {type(cells).__name__}")
     want = cell_key(la, cells.shape, cells.dz, cells.key.get("holds", (1,)), cells.key.get("span_cap", 32))
     if json.dumps(cells.key, sort_keys=True) != json.dumps(want, sort_keys=True):
         raise ValueError(f"landing_cells built for {cells.key}, not for this filter's {want}")

@@ -116,7 +116,7 @@ def test_files_and_arguments_are_checked(vf, tmp_path):
     with pytest.raises(ValueError, match="safe_cells must be 'auto' or None"):
         ValueFilter(vf.table, DT, safe_cells=sc, landing_cells=sc)
     with pytest.raises(TypeError, match="landing_cells must be 'auto' or a CellCertificate"):
-        ValueFilter(vf.table, DT, landing_cells=None)
+        ValueFilter(vf.table, DT, landing_cells="yes")
     with pytest.raises(ValueError, match="not for this filter"):
         ValueFilter(vf.table, DT, landing_cells=CellCertificate(
             sc.lo, sc.hi, sc.m, sc.action, sc.hold, sc.candidates, DT, sc.dz, sc.horizon, other))
