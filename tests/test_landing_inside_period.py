@@ -64,7 +64,7 @@ def test_the_filter_lands_from_the_brink_only_with_the_envs_checks(pointmass_hel
     # the wrapper gives its filter the env's sub-steps, and refuses a shared filter that counts on more checks
     env = gym.make("softreach/PointMassLanding-v0", n_substeps=5)
     # (cells that certify nothing: they would be solved for these checks, and only the count is asked here)
-    monkeypatch.setattr(plans, "cached", lambda la, shape, game, holds: CellCertificate.empty(la, game, holds))
+    monkeypatch.setattr(plans, "cached", lambda la, shape, holds: CellCertificate.empty(la, holds))
     assert SafetyFilter(env, pointmass_held_table).value_filter.target_checks == 5
     with pytest.raises(ValueError, match="target_checks"):
         SafetyFilter(env, value_filter=checks)
