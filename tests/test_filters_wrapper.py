@@ -85,7 +85,7 @@ def _dive_with_the_smooth_rule(table) -> list[tuple[str, np.ndarray, np.ndarray,
 
 def _is_plan_step(reason, applied, best) -> bool:
     """A step reported as a blend that applies the chosen candidate itself: what a step that follows a cell plan
-    (filters.plans.follow_plans) would look like if its reason were taken from the bisection's ``lam``."""
+    (filters.compiled._follow_plan) would look like if its reason were taken from the bisection's ``lam``."""
     return reason == "blend" and np.array_equal(applied, best)
 
 
