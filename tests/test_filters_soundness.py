@@ -205,8 +205,8 @@ def test_glider_audit_from_certified_starts(glider_held_table):
 #: glider states that no single held angle from the state certifies at Q = 5 but two in sequence do (by the
 #: packaged cells; found by start_plans with every row searched for two segments)
 TWO_ANGLE_STARTS = [[9.292976274617553, 81.54197091844232, -0.045972736491441055],
-                    [27.12854258832444, 79.83644448574776, -0.023251856266032694],
-                    [2.149084544166346, 80.64672689737063, -0.037083543663666604],
+                    [19.17633203268746, 80.56873235567801, -0.0034534734288076407],
+                    [10.58611239445255, 81.63657903203169, -0.051038693539694174],
                     [1.7119242801694132, 80.85957148337502, -0.0029189124023140736]]
 
 

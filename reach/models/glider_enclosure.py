@@ -153,10 +153,10 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
     for i in range(3):
         lo[i], hi[i] = np.nan, np.nan
     xl, xh = (x_lo[0], x_lo[1], x_lo[2]), (x_hi[0], x_hi[1], x_hi[2])
-    ok, d_lo, d_hi = _field_over(P, c0, c1, xl, xh)
+    ok, e_lo, e_hi = _field_over(P, c0, c1, xl, xh)
     if not ok:
         return
-    X_lo, X_hi = _hull_step(xl, xh, s1, d_lo, d_hi)
+    X_lo, X_hi = _hull_step(xl, xh, s1, e_lo, e_hi)
     found = False
     for _ in range(_MAX_TRIES):
         p0, p1, p2 = _pad(X_lo, X_hi, xl, xh, 0), _pad(X_lo, X_hi, xl, xh, 1), _pad(X_lo, X_hi, xl, xh, 2)
@@ -189,6 +189,41 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
             lo[i] = max(lo[i], xl[i])
         if d_hi[i] <= 0.0:
             hi[i] = min(hi[i], xh[i])
+    if s0 == s1:
+        _second_order(P, c0, c1, xl, xh, e_lo, e_hi, X_lo, X_hi, d_lo, d_hi, s1, lo, hi)
+
+
+@njit(inline="always")
+def _second_order(P, c0, c1, xl, xh, e_lo, e_hi, X_lo, X_hi, d_lo, d_hi, s, lo, hi):
+    """Step 6, the end box at ``s`` tightened along ``h`` and ``gamma``, whose rates hold no wind and are absolutely
+    continuous: ``x(s) = x(0) + s f(x(0)) + int_0^s (s - r) x''(r) dr`` lies in ``[xl, xh] + s F([xl, xh]) +
+    s^2 / 2 X''`` with ``X''`` the interval extension over the tube ``X`` of ``h'' = V' sin(gamma) + V cos(gamma)
+    gamma'`` and ``gamma'' = half_rho_s C_L V' / m + (g sin(gamma) gamma' + g cos(gamma) V' / V) / V``, where
+    ``V'`` and ``gamma'`` are ``F(X)`` (``d_lo``, ``d_hi``, the wind in ``V'``). The first-order box counts the
+    period's whole turn of ``gamma`` as if any ``gamma`` of it held all period; this counts its curvature only."""
+    mass, g, half_rho_s = P[4], P[5], P[6]
+    sg0, sg1 = _dn(math.sin(X_lo[2])), _up(math.sin(X_hi[2]))
+    k0, k1 = math.cos(X_lo[2]), math.cos(X_hi[2])
+    cg0, cg1 = _dn(min(k0, k1)), _up(1.0 if (X_lo[2] <= 0.0 and X_hi[2] >= 0.0) else max(k0, k1))
+    a0, a1 = _mul(d_lo[1], d_hi[1], sg0, sg1)
+    b0, b1 = _mul(X_lo[1], X_hi[1], cg0, cg1)
+    b0, b1 = _mul(b0, b1, d_lo[2], d_hi[2])
+    iv0, iv1 = _div_pos(1.0, 1.0, X_lo[1], X_hi[1])
+    p0, p1 = _mul(half_rho_s, half_rho_s, c0, c1)
+    p0, p1 = _mul(p0, p1, d_lo[1], d_hi[1])
+    p0, p1 = _div_pos(p0, p1, mass, mass)
+    q0, q1 = _mul(g, g, sg0, sg1)
+    q0, q1 = _mul(q0, q1, d_lo[2], d_hi[2])
+    r0, r1 = _mul(g, g, cg0, cg1)
+    r0, r1 = _mul(r0, r1, d_lo[1], d_hi[1])
+    r0, r1 = _mul(r0, r1, iv0, iv1)
+    q0, q1 = _mul(_dn(q0 + r0), _up(q1 + r1), iv0, iv1)
+    half_s2 = 0.5 * s * s
+    for i, w0, w1 in ((0, _dn(a0 + b0), _up(a1 + b1)), (2, _dn(p0 + q0), _up(p1 + q1))):
+        m0, m1 = _mul(s, s, e_lo[i], e_hi[i])
+        n0, n1 = _mul(_dn(half_s2), _up(half_s2), w0, w1)
+        lo[i] = max(lo[i], _dn(_dn(xl[i] + m0) + n0))
+        hi[i] = min(hi[i], _up(_up(xh[i] + m1) + n1))
 
 
 class GliderHeldEnclosure:
