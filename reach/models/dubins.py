@@ -61,20 +61,22 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
     ``int_0^s v (cos, sin)(theta)``, which lies in ``s v`` times the range of ``(cos, sin)`` over every heading of
     ``[0, s1]`` (:func:`~softreach.reach.proof.intervals.cos_range`), plus the wind's ``[-w s, w s]``; every end
     rounded outwards. At one instant (``s0 = s1 = s``, an end box) the turn's part is exact instead:
-    ``int_0^s (cos, sin)(theta_0 + u r) dr = s sinc(u s / 2) (cos, sin)(theta_0 + u s / 2)``, ``sinc > 0``."""
+    ``int_0^s (cos, sin)(theta_0 + u r) dr = s sinc(u s / 2) (cos, sin)(theta_0 + u s / 2)``."""
     speed, wind, u = params[0], params[1], a[0]
     h_lo = down(x_lo[2] + min(0.0, u * s1))
     h_hi = up(x_hi[2] + max(0.0, u * s1))
     half = 0.5 * u * s1
     k = speed * s1 * (math.sin(half) / half if half != 0.0 else 1.0)
-    k_lo, k_hi = down(down(k)), up(up(k))
+    # sinc's rounding is below 1e-15 absolute (below 1 relative near its zeros), the products' within down and up
+    k_lo, k_hi = down(k) - 1e-15 * speed * s1, up(k) + 1e-15 * speed * s1
     if s0 == s1:
         h_lo, h_hi = down(x_lo[2] + half) - 1e-15, up(x_hi[2] + half) + 1e-15
     for axis in range(2):
         r_lo, r_hi = cos_range(h_lo, h_hi) if axis == 0 else sin_range(h_lo, h_hi)
-        # s * [r_lo, r_hi] over s in [s0, s1]: the extremes are at the interval's ends; at s0 = s1, k * [r_lo, r_hi]
-        move_lo = down((k_lo if r_lo >= 0 else k_hi) * r_lo) if s0 == s1 else speed * min(s0 * r_lo, s1 * r_lo)
-        move_hi = up((k_hi if r_hi >= 0 else k_lo) * r_hi) if s0 == s1 else speed * max(s0 * r_hi, s1 * r_hi)
+        # s * [r_lo, r_hi] over s in [s0, s1]: the extremes are at the interval's ends; at s0 = s1, [k] * [r_lo, r_hi]
+        p1, p2, p3, p4 = k_lo * r_lo, k_lo * r_hi, k_hi * r_lo, k_hi * r_hi
+        move_lo = down(min(min(p1, p2), min(p3, p4))) if s0 == s1 else speed * min(s0 * r_lo, s1 * r_lo)
+        move_hi = up(max(max(p1, p2), max(p3, p4))) if s0 == s1 else speed * max(s0 * r_hi, s1 * r_hi)
         lo[axis] = down(x_lo[axis] + down(move_lo - wind * s1))
         hi[axis] = up(x_hi[axis] + up(move_hi + wind * s1))
     lo[2] = down(x_lo[2] + min(u * s0, u * s1))
