@@ -172,10 +172,14 @@ def test_filter_keeps_the_promise_from_certified_and_edge_starts(vf, policy):
         ok = vf.certify(0.0, x, q)[0]
         starts = list(x[ok][:2])
         for x0, axis in zip(x[ok][2:30], [0, 1, 2] * 10):
-            step = float(rng.choice([-1.0, 1.0])) * 0.5
-            if not lo[axis] <= x0[axis] + step <= hi[axis]:
-                step = -step  # the edge inside C1 and the heading's period, where the environment's states lie
-            edge = _bisect_onto_edge(vf, x0, q, axis, step)
+            sign = float(rng.choice([-1.0, 1.0]))
+            for length in (0.5, 2.0):  # a longer step where the shorter one stays certified
+                step = sign * length
+                if not lo[axis] <= x0[axis] + step <= hi[axis]:
+                    step = -step  # the edge inside C1 and the heading's period, where the environment's states lie
+                edge = _bisect_onto_edge(vf, x0, q, axis, step) if lo[axis] <= x0[axis] + step <= hi[axis] else None
+                if edge is not None:
+                    break
             if edge is not None:
                 starts.append(edge)
             if len(starts) == 4:
