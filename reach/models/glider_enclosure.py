@@ -145,6 +145,8 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
        box exactly, with no outward rounding (a float bound needs none). A glider at the soft airspeed limit that
        decelerates, or at ``gamma = 0`` pitching down, is then not charged the rounding's 1e-13 s of budget, nor
        taken to leave ``C1`` by it.
+    6. The end box (``s0 = s1``) tightened to second order along ``h`` and ``gamma``, whose rates hold no wind
+       (:func:`_second_order`).
     """
     P = params
     alpha = a[0]
