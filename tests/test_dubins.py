@@ -94,6 +94,25 @@ def test_held_enclosures_hold_simulated_motion_from_points_and_boxes():
                 assert np.all(part >= piece_lo[j] - 1e-9) and np.all(part <= piece_hi[j] + 1e-9)
 
 
+def test_the_end_box_from_a_point_is_the_exact_turn_widened_by_the_wind_alone():
+    """From one state the turn is deterministic, so the end box at ``s`` holds the windless end state exactly
+    (``s sinc(u s / 2) (cos, sin)(theta + u s / 2)``, here summed in many small steps) and is ``2 w s`` wide in ``x``
+    and ``y``, the wind's part, but for rounding: a box that counted the turn as uncertainty is wider."""
+    rng = np.random.default_rng(4)
+    steps = 100  # RK4's error on the smooth windless turn is far below the tolerances
+    dt = MODEL.control_period
+    w = MODEL.params.wind_max
+    u_lo, u_hi = MODEL.control_bounds[0][0], MODEL.control_bounds[1][0]
+    for _ in range(60):
+        x = np.array([rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(-math.pi, math.pi)])
+        u = rng.choice([u_lo, u_hi, rng.uniform(u_lo, u_hi)])
+        _, _, end_lo, end_hi = MODEL.held_enclosure_box(0.0, x[None], x[None], np.array([[u]]), dt)
+        path = _simulate_held(x, u, np.zeros((steps, 2)), dt, steps)
+        assert np.all(path[-1, :2] >= end_lo[0, :2] + w * dt - 1e-9), (x, u)
+        assert np.all(path[-1, :2] <= end_hi[0, :2] - w * dt + 1e-9), (x, u)
+        assert np.all(end_hi[0, :2] - end_lo[0, :2] <= 2 * w * dt + 1e-12), (x, u, end_hi - end_lo)
+
+
 @pytest.mark.parametrize("which", ["hard_constraint", "soft_constraint"])
 def test_set_box_max_bounds_the_obstacle_and_zone_over_boxes_and_is_tight(which):
     """c1 and c2 are largest inside a box near the discs' centres, where no corner sees it."""
