@@ -205,7 +205,7 @@ def test_glider_audit_from_certified_starts(glider_held_table):
 #: glider states that no single held angle from the state certifies at Q = 5 but two in sequence do (by the
 #: packaged cells; found by start_plans with every row searched for two segments)
 TWO_ANGLE_STARTS = [[9.292976274617553, 81.54197091844232, -0.045972736491441055],
-                    [19.17633203268746, 80.56873235567801, -0.0034534734288076407],
+                    [1.5974903238648426, 80.98291223616016, -0.022155006349714453],
                     [10.58611239445255, 81.63657903203169, -0.051038693539694174],
                     [1.7119242801694132, 80.85957148337502, -0.0029189124023140736]]
 
