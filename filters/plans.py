@@ -1,6 +1,7 @@
 """Which landing cells (:mod:`softreach.reach.proof.cell_certificate`) a :class:`~softreach.filters.ValueFilter`
-uses, and the plans it follows where no single period ends in them: ``info["plan"]`` = (candidate, periods left, owner), valid
-only handed back at its own run's next step, whose state lies in the box chain the plan was proven for."""
+uses, and the plans it follows where no single period ends in them: ``info["plan"]`` = (candidate, periods left,
+owner), valid only handed back at its own run's next step, whose state lies in the box chain the plan was proven
+for."""
 
 from __future__ import annotations
 

@@ -15,8 +15,8 @@ No cell is good at ``T``. If ``(c, j)`` is good so is ``(c, j + 1)`` (the same p
 a column is one number ``m_k[c]``, the lowest good budget index, and condition 3 reads ``j >= S / dz + max m_{k+K}``.
 **What it proves:** a controller applying at every step an action whose end box good cells cover
 (:meth:`CellCertificate.covered`) or its plan's next action (:meth:`CellCertificate.plan`) keeps ``C1`` and the budget
-and lands by ``T``, from any good start and for every wind. Plans of several periods let a cell progress where a period moves less than a cell; plans whose
-end box touches over ``span_cap`` cells are not used.
+and lands by ``T``, from any good start and for every wind. Plans of several periods let a cell progress where a
+period moves less than a cell; plans whose end box touches over ``span_cap`` cells are not used.
 """
 
 from __future__ import annotations
