@@ -7,7 +7,7 @@ from __future__ import annotations
 PASS = 0
 #: smooth rule: a point between the policy's action and a certified candidate was applied
 BLEND = 1
-#: the certified candidate with the lowest worst-case next table value was applied
+#: the certified candidate with the lowest next table value (at its end box's centre) was applied
 OPTIMAL = 2
 #: the state lies outside the table's grid: the least-bad candidate was applied, nothing is guaranteed
 OUTSIDE = 3

@@ -309,8 +309,8 @@ class ReferenceDecision:
         return False
 
     def _next(self, v: Judged):
-        """The next value the filter reports for an action: ``-inf`` where it lands; the table's over its end box
-        where it passes, ``+inf`` otherwise."""
+        """The next value the filter reports for an action: ``-inf`` where it lands; :meth:`next_value`, the table's
+        at its end box's centre, where it passes; ``+inf`` otherwise."""
         if v.lands:
             return -math.inf
         return self.next_value(v.t_next, v.end_lo, v.end_hi, v.z_end) if v.ok else math.inf
