@@ -13,7 +13,7 @@ Phases, each in a fresh Python process (its wall time counts the interpreter's s
    ``--table-kind continuous``: without ``--held``, a table of the continuous-time game, which ranks candidates as
    well where the model's cells prove);
 2. ``cells``: ``ValueFilter(table, dt, target_checks=model.substeps)``, the filter ``SafetyFilter`` builds: its
-   safe and landing cells are unpacked from the package, loaded from the cache or built;
+   landing cells are unpacked from the package, loaded from the cache or built;
 3. ``compile``: ``softreach compile TABLE`` (``filters.precompile``): the decision's, the certificate's and the
    start-plan search's numba code, compiled or loaded from the cache;
 4. ``first step``: ``SafetyFilter(make_env(MODEL), table)``, ``reset(seed=0)`` and one ``step`` of a random action.
