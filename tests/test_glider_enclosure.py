@@ -275,3 +275,42 @@ def test_too_long_period_raises_naming_the_row(model: Glider):
     x = np.array([[20.0, 72.0, -0.03], [10.0, 65.0, -0.01]])
     with pytest.raises(ValueError, match="row 0"):
         model.held_enclosure(0.0, x, np.full((2, 1), 5 * DEG), 1000.0)
+
+
+def _products(a0, a1, b0, b1):
+    """The range of ``a b`` over ``[a0, a1] x [b0, b1]``: its extremes lie at the corners."""
+    corners = np.stack([a0 * b0, a0 * b1, a1 * b0, a1 * b1])
+    return corners.min(axis=0), corners.max(axis=0)
+
+
+@pytest.mark.parametrize("dt", [0.1, 0.01])
+def test_the_end_box_along_V_is_the_winds_spread_and_the_curvature_of_the_rest(model: Glider, dt: float):
+    """``V' = A(V, gamma) + w / m``: from a point, ``V(dt)`` lies in ``V0 + dt A(x0) + dt [-w, w] / m + dt^2 / 2 A'``
+    with ``A' = -2 D V V' / m - g cos(gamma) gamma'`` over the tube. The box is no wider than that range, evaluated
+    here over the enclosure's own tube with plain interval products, beyond the kernel's outward rounding: each of
+    the end's two sums widened by ``4 eps |V|`` on each side (``16 eps |V|``), at most as much for the roundings of
+    the terms under them (each below ``|V|``), and the reference's own rounding to nearest (a few ``eps |V|``): under
+    ``40 eps |V|``. A first-order box, ``dt F_V(tube)``, is wider by ``dt`` times the drag's change over the tube."""
+    p = model.params
+    rng = np.random.default_rng(11 + int(dt * 1000))
+    n = 200
+    x, a = random_inputs(model, rng, n)
+    tube_lo, tube_hi, end_lo, end_hi = model.held_enclosure(0.0, x, a, dt)
+    lift = p.cl0 + p.cl_alpha * a[:, 0]
+    drag = p.cd0 + p.cd_k * lift * lift
+    w = p.wind_max / p.mass
+    V0, V1, g0, g1 = tube_lo[:, 1], tube_hi[:, 1], tube_lo[:, 2], tube_hi[:, 2]
+    # on |gamma| < pi / 2 sin increases; cos peaks at 0
+    cos_lo = np.minimum(np.cos(g0), np.cos(g1))
+    cos_hi = np.where((g0 <= 0.0) & (g1 >= 0.0), 1.0, np.maximum(np.cos(g0), np.cos(g1)))
+    v_rate = (-drag * V1 ** 2 / p.mass - p.gravity * np.sin(g1) - w,
+              -drag * V0 ** 2 / p.mass - p.gravity * np.sin(g0) + w)
+    g_rate = (p.half_rho_s * lift * V0 / p.mass - p.gravity * cos_hi / V0,
+              p.half_rho_s * lift * V1 / p.mass - p.gravity * cos_lo / V1)
+    e0, e1 = _products(V0, V1, *v_rate)
+    f0, f1 = _products(p.gravity * cos_lo, p.gravity * cos_hi, *g_rate)
+    curvature = (2.0 * drag * e1 / p.mass + f1) - (2.0 * drag * e0 / p.mass + f0)
+    bound = dt * 2.0 * w + 0.5 * dt * dt * curvature
+    allowance = 40.0 * np.finfo(np.float64).eps * V1
+    width = end_hi[:, 1] - end_lo[:, 1]
+    assert np.all(width <= bound + allowance), np.max(width - bound - allowance)

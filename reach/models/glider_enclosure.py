@@ -145,8 +145,7 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
        box exactly, with no outward rounding (a float bound needs none). A glider at the soft airspeed limit that
        decelerates, or at ``gamma = 0`` pitching down, is then not charged the rounding's 1e-13 s of budget, nor
        taken to leave ``C1`` by it.
-    6. The end box (``s0 = s1``) tightened to second order along ``h`` and ``gamma``, whose rates hold no wind
-       (:func:`_second_order`).
+    6. The end box (``s0 = s1``) tightened to second order along every axis (:func:`_second_order`).
     """
     P = params
     alpha = a[0]
@@ -192,18 +191,27 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
         if d_hi[i] <= 0.0:
             hi[i] = min(hi[i], xh[i])
     if s0 == s1:
-        _second_order(P, c0, c1, xl, xh, e_lo, e_hi, X_lo, X_hi, d_lo, d_hi, s1, lo, hi)
+        # the tube over [0, s1] (X cut to the hull of that time), and the field over it
+        H_lo, H_hi = _hull_step(xl, xh, s1, d_lo, d_hi)
+        T_lo = (max(H_lo[0], X_lo[0]), max(H_lo[1], X_lo[1]), max(H_lo[2], X_lo[2]))
+        T_hi = (min(H_hi[0], X_hi[0]), min(H_hi[1], X_hi[1]), min(H_hi[2], X_hi[2]))
+        ok, t_lo, t_hi = _field_over(P, c0, c1, T_lo, T_hi)
+        if ok:
+            _second_order(P, c0, c1, xl, xh, e_lo, e_hi, T_lo, T_hi, t_lo, t_hi, s1, lo, hi)
 
 
 @njit(inline="always")
 def _second_order(P, c0, c1, xl, xh, e_lo, e_hi, X_lo, X_hi, d_lo, d_hi, s, lo, hi):
-    """Step 6, the end box at ``s`` tightened along ``h`` and ``gamma``, whose rates hold no wind and are absolutely
-    continuous: ``x(s) = x(0) + s f(x(0)) + int_0^s (s - r) x''(r) dr`` lies in ``[xl, xh] + s F([xl, xh]) +
-    s^2 / 2 X''`` with ``X''`` the interval extension over the tube ``X`` of ``h'' = V' sin(gamma) + V cos(gamma)
-    gamma'`` and ``gamma'' = half_rho_s C_L V' / m + (g sin(gamma) gamma' + g cos(gamma) V' / V) / V``, where
-    ``V'`` and ``gamma'`` are ``F(X)`` (``d_lo``, ``d_hi``, the wind in ``V'``). The first-order box counts the
-    period's whole turn of ``gamma`` as if any ``gamma`` of it held all period; this counts its curvature only."""
-    mass, g, half_rho_s = P[4], P[5], P[6]
+    """Step 6, the end box at ``s`` tightened to second order over the tube ``X`` of ``[0, s]`` and ``F(X)``
+    (``d_lo``, ``d_hi``, the wind in ``V'``). ``h`` and ``gamma`` have rates without wind, absolutely continuous
+    along a path: ``x(s) = x(0) + s f(x(0)) + int_0^s (s - r) x''(r) dr`` lies in ``[xl, xh] + s F([xl, xh]) +
+    s^2 / 2 X''``, ``X''`` the interval extension over ``X`` of ``h'' = V' sin(gamma) + V cos(gamma) gamma'`` and
+    ``gamma'' = half_rho_s C_L V' / m + (g sin(gamma) gamma' + g cos(gamma) V' / V) / V``. ``V' = A(V, gamma) +
+    w / m`` takes the wind additively: its integral lies in ``s [-w_max, w_max] / m`` for any signal, and ``A``'s
+    by the same expansion, ``A' = -2 (cd0 + cd_k C_L^2) V V' / m - g cos(gamma) gamma'``; ``s F([xl, xh])`` holds
+    both first terms. The first-order box counts the period's whole turn as if any rate of it held all period; this
+    counts its curvature only."""
+    cd0, cd_k, mass, g, half_rho_s = P[2], P[3], P[4], P[5], P[6]
     sg0, sg1 = _dn(math.sin(X_lo[2])), _up(math.sin(X_hi[2]))
     k0, k1 = math.cos(X_lo[2]), math.cos(X_hi[2])
     cg0, cg1 = _dn(min(k0, k1)), _up(1.0 if (X_lo[2] <= 0.0 and X_hi[2] >= 0.0) else max(k0, k1))
@@ -220,8 +228,17 @@ def _second_order(P, c0, c1, xl, xh, e_lo, e_hi, X_lo, X_hi, d_lo, d_hi, s, lo, 
     r0, r1 = _mul(r0, r1, d_lo[1], d_hi[1])
     r0, r1 = _mul(r0, r1, iv0, iv1)
     q0, q1 = _mul(_dn(q0 + r0), _up(q1 + r1), iv0, iv1)
+    # A' of V's windless part: the drag's 2 (cd0 + cd_k C_L^2) V V' / m and g cos(gamma) gamma'
+    cc0, cc1 = _mul(c0, c1, c0, c1)
+    e0, e1 = _mul(cd_k, cd_k, cc0, cc1)
+    e0, e1 = _mul(_dn(cd0 + e0), _up(cd0 + e1), X_lo[1], X_hi[1])
+    e0, e1 = _mul(e0, e1, d_lo[1], d_hi[1])
+    e0, e1 = _div_pos(_dn(2.0 * e0), _up(2.0 * e1), mass, mass)
+    f0, f1 = _mul(g, g, cg0, cg1)
+    f0, f1 = _mul(f0, f1, d_lo[2], d_hi[2])
     half_s2 = 0.5 * s * s
-    for i, w0, w1 in ((0, _dn(a0 + b0), _up(a1 + b1)), (2, _dn(p0 + q0), _up(p1 + q1))):
+    for i, w0, w1 in ((0, _dn(a0 + b0), _up(a1 + b1)), (1, _dn(-e1 - f1), _up(-e0 - f0)),
+                      (2, _dn(p0 + q0), _up(p1 + q1))):
         m0, m1 = _mul(s, s, e_lo[i], e_hi[i])
         n0, n1 = _mul(_dn(half_s2), _up(half_s2), w0, w1)
         lo[i] = max(lo[i], _dn(_dn(xl[i] + m0) + n0))
