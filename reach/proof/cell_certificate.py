@@ -36,7 +36,7 @@ import numpy as np
 from . import cell_game
 from .enclosure_check import check_model_for_filter
 from ..jit import cache_root, source_stamp
-from .kernels import cover_rows, frozen, plan_rows, step_rows
+from .kernels import WRAP_ULPS, cover_rows, frozen, plan_rows, step_rows
 
 
 #: file format of :meth:`CellCertificate.save`
@@ -86,10 +86,15 @@ class CellCertificate:
         self.top = budget_top(self.dz, self.horizon)
         self.never = self.top + 1
         self.key = dict(key)
+        #: per state axis whether it is periodic (the model's, in ``key``), and its outward allowance where it is
+        #: (:data:`~softreach.reach.proof.kernels.WRAP_ULPS`): the cells tile its period once, read modulo its cells
+        self.periodic = np.asarray(key.get("periodic", [False] * len(self.shape)), dtype=bool)
+        self.wrap = np.where(self.periodic, WRAP_ULPS * np.spacing(self.hi - self.lo), 0.0)
         #: what :func:`softreach.reach.proof.kernels.cover_row` reads: a row of cells per sample (a memmap stays mapped)
         self.kernel_args = (frozen(np.asarray(self.m).reshape(self.steps + 1, -1)),
                             frozen(np.asarray(self.shape, dtype=np.int64)), frozen(self.lo), frozen(self.hi),
-                            frozen(self.width), self.dt, self.dz, self.top, self.steps, self.horizon)
+                            frozen(self.width), frozen(self.periodic), frozen(self.wrap), self.dt, self.dz, self.top,
+                            self.steps, self.horizon)
         #: the plans as :func:`softreach.reach.proof.kernels.plan_row` reads them
         self.plan_args = (frozen(np.asarray(self.action).reshape(self.steps + 1, -1)),
                           frozen(np.asarray(self.hold).reshape(self.steps + 1, -1)))
@@ -111,6 +116,11 @@ class CellCertificate:
         shape = tuple(key["shape"])
         if len(shape) != model.state_dim or min(shape) < 1:
             raise ValueError(f"shape must give {model.state_dim} positive cell counts, got {shape!r}")
+        for i, per in enumerate(model.periodic_axes()):
+            if per and (model.hard_box[0][i], model.hard_box[1][i]) != (model.domain[0][i], model.domain[1][i]):
+                raise ValueError(f"{model.name}: the cells tile hard_box, whose periodic axis {model.state_names[i]} "
+                                 f"must be its period {model.domain[0][i]!r}..{model.domain[1][i]!r} (domain), got "
+                                 f"{model.hard_box[0][i]!r}..{model.hard_box[1][i]!r}")
         holds = tuple(key["holds"])
         if not holds or min(holds) < 1 or max(holds) > 127:
             raise ValueError(f"holds must be periods in 1..127, got {holds!r}")
@@ -220,6 +230,8 @@ def cell_key(lookahead: Any, shape: Any, dz: float | None = None, holds: Any = (
            "target_checks": la.target_checks, "shape": [int(v) for v in shape],
            "dz": default_dz(la.dt, la.horizon) if dz is None else float(dz), "game": GAME,
            "holds": sorted({int(h) for h in holds}), "span_cap": int(span_cap)}
+    if any(model.periodic_axes()):
+        key["periodic"] = list(model.periodic_axes())
     if la.exact_env:  # the allowances for the environment's rounding (Lookahead.exact_env)
         key["allowance"] = {"state": la.slack.tolist(), "budget": la.budget_slack, "c1_from": la.first_check,
                             "spends_from": 0.5 * la.first_check}

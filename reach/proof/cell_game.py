@@ -33,7 +33,7 @@ def solve(cls: type, lookahead: Any, key: dict[str, Any]) -> Any:
     N = int(round(T / dt))
     lo, hi = (np.asarray(b, dtype=np.float64) for b in model.hard_box)
     blank = np.zeros((1,) + shape, np.int8)
-    cells = cls(lo, hi, blank.astype(np.int16), blank, blank, la.candidates, dt, dz, T, {})
+    cells = cls(lo, hi, blank.astype(np.int16), blank, blank, la.candidates, dt, dz, T, key)
     cell_lo, cell_hi = cell_boxes(cells)
     C = len(cell_lo)
     m = np.empty((N + 1, C), np.int16)
@@ -96,13 +96,14 @@ def backward_step(cells: Any, plans: list, m: np.ndarray, k: int, N: int, C: int
 
 
 @njit(nogil=True)
-def cell_ranges(shape, clo, chi, width, lo, hi, first, last, on):
-    """Per row and axis the first and last cell the box ``[lo, hi]`` touches (closed cells, as the filter's
-    :func:`~softreach.reach.proof.kernels.cell_span`), and whether it lies on the grid."""
+def cell_ranges(shape, clo, chi, width, periodic, wrap, lo, hi, first, last, on):
+    """Per row and axis the first and last cell the box ``[lo, hi]`` touches (closed cells, widened by ``wrap`` and
+    read modulo the cells along a periodic axis, as the filter's :func:`~softreach.reach.proof.kernels.cell_span`),
+    and whether it lies on the grid."""
     for i in range(lo.shape[0]):
         on[i] = True
         for a in range(len(shape)):
-            f, g, on_a = cell_span(lo[i, a], hi[i, a], clo[a], chi[a], width[a], shape[a])
+            f, g, on_a = cell_span(lo[i, a], hi[i, a], clo[a], chi[a], width[a], shape[a], periodic[a], wrap[a])
             first[i, a], last[i, a] = f, g
             on[i] = on[i] and on_a
 
@@ -129,7 +130,8 @@ def budget_indices(spend, needed, dz, never, out):
 @njit(nogil=True)
 def plan_needs(m_next, shape, first, last, spend, dz, never, out):
     """Per row: the start budget index (:func:`budget_index`) that, after ``spend[i]``, reaches the cells
-    ``first[i] .. last[i]`` (inclusive) at the largest of their indices in ``m_next`` (flat, the last axis fastest)."""
+    ``first[i] .. last[i]`` (inclusive, read modulo ``shape``: :func:`cell_ranges`) at the largest of their indices in
+    ``m_next`` (flat, the last axis fastest)."""
     d = len(shape)
     idx = np.empty(d, np.int64)
     for i in range(first.shape[0]):
@@ -139,7 +141,7 @@ def plan_needs(m_next, shape, first, last, spend, dz, never, out):
         while True:
             flat = np.int64(0)
             for a in range(d):
-                flat = flat * shape[a] + idx[a]
+                flat = flat * shape[a] + idx[a] % shape[a]
             worst = max(worst, np.int64(m_next[flat]))
             a = d - 1
             while a >= 0 and idx[a] == last[i, a]:
@@ -201,8 +203,8 @@ def plan_steps(cells: Any, bounds: tuple, lo: np.ndarray, hi: np.ndarray, a: np.
         lo, hi = np.where(ok[:, None], end_lo, lo), np.where(ok[:, None], end_hi, hi)
         if p in holds:
             first, last, on = np.empty((C, n), np.int64), np.empty((C, n), np.int64), np.empty(C, bool)
-            cell_ranges(shape, cells.lo, cells.hi, cells.width, np.ascontiguousarray(lo), np.ascontiguousarray(hi),
-                        first, last, on)
+            cell_ranges(shape, cells.lo, cells.hi, cells.width, cells.periodic, cells.wrap, np.ascontiguousarray(lo),
+                        np.ascontiguousarray(hi), first, last, on)
             rows = np.nonzero(ok & on & ((last - first + 1).prod(axis=1) <= span_cap))[0]
             land_rows = np.nonzero(ok & lands)[0]
             land_need = np.empty(len(land_rows), np.int64)

@@ -166,10 +166,27 @@ def budget_floor(z, dz, top):
     return j
 
 
+#: the outward allowance of a box along a periodic axis, in ulps ``u`` of its period ``P = hi - lo``
+#: (``CellCertificate.wrap``), for boxes within a period of the grid's ends. The environment wraps a state ``x`` to
+#: ``lo + (x - lo) % P`` (:meth:`~softreach.reach.problem.Model.wrap_state`): three roundings, at most ``3 u``. The
+#: float period differs from the motion's (``2 pi``: ``u / 2``) and from ``n`` cell widths (``u``). :func:`cell_span`'s
+#: ``floor((x - lo) / width)`` rounds by at most ``3 u`` at the box's end and at the wrapped state each. So a state
+#: wrapped from a box lies in a cell that the box widened by ``11 u`` touches, read modulo the cells; 16 leaves room.
+WRAP_ULPS = 16
+
+
 @njit(inline="always")
-def cell_span(lo, hi, clo, chi, width, n):
-    """The cells ``[first, last]`` that ``[lo, hi]`` touches along one axis of ``n`` cells (clamped to the grid),
-    and whether it lies on the grid along it."""
+def cell_span(lo, hi, clo, chi, width, n, periodic, pad):
+    """The cells ``[first, last]`` that ``[lo, hi]`` touches along one axis of ``n`` cells, and whether it lies on
+    the grid along it. A non-periodic axis clamps the range to the grid. Along a periodic axis the box is widened by
+    ``pad`` (:data:`WRAP_ULPS`; 0 for a state the environment has wrapped already), is on the grid wherever it is
+    finite, and its range may run past either end, read modulo ``n`` (one of ``n`` cells or more: all, once)."""
+    if periodic:
+        f = math.floor((lo - pad - clo) / width)
+        g = math.floor((hi + pad - clo) / width)
+        if not (math.isfinite(f) and math.isfinite(g)):
+            return 0, 0, False
+        return (0, n - 1, True) if g - f + 1 >= n else (int(f), int(g), True)
     f = math.floor((lo - clo) / width)
     g = math.floor((hi - clo) / width)
     if hi == chi:
@@ -182,17 +199,18 @@ def cell_span(lo, hi, clo, chi, width, n):
 
 @njit(inline="always")
 def cover_row(cells, t, lo, hi, z):
-    """Whether every (closed) cell the box ``[lo, hi]`` touches is good at sample time ``t`` with budget ``z``: on
-    the grid, ``t`` not past the horizon, ``z``'s budget cell at least each cell's lowest good index in ``m``. Cells
-    are read as runs along the last axis, the other axes' spans recomputed per run so that nothing is allocated
-    (``cells``: :attr:`~softreach.reach.proof.cell_certificate.CellCertificate.kernel_args`)."""
-    m, shape, clo, chi, width, dt, dz, top, steps, horizon = cells
+    """Whether every (closed) cell the box ``[lo, hi]`` touches (:func:`cell_span`, widened along periodic axes) is
+    good at sample time ``t`` with budget ``z``: on the grid, ``t`` not past the horizon, ``z``'s budget cell at
+    least each cell's lowest good index in ``m``. Cells are read as runs along the last axis, the other axes' spans
+    recomputed per run so that nothing is allocated (``cells``: :attr:`~softreach.reach.proof.cell_certificate.
+    CellCertificate.kernel_args`)."""
+    m, shape, clo, chi, width, periodic, wrap, dt, dz, top, steps, horizon = cells
     D = len(shape)
     on = True
     runs = 1
     run_lo, run_hi = 0, 0
     for a in range(D):
-        fi, gi, on_a = cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a])
+        fi, gi, on_a = cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a], periodic[a], wrap[a])
         on = on and on_a
         if a == D - 1:
             run_lo, run_hi = fi, gi
@@ -202,34 +220,36 @@ def cover_row(cells, t, lo, hi, z):
         return False
     k = step_index(t, dt, steps)
     floor = budget_floor(z, dz, top)
-    # the first cell that needs more budget decides
+    # the first cell that needs more budget decides; a periodic axis's range is read modulo its cells
+    n_run = shape[D - 1]
     for p in range(runs):
         rest = p
         off = 0
-        stride = shape[D - 1]
+        stride = n_run
         for a in range(D - 2, -1, -1):
-            fi, gi, _ = cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a])
+            fi, gi, _ = cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a], periodic[a], wrap[a])
             span = gi - fi + 1
-            off += (fi + rest % span) * stride
+            off += ((fi + rest % span) % shape[a]) * stride
             rest //= span
             stride *= shape[a]
-        for c in range(off + run_lo, off + run_hi + 1):
-            if int(m[k, c]) > floor:
+        for c in range(run_lo, run_hi + 1):
+            if int(m[k, off + c % n_run]) > floor:
                 return False
     return True
 
 
 @njit(inline="always")
 def plan_row(cells, action, hold, t, x):
-    """The plan ``(candidate index, periods)`` of the cell holding ``x`` at time ``t``; ``(-1, 0)`` off the grid or
-    where no budget suffices (:meth:`~softreach.reach.proof.cell_certificate.CellCertificate.plan`)."""
-    m, shape, clo, chi, width, dt, dz, top, steps, horizon = cells
+    """The plan ``(candidate index, periods)`` of the cell holding ``x`` at time ``t`` (read modulo the cells along a
+    periodic axis); ``(-1, 0)`` off the grid or where no budget suffices
+    (:meth:`~softreach.reach.proof.cell_certificate.CellCertificate.plan`)."""
+    m, shape, clo, chi, width, periodic, wrap, dt, dz, top, steps, horizon = cells
     off, stride = 0, 1
     for a in range(len(shape) - 1, -1, -1):
-        fi, _, on = cell_span(x[a], x[a], clo[a], chi[a], width[a], shape[a])
+        fi, _, on = cell_span(x[a], x[a], clo[a], chi[a], width[a], shape[a], periodic[a], 0.0)
         if not on:
             return -1, 0
-        off += fi * stride
+        off += (fi % shape[a]) * stride
         stride *= shape[a]
     k = step_index(t, dt, steps)
     j = int(action[k, off])
