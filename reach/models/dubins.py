@@ -97,13 +97,8 @@ def set_max_kernel(params, which, lo, hi):
     ``[lo, hi]``; ``params``: goal, obstacle and zone as ``(x, y, radius)`` each, then the arena's half-width. The
     target's distance is convex: largest at a corner. ``c1`` and ``c2`` are not (the complement of a disc): the
     disc term at the box's nearest point to its centre (:func:`_disc_max`), the arena term, a box distance, at the
-    box's far ends. NaN where the box is (a failed enclosure).
-
-    A box whose heading leaves the period ``[-pi, pi]`` (beyond the outward rounding of its ends) gets a positive
-    ``c1``, how far it leaves it [rad]: still an upper bound, and no period the filter admits crosses the seam.
-    The environment wraps the heading there, while the filter's proofs (its cells, and a next state certified by
-    a candidate from the whole end box) are stated in the period's own coordinates: a period that crossed would
-    hand the next step a state in the other coordinates, where the proof was not asked."""
+    box's far ends. NaN where the box is (a failed enclosure). No set depends on the heading, so a box's heading
+    may lie anywhere, across the seam ``+-pi`` too."""
     for i in range(2):
         if math.isnan(lo[i]) or math.isnan(hi[i]):
             return np.nan
@@ -117,10 +112,7 @@ def set_max_kernel(params, which, lo, hi):
         return _disc_max(params[6], params[7], params[8], lo, hi)
     arena = params[9]
     edge = max(max(-arena - lo[0], hi[0] - arena), max(-arena - lo[1], hi[1] - arena))
-    out = max(_disc_max(params[3], params[4], params[5], lo, hi), edge)
-    if lo[2] < down(-math.pi) or hi[2] > up(math.pi):
-        out = max(out, max(-math.pi - lo[2], hi[2] - math.pi))
-    return out
+    return max(_disc_max(params[3], params[4], params[5], lo, hi), edge)
 
 
 @dataclass(frozen=True)
@@ -216,8 +208,8 @@ class Dubins(Model, ControlAndDisturbanceAffine):
         self.start_budget = (0.0, 2.0)
         # the cell certificates (8 m / 60 = 0.133 m x 0.133 m x 5 deg) and plans of every length up to 8 periods: the
         # heading's resolution certifies more than the position's, longer plans nothing more (the shapes measured
-        # against each other: docs/filters.md, "Dubins on cells"). The heading axis is tiled over [-pi, pi] without
-        # wrapping: a box that crosses the seam touches no cell, and counts as not covered
+        # against each other: docs/filters.md, "Dubins on cells"). The heading's cells tile its period once, and a box
+        # across the seam touches those at both of its ends (docs/filters.md, "The heading's seam")
         self.cell_shape = (60, 60, 72)
         self.cell_holds = (1, 2, 3, 4, 5, 6, 7, 8)
         (gx, gy), r = p.goal, p.goal_radius
