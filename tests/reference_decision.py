@@ -25,6 +25,7 @@ import numpy as np
 
 from softreach.filters.plans import NO_PLAN, PLAN_LAND
 from softreach.filters.reasons import AFTER_HORIZON, BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, UNCERTIFIED
+from softreach.reach.proof.kernels import WRAP_ULPS
 from softreach.reach.proof.lookahead import exact_normalized
 from softreach.reach.proof.model_kernels import held_boxes
 from softreach.reach.tables.interpolation import interpolate
@@ -142,10 +143,23 @@ class ReferenceDecision:
 
     # ------------------------------------------------------------ cells
     @staticmethod
-    def _span(cells, lo, hi):
-        """Per axis the first and last cell a closed box touches, and whether it lies on the cell grid."""
+    def _span(cells, lo, hi, wrapped=False):
+        """Per axis the cells a closed box touches, and whether it lies on the cell grid. Along a periodic axis the
+        box is first widened by ``WRAP_ULPS`` ulps of the period, unless it is a state the environment has
+        ``wrapped`` already (a state it wraps from the box then lies in a touched cell), and the cells run past
+        either end of the grid onto those one period on: their indices modulo the axis's cells."""
         spans, on = [], True
         for i in range(len(lo)):
+            if cells.periodic[i]:
+                n = cells.shape[i]
+                pad = 0.0 if wrapped else WRAP_ULPS * np.spacing(cells.hi[i] - cells.lo[i])
+                f = math.floor((lo[i] - pad - cells.lo[i]) / cells.width[i]) if math.isfinite(lo[i]) else math.nan
+                g = math.floor((hi[i] + pad - cells.lo[i]) / cells.width[i]) if math.isfinite(hi[i]) else math.nan
+                if not (math.isfinite(f) and math.isfinite(g)):
+                    on, f, g = False, 0, 0
+                touched = sorted({c % n for c in range(int(f), int(g) + 1)}) if g - f + 1 < n else list(range(n))
+                spans.append(touched)
+                continue
             f = math.floor((lo[i] - cells.lo[i]) / cells.width[i]) if math.isfinite(lo[i]) else math.nan
             g = math.floor((hi[i] - cells.lo[i]) / cells.width[i]) if math.isfinite(hi[i]) else math.nan
             if hi[i] == cells.hi[i]:
@@ -154,7 +168,7 @@ class ReferenceDecision:
                 on = False
                 f = g = 0
             f = min(f, cells.shape[i] - 1)  # a box starting on the grid's upper end lies in the last cell
-            spans.append((int(f), max(int(f), int(g))))
+            spans.append(list(range(int(f), max(int(f), int(g)) + 1)))
         return spans, on
 
     @staticmethod
@@ -170,15 +184,15 @@ class ReferenceDecision:
         j = math.floor(min(z, cells.top * cells.dz) / cells.dz + 1e-12)
         if j * cells.dz > z:
             j -= 1
-        block = np.asarray(cells.m[self._sample(cells, t)])[tuple(slice(f, g + 1) for f, g in spans)]
+        block = np.asarray(cells.m[self._sample(cells, t)])[np.ix_(*spans)]
         return bool((block.astype(np.int64) <= j).all())
 
     def cell_plan(self, cells, t, x):
-        spans, on = self._span(cells, x, x)
+        spans, on = self._span(cells, x, x, wrapped=True)
         if not on:
             return -1, 0
         k = self._sample(cells, t)
-        idx = tuple(f for f, _ in spans)
+        idx = tuple(touched[0] for touched in spans)
         j = int(np.asarray(cells.action[k])[idx])
         return (j, int(np.asarray(cells.hold[k])[idx])) if j >= 0 else (-1, 0)
 

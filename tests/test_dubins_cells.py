@@ -1,12 +1,13 @@
 """The Dubins vehicle's cell certificates (``softreach.reach.proof.cell_certificate`` on its held-turn enclosure,
 ``Dubins.cell_shape``): sound against facts of the vehicle the cells are not built from (how fast it can approach
-the goal, where the obstacle is), kept by their own plans under winds that switch inside the 0.1 s period, looked
-up consistently at the heading's seam ``theta = -pi``, and kept by the filter from certified starts (some bisected
-onto the certified edge) against adversarial policies and winds. The cells are the package's own
+the goal, where the obstacle is), kept by their own plans under winds that switch inside the 0.1 s period, read
+modulo the heading's period across its seam ``theta = +-pi``, and kept by the filter from certified starts (some
+bisected onto the certified edge) against adversarial policies and winds. The cells are the package's own
 (``reach/proof/cells/``), the ones a user's filter reads."""
 
 from __future__ import annotations
 
+import copy
 import math
 
 import gymnasium as gym
@@ -18,6 +19,7 @@ import softreach.envs  # noqa: F401  (registers the environments)
 from softreach.filters import SafetyFilter, ValueFilter
 from softreach.agents.audit import Row, _policy, _wind, run_episode
 from softreach.reach import get_model
+from softreach.reach.proof.cell_certificate import CellCertificate
 
 from cell_plans import assert_landing_cells_nested, cell_boxes, fly_plan_from_a_good_cell, run_certified_episode
 
@@ -61,7 +63,7 @@ def test_no_good_cell_lies_inside_the_obstacle_or_the_cells_change_with_the_head
                    np.maximum(np.abs(lo[:, 1] - p.obstacle[1]), np.abs(hi[:, 1] - p.obstacle[1])))
     inside = far < p.obstacle_radius
     assert inside.sum() > 10 and (m[inside] == cells.never).all()
-    # the cells tile the heading's period exactly once: [-pi, pi], no cell beyond it
+    # the cells tile the heading's period exactly once: [-pi, pi], read modulo it beyond
     assert cells.lo[2] == -math.pi and cells.hi[2] == math.pi
 
 
@@ -69,63 +71,143 @@ def test_landing_cells_grow_with_the_budget(vf):
     assert_landing_cells_nested(vf, (0.0, 1.0, 2.0), least=501)
 
 
-def test_the_heading_seam_is_looked_up_on_the_grid_and_nothing_off_it_is_certified(vf):
-    """The environment wraps the heading into ``[-pi, pi)``: ``theta = -pi`` is the first heading cell (closed,
-    proven for its lower face too), ``pi`` the last; a heading beyond the period is off the grid, so neither in a
-    cell nor planned; and an end box that crosses the seam touches no cell, so no period is admitted by it."""
+def _touched(cells, lo, hi):
+    """Per axis the cells whose closed box meets ``[lo, hi]``, the heading's cells also one period on either side:
+    each cell asked in turn."""
+    period = cells.hi[2] - cells.lo[2]
+    out = []
+    for a in range(3):
+        shifts = (-period, 0.0, period) if a == 2 else (0.0,)
+        out.append([c for c in range(cells.shape[a])
+                    if any(cells.lo[a] + c * cells.width[a] + s <= hi[a] and lo[a] <= cells.lo[a] + (c + 1) *
+                           cells.width[a] + s for s in shifts)])
+    return out
+
+
+def test_the_heading_seam_is_looked_up_periodically_on_the_grid(vf):
+    """The environment wraps the heading into ``[-pi, pi)``; the cells tile that period once and read a heading
+    modulo it: a state one period off is in the same cell, with the same plan, and a box across the seam is covered
+    exactly where every cell it meets at either end of the period is good (each cell asked in the test)."""
     env = gym.make("softreach/SoftReach-v0", model=get_model("dubins"), wind="none")
-    _, info = env.reset(options={"state": [-2.0, 0.0, math.pi], "budget": 1.0})
+    env.reset(options={"state": [-2.0, 0.0, math.pi], "budget": 1.0})
     assert env.unwrapped.state[2] == -math.pi  # pi is wrapped onto the seam's lower side
     cells = vf.landing_cells
-    n = cells.shape[2]
+    n, period = cells.shape[2], cells.hi[2] - cells.lo[2]
     rng = np.random.default_rng(5)
     lo, hi = (np.asarray(b, float) for b in vf.model.hard_box)
     x = rng.uniform(lo, hi, (4000, 3))
-    for theta, column in ((-math.pi, 0), (math.pi, n - 1)):
-        at = x.copy()
-        at[:, 2] = theta
-        # the plan and the membership are those of the cell column that holds the seam
-        inner = at.copy()
-        inner[:, 2] = theta + (0.5 if column == 0 else -0.5) * cells.width[2]
-        np.testing.assert_array_equal(cells.plan(0.0, at)[0], cells.plan(0.0, inner)[0])
-        np.testing.assert_array_equal(cells.contains(0.0, at, 1.0), cells.contains(0.0, inner, 1.0))
-    assert cells.contains(0.0, x[:200] * [1, 1, 0] + [0, 0, -math.pi], 2.0).any()
-    for theta in (np.nextafter(-math.pi, -4.0), np.nextafter(math.pi, 4.0), 3.5, -7.0):
-        off = x.copy()
-        off[:, 2] = theta
-        assert not cells.contains(0.0, off, 2.0).any()
-        assert (cells.plan(0.0, off)[0] == -1).all()
-    # an end box across the seam, however good the cells at both of its ends
-    box_lo, box_hi = x[:200].copy(), x[:200].copy()
-    box_lo[:, 2], box_hi[:, 2] = math.pi - 0.01, math.pi + 0.01
-    assert not cells.covered(DT, box_lo, box_hi, 2.0).any()
-    box_lo[:, 2], box_hi[:, 2] = -math.pi - 0.01, -math.pi + 0.01
-    assert not cells.covered(DT, box_lo, box_hi, 2.0).any()
+    # headings in the middle third of a cell, well inside it however they are rounded
+    x[:, 2] = cells.lo[2] + (rng.integers(0, n, 4000) + rng.uniform(1 / 3, 2 / 3, 4000)) * cells.width[2]
+    inside = cells.contains(0.0, x, 2.0)
+    assert 100 < inside.sum() < 3900
+    for turns in (-1, 1):
+        shifted = x + [0.0, 0.0, turns * period]
+        np.testing.assert_array_equal(cells.contains(0.0, shifted, 2.0), inside)
+        np.testing.assert_array_equal(cells.plan(0.0, shifted)[0], cells.plan(0.0, x)[0])
+    # boxes across the seam around good cells next to it, at sample 1 with 2 s of budget (inside its budget cell)
+    k, z = 1, 2.0 + 0.5 * cells.dz
+    m = np.asarray(cells.m[k])
+    j = int(np.floor(z / cells.dz))
+    seam = np.argwhere(np.r_["-1", m[:, :, :1], m[:, :, -1:]] <= j)
+    assert len(seam) > 100
+    got, want = [], []
+    for ix, iy, _ in seam[rng.permutation(len(seam))[:300]]:
+        b_lo = np.maximum(cells.lo[:2] + (np.array([ix, iy]) + rng.uniform(-0.2, 0.5, 2)) * cells.width[:2],
+                          cells.lo[:2])
+        b_hi = np.minimum(b_lo + rng.uniform(0.0, 0.6, 2) * cells.width[:2], cells.hi[:2])
+        left, right = rng.uniform(0.0, 4.0, 2) * cells.width[2]
+        centre = float(rng.choice([-math.pi, math.pi]))
+        box_lo, box_hi = np.r_[b_lo, centre - left], np.r_[b_hi, centre + right]
+        got.append(bool(cells.covered(k * DT, box_lo[None], box_hi[None], z)[0]))
+        want.append(bool((m[np.ix_(*_touched(cells, box_lo, box_hi))] <= j).all()))
+    assert got == want
+    assert 30 <= sum(want) <= len(want) - 30
+    # a box longer than the period meets every heading cell once
+    box_lo, box_hi = np.r_[b_lo, -4.0], np.r_[b_hi, 3.5]
+    assert len(_touched(cells, box_lo, box_hi)[2]) == n
+    assert cells.covered(k * DT, box_lo[None], box_hi[None], z)[0] == (m[np.ix_(*_touched(cells, box_lo, box_hi))]
+                                                                      <= j).all()
 
 
-def test_no_admitted_period_crosses_the_heading_seam(vf):
-    """The environment wraps the heading at ``+-pi``; the filter's proofs are stated in one period's coordinates.
-    A policy's turn that would carry the heading across the seam is not admitted, not even through a candidate
-    that would certify the next state from the whole end box (it would be certified in the other coordinates,
-    where the next step does not look): the regression of a run that went ``"uncertified"`` after such a pass,
-    from ``(2.76, 3.56, pi)`` at ``Q = 0`` under the env's random wind. The applied action's period stays in the
-    period, and ``c1``'s box maximum is positive for any box that leaves it."""
-    from softreach.filters.core import PASS
+def test_a_heading_the_environment_wraps_lies_in_a_cell_its_box_touches(vf):
+    """The environment's wrap rounds: a heading a period off, within a few ulps of a cell's edge, can come back on
+    the edge's other side. A box reaching such a heading is covered only where the cell holding the wrapped heading
+    is good too (the look-up's allowance, ``WRAP_ULPS``)."""
+    cells, model = vf.landing_cells, vf.model
+    n, period = cells.shape[2], cells.hi[2] - cells.lo[2]
 
-    model = vf.model
-    start = np.array([2.7605945669964234, 3.5595853691598363, -math.pi])
-    for theta, turn in ((-math.pi, -0.0223), (-math.pi + 0.01, -0.5), (math.pi - 0.01, 0.5)):
-        x = start.copy()
-        x[2] = theta
-        applied, info = vf.filter(0.0, x, 0.0, np.array([turn]))
-        assert int(info["reason"]) != PASS
-        end = theta + float(np.asarray(applied).reshape(-1)[0]) * DT
-        assert -math.pi <= end <= math.pi, (theta, turn, applied)
-    # a box well inside C1 (west of the obstacle, inside the arena), its heading across the seam or not
-    lo = np.array([[-3.0, 2.0, math.pi - 0.1], [-3.0, 2.0, -math.pi - 1e-9], [-3.0, 2.0, -math.pi]])
-    hi = np.array([[-2.9, 2.1, math.pi + 1e-9], [-2.9, 2.1, -math.pi + 0.1], [-2.9, 2.1, math.pi]])
-    c1 = model.set_box_max("hard_constraint", 0.0, lo, hi)
-    assert (c1[:2] > 0).all() and c1[2] < 0
+    def column(h):  # the heading's cell as the look-up computes it, modulo the period
+        return math.floor((h - cells.lo[2]) / cells.width[2]) % n
+
+    jumps = []
+    for edge in cells.lo[2] + np.arange(n) * cells.width[2]:
+        for shifted in (edge - period, edge + period):
+            for heading in shifted + np.spacing(period) * np.arange(-8, 8):
+                wrapped = model.wrap_state([0.0, 0.0, heading])[2]
+                if column(heading) != column(wrapped):
+                    jumps.append((heading, column(heading), column(wrapped)))
+    assert len(jumps) >= 5
+    k, z = 1, 2.0 + 0.5 * cells.dz
+    m = np.asarray(cells.m[k])
+    j = int(np.floor(z / cells.dz))
+    refused = 0
+    for heading, own, wrapped_column in jumps:
+        rows = np.argwhere(m[:, :, own] <= j)
+        centres = cells.lo[:2] + (rows + 0.5) * cells.width[:2]
+        box_lo = np.c_[centres, np.full(len(rows), heading - 1e-3)]
+        box_hi = np.c_[centres, np.full(len(rows), heading)]
+        covered = cells.covered(k * DT, box_lo, box_hi, z)
+        good = m[rows[:, 0], rows[:, 1], wrapped_column] <= j
+        assert not (covered & ~good).any(), heading
+        refused += int((~good).sum())
+    assert refused > 0
+
+
+def test_periods_across_the_heading_seam_are_admitted_and_the_chain_holds(dubins_held_table):
+    """The environment wraps the heading at ``+-pi``, where the cells read it modulo the period: the policy's turn
+    across the seam is applied where it keeps the next state certified. Starts the filter certifies within 0.15 rad
+    of the seam, a policy turning across it first (then random), the env's random wind, ``SafetyFilter`` on the
+    environment: every step certified, every run lands with no hard violation and no overspend, and the policy's
+    own turn carries the heading across the seam at some steps. ``c1``'s box maximum does not depend on the
+    heading, across the seam or not."""
+    env = SafetyFilter(gym.make("softreach/SoftReach-v0", model=get_model("dubins"), wind="random"),
+                       dubins_held_table)
+    env.action_space.seed(0)
+    vf = env.value_filter
+    rng = np.random.default_rng(11)
+    lo, hi = (np.asarray(b, float) for b in vf.model.hard_box)
+    x = rng.uniform(lo, hi, (6000, 3))
+    side = rng.choice([-1.0, 1.0], 6000)
+    x[:, 2] = side * (math.pi - rng.uniform(0.0, 0.15, 6000))
+    episodes = crossings = 0
+    for q in (0.0, 2.0):
+        for i in np.nonzero(vf.certify(0.0, x, q)[0])[0][:6]:
+            _, info = env.reset(seed=int(i), options={"state": x[i].tolist(), "budget": q})
+            assert info["certified"]
+            done, steps = False, 0
+            while not done:
+                # turn towards the seam for the first second: +1 from near pi, -1 from near -pi
+                action = np.array([side[i]]) if steps < 10 else env.action_space.sample()
+                before = env.unwrapped.state[2]
+                _, _, terminated, truncated, info = env.step(action)
+                assert info["certified"], info["filter_reason"]
+                crossings += int(abs(env.unwrapped.state[2] - before) > math.pi and info["filter_reason"] == "pass")
+                done, steps = terminated or truncated, steps + 1
+            assert info["landed"] and not info["hard_violation"] and info["budget_used"] <= q + 1e-9
+            episodes += 1
+    assert episodes == 12 and crossings >= 6
+    box_lo = np.array([[-3.0, 2.0, math.pi - 0.1], [-3.0, 2.0, -math.pi - 0.1], [-3.0, 2.0, -0.1]])
+    box_hi = np.array([[-2.9, 2.1, math.pi + 0.1], [-2.9, 2.1, -math.pi + 0.1], [-2.9, 2.1, 0.1]])
+    c1 = vf.model.set_box_max("hard_constraint", 0.0, box_lo, box_hi)
+    assert c1[0] == c1[1] == c1[2] < 0
+
+
+def test_cells_refuse_a_periodic_axis_not_tiled_over_its_period(vf):
+    la = copy.copy(vf.lookahead)
+    la.model = model = get_model("dubins")
+    model.hard_box = (model.hard_box[0][:2] + (-3.0,), model.hard_box[1][:2] + (3.0,))
+    with pytest.raises(ValueError, match="periodic axis theta"):
+        CellCertificate.build(la, (2, 2, 4))
 
 
 def test_a_cells_plan_keeps_its_promise_under_switching_winds(vf):

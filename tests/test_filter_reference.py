@@ -388,3 +388,19 @@ def test_dubins_random_certified_and_edge_states(dubins):
     assert counts.get(PASS, 0) > n // 5 and counts.get(UNCERTIFIED, 0) > 10, counts
     assert counts.get(OPTIMAL, 0) + counts.get(BLEND, 0) >= 3, counts
     assert tied <= n // 50
+
+
+def test_dubins_at_the_heading_seam(dubins):
+    """Certified states within 0.15 rad of the heading's seam, the policy turning across it or at random: the cells
+    of end boxes across the seam are read modulo the period, by the filter as by the reference."""
+    vf, ref = dubins
+    lo, hi = (np.asarray(b, dtype=float) for b in vf.model.domain)
+    rng = np.random.default_rng(23)
+    x, z, t = rng.uniform(lo, hi, (4000, 3)), rng.uniform(0.0, 2.5, 4000), np.round(rng.uniform(0, 6.9, 4000), 1)
+    side = rng.choice([-1.0, 1.0], 4000)
+    x[:, 2] = side * (math.pi - rng.uniform(0.0, 0.15, 4000))
+    rows = np.nonzero(vf.certify(t, x, z)[0])[0][:40]
+    assert len(rows) == 40
+    a = np.where(rng.random(40) < 0.5, side[rows], rng.uniform(-1, 1, 40))[:, None]
+    counts, tied = _agree(vf, ref, t[rows], x[rows], z[rows], a)
+    assert counts.get(PASS, 0) >= 10 and tied <= 2, counts
