@@ -150,15 +150,10 @@ class ReferenceDecision:
         either end of the grid onto those one period on: their indices modulo the axis's cells."""
         spans, on = [], True
         for i in range(len(lo)):
-            if cells.periodic[i]:
-                n = cells.shape[i]
+            if cells.periodic[i] and math.isfinite(lo[i]) and math.isfinite(hi[i]):
                 pad = 0.0 if wrapped else WRAP_ULPS * np.spacing(cells.hi[i] - cells.lo[i])
-                f = math.floor((lo[i] - pad - cells.lo[i]) / cells.width[i]) if math.isfinite(lo[i]) else math.nan
-                g = math.floor((hi[i] + pad - cells.lo[i]) / cells.width[i]) if math.isfinite(hi[i]) else math.nan
-                if not (math.isfinite(f) and math.isfinite(g)):
-                    on, f, g = False, 0, 0
-                touched = sorted({c % n for c in range(int(f), int(g) + 1)}) if g - f + 1 < n else list(range(n))
-                spans.append(touched)
+                f, g = (math.floor((v - cells.lo[i]) / cells.width[i]) for v in (lo[i] - pad, hi[i] + pad))
+                spans.append(sorted({c % cells.shape[i] for c in range(f, min(g, f + cells.shape[i] - 1) + 1)}))
                 continue
             f = math.floor((lo[i] - cells.lo[i]) / cells.width[i]) if math.isfinite(lo[i]) else math.nan
             g = math.floor((hi[i] - cells.lo[i]) / cells.width[i]) if math.isfinite(hi[i]) else math.nan
