@@ -147,14 +147,16 @@ class ReferenceDecision:
         """Per axis the cells a closed box touches, and whether it lies on the cell grid. Along a periodic axis the
         box is first widened by ``WRAP_ULPS`` ulps of the period, unless it is a state the environment has
         ``wrapped`` already (a state it wraps from the box then lies in a touched cell), and the cells run past
-        either end of the grid onto those one period on: their indices modulo the axis's cells."""
+        either end of the grid, up to a period, onto those one period on: their indices modulo the axis's cells."""
         spans, on = [], True
         for i in range(len(lo)):
+            n = cells.shape[i]
             if cells.periodic[i] and math.isfinite(lo[i]) and math.isfinite(hi[i]):
                 pad = 0.0 if wrapped else WRAP_ULPS * np.spacing(cells.hi[i] - cells.lo[i])
                 f, g = (math.floor((v - cells.lo[i]) / cells.width[i]) for v in (lo[i] - pad, hi[i] + pad))
-                spans.append(sorted({c % cells.shape[i] for c in range(f, min(g, f + cells.shape[i] - 1) + 1)}))
-                continue
+                if -n <= f and g < 2 * n:  # else off the grid, below
+                    spans.append(sorted({c % n for c in range(f, min(g, f + n - 1) + 1)}))
+                    continue
             f = math.floor((lo[i] - cells.lo[i]) / cells.width[i]) if math.isfinite(lo[i]) else math.nan
             g = math.floor((hi[i] - cells.lo[i]) / cells.width[i]) if math.isfinite(hi[i]) else math.nan
             if hi[i] == cells.hi[i]:

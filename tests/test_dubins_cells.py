@@ -104,6 +104,9 @@ def test_the_heading_seam_is_looked_up_periodically_on_the_grid(vf):
         shifted = x + [0.0, 0.0, turns * period]
         np.testing.assert_array_equal(cells.contains(0.0, shifted, 2.0), inside)
         np.testing.assert_array_equal(cells.plan(0.0, shifted)[0], cells.plan(0.0, x)[0])
+    # two periods off, beyond where the wrap's allowance is derived: off the grid
+    far = x + [0.0, 0.0, 2 * period]
+    assert not cells.contains(0.0, far, 2.0).any() and (cells.plan(0.0, far)[0] == -1).all()
     # boxes across the seam around good cells next to it, at sample 1 with 2 s of budget (inside its budget cell)
     k, z = 1, 2.0 + 0.5 * cells.dz
     m = np.asarray(cells.m[k])

@@ -179,12 +179,13 @@ WRAP_ULPS = 16
 def cell_span(lo, hi, clo, chi, width, n, periodic, pad):
     """The cells ``[first, last]`` that ``[lo, hi]`` touches along one axis of ``n`` cells, and whether it lies on
     the grid along it. A non-periodic axis clamps the range to the grid. Along a periodic axis the box is widened by
-    ``pad`` (:data:`WRAP_ULPS`; 0 for a state the environment has wrapped already), is on the grid wherever it is
-    finite, and its range may run past either end, read modulo ``n`` (one of ``n`` cells or more: all, once)."""
+    ``pad`` (:data:`WRAP_ULPS`; 0 for a state the environment has wrapped already), is on the grid within a period
+    of either end (where the allowance holds), and its range may run past either end, read modulo ``n`` (one of
+    ``n`` cells or more: all, once)."""
     if periodic:
         f = math.floor((lo - pad - clo) / width)
         g = math.floor((hi + pad - clo) / width)
-        if not (math.isfinite(f) and math.isfinite(g)):
+        if not (f >= -n and g < 2 * n):
             return 0, 0, False
         return (0, n - 1, True) if g - f + 1 >= n else (int(f), int(g), True)
     f = math.floor((lo - clo) / width)
