@@ -118,11 +118,11 @@ def test_every_env_gets_the_physical_action_judged(vf, env_id):
 
 def test_glider_gets_its_candidates_in_binary64(glider_held_table):
     """The glider's env is not integrated exactly (RK4 on a nonlinear model), so its proof is one of the exact
-    motion and its candidates stay those of its table; they reach the env in binary64: eight of the nine exactly,
+    motion (its budget's rounding aside) and its candidates stay those of its table; they reach the env in binary64: eight of the nine exactly,
     the second angle of attack (no normalised action maps to it) one unit in the last place away, where a float32
     action would have moved each by about 1e-9 rad."""
     f = ValueFilter(glider_held_table, 0.1, target_checks=2)
-    assert not f.lookahead.exact_env and not f.lookahead.slack.any() and f.lookahead.budget_slack == 0
+    assert not f.lookahead.exact_env and not f.lookahead.slack.any() and 0 < f.lookahead.budget_slack < 1e-12
     cands = f.lookahead.candidates[:, 0]
     env = SafetyFilter(gym.make("softreach/GliderLanding-v0"), value_filter=f)
     replaced = 0

@@ -232,9 +232,10 @@ def cell_key(lookahead: Any, shape: Any, dz: float | None = None, holds: Any = (
            "holds": sorted({int(h) for h in holds}), "span_cap": int(span_cap)}
     if any(model.periodic_axes()):
         key["periodic"] = list(model.periodic_axes())
-    if la.exact_env:  # the allowances for the environment's rounding (Lookahead.exact_env)
-        key["allowance"] = {"state": la.slack.tolist(), "budget": la.budget_slack, "c1_from": la.first_check,
-                            "spends_from": 0.5 * la.first_check}
+    # the allowances for the environment's rounding: the budget's always, the state's where Lookahead.exact_env
+    key["allowance"] = {"budget": la.budget_slack}
+    if la.exact_env:
+        key["allowance"].update(state=la.slack.tolist(), c1_from=la.first_check, spends_from=0.5 * la.first_check)
     return key
 
 

@@ -169,7 +169,7 @@ class Lookahead:
         self.first_check = self.dt / self.checks
         #: RK4 is exact for the model (:func:`rk4_exact`): the proof covers the env's numbers, else the exact motion
         self.exact_env = rk4_exact(model, self.first_check)
-        #: the rounding allowances (:func:`state_allowance`, :func:`budget_allowance`); zero unless :attr:`exact_env`
+        #: the state's rounding allowance (:func:`state_allowance`), zero unless :attr:`exact_env`
         self.slack = state_allowance(model, self.checks) if self.exact_env else np.zeros(model.state_dim)
         self.fields = dict(fields)
         #: ``W_eps`` or the budget surface ``Q_min``
@@ -180,7 +180,9 @@ class Lookahead:
         b_values, b_times, b_grid = self.fields[self.budget_field]
         self.z_top = b_grid.hi[-1] if self.budget_field == "W_eps" else np.inf
         self.horizon = float(b_times[-1])
-        self.budget_slack = budget_allowance(self.dt, self.horizon, self.pieces) if self.exact_env else 0.0
+        #: the budget's (:func:`budget_allowance`), for every model: the env sums the budget in floating point
+        #: whatever its motion, and a period spent wholly outside ``C2`` costs ``dt``, onto a budget cell's edge
+        self.budget_slack = budget_allowance(self.dt, self.horizon, self.pieces)
         V = kernel_field(*self.fields.get("V", self.fields[self.budget_field]))
         if self.budget_field == "W_eps":
             W = kernel_field(*self.fields["W_eps"])
