@@ -166,6 +166,17 @@ def test_a_heading_the_environment_wraps_lies_in_a_cell_its_box_touches(vf):
     assert refused > 0
 
 
+def _env_and_starts(table, seed, n):
+    """``SafetyFilter`` on the Dubins env under its random wind, its filter, a generator seeded ``seed`` and ``n``
+    states it drew uniformly over ``C1``'s box."""
+    env = SafetyFilter(gym.make("softreach/SoftReach-v0", model=get_model("dubins"), wind="random"), table)
+    env.action_space.seed(0)
+    vf = env.value_filter
+    rng = np.random.default_rng(seed)
+    lo, hi = (np.asarray(b, float) for b in vf.model.hard_box)
+    return env, vf, rng, rng.uniform(lo, hi, (n, 3))
+
+
 def test_periods_across_the_heading_seam_are_admitted_and_the_chain_holds(dubins_held_table):
     """The environment wraps the heading at ``+-pi``, where the cells read it modulo the period: the policy's turn
     across the seam is applied where it keeps the next state certified. Starts the filter certifies within 0.15 rad
@@ -173,13 +184,7 @@ def test_periods_across_the_heading_seam_are_admitted_and_the_chain_holds(dubins
     environment: every step certified, every run lands with no hard violation and no overspend, and the policy's
     own turn carries the heading across the seam at some steps. ``c1``'s box maximum does not depend on the
     heading, across the seam or not."""
-    env = SafetyFilter(gym.make("softreach/SoftReach-v0", model=get_model("dubins"), wind="random"),
-                       dubins_held_table)
-    env.action_space.seed(0)
-    vf = env.value_filter
-    rng = np.random.default_rng(11)
-    lo, hi = (np.asarray(b, float) for b in vf.model.hard_box)
-    x = rng.uniform(lo, hi, (6000, 3))
+    env, vf, rng, x = _env_and_starts(dubins_held_table, 11, 6000)
     side = rng.choice([-1.0, 1.0], 6000)
     x[:, 2] = side * (math.pi - rng.uniform(0.0, 0.15, 6000))
     episodes = crossings = 0
@@ -284,13 +289,7 @@ def test_safety_filter_on_the_env_keeps_its_promise_at_the_seam(dubins_held_tabl
     """The wrapped environment: starts the filter certifies, headings on the seam (``pi``, which the environment
     wraps to ``-pi``) among them, a random policy and the env's random wind: every run lands, no hard violation,
     no overspend, every step certified."""
-    env = SafetyFilter(gym.make("softreach/SoftReach-v0", model=get_model("dubins"), wind="random"),
-                       dubins_held_table)
-    env.action_space.seed(0)
-    vf = env.value_filter
-    rng = np.random.default_rng(7)
-    lo, hi = (np.asarray(b, float) for b in vf.model.hard_box)
-    x = rng.uniform(lo, hi, (4000, 3))
+    env, vf, rng, x = _env_and_starts(dubins_held_table, 7, 4000)
     x[:2000, 2] = math.pi
     seam = 0
     for q in (0.0, 2.0):
