@@ -9,5 +9,5 @@ from .wrapper import SafetyFilter
 from .vector import VecSafetyFilter
 
 __all__ = ["AFTER_HORIZON", "BLEND", "CERTIFY_REASONS", "FALLBACK", "Lookahead", "NO_PLAN", "OPTIMAL",
-           "OUTSIDE", "PASS", "PLAN_LAND", "PLAN_SAFE", "REASONS", "RULES", "SafetyFilter", "TableField", "UNCERTIFIED", "ValueFilter",
-           "VecSafetyFilter"]
+           "OUTSIDE", "PASS", "PLAN_LAND", "PLAN_SAFE", "REASONS", "RULES", "SafetyFilter", "TableField",
+           "UNCERTIFIED", "ValueFilter", "VecSafetyFilter"]

@@ -209,8 +209,9 @@ class ValueFilter:
         :return: ``(applied, info)``, a passing policy action bit for bit. ``info``: ``value`` (the table's ``D``),
             ``margin``, ``active`` (changed), ``reason`` (:data:`REASONS`), ``optimal_action`` (the chosen candidate,
             NaN where the policy passed), ``blend`` (``1`` where it passed), ``lookahead`` (the applied action's next
-            table value, at its end box's centre; ``-inf`` where it surely lands, ``+inf`` where it fails), ``certified`` (it passed, or follows a landing cell's plan),
-            ``plan`` (``(N, 3)`` ints: candidate, periods left, :data:`PLAN_LAND`; or :data:`NO_PLAN`)
+            table value, at its end box's centre; ``-inf`` where it surely lands, ``+inf`` where it fails),
+            ``certified`` (it passed, or follows a landing cell's plan), ``plan`` (``(N, 3)`` ints: candidate,
+            periods left, :data:`PLAN_LAND`; or :data:`NO_PLAN`)
         :raises ValueError: non-finite or wrongly shaped inputs, or :attr:`threads` below 1
         :raises TypeError: ``diagnostics`` is not a bool
         """

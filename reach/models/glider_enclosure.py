@@ -224,8 +224,8 @@ def _second_order(P, c0, c1, xl, xh, e_lo, e_hi, X_lo, X_hi, d_lo, d_hi, s, lo, 
     p0, p1 = _div_pos(p0, p1, mass, mass)
     q0, q1 = _mul(g, g, sg0, sg1)
     q0, q1 = _mul(q0, q1, d_lo[2], d_hi[2])
-    r0, r1 = _mul(g, g, cg0, cg1)
-    r0, r1 = _mul(r0, r1, d_lo[1], d_hi[1])
+    gc0, gc1 = _mul(g, g, cg0, cg1)
+    r0, r1 = _mul(gc0, gc1, d_lo[1], d_hi[1])
     r0, r1 = _mul(r0, r1, iv0, iv1)
     q0, q1 = _mul(_dn(q0 + r0), _up(q1 + r1), iv0, iv1)
     # A' of V's windless part: the drag's 2 (cd0 + cd_k C_L^2) V V' / m and g cos(gamma) gamma'
@@ -234,8 +234,7 @@ def _second_order(P, c0, c1, xl, xh, e_lo, e_hi, X_lo, X_hi, d_lo, d_hi, s, lo, 
     e0, e1 = _mul(_dn(cd0 + e0), _up(cd0 + e1), X_lo[1], X_hi[1])
     e0, e1 = _mul(e0, e1, d_lo[1], d_hi[1])
     e0, e1 = _div_pos(_dn(2.0 * e0), _up(2.0 * e1), mass, mass)
-    f0, f1 = _mul(g, g, cg0, cg1)
-    f0, f1 = _mul(f0, f1, d_lo[2], d_hi[2])
+    f0, f1 = _mul(gc0, gc1, d_lo[2], d_hi[2])
     half_s2 = 0.5 * s * s
     for i, w0, w1 in ((0, _dn(a0 + b0), _up(a1 + b1)), (1, _dn(-e1 - f1), _up(-e0 - f0)),
                       (2, _dn(p0 + q0), _up(p1 + q1))):
