@@ -12,10 +12,7 @@ import numpy as np
 
 from softreach.reach.proof.cell_certificate import CellCertificate, cell_key, cached
 
-try:  # torch is a base dependency, but keep numpy-only use possible
-    import torch
-except ImportError:  # pragma: no cover - exercised only without torch
-    torch = None  # type: ignore[assignment]
+from .tensors import is_tensor
 
 #: ``info["plan"]`` where none is followed
 NO_PLAN = (-1, 0, 0)
@@ -48,7 +45,7 @@ def check_plans(plan: Any, N: int) -> np.ndarray | None:
     :raises ValueError: not the integer ``(N, 3)`` ``info["plan"]`` of a previous step"""
     if plan is None:
         return None
-    arr = np.asarray(plan.detach().cpu().numpy() if torch is not None and isinstance(plan, torch.Tensor) else plan)
+    arr = np.asarray(plan.detach().cpu().numpy() if is_tensor(plan) else plan)
     arr = arr.reshape(N, 3) if arr.size == 3 * N else arr
     if arr.shape != (N, 3) or not np.issubdtype(arr.dtype, np.integer):
         raise ValueError(f"plan must be the integer (N, 3) info['plan'] of the previous step, got {plan!r}")

@@ -3,19 +3,22 @@
 from __future__ import annotations
 
 import math
+import sys
 from typing import Any
 
 import numpy as np
 
-try:  # torch is a base dependency, but keep numpy-only use possible
-    import torch
-except ImportError:  # pragma: no cover - exercised only without torch
-    torch = None  # type: ignore[assignment]
+
+def is_tensor(v: Any) -> bool:
+    """Whether ``v`` is a torch tensor, without importing torch: only a process that imported it holds one."""
+    torch = sys.modules.get("torch")
+    return torch is not None and isinstance(v, torch.Tensor)
 
 
 def to_numpy(v: Any) -> tuple[np.ndarray, Any]:
     """A float64 numpy copy of ``v`` and the tensor it came from (``None`` for non-tensors)."""
-    if torch is not None and isinstance(v, torch.Tensor):
+    if is_tensor(v):
+        torch = sys.modules["torch"]
         return v.detach().to("cpu", torch.float64).numpy(), v
     return np.asarray(v, dtype=np.float64), None
 
@@ -46,8 +49,9 @@ def first_bad(arr: np.ndarray) -> str:
 
 def to_torch(applied: np.ndarray, info: dict[str, Any], ref: Any, action: Any):
     """Convert the outputs to tensors on the reference tensor's device, in its floating dtype."""
+    torch = sys.modules["torch"]
     dtype = ref.dtype if ref.dtype.is_floating_point else torch.float32
-    is_float = isinstance(action, torch.Tensor) and action.dtype.is_floating_point
+    is_float = is_tensor(action) and action.dtype.is_floating_point
     dtype_a = action.dtype if is_float else dtype
     kinds = {"active": torch.bool, "reason": torch.int64, "optimal_action": dtype_a}
     dev = ref.device

@@ -56,3 +56,23 @@ def test_public_names_load_on_first_use():
         print("ok")
     """)
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
+
+
+def test_the_filter_decides_without_torch(pointmass_held_table):
+    """A process that filters an environment needs no torch: it costs the filter's user seconds at start-up. A tensor
+    can only come from a process that imported torch, so the filter asks for it only there."""
+    done = _run(f"""
+        import sys
+        import numpy as np
+        import gymnasium as gym
+        import softreach.envs
+        from softreach.filters import SafetyFilter
+        env = SafetyFilter(gym.make("softreach/PointMassLanding-v0"), {str(pointmass_held_table.path)!r})
+        env.reset(seed=0)
+        env.step(np.zeros(1, np.float32))
+        assert "torch" not in sys.modules, "torch imported"
+        from softreach.filters import VecSafetyFilter
+        assert VecSafetyFilter.__name__ == "VecSafetyFilter" and "torch" in sys.modules
+        print("ok")
+    """)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
