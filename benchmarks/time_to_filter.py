@@ -7,22 +7,21 @@
     OMP_NUM_THREADS=1 python benchmarks/time_to_filter.py --model benchmarks.acc_model:CruiseControl \
         --table-kind continuous --runs cold [--no-ahead]            # a 2-D model, 145 x 109 x 45
 
-Phases, each in a fresh Python process (its wall time counts the interpreter's start and imports, as a user's would):
+Two processes, as a user runs them (each one's wall time counts the interpreter's start and imports):
 
 1. ``solve``: ``softreach solve MODEL --held [--grid ...] [--budget-points ...] --threads N`` (the held table;
    ``--table-kind continuous``: without ``--held``, a table of the continuous-time game, which ranks candidates as
    well where the model's cells prove);
-2. ``cells``: ``ValueFilter(table, dt, target_checks=model.substeps)``, the filter ``SafetyFilter`` builds: its
-   landing cells are unpacked from the package, loaded from the cache or built;
-3. ``compile``: ``softreach compile TABLE`` (``filters.precompile``): the decision's, the certificate's and the
-   start-plan search's numba code, compiled or loaded from the cache;
-4. ``first step``: ``SafetyFilter(make_env(MODEL), table)``, ``reset(seed=0)`` and one ``step`` of a random action.
+2. the user's script, timed in three parts: ``start`` (the interpreter and the imports of gymnasium, the env and
+   the filter), ``cells`` (``SafetyFilter(make_env(MODEL), table)``: its landing cells unpacked from the package,
+   loaded from the cache or built) and ``first step`` (``reset(seed=0)`` and one ``step`` of a random action: the
+   filter's numba code loaded from the cache, or compiled).
 
 ``softreach solve`` starts compiling the filter's code in a background process where the cache lacks it
-(:mod:`softreach.filters.background`), so a cold run's ``compile`` phase mostly waits for that process and loads its
-result: its wall seconds are what remains of the compilation after the solve and the cells, and the background
-process's CPU seconds are in no phase's. ``--no-ahead`` switches it off (``SOFTREACH_COMPILE_AHEAD=0``): the
-compilation then happens in the ``compile`` phase itself.
+(:mod:`softreach.filters.background`), and the first decision waits for that process and loads its result, so a
+cold run's ``first step`` holds what remains of the compilation after the solve and the cells; the background
+process's CPU seconds are in no part's. ``--no-ahead`` switches it off (``SOFTREACH_COMPILE_AHEAD=0``): the first
+decision then compiles. No step runs ``softreach compile``: a user need not know it.
 
 "cold" points ``$SOFTREACH_CACHE`` (built cells, fused kernels, inductor's cache below it), ``$NUMBA_CACHE_DIR``
 and ``$TORCHINDUCTOR_CACHE_DIR`` at a new empty folder; "warm" runs every phase again with the same folders (the
@@ -43,46 +42,25 @@ import time
 from pathlib import Path
 from typing import Any
 
-PHASES = ("solve", "cells", "compile", "first step")
+PHASES = ("solve", "start", "cells", "first step")
 
 
-# ------------------------------------------------------------------ child processes (one phase each)
-def _child_cells(table_path: str) -> dict[str, Any]:
-    from softreach.filters import ValueFilter
-    from softreach.reach import load_table
-    from softreach.reach.proof.cell_certificate import cache_dir
-
-    before = set(p.name for p in cache_dir().glob("cells-*")) if cache_dir().exists() else set()
-    t0 = time.perf_counter()
-    table = load_table(table_path)
-    model = table.model
-    vf = ValueFilter(table, _period(table), target_checks=int(getattr(model, "substeps", 1) or 1))
-    seconds = time.perf_counter() - t0
-    after = set(p.name for p in cache_dir().glob("cells-*")) if cache_dir().exists() else set()
-    return {"seconds": seconds, "has_cells": vf.landing_cells is not None, "compiled": vf.compiled is not None,
-            "new_cell_files": sorted(after - before)}
-
-
+# ------------------------------------------------------------------ child processes
 def _period(table: Any) -> float:
     """The filter's control period: the table's, or the model's for a table of the continuous-time game."""
     return float(table.control_period if table.control_period is not None else table.model.control_period)
 
 
-def _child_compile(table_path: str) -> dict[str, Any]:
-    from softreach.filters.precompile import precompile
-    from softreach.reach import load_table
-
-    r = precompile(table_path, _period(load_table(table_path)))
-    return {"seconds": r["seconds"], "source": r["source"], "compiled": r["compiled"]}
-
-
-def _child_step(table_path: str, model: str) -> dict[str, Any]:
+def _child_filter(table_path: str, model: str) -> dict[str, Any]:
+    """The user's script: a filtered environment made, reset and stepped once."""
     import numpy as np
 
     from softreach.agents.envs import make_env
     from softreach.filters import SafetyFilter
+    from softreach.filters.compiled import decide_rows
     from softreach.reach import load_table
 
+    hits, misses = (sum(c.values()) for c in (decide_rows.stats.cache_hits, decide_rows.stats.cache_misses))
     t0 = time.perf_counter()
     env = SafetyFilter(make_env(model), load_table(table_path))
     t1 = time.perf_counter()
@@ -90,7 +68,9 @@ def _child_step(table_path: str, model: str) -> dict[str, Any]:
     t2 = time.perf_counter()
     env.step(np.asarray(env.action_space.sample(), dtype=float))
     t3 = time.perf_counter()
-    return {"seconds": t3 - t0, "make": t1 - t0, "reset": t2 - t1, "step": t3 - t2,
+    source = ("compiled" if sum(decide_rows.stats.cache_misses.values()) > misses else
+              "cache" if sum(decide_rows.stats.cache_hits.values()) > hits else "process")
+    return {"cells": t1 - t0, "first step": t3 - t1, "reset": t2 - t1, "step": t3 - t2, "decision_code": source,
             "certified": bool(info.get("certified"))}
 
 
@@ -157,17 +137,27 @@ def run_once(args: argparse.Namespace, cache: Path, table: Path) -> list[dict[st
     if args.budget_points:
         solve += ["--budget-points", str(args.budget_points)]
     solve_cmd = [str(Path(sys.executable).with_name("softreach")), *solve[1:]]
-    cmds = {"solve": solve_cmd, "cells": [*me, "--child", "cells", "--table", str(table)],
-            "compile": [*me, "--child", "compile", "--table", str(table)],
-            "first step": [*me, "--child", "first step", "--table", str(table), "--model", args.model]}
-    rows = []
-    for phase in PHASES:
-        if table.exists() and phase == "solve":
-            table.unlink()  # solved afresh every run: --no-resume is not needed, but a finished table is replaced
-        wall, detail, load = _run_phase(cmds[phase], env)
-        rows.append({"phase": phase, "wall_s": wall, "load": load, **detail})
-        print(f"  {phase:<11} {wall:8.1f} s wall, {detail['cpu_s']:7.1f} s CPU (load {load[0]:.1f} -> {load[1]:.1f}) {json.dumps(detail)}", flush=True)
+    if table.exists():
+        table.unlink()  # solved afresh every run: --no-resume is not needed, but a finished table is replaced
+    wall, detail, load = _run_phase(solve_cmd, env)
+    rows = [{"phase": "solve", "wall_s": wall, "load": load, **detail}]
+    _print_row(rows[-1])
+    wall, detail, load = _run_phase([*me, "--child", "filter", "--table", str(table), "--model", args.model], env)
+    parts = {"start": wall - detail["cells"] - detail["first step"], "cells": detail["cells"],
+             "first step": detail["first step"]}
+    for phase, seconds in parts.items():
+        # the script's CPU seconds are its process's, shown once, on its first part
+        rows.append({"phase": phase, "wall_s": seconds, "load": load,
+                     **(detail if phase == "start" else {"cpu_s": None})})
+        _print_row(rows[-1])
     return rows
+
+
+def _print_row(row: dict[str, Any]) -> None:
+    cpu = "" if row["cpu_s"] is None else f"{row['cpu_s']:7.1f} s CPU "
+    detail = {k: v for k, v in row.items() if k not in ("phase", "wall_s", "load")}
+    print(f"  {row['phase']:<11} {row['wall_s']:8.1f} s wall, {cpu}(load {row['load'][0]:.1f} -> "
+          f"{row['load'][1]:.1f}) {json.dumps(detail)}", flush=True)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -197,8 +187,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                                                    "--region-only, an existing table")
     args = ap.parse_args(argv)
     if args.child:
-        fn = {"cells": lambda: _child_cells(args.table), "compile": lambda: _child_compile(args.table),
-              "first step": lambda: _child_step(args.table, args.model),
+        fn = {"filter": lambda: _child_filter(args.table, args.model),
               "region": lambda: _child_region(args.table, args.region, args.states)}[args.child]
         print("TTF " + json.dumps(fn()), flush=True)
         return {}
@@ -221,16 +210,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     out["table_grid"] = [int(n) for n in g.shape]
     runs = list(out["runs"])
     print(f"\n{args.model}, {args.table_kind} table {' x '.join(map(str, out['table_grid']))} (state x budget), "
-          f"{args.threads} thread(s), {os.cpu_count()} CPUs; wall seconds of each phase's process "
-          f"(load average at its start -> end), and its CPU seconds")
+          f"{args.threads} thread(s), {os.cpu_count()} CPUs; wall seconds of the solve's process and of each part of "
+          f"the script's (load average at the process's start -> end), and each process's CPU seconds")
     print(f"{'phase':<11} " + " ".join(f"{r + ' wall (load), CPU':>36}" for r in runs))
     for i, phase in enumerate(PHASES if runs else ()):
         cells = [out["runs"][r][i] for r in runs]
         print(f"{phase:<11} " + " ".join(f"{c['wall_s']:8.1f} s ({c['load'][0]:4.1f}->{c['load'][1]:4.1f}), "
-                                          f"{c['cpu_s']:7.1f} s" for c in cells))
+                                          + (f"{'':>9}" if c["cpu_s"] is None else f"{c['cpu_s']:7.1f} s") for c in cells))
     if runs:
         print(f"{'total':<11} " + " ".join(f"{sum(c['wall_s'] for c in out['runs'][r]):8.1f} s{'':>14}"
-                                          f"{sum(c['cpu_s'] for c in out['runs'][r]):7.1f} s" for r in runs))
+                                          f"{sum(c['cpu_s'] or 0.0 for c in out['runs'][r]):7.1f} s" for r in runs))
     if args.region is not None:
         me = [sys.executable, os.path.abspath(__file__)]
         cmd = [*me, "--child", "region", "--table", str(table), "--states", str(args.states),
