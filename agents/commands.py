@@ -10,8 +10,7 @@ from typing import Any
 
 from softreach.reach.registry import model_argument, model_metavar
 
-from .config import ALGOS
-from .safe_rl import METHODS
+from .config import ALGOS, METHODS
 
 WIND_CHOICES = ("none", "random", "adversarial")
 RULE_CHOICES = ("switch", "smooth")

@@ -21,6 +21,9 @@ from typing import Any
 from softreach.reach.registry import env_ids, model_class, model_names
 
 ALGOS = ("ppo", "sac")
+#: the training methods of :mod:`~softreach.agents.safe_rl`: ``plain`` (SB3 PPO, softreach's recipes), ``lag``
+#: (PPO-Lagrangian), ``saute`` (PPO-Saute)
+METHODS = ("plain", "lag", "saute")
 #: the registered models and their environment ids when this module was imported (from
 #: :mod:`softreach.reach.registry`, the one place they live; a ``"module:Class"`` model is accepted too)
 MODELS = tuple(model_names())

@@ -38,8 +38,8 @@ import torch.nn as nn
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
-#: the training methods: ``plain`` (SB3 PPO, softreach's recipes), ``lag`` (PPO-Lagrangian), ``saute`` (PPO-Saute)
-METHODS = ("plain", "lag", "saute")
+from .config import METHODS
+
 #: the observation's entries after the physical state: remaining budget ``z``, then time left ``T - t``
 Z_INDEX = -2
 

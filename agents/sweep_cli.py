@@ -19,8 +19,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from .config import ALGOS, MODELS
-from .safe_rl import METHODS
+from .config import ALGOS, METHODS, MODELS
 
 
 def add_sweep_command(sub: argparse._SubParsersAction) -> None:

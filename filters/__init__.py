@@ -1,25 +1,30 @@
 """softreach.filters: a least-restrictive safety filter on a ``W_eps`` table (paper §V; docs/filters.md): the batched
-core :class:`ValueFilter`, the ``gymnasium.Wrapper`` :class:`SafetyFilter`, and :class:`VecSafetyFilter` for SB3
-(loaded at its first use: it imports stable-baselines3, and so torch, which the filter itself does not need)."""
+core :class:`ValueFilter`, the ``gymnasium.Wrapper`` :class:`SafetyFilter`, and :class:`VecSafetyFilter` for SB3.
 
+Each name loads at its first use, so that ``softreach`` commands that only register ``compile`` import no filter code,
+and a filtering process no torch (which :class:`VecSafetyFilter` imports through stable-baselines3)."""
+
+import importlib
 from typing import Any
 
-from .core import (AFTER_HORIZON, BLEND, CERTIFY_REASONS, FALLBACK, NO_PLAN, OPTIMAL, OUTSIDE, PASS,
-                   PLAN_LAND, PLAN_SAFE, REASONS, RULES, UNCERTIFIED, ValueFilter)
-from softreach.reach.proof.lookahead import Lookahead
-from softreach.reach.tables.field import TableField
-from .wrapper import SafetyFilter
+#: public name -> the module defining it
+_EXPORTS = {**{name: ".core" for name in ("AFTER_HORIZON", "BLEND", "CERTIFY_REASONS", "FALLBACK", "NO_PLAN",
+                                          "OPTIMAL", "OUTSIDE", "PASS", "PLAN_LAND", "PLAN_SAFE", "REASONS", "RULES",
+                                          "UNCERTIFIED", "ValueFilter")},
+            "Lookahead": "softreach.reach.proof.lookahead", "TableField": "softreach.reach.tables.field",
+            "SafetyFilter": ".wrapper", "VecSafetyFilter": ".vector"}
+
+__all__ = sorted(_EXPORTS)
 
 
 def __getattr__(name: str) -> Any:
-    if name != "VecSafetyFilter":
+    module = _EXPORTS.get(name)
+    if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    from .vector import VecSafetyFilter
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
 
-    globals()[name] = VecSafetyFilter  # later look-ups skip this function
-    return VecSafetyFilter
 
-
-__all__ = ["AFTER_HORIZON", "BLEND", "CERTIFY_REASONS", "FALLBACK", "Lookahead", "NO_PLAN", "OPTIMAL",
-           "OUTSIDE", "PASS", "PLAN_LAND", "PLAN_SAFE", "REASONS", "RULES", "SafetyFilter", "TableField",
-           "UNCERTIFIED", "ValueFilter", "VecSafetyFilter"]
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))
