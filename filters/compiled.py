@@ -1,11 +1,10 @@
 """The filter's whole decision, compiled: one loop over the rows, the only implementation of the decision.
 
 :class:`~softreach.filters.ValueFilter` decides, both rules included, by the one-period test and the cells' plans
-(docs/filters.md, "The rule" and "How"), with the kernels the cells' builder runs too; a model must give its
-enclosure and sets' maxima compiled (:meth:`CompiledDecision.missing`). The table only ranks
+(docs/filters.md, "The rule" and "How"), with the kernels the cells' builder runs too; a model must give its enclosure
+and sets' maxima compiled (:meth:`CompiledDecision.missing`). The table only ranks
 (:func:`~softreach.filters.judge.next_value`); ``tests/test_filter_reference.py`` checks against
-``tests/reference_decision.py``.
-"""
+``tests/reference_decision.py``."""
 
 from __future__ import annotations
 
@@ -158,15 +157,13 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
                 space_args):
     """The decision for every row (:meth:`ValueFilter.filter`): the ``"smooth"`` rule with ``iterations`` bisection
     steps where ``smooth``, else ``"switch"``; ``*_args`` as plain tuples (:mod:`softreach.filters.compiled_args`).
-    Without ``diagnostics`` the value at the state and a passing policy's next value (deciding nothing) are NaN.
-    Without ``with_policy`` only the candidates are judged: the certificate at a state (:meth:`CompiledDecision.
-    certify`)."""
+    Without ``diagnostics`` the value at the state and a passing policy's next value (deciding nothing) are NaN. Without
+    ``with_policy`` only the candidates are judged: the certificate at a state (:meth:`CompiledDecision.certify`)."""
     M, C, T, action = named(m_args, c_args, t_args, a_args)
     space = packed_space(space_args)
-    N = x.shape[0]
     J, m = cands.shape
     work, end_lo, end_hi, act = space.work, space.end_lo, space.end_hi, space.act
-    for r in range(N):
+    for r in range(x.shape[0]):
         tr, xr, zr = t[r], x[r], z[r]
         value[r] = (certificate_row(T.W, T.z_top, T.z_floor, T.z_left, T.V, T.has_V, tr, xr, zr, work.point,
                                     work.buf, work.node) if diagnostics else np.nan)
@@ -182,12 +179,10 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
                 mid = 0.5 * (lo + hi)
             _try(s, J, act, action, cands, pol, r, best, mid)
             v = judge(enclose, M, C, tr, xr, xr, zr, act, end_lo[slot], end_hi[slot], work)
-            a_lands = v.lands
-            a_ok = v.ok or a_lands
+            a_lands, a_zend, t_next = v.lands, v.z_end, v.t_next
+            a_ok, a_kept = v.ok or a_lands, v.kept or a_lands
             # a surely landing action's next value is -inf; a passing one's is read below where it is needed
             a_next = -np.inf if a_lands else np.inf
-            a_bounded, a_in, a_c1, a_zend, t_next = v.bounded, v.in_c1, v.c1, v.z_end, v.t_next
-            a_kept = v.kept or a_lands
             # the policy's and the bisection's next value (the policy's, a diagnostic, only with diagnostics)
             if a_ok and not a_lands and (s > J or (s == 0 and diagnostics)):
                 a_next = next_value(T, t_next, end_lo[slot], end_hi[slot], a_zend, work)
@@ -212,7 +207,7 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
                 continue
             j = s - 1
             space.c_ok[j], space.c_next[j], space.c_zend[j], space.c_kept[j] = a_ok, a_next, a_zend, a_kept
-            space.c_in[j], space.c_bounded[j], space.c_c1[j] = a_in, a_bounded, a_c1
+            space.c_in[j], space.c_bounded[j], space.c_c1[j] = v.in_c1, v.bounded, v.c1
             any_ok = any_ok or a_ok
             space.c_dist[j] = _distance(cands, j, pol, r, action.half)
             if s == J:

@@ -4,8 +4,7 @@ the work space (:mod:`softreach.filters.compiled`, :mod:`softreach.filters.judge
 one by position, and numba's cache finds the class again by its module. The compiled entry points take them as plain
 tuples (:func:`plain`) and name them again first thing (:func:`named`, :func:`packed_space`): numba types a plain tuple
 from a fingerprint computed in C, a named one field by field in Python (far slower), at every call. The work space goes
-packed, as every array handed over is unboxed at every call.
-"""
+packed, as every array handed over is unboxed at every call."""
 
 from __future__ import annotations
 
@@ -18,8 +17,8 @@ from softreach.reach.proof.period import Motion
 
 
 class Cells(NamedTuple):
-    """The landing cells' kernel arguments and plans (:class:`~softreach.reach.proof.cell_certificate.
-    CellCertificate`'s ``kernel_args`` and ``plan_args``)."""
+    """The landing cells' kernel arguments and plans
+    (:class:`~softreach.reach.proof.cell_certificate.CellCertificate`'s ``kernel_args`` and ``plan_args``)."""
 
     land: tuple
     plan: tuple

@@ -1,7 +1,6 @@
 """The start-plan search of :func:`~softreach.filters.plans.start_plans`, compiled, in its order: each period is
-:func:`~softreach.filters.judge.judge_once`, which reads no table. ``tests/test_filters_soundness.py`` flies the
-plans it finds against switching winds.
-"""
+:func:`~softreach.filters.judge.judge_once`, which reads no table. ``tests/test_filters_soundness.py`` flies the plans
+it finds against switching winds."""
 
 from __future__ import annotations
 
@@ -36,11 +35,10 @@ def _hold_period(enclose, M, C, t, lo, hi, z, a, e_lo, e_hi, work):
 def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, hi, e_lo, e_hi, work):
     """One segment's search for one row: ``(candidate or -1, periods, once)``, the first candidate of the fewest
     periods; ``once``: from the state itself (``from_state``) one passes in one period."""
-    n = len(lo0)
     dt = period(M)
     best, best_j, once = periods + 1, -1, False
     for j in range(cands.shape[0]):
-        for i in range(n):
+        for i in range(len(lo0)):
             lo[i], hi[i] = lo0[i], hi0[i]
         zz, tt = z, t
         # does the candidate pass after k periods held: a run of k + 1, searched while shorter than the best
@@ -66,7 +64,6 @@ def start_plan_rows(enclose, m_args, c_args, cands, periods, t, x, z, second, ou
     the ``*_args`` as plain tuples (:mod:`softreach.filters.compiled_args`)."""
     M, C, work = Motion(*m_args), Cells(*c_args), Work(*work_args)
     N, n = x.shape
-    J = cands.shape[0]
     dt = period(M)
     lo, hi, e_lo, e_hi, c_lo, c_hi, c_elo, c_ehi = (boxes[0], boxes[1], boxes[2], boxes[3], boxes[4], boxes[5],
                                                     boxes[6], boxes[7])
@@ -86,7 +83,7 @@ def start_plan_rows(enclose, m_args, c_args, cands, periods, t, x, z, second, ou
             continue
         # two segments: the shortest first one that a second can follow, the first candidate among those
         best1 = periods
-        for j in range(J):
+        for j in range(cands.shape[0]):
             for i in range(n):
                 c_lo[i], c_hi[i] = x[r, i], x[r, i]
             zz, tt = z[r], t[r]

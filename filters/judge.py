@@ -4,8 +4,7 @@
 
 Inlined or called (:mod:`softreach.reach.proof.kernels`; docs/filters.md, "How"): what a loop runs is inlined into
 it, :func:`judge` once, into the decision's loop; each loop, the other searches (:func:`judge_once`) and large parts
-run at most once a row are called, as every inlined copy is typed again and typing is superlinear in length.
-"""
+run at most once a row are called, as every inlined copy is typed again and typing is superlinear in length."""
 
 from __future__ import annotations
 
@@ -25,20 +24,18 @@ __all__ = ["badness", "judge", "judge_once", "next_value", "on_table"]
 
 @njit(inline="always")
 def judge(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
-    """The one-period test of one row, which reads no table: a :class:`~softreach.filters.compiled_args.Verdict`;
-    writes the end box into ``end_lo``, ``end_hi``. ``lands`` is asked only of an action that does not pass."""
+    """The one-period test of one row: a :class:`~softreach.filters.compiled_args.Verdict`; writes the end box into
+    ``end_lo``, ``end_hi``. ``lands`` is asked only of an action that does not pass."""
     tube_lo, tube_hi, lo, hi = work.tube_lo, work.tube_hi, work.lo, work.hi
     n = len(x_lo)
     dt = period(M)
     bounded = enclose_period(enclose, M, x_lo, x_hi, a, dt, tube_lo, tube_hi, end_lo, end_hi)
     c1, charge = c1_and_charge(enclose, M, x_lo, x_hi, a, M.edges, tube_lo, tube_hi, lo, hi)
-    z_end = z - charge
-    horizon = M.horizon
-    t_next = t + dt
+    z_end, horizon, t_next = z - charge, M.horizon, t + dt
     in_time = t_next <= horizon + 1e-9 * max(1.0, horizon)
     t_next = min(t_next, horizon)
-    kept = bounded and c1 <= 0 and z_end >= 0 and in_time
     in_c1 = bounded and c1 <= 0 and in_time
+    kept = in_c1 and z_end >= 0
     ok = kept and cover_row(C.land, t_next, end_lo, end_hi, z_end)
     landed = False
     if not ok and bounded and in_time and meets_target(M, tube_lo, tube_hi):
@@ -54,9 +51,8 @@ def judge_once(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
 
 @njit(_nrt=False)
 def next_value(T, t_next, end_lo, end_hi, z_end, work):
-    """An action's next value, which ranks: the certificate ``D`` (:func:`~softreach.reach.proof.kernels.
-    certificate_row`) at the centre of its end box, at the budget ``z_end`` the period may leave; ``+inf`` off the
-    table (a budget below its budget grid too)."""
+    """An action's next value: the certificate ``D`` (:func:`~softreach.reach.proof.kernels.certificate_row`) at its
+    end box's centre and the budget ``z_end`` the period may leave; ``+inf`` off the table or below its budget grid."""
     centre = work.centre
     for i in range(len(end_lo)):
         centre[i] = 0.5 * (end_lo[i] + end_hi[i])
@@ -82,8 +78,7 @@ def _tie(nxt, z_end):
 
 @njit(_nrt=False)
 def badness(T, t_next, end_lo, end_hi, work, c_in, c_bounded, c_kept, c_c1, c_zend, c_bad):
-    """Into ``c_bad``, the badness of every candidate where none passes: its rank, plus its tie where it keeps
-    ``C1``."""
+    """Into ``c_bad``, every candidate's badness where none passes: its rank, plus its tie where it keeps ``C1``."""
     for k in range(len(c_bad)):
         c_bad[k] = _rank(c_bounded[k], c_in[k], c_kept[k], c_c1[k])
         if c_in[k]:

@@ -1,11 +1,10 @@
 """Whether a held action keeps the next state certified, compiled: the rule's "some candidate passes again from
 every possible next state" (docs/filters.md, "The filter with cells").
 
-For the policy's own action, where no single candidate passes from the whole end box, the end box may be covered
-by consecutive slabs along the first state axis, each with a candidate that passes from the whole slab (or lying
-in the landing cells itself): every end state lies in some slab, from which that slab's candidate passes, so the
-next state is certified. The slabs are found greedily from the box's lower edge, each as long as a bisection finds.
-"""
+For the policy's own action, where no single candidate passes from the whole end box, the end box may be covered by
+consecutive slabs along the first state axis, each with a candidate that passes from the whole slab (or lying in the
+landing cells itself): every end state lies in some slab, from which that slab's candidate passes, so the next state
+is certified. The slabs are found greedily from the box's lower edge, each as long as a bisection finds."""
 
 from __future__ import annotations
 
@@ -26,13 +25,12 @@ def _may_pass(enclose, M, C, t, x_lo, x_hi, z, a, end_lo, end_hi, work):
     """Whether :func:`~softreach.filters.judge.judge` may find that ``a`` passes or surely lands, a cheaper test asked
     first: the landing cells cover its end box at ``z``, at least the budget left (a cell that covers at some budget
     covers at more), or its motion meets the target."""
-    params, edges, horizon = M.params, M.edges, M.horizon
     dt = period(M)
-    call_held_box(enclose, params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
+    call_held_box(enclose, M.params, x_lo, x_hi, a, dt, dt, end_lo, end_hi)
     widen(end_lo, end_hi, M.slack)
-    if cover_row(C.land, min(t + dt, horizon), end_lo, end_hi, z):
+    if cover_row(C.land, min(t + dt, M.horizon), end_lo, end_hi, z):
         return True
-    call_held_box(enclose, params, x_lo, x_hi, a, edges[0], dt, work.tube_lo, work.tube_hi)
+    call_held_box(enclose, M.params, x_lo, x_hi, a, M.edges[0], dt, work.tube_lo, work.tube_hi)
     return meets_target(M, work.tube_lo, work.tube_hi)
 
 
@@ -51,11 +49,10 @@ def _passes(enclose, M, C, cands, j, t, x_lo, x_hi, z, e_lo, e_hi, work):
 
 @njit(_nrt=False)
 def _covers(enclose, M, C, cands, t, end_lo, end_hi, z, work, e_lo, e_hi, s_lo, s_hi):
-    """Whether slabs ``[cur, s] x`` (the end box's other axes), consecutive along axis 0 from ``end_lo[0]`` to
-    ``end_hi[0]`` and at most :data:`MAX_SLABS`, each pass by one candidate (or lie in the landing cells): a greedy
-    sweep, each slab's upper edge the largest a bisection of :data:`SLAB_STEPS` steps finds over the candidates.
-    Every slab is judged by :func:`_passes`; one not judged to pass is never used. Asked only where no candidate
-    passes from the whole box (so the first slab does not try the whole box again)."""
+    """Whether at most :data:`MAX_SLABS` slabs ``[cur, s] x`` (the end box's other axes), consecutive along axis 0 from
+    ``end_lo[0]`` to ``end_hi[0]``, each pass by one candidate (or lie in the landing cells), each upper edge the
+    largest any candidate's bisection of :data:`SLAB_STEPS` steps finds; a slab :func:`_passes` does not judge to pass
+    is never used. Asked only where no candidate passes from the whole box, which the first slab skips."""
     n = len(end_lo)
     J = cands.shape[0]
     top = end_hi[0]
@@ -64,12 +61,10 @@ def _covers(enclose, M, C, cands, t, end_lo, end_hi, z, work, e_lo, e_hi, s_lo, 
         for i in range(n):
             s_lo[i] = end_lo[i] if corner == 0 else end_hi[i]
             s_hi[i] = s_lo[i]
-        found = False
         for j in range(-1, J):
             if _passes(enclose, M, C, cands, j, t, s_lo, s_hi, z, e_lo, e_hi, work):
-                found = True
                 break
-        if not found:
+        else:
             return False
     for i in range(n):
         s_lo[i], s_hi[i] = end_lo[i], end_hi[i]

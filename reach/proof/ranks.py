@@ -1,8 +1,7 @@
-"""The order in which the safety filter ranks actions that do not pass (:func:`softreach.filters.judge.badness`);
-lower is better. A failing action's badness is its rank plus its tie (``atan`` of its next table value over ``pi``,
-plus the overspend times :data:`TIE_OVERSPEND`): ranks lie at least ``1e6`` apart, so the rank decides first.
-numba compiles these globals as constants.
-"""
+"""The order in which the safety filter ranks actions that do not pass (:func:`softreach.filters.judge.badness`),
+lower first: a failing action's badness is its rank plus its tie (``atan`` of its next table value over ``pi``, plus
+the overspend times :data:`TIE_OVERSPEND`); ranks lie at least ``1e6`` apart, so the rank decides first. numba
+compiles these globals as constants."""
 
 from __future__ import annotations
 
