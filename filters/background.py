@@ -40,9 +40,8 @@ def start() -> subprocess.Popen | None:
     if os.environ.get(ENV_SWITCH, "1") == "0" or filter_code_cached() is not False:
         return None
     # its own session: a solve's Ctrl-C leaves it to finish into the cache; a failure only costs the time it would save
-    return subprocess.Popen([sys.executable, "-m", "softreach.filters.background"],
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True)
+    return subprocess.Popen([sys.executable, "-m", "softreach.filters.background"], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
 
 
 def compile_ahead() -> str:

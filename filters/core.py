@@ -7,8 +7,7 @@ by the one-period test and the rule of docs/filters.md ("The one-period test", "
 Everything works on batches: ``t`` and ``z`` are scalars or ``(N,)``, ``x`` is ``(N, n)`` (or ``(n,)``), actions
 ``(N, m)`` (or ``(m,)``) in physical units unless ``normalized=True``. numpy in, numpy out; torch in, torch out.
 Non-finite or wrongly shaped inputs raise :class:`ValueError` naming the value; states outside the table are
-answered conservatively (not certified; the best candidate is applied).
-"""
+answered conservatively (not certified; the best candidate is applied)."""
 
 from __future__ import annotations
 
@@ -52,8 +51,7 @@ class ValueFilter:
         (docs/filters.md, "The filter with cells"); :attr:`safe_cells` is ``None``
     :param landing_cells: ``"auto"`` or a ``"land"``-game certificate (:mod:`~softreach.reach.proof.cell_certificate`)
     :param start_periods: the longest plan :meth:`certify_start` searches from a start state (0: none)
-    :raises ValueError: the model lacks what the decision needs (named, before any cell is built); ``margin`` not 0
-    """
+    :raises ValueError: the model lacks what the decision needs (named, before any cell is built); ``margin`` not 0"""
 
     def __init__(self, table: Table, dt: float, *, margin: float | None = None, rule: str = "switch",
                  model: Any = None, fallback_action: Any = None, smooth_iterations: int = 8,
@@ -86,8 +84,7 @@ class ValueFilter:
         self.table = table
         self.model = model if model is not None else table.model
         if table.grid("V").ndim != self.model.state_dim:
-            raise TableError(f"table {table.path} has {table.grid('V').ndim} states, the model "
-                             f"{self.model.state_dim}")
+            raise TableError(f"table {table.path} has {table.grid('V').ndim} states, the model {self.model.state_dim}")
         missing = CompiledDecision.missing(self.model)
         if missing is not None:
             raise ValueError(f"the safety filter cannot decide for model {self.model.name!r}: {missing}")
@@ -144,8 +141,7 @@ class ValueFilter:
     def certify(self, t: Any, x: Any, z: Any) -> tuple[np.ndarray, list[str], np.ndarray]:
         """Whether each state is certified: some candidate passes the one-period test, or a landing cell holds it.
 
-        :return: ``(certified (N,), reasons, best next table value (N,))``; reasons from :data:`CERTIFY_REASONS`
-        """
+        :return: ``(certified (N,), reasons, best next table value (N,))``; reasons from :data:`CERTIFY_REASONS`"""
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
         ok, nxt, value, inside = self.compiled.certify(tt, xs, zz)
         after = tt >= self.lookahead.horizon - 1e-9
@@ -171,8 +167,7 @@ class ValueFilter:
         (:func:`~softreach.filters.plans.start_plans`), certified only for a run whose :meth:`filter` calls get that
         plan (:func:`~softreach.filters.plans.advance_plan`; :class:`SafetyFilter` does so).
 
-        :return: ``(certified, reasons, best next table value, plans (N, START_SEGMENTS, 3))``; :data:`NO_PLAN`: none
-        """
+        :return: ``(certified, reasons, best next table value, plans (N, START_SEGMENTS, 3))``; :data:`NO_PLAN`: none"""
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
         certified, reasons, nxt = self.certify(tt, xs, zz)
         rows = np.nonzero([r in ("not_in_set", "no_certified_action") for r in reasons])[0]
@@ -213,8 +208,7 @@ class ValueFilter:
             ``certified`` (it passed, or follows a landing cell's plan), ``plan`` (``(N, 3)`` ints: candidate,
             periods left, :data:`PLAN_LAND`; or :data:`NO_PLAN`)
         :raises ValueError: non-finite or wrongly shaped inputs, or :attr:`threads` below 1
-        :raises TypeError: ``diagnostics`` is not a bool
-        """
+        :raises TypeError: ``diagnostics`` is not a bool"""
         if not isinstance(diagnostics, (bool, np.bool_)):
             raise TypeError(f"diagnostics must be True or False, got {diagnostics!r}")
         # an environment's step: one plain row, decided without numpy's fixed costs
@@ -233,9 +227,8 @@ class ValueFilter:
             # what the filter judged, exactly: an environment maps it back to the same physical action
             applied = np.where(active[:, None], exact_normalized(applied, self.a_mid, self.a_half), act)
             chosen = self.normalized(chosen)
-        margin = np.full(N, self.constant_margin or 0.0)
-        info = {"value": value, "margin": margin, "active": active, "reason": reason, "optimal_action": chosen,
-                "blend": blend, "lookahead": nxt, "certified": ok & ~after}
+        info = {"value": value, "margin": np.full(N, self.constant_margin or 0.0), "active": active, "reason": reason,
+                "optimal_action": chosen, "blend": blend, "lookahead": nxt, "certified": ok & ~after}
         if single:
             applied = applied[0]
             info = {k: v[0] for k, v in info.items()}

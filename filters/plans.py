@@ -1,7 +1,6 @@
-"""Which landing cells (:mod:`softreach.reach.proof.cell_certificate`) a :class:`~softreach.filters.ValueFilter`
-uses, and the plans it follows where no single period ends in them: ``info["plan"]`` = (candidate, periods left,
-owner), valid only handed back at its own run's next step, whose state lies in the box chain the plan was proven
-for."""
+"""Which landing cells (:mod:`softreach.reach.proof.cell_certificate`) a :class:`~softreach.filters.ValueFilter` uses,
+and the plans it follows where no single period ends in them: ``info["plan"]`` = (candidate, periods left, owner), valid
+only handed back at its own run's next step, whose state lies in the box chain the plan was proven for."""
 
 from __future__ import annotations
 
@@ -20,6 +19,11 @@ NO_PLAN = (-1, 0, 0)
 PLAN_LAND = 1
 #: the owner code of a plan that keeps ``C1`` and the budget without landing, which the filter never follows
 PLAN_SAFE = 2
+#: a start's own plan holds one candidate, or two in sequence (:func:`start_plans`)
+START_SEGMENTS = 2
+# what advance_plan returns for no plan: one read-only array, not one made at each step
+_NO_PLAN = np.array(NO_PLAN, np.int64)
+_NO_PLAN.flags.writeable = False
 
 
 def resolve_cells(vf: Any, cells: Any) -> CellCertificate:
@@ -52,10 +56,6 @@ def check_plans(plan: Any, N: int) -> np.ndarray | None:
     return arr.astype(np.int64, copy=False)
 
 
-#: a start's own plan holds one candidate, or two in sequence (:func:`start_plans`)
-START_SEGMENTS = 2
-
-
 def start_plans(vf: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int,
                 second: np.ndarray | None = None) -> np.ndarray:
     """Plans from a start state itself where neither one period nor its cell certifies it (docs/filters.md, 'A start's
@@ -82,8 +82,3 @@ def advance_plan(plan: np.ndarray, queued: np.ndarray) -> tuple[np.ndarray, np.n
     if plan[1] == 0 and queued[0] >= 0:
         return queued, _NO_PLAN
     return plan, queued
-
-
-# what advance_plan returns for no plan: one read-only array, not one made at each step
-_NO_PLAN = np.array(NO_PLAN, np.int64)
-_NO_PLAN.flags.writeable = False

@@ -20,8 +20,7 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
     :return: ``model``, ``seconds``, ``source`` (``"compiled"`` by this call, loaded from the ``"cache"``, or already in
         this ``"process"``), ``cache`` (the folder, :func:`softreach.reach.jit.compiled_cache_dir`), ``compiled`` (true)
         and ``missing`` (``None``): :class:`~softreach.filters.ValueFilter` refuses a model it cannot serve compiled
-    :raises ValueError: a table without ``W_eps`` or ``Q_min``, or no control period known
-    """
+    :raises ValueError: a table without ``W_eps`` or ``Q_min``, or no control period known"""
     from softreach.reach import load_table
     from softreach.reach.proof.cell_certificate import CellCertificate
     from softreach.reach.proof.lookahead import Lookahead
@@ -52,21 +51,19 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
         la = Lookahead.from_table(table, model, dt, table.eps, target_checks=checks)
         empty = {"landing_cells": CellCertificate.empty(la)}
     vf = ValueFilter(table, dt, target_checks=checks, **empty)
-    out: dict[str, Any] = {"model": model.name, "compiled": True, "seconds": 0.0, "source": None, "cache": None,
-                           "missing": None}
     # a state in the middle of the table's grid; what the decision finds there does not matter
     grid = table.grid("V")
     x = 0.5 * (np.asarray(grid.lo[:model.state_dim]) + np.asarray(grid.hi[:model.state_dim]))
     vf.filter(0.0, x, 0.0, vf.fallback_action)
     vf.certify(0.0, x, 0.0)
     vf.compiled.start_plans(np.zeros(1), x[None], np.zeros(1), 1, np.ones(1, bool), START_SEGMENTS)
-    out["seconds"] = time.perf_counter() - t0  # the filter's construction with its first decision
-    out["source"] = ("compiled" if sum(decide_rows.stats.cache_misses.values()) > misses else
-                     "cache" if sum(decide_rows.stats.cache_hits.values()) > hits else "process")
-    out["cache"] = decide_rows.stats.cache_path
+    seconds = time.perf_counter() - t0  # the filter's construction with its first decision
+    source = ("compiled" if sum(decide_rows.stats.cache_misses.values()) > misses else
+              "cache" if sum(decide_rows.stats.cache_hits.values()) > hits else "process")
     if not (decide_rows.signatures and start_plan_rows.signatures):
         raise RuntimeError(f"{model.name}: the filter made a decision without its compiled code")
-    return out
+    return {"model": model.name, "compiled": True, "seconds": seconds, "source": source,
+            "cache": decide_rows.stats.cache_path, "missing": None}
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:

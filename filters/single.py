@@ -34,15 +34,13 @@ def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, p
         return None
     t, z = float(t), float(z)
     xs, act = x.tolist(), action.tolist()
-    if not (math.isfinite(t) and math.isfinite(z) and all(map(math.isfinite, xs))
-            and all(map(math.isfinite, act))):
+    if not (math.isfinite(t) and math.isfinite(z) and all(map(math.isfinite, xs)) and all(map(math.isfinite, act))):
         return None
     # one row uses no other thread, but an invalid number is refused as for a batch (after the inputs, as there)
     check_threads(vf.threads)
     # the policy's physical action: ValueFilter.physical, or the clip to the control box, in the same arithmetic
     if normalized:
-        pol = [mid + half * min(max(a, -1.0), 1.0) for a, mid, half in zip(act, vf.a_mid.tolist(),
-                                                                         vf.a_half.tolist())]
+        pol = [mid + half * min(max(a, -1.0), 1.0) for a, mid, half in zip(act, vf.a_mid.tolist(), vf.a_half.tolist())]
     else:
         pol = [min(max(a, lo), hi) for a, lo, hi in zip(act, vf.a_lo.tolist(), vf.a_hi.tolist())]
     applied, reason, value, nxt, ok, chosen, blend, new_plans = vf.compiled.one(t, xs, z, pol, plan, diagnostics)

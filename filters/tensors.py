@@ -51,8 +51,7 @@ def to_torch(applied: np.ndarray, info: dict[str, Any], ref: Any, action: Any):
     """Convert the outputs to tensors on the reference tensor's device, in its floating dtype."""
     torch = sys.modules["torch"]
     dtype = ref.dtype if ref.dtype.is_floating_point else torch.float32
-    is_float = is_tensor(action) and action.dtype.is_floating_point
-    dtype_a = action.dtype if is_float else dtype
+    dtype_a = action.dtype if is_tensor(action) and action.dtype.is_floating_point else dtype
     kinds = {"active": torch.bool, "reason": torch.int64, "optimal_action": dtype_a}
     dev = ref.device
     out = {key: torch.as_tensor(np.asarray(v), dtype=kinds.get(key, dtype), device=dev) for key, v in info.items()}
@@ -72,8 +71,7 @@ def batch_inputs(t: Any, x: Any, z: Any, action: Any | None, n: int, m: int, sta
     N = len(xs)
     cols = []
     for name, v in (("t", t), ("z", z)):
-        arr, _ = to_numpy(v)
-        arr = arr.reshape(-1)
+        arr = to_numpy(v)[0].reshape(-1)
         if arr.size == 1:
             arr = np.full(N, float(arr[0]))
         if arr.shape != (N,):

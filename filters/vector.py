@@ -14,11 +14,10 @@ from .wrapper import SafetyFilter
 
 def find_filter(env: Any) -> SafetyFilter | None:
     """The :class:`SafetyFilter` in ``env``'s wrapper stack, or ``None``."""
-    e = env
-    while e is not None:
-        if isinstance(e, SafetyFilter):
-            return e
-        e = getattr(e, "env", None)
+    while env is not None:
+        if isinstance(env, SafetyFilter):
+            return env
+        env = getattr(env, "env", None)
     return None
 
 

@@ -110,16 +110,13 @@ class SafetyFilter(gym.Wrapper):
         self._reset_stats()
 
     def _reset_stats(self) -> None:
-        self._steps = 0
-        self._interventions = 0
-        self._min_value = math.inf
-        self._max_value = -math.inf
+        self._steps = self._interventions = 0
+        self._min_value, self._max_value = math.inf, -math.inf
         self._initial_budget = math.nan
         self._certified_start = False
         self._pending: tuple | None = None
         #: the plan the filter follows (``ValueFilter.filter``'s ``plan``), and a start plan's second segment
-        self._plan = np.array(NO_PLAN, np.int64)
-        self._queued = np.array(NO_PLAN, np.int64)
+        self._plan, self._queued = np.array(NO_PLAN, np.int64), np.array(NO_PLAN, np.int64)
 
     def expect(self, action: Any, applied: np.ndarray, decision: dict[str, Any]) -> None:
         """Hand over a batched decision for ``action`` in this state (:class:`~softreach.filters.VecSafetyFilter`):
@@ -135,17 +132,13 @@ class SafetyFilter(gym.Wrapper):
         base = self.env.unwrapped
         self._initial_budget = float(base.budget)
         vf = self.value_filter
-        info = dict(info)
-        info["value"] = float(vf.value(base.time, base.state, base.budget))
-        info["margin"] = float(vf.constant_margin or 0.0)
+        value = float(vf.value(base.time, base.state, base.budget))
         certified, why, _, plan = vf.certify_start(base.time, base.state, base.budget)
-        info["certified"] = bool(certified)
-        info["certified_reason"] = why
         # a start certified by a plan of its own is certified for the run that follows it from the first step
         self._plan, self._queued = np.array(plan[0], np.int64), np.array(plan[1], np.int64)
-        info["start_plan"] = np.array(plan, np.int64)
         self._certified_start = bool(certified)
-        return obs, info
+        return obs, dict(info, value=value, margin=float(vf.constant_margin or 0.0), certified=bool(certified),
+                         certified_reason=why, start_plan=np.array(plan, np.int64))
 
     def step(self, action: Any):
         """Filter ``action`` (normalised, as the policy gives it) and step the environment; a non-finite or wrongly
@@ -175,17 +168,13 @@ class SafetyFilter(gym.Wrapper):
         self._interventions += int(active)
         self._min_value = min(self._min_value, value)
         self._max_value = max(self._max_value, value)
-        info = dict(info)
-        info["filter_active"] = active
-        info["policy_action"] = np.array(action, dtype=dtype, copy=True).reshape(shape)
-        # what the environment applies: it clips a finite out-of-range action to [-1, 1]
-        info["applied_action"] = clip_unit(np.array(to_env, dtype=dtype, copy=True)).reshape(shape)
-        info["value"] = value
-        info["margin"] = float(f["margin"])
-        info["optimal_action"] = np.asarray(f["optimal_action"], dtype=dtype).reshape(shape)
-        info["filter_reason"] = REASONS[int(f["reason"])]
-        info["certified"] = bool(f["certified"])
-        info["lookahead"] = float(f["lookahead"])
+        info = dict(info, filter_active=active, policy_action=np.array(action, dtype=dtype, copy=True).reshape(shape),
+                    # what the environment applies: it clips a finite out-of-range action to [-1, 1]
+                    applied_action=clip_unit(np.array(to_env, dtype=dtype, copy=True)).reshape(shape), value=value,
+                    margin=float(f["margin"]),
+                    optimal_action=np.asarray(f["optimal_action"], dtype=dtype).reshape(shape),
+                    filter_reason=REASONS[int(f["reason"])], certified=bool(f["certified"]),
+                    lookahead=float(f["lookahead"]))
         if terminated or truncated:
             info["filter_episode"] = self.episode_summary(info)
         return obs, reward, terminated, truncated, info
@@ -196,13 +185,7 @@ class SafetyFilter(gym.Wrapper):
         used = info.get("budget_used") if info else None
         if used is None:
             used = self._initial_budget - float(base.budget)
-        return {
-            "steps": self._steps,
-            "interventions": self._interventions,
-            "intervention_rate": self._interventions / self._steps if self._steps else 0.0,
-            "min_value": self._min_value,
-            "max_value": self._max_value,
-            "budget_used": float(used),
-            "initial_budget": self._initial_budget,
-            "certified_start": self._certified_start,
-        }
+        return {"steps": self._steps, "interventions": self._interventions,
+                "intervention_rate": self._interventions / self._steps if self._steps else 0.0,
+                "min_value": self._min_value, "max_value": self._max_value, "budget_used": float(used),
+                "initial_budget": self._initial_budget, "certified_start": self._certified_start}
