@@ -39,8 +39,7 @@ def check_threads(threads: Any) -> int:
     return int(threads)
 
 
-def run_in_blocks(run: Callable[[int, int], None], rows: int, threads: int, min_rows: int = PARALLEL_MIN_ROWS
-                  ) -> None:
+def run_in_blocks(run: Callable[[int, int], None], rows: int, threads: int, min_rows: int = PARALLEL_MIN_ROWS) -> None:
     """Call ``run(lo, hi)`` on consecutive blocks covering ``range(rows)``, one per thread, at most ``threads`` with
     at least ``min_rows`` rows each; the calling thread takes the first. A block's exception is raised once all end.
 

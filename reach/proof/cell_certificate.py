@@ -38,7 +38,6 @@ from .enclosure_check import check_model_for_filter
 from ..jit import cache_root, source_stamp
 from .kernels import WRAP_ULPS, cover_rows, frozen, plan_rows, step_rows
 
-
 #: file format of :meth:`CellCertificate.save`
 FORMAT = "softreach-cell-certificate-1"
 #: the arrays of a cell certificate that scale with the cells (memory-mapped from a cache folder)
@@ -82,8 +81,7 @@ class CellCertificate:
         self.width = (self.hi - self.lo) / np.asarray(self.shape, dtype=np.float64)
         self.candidates = np.asarray(candidates, dtype=np.float64)
         self.dt, self.dz, self.horizon = float(dt), float(dz), float(horizon)
-        self.steps = self.m.shape[0] - 1
-        self.top = budget_top(self.dz, self.horizon)
+        self.steps, self.top = self.m.shape[0] - 1, budget_top(self.dz, self.horizon)
         self.never = self.top + 1
         self.key = dict(key)
         #: per state axis whether it is periodic (the model's, in ``key``), and its outward allowance where it is
@@ -151,8 +149,7 @@ class CellCertificate:
         return cells
 
     def step_index(self, t: np.ndarray) -> np.ndarray:
-        """The sample whose cells cover time ``t``: ``ceil(t / dt)`` (:func:`~softreach.reach.proof.kernels.
-        step_index`)."""
+        """The sample whose cells cover ``t``: ``ceil(t / dt)`` (:func:`~softreach.reach.proof.kernels.step_index`)."""
         t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
         out = np.empty(len(t), np.int64)
         step_rows(t, self.dt, self.steps, out)
@@ -247,8 +244,6 @@ def cache_dir() -> Path:
 #: cells shipped for :class:`~softreach.filters.SafetyFilter`'s default configurations (``tests/test_packaged_cells.py``
 #: rechecks them), written by ``python benchmarks/cell_certificate.py --table TABLE --write-packaged [--checks N]``
 PACKAGED = Path(__file__).parent / "cells"
-
-
 #: names a cache folder's origin: the packaged file's digest, or ``built:`` and the building code's ``source_stamp()``
 _MADE_WITH = "packaged.sha256"
 

@@ -29,16 +29,13 @@ def solve(cls: type, lookahead: Any, key: dict[str, Any]) -> Any:
     """The certificate (a ``cls``) of the game ``key`` (:func:`~softreach.reach.proof.cell_certificate.cell_key`)."""
     la, model = lookahead, lookahead.model
     shape, holds, dz, span_cap = tuple(key["shape"]), tuple(key["holds"]), key["dz"], key["span_cap"]
-    dt, T = la.dt, la.horizon
-    N = int(round(T / dt))
+    dt, T, N = la.dt, la.horizon, int(round(la.horizon / la.dt))
     lo, hi = (np.asarray(b, dtype=np.float64) for b in model.hard_box)
     blank = np.zeros((1,) + shape, np.int8)
     cells = cls(lo, hi, blank.astype(np.int16), blank, blank, la.candidates, dt, dz, T, key)
     cell_lo, cell_hi = cell_boxes(cells)
     C = len(cell_lo)
-    m = np.empty((N + 1, C), np.int16)
-    action = np.full((N + 1, C), -1, np.int8)
-    hold = np.zeros((N + 1, C), np.int8)
+    m, action, hold = np.empty((N + 1, C), np.int16), np.full((N + 1, C), -1, np.int8), np.zeros((N + 1, C), np.int8)
     m[N] = cells.never  # no cell is good at T
     plans = None
     K_max = max(holds)
@@ -54,15 +51,13 @@ def solve(cls: type, lookahead: Any, key: dict[str, Any]) -> Any:
         bar.update(1)
         m[k], action[k], hold[k] = backward_step(cells, plans, m, k, N, C)
     bar.close()
-    return cls(lo, hi, m.reshape((N + 1,) + shape), action.reshape((N + 1,) + shape),
-               hold.reshape((N + 1,) + shape), la.candidates, dt, dz, T, key)
+    return cls(lo, hi, *(v.reshape((N + 1,) + shape) for v in (m, action, hold)), la.candidates, dt, dz, T, key)
 
 
 def all_plan_steps(cells: Any, la: Any, lo: np.ndarray, hi: np.ndarray, holds: tuple, span_cap: int,
                    bar: Any = None) -> list:
     """:func:`plan_steps` of every candidate: ``(j, K, step)`` in the candidates' order."""
-    out = []
-    bounds = motion(la)
+    out, bounds = [], motion(la)
     for j, a in enumerate(la.candidates):
         out += [(j, K, g) for K, g in plan_steps(cells, bounds, lo, hi, a, holds, span_cap)]
         if bar is not None:
@@ -74,9 +69,7 @@ def backward_step(cells: Any, plans: list, m: np.ndarray, k: int, N: int, C: int
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One step of the recursion: at sample ``k``, from ``m``'s later ones, each cell's least good index and plan."""
     never = cells.never
-    best = np.full(C, never, np.int64)
-    action = np.full(C, -1, np.int8)
-    hold = np.zeros(C, np.int8)
+    best, action, hold = np.full(C, never, np.int64), np.full(C, -1, np.int8), np.zeros(C, np.int8)
     shape = np.asarray(cells.shape, dtype=np.int64)
     for j, K, (rows, spend, first, last, land_rows, land_need) in plans:
         if k + K > N:
@@ -165,13 +158,13 @@ def recheck(cells: Any, lookahead: Any, flat: Any) -> tuple[np.ndarray, np.ndarr
     if asked != key:
         differ = {k: (asked.get(k), key.get(k)) for k in sorted(set(asked) | set(key)) if asked.get(k) != key.get(k)}
         raise ValueError(f"the look-ahead is not the one the cells were built for: (look-ahead, cells) {differ}")
-    la, flat = lookahead, np.asarray(flat, dtype=np.int64)
+    flat = np.asarray(flat, dtype=np.int64)
     N, C = cells.steps, len(flat)
     m_all = np.asarray(cells.m).reshape(N + 1, -1)
     lo, hi = cell_boxes(cells, flat)
     m, action, hold = np.empty((N + 1, C), np.int64), np.full((N + 1, C), -1, np.int8), np.zeros((N + 1, C), np.int8)
     m[N] = cells.never
-    plans = all_plan_steps(cells, la, lo, hi, tuple(key["holds"]), key["span_cap"])
+    plans = all_plan_steps(cells, lookahead, lo, hi, tuple(key["holds"]), key["span_cap"])
     for k in range(N - 1, -1, -1):
         m[k], action[k], hold[k] = backward_step(cells, plans, m_all, k, N, C)
     return m, action, hold

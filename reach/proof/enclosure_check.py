@@ -187,16 +187,12 @@ def _simulate(model: Any, t0: float, x0: np.ndarray, a: np.ndarray, breaks: np.n
     return np.stack(ts, axis=1), np.stack(xs, axis=1)
 
 
-def _durations(dt: float, checks: int) -> list[float]:
-    """The periods the filter bounds: the landing test's check instants, ``dt`` last (as in ``Motion.check_edges``)."""
-    return [dt * j / checks for j in range(1, checks + 1)]
-
-
 def _claims(model: Any, b_lo: np.ndarray, b_hi: np.ndarray, x0: np.ndarray, a: np.ndarray, dt: float,
             pieces: int, checks: int) -> list[tuple[str, float, float, float, bool, Any]]:
     """Every box the filter may read for these runs: ``(name, period, s0, s1, from_box, (lo, hi))``."""
     out = []
-    for D in _durations(dt, checks):
+    # the periods the filter bounds: the landing test's check instants, ``dt`` last (as in ``Motion.check_edges``)
+    for D in [dt * j / checks for j in range(1, checks + 1)]:
         edges = np.linspace(0.0, D, pieces + 1)
         for name, s0, s1 in [("tube", 0.0, D), ("end", D, D)] + [
                 (f"piece {j + 1} of {pieces}", edges[j], edges[j + 1]) for j in range(pieces)]:
@@ -227,7 +223,6 @@ def check_enclosure(model: Any, dt: float, pieces: int = 4, checks: int = 1, cel
     cell_width = np.broadcast_to(np.asarray(cell_width, dtype=np.float64), (model.state_dim,))
     rng = np.random.default_rng(settings.seed)
     b_lo, b_hi, x0, a, tau, wind = _samples(model, dt, cell_width, settings, rng)
-    t0 = 0.0
     claims = _claims(model, b_lo, b_hi, x0, a, dt, pieces, checks)
     fixed = np.unique([0.0, dt] + [float(c[2]) for c in claims] + [float(c[3]) for c in claims])
     F, N = len(fixed), len(x0)
@@ -237,8 +232,8 @@ def check_enclosure(model: Any, dt: float, pieces: int = 4, checks: int = 1, cel
     # the wind of each gap: the piece of the signal its start lies in
     piece = (tau[:, None, :] <= breaks[:, :-1, None]).sum(axis=2)
     gap_wind = np.take_along_axis(wind, piece[:, :, None], axis=1)
-    _, coarse = _simulate(model, t0, x0, a, breaks, gap_wind, settings.steps)
-    times, xs = _simulate(model, t0, x0, a, breaks, gap_wind, 2 * settings.steps)
+    _, coarse = _simulate(model, 0.0, x0, a, breaks, gap_wind, settings.steps)
+    times, xs = _simulate(model, 0.0, x0, a, breaks, gap_wind, 2 * settings.steps)
     if not np.isfinite(xs).all():
         r = int(np.flatnonzero(~np.isfinite(xs).all(axis=(1, 2)))[0])
         raise EnclosureError(f"{model.name}: the simulation of a held period diverged from {_state(model, x0[r])}, "
@@ -268,8 +263,7 @@ def check_enclosure(model: Any, dt: float, pieces: int = 4, checks: int = 1, cel
             out = np.maximum(c_lo[r, k] - xs[r, inside, k], xs[r, inside, k] - c_hi[r, k])
             raise EnclosureError(*_refutation(model, name, D, from_box, b_lo, b_hi, x0, a, tau, wind, times, xs,
                                               c_lo, c_hi, allowance, (r, int(inside[np.argmax(out)]), k)))
-    return {"runs": len(x0), "claims": len(claims), "tightest": tightest,
-            "seconds": time.perf_counter() - started}
+    return {"runs": len(x0), "claims": len(claims), "tightest": tightest, "seconds": time.perf_counter() - started}
 
 
 def _fmt(values: Any) -> str:

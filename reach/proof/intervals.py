@@ -30,8 +30,7 @@ def up(v: float) -> float:
 
 @njit(inline="always")
 def cos_range(lo: float, hi: float) -> tuple[float, float]:
-    """cos over any ``[lo, hi]``: the end values' range widened, and 1 (-1) where it holds an even (odd) multiple
-    of ``pi``."""
+    """cos over any ``[lo, hi]``: the ends' range widened, 1 (-1) where it holds an even (odd) multiple of ``pi``."""
     two_pi = 2.0 * math.pi
     c_lo, c_hi = math.cos(lo), math.cos(hi)
     # widened so that a peak on an end is counted (the bound is then 1 or -1, never too tight)

@@ -207,9 +207,7 @@ def cover_row(cells, t, lo, hi, z):
     CellCertificate.kernel_args`)."""
     m, shape, clo, chi, width, periodic, wrap, dt, dz, top, steps, horizon = cells
     D = len(shape)
-    on = True
-    runs = 1
-    run_lo, run_hi = 0, 0
+    on, runs, run_lo, run_hi = True, 1, 0, 0
     for a in range(D):
         fi, gi, on_a = cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a], periodic[a], wrap[a])
         on = on and on_a
@@ -224,9 +222,7 @@ def cover_row(cells, t, lo, hi, z):
     # the first cell that needs more budget decides; a periodic axis's range is read modulo its cells
     n_run = shape[D - 1]
     for p in range(runs):
-        rest = p
-        off = 0
-        stride = n_run
+        rest, off, stride = p, 0, n_run
         for a in range(D - 2, -1, -1):
             fi, gi, _ = cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a], periodic[a], wrap[a])
             span = gi - fi + 1

@@ -26,7 +26,6 @@ from ..sim.rk4 import rk4_rows
 from ..tables.interpolation import geometry
 from .kernels import certificate_rows, frozen
 
-
 #: the fields that say how much budget suffices, in order of preference
 BUDGET_FIELDS = ("W_eps", "Q_min")
 
@@ -158,8 +157,7 @@ class Lookahead:
 
     def __init__(self, fields: dict[str, tuple[Any, np.ndarray, Any]], model: Any, dt: float, eps: float,
                  candidates: Any, pieces: int = 4, target_checks: int = 1):
-        self.model, self.dt, self.eps = model, float(dt), float(eps)
-        self.pieces = int(pieces)
+        self.model, self.dt, self.eps, self.pieces = model, float(dt), float(eps), int(pieces)
         if not (isinstance(target_checks, (int, np.integer)) and target_checks >= 1):
             raise ValueError(f"target_checks must be a positive integer, got {target_checks!r}")
         self.target_checks = int(target_checks)
@@ -185,9 +183,8 @@ class Lookahead:
         self.budget_slack = budget_allowance(self.dt, self.horizon, self.pieces)
         V = kernel_field(*self.fields.get("V", self.fields[self.budget_field]))
         if self.budget_field == "W_eps":
-            W = kernel_field(*self.fields["W_eps"])
+            W = inside = kernel_field(*self.fields["W_eps"])
             W_read = (W, float(self.z_top), float(b_grid.lo[-1]), np.inf)
-            inside = W
         else:
             W, inside = surface_fields(b_values, b_times, b_grid, self.horizon)
             W_read = (W, self.horizon, 0.0, self.horizon)

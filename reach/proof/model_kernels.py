@@ -41,10 +41,8 @@ def held_box_address(model: Any) -> int:
 def _call_by_address(returns: Any):
     """Code calling the C function at the first argument's address with the others (arrays as data pointers)."""
     def codegen(context, builder, signature, args):
-        values = []
-        for ty, val in zip(signature.args[1:], args[1:]):
-            is_array = isinstance(ty, types.Array)
-            values.append(context.make_array(ty)(context, builder, val).data if is_array else val)
+        values = [context.make_array(ty)(context, builder, val).data if isinstance(ty, types.Array) else val
+                  for ty, val in zip(signature.args[1:], args[1:])]
         ret = ir.VoidType() if returns is None else context.get_value_type(returns)
         fn = builder.inttoptr(args[0], ir.FunctionType(ret, [v.type for v in values]).as_pointer())
         out = builder.call(fn, values)

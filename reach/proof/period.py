@@ -12,8 +12,7 @@ import numpy as np
 
 from ..jit import njit
 from .kernels import frozen
-from .model_kernels import (SET_INDEX, call_held_box, call_set_max, held_box_address,
-                            set_max_address)
+from .model_kernels import SET_INDEX, call_held_box, call_set_max, held_box_address, set_max_address
 
 # the sets' indices in the model's set-maximum kernel
 _TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_INDEX["soft_constraint"]
@@ -22,38 +21,25 @@ _TARGET, _HARD, _SOFT = SET_INDEX["target"], SET_INDEX["hard_constraint"], SET_I
 class Motion(NamedTuple):
     """The look-ahead's numbers as the compiled code reads them (:func:`motion`)."""
 
-    #: the model's ``held_box_params``
-    params: np.ndarray
-    #: the ``h_eps`` width with which the environment drains the budget
-    eps: float
-    #: the parameters of the model's compiled set maxima
-    set_params: Any
-    #: the address of the model's compiled set maxima
-    set_address: int
-    #: the target box's lower and upper corners (``-inf`` / ``+inf`` where the model has none)
-    target_lo: np.ndarray
-    target_hi: np.ndarray
-    #: the instants ``0, dt / P, ..., dt`` that cut the period into the budget's ``P`` pieces
-    edges: np.ndarray
-    #: per landing check instant ``s`` (a row), the instants that cut ``[0, s]`` into ``P`` pieces
-    check_edges: np.ndarray
-    #: the table's horizon ``T`` [s]
-    horizon: float
-    #: the rounding allowance per state axis (:func:`~softreach.reach.proof.lookahead.state_allowance`)
-    slack: np.ndarray
-    #: the environment's first check instant inside a period [s]
-    first_check: float
-    #: added to a positive charge (:func:`~softreach.reach.proof.lookahead.budget_allowance`)
-    budget_slack: float
-    #: the allowances apply (:attr:`~softreach.reach.proof.lookahead.Lookahead.exact_env`)
-    exact_env: bool
+    params: np.ndarray  #: the model's ``held_box_params``
+    eps: float  #: the ``h_eps`` width with which the environment drains the budget
+    set_params: Any  #: the parameters of the model's compiled set maxima
+    set_address: int  #: the address of the model's compiled set maxima
+    target_lo: np.ndarray  #: the target box's lower corner (``-inf`` where the model has none)
+    target_hi: np.ndarray  #: the target box's upper corner (``+inf`` where the model has none)
+    edges: np.ndarray  #: the instants ``0, dt / P, ..., dt`` that cut the period into the budget's ``P`` pieces
+    check_edges: np.ndarray  #: a row per landing check instant ``s``: the instants cutting ``[0, s]`` into ``P`` pieces
+    horizon: float  #: the table's horizon ``T`` [s]
+    slack: np.ndarray  #: the rounding allowance per axis (:func:`~softreach.reach.proof.lookahead.state_allowance`)
+    first_check: float  #: the environment's first check instant inside a period [s]
+    budget_slack: float  #: added to a positive charge (:func:`~softreach.reach.proof.lookahead.budget_allowance`)
+    exact_env: bool  #: the allowances apply (:attr:`~softreach.reach.proof.lookahead.Lookahead.exact_env`)
 
 
 def motion(la: Any) -> tuple[int, Motion]:
     """The address of the model's compiled enclosure and the :class:`Motion` of the look-ahead ``la`` (whose model
     gives what the filter needs: :func:`~softreach.reach.proof.enclosure_check.missing_extras`)."""
-    model = la.model
-    tb = model.target_box
+    model, tb = la.model, la.model.target_box
     t_lo, t_hi = ((np.full(la.n, -np.inf), np.full(la.n, np.inf)) if tb is None
                   else (np.asarray(tb[0], dtype=np.float64), np.asarray(tb[1], dtype=np.float64)))
     checks = np.stack([np.linspace(0.0, la.dt * j / la.target_checks, la.pieces + 1)
@@ -183,11 +169,9 @@ def period_rows(enclose, M, x_lo, x_hi, a, ask, kept, charge, end_lo, end_hi, la
     Writes ``kept`` (bounded, keeps ``C1``), ``charge`` (``+inf`` for NaN), the widened end box, and ``landed``
     where ``ask[r]`` and kept (surely lands with any budget; the builder charges the plan's own bound)."""
     n = x_lo.shape[1]
-    tube_lo, tube_hi, lo, hi = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    w_lo, w_hi = np.empty(n), np.empty(n)
+    tube_lo, tube_hi, lo, hi, w_lo, w_hi = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     for r in range(x_lo.shape[0]):
-        bounded = enclose_period(enclose, M, x_lo[r], x_hi[r], a[r], period(M), tube_lo, tube_hi, end_lo[r],
-                                 end_hi[r])
+        bounded = enclose_period(enclose, M, x_lo[r], x_hi[r], a[r], period(M), tube_lo, tube_hi, end_lo[r], end_hi[r])
         c1, c = c1_and_charge(enclose, M, x_lo[r], x_hi[r], a[r], M.edges, tube_lo, tube_hi, lo, hi)
         kept[r] = bounded and c1 <= 0
         charge[r] = np.inf if math.isnan(c) else c
