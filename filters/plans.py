@@ -9,9 +9,9 @@ from typing import Any
 
 import numpy as np
 
+from softreach.reach.backend import is_torch
 from softreach.reach.proof.cell_certificate import CellCertificate, cell_key, cached
 
-from .tensors import is_tensor
 
 #: ``info["plan"]`` where none is followed
 NO_PLAN = (-1, 0, 0)
@@ -49,7 +49,7 @@ def check_plans(plan: Any, N: int) -> np.ndarray | None:
     :raises ValueError: not the integer ``(N, 3)`` ``info["plan"]`` of a previous step"""
     if plan is None:
         return None
-    arr = np.asarray(plan.detach().cpu().numpy() if is_tensor(plan) else plan)
+    arr = np.asarray(plan.detach().cpu().numpy() if is_torch(plan) else plan)
     arr = arr.reshape(N, 3) if arr.size == 3 * N else arr
     if arr.shape != (N, 3) or not np.issubdtype(arr.dtype, np.integer):
         raise ValueError(f"plan must be the integer (N, 3) info['plan'] of the previous step, got {plan!r}")

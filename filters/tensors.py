@@ -8,16 +8,12 @@ from typing import Any
 
 import numpy as np
 
-
-def is_tensor(v: Any) -> bool:
-    """Whether ``v`` is a torch tensor, without importing torch: only a process that imported it holds one."""
-    torch = sys.modules.get("torch")
-    return torch is not None and isinstance(v, torch.Tensor)
+from softreach.reach.backend import is_torch
 
 
 def to_numpy(v: Any) -> tuple[np.ndarray, Any]:
     """A float64 numpy copy of ``v`` and the tensor it came from (``None`` for non-tensors)."""
-    if is_tensor(v):
+    if is_torch(v):
         torch = sys.modules["torch"]
         return v.detach().to("cpu", torch.float64).numpy(), v
     return np.asarray(v, dtype=np.float64), None
@@ -51,7 +47,7 @@ def to_torch(applied: np.ndarray, info: dict[str, Any], ref: Any, action: Any):
     """Convert the outputs to tensors on the reference tensor's device, in its floating dtype."""
     torch = sys.modules["torch"]
     dtype = ref.dtype if ref.dtype.is_floating_point else torch.float32
-    dtype_a = action.dtype if is_tensor(action) and action.dtype.is_floating_point else dtype
+    dtype_a = action.dtype if is_torch(action) and action.dtype.is_floating_point else dtype
     kinds = {"active": torch.bool, "reason": torch.int64, "optimal_action": dtype_a}
     dev = ref.device
     out = {key: torch.as_tensor(np.asarray(v), dtype=kinds.get(key, dtype), device=dev) for key, v in info.items()}

@@ -168,13 +168,17 @@ class SafetyFilter(gym.Wrapper):
         self._interventions += int(active)
         self._min_value = min(self._min_value, value)
         self._max_value = max(self._max_value, value)
-        info = dict(info, filter_active=active, policy_action=np.array(action, dtype=dtype, copy=True).reshape(shape),
-                    # what the environment applies: it clips a finite out-of-range action to [-1, 1]
-                    applied_action=clip_unit(np.array(to_env, dtype=dtype, copy=True)).reshape(shape), value=value,
-                    margin=float(f["margin"]),
-                    optimal_action=np.asarray(f["optimal_action"], dtype=dtype).reshape(shape),
-                    filter_reason=REASONS[int(f["reason"])], certified=bool(f["certified"]),
-                    lookahead=float(f["lookahead"]))
+        info = dict(info)
+        info["filter_active"] = active
+        info["policy_action"] = np.array(action, dtype=dtype, copy=True).reshape(shape)
+        # what the environment applies: it clips a finite out-of-range action to [-1, 1]
+        info["applied_action"] = clip_unit(np.array(to_env, dtype=dtype, copy=True)).reshape(shape)
+        info["value"] = value
+        info["margin"] = float(f["margin"])
+        info["optimal_action"] = np.asarray(f["optimal_action"], dtype=dtype).reshape(shape)
+        info["filter_reason"] = REASONS[int(f["reason"])]
+        info["certified"] = bool(f["certified"])
+        info["lookahead"] = float(f["lookahead"])
         if terminated or truncated:
             info["filter_episode"] = self.episode_summary(info)
         return obs, reward, terminated, truncated, info
