@@ -2,8 +2,6 @@
 :func:`~softreach.filters.judge.judge_once`, which reads no table. ``tests/test_filters_soundness.py`` flies the plans
 it finds against switching winds."""
 
-from __future__ import annotations
-
 import math
 
 import numpy as np

@@ -6,8 +6,6 @@ Inlined or called (:mod:`softreach.reach.proof.kernels`; docs/filters.md, "How")
 it, :func:`judge` once, into the decision's loop; each loop, the other searches (:func:`judge_once`) and large parts
 run at most once a row are called, as every inlined copy is typed again and typing is superlinear in length."""
 
-from __future__ import annotations
-
 import math
 
 import numpy as np

@@ -6,8 +6,6 @@ consecutive slabs along the first state axis, each with a candidate that passes 
 landing cells itself): every end state lies in some slab, from which that slab's candidate passes, so the next state
 is certified. The slabs are found greedily from the box's lower edge, each as long as a bisection finds."""
 
-from __future__ import annotations
-
 from softreach.reach.jit import njit
 from softreach.reach.proof.kernels import cover_row
 from softreach.reach.proof.model_kernels import call_held_box

@@ -1,12 +1,17 @@
 """Test helpers for the cell certificates: every cell's box, flying a cell's stored plan with the environment's
 integrator under a wind that switches inside the period, the landing cells' nesting, and a filtered episode that
 keeps the promise (``tests/test_cell_certificate.py``, ``tests/test_glider_cells.py``, ``tests/test_dubins_cells.py``,
-``tests/test_models_api.py``), and a model without cells (:func:`without_cells`)."""
+``tests/test_models_api.py``), a model without cells (:func:`without_cells`), and the recursion asked again of stored
+cells (:func:`recheck`)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
+from softreach.reach.proof import cell_game
+from softreach.reach.proof.cell_certificate import cell_key
 from softreach.reach.sim.integrator import integrate_period
 
 
@@ -99,3 +104,27 @@ def run_certified_episode(env, q: float) -> None:
         assert info["certified"], info["filter_reason"]
         done = terminated or truncated
     assert info["landed"] and not info["hard_violation"] and info["budget_used"] <= q + 1e-9
+
+
+def recheck(cells: Any, lookahead: Any, flat: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The cell game's recursion (:mod:`softreach.reach.proof.cell_game`) asked again of a stored certificate at the
+    cells ``flat``, each sample from the stored later ones: ``(m, action, hold)``, the stored ones where the file is
+    the build's answer there.
+
+    :raises ValueError: the look-ahead is not the one the certificate was built for
+    """
+    key = cells.key
+    asked = cell_key(lookahead, key["shape"], key["dz"], key["holds"], key["span_cap"])
+    if asked != key:
+        differ = {k: (asked.get(k), key.get(k)) for k in sorted(set(asked) | set(key)) if asked.get(k) != key.get(k)}
+        raise ValueError(f"the look-ahead is not the one the cells were built for: (look-ahead, cells) {differ}")
+    flat = np.asarray(flat, dtype=np.int64)
+    N, C = cells.steps, len(flat)
+    m_all = np.asarray(cells.m).reshape(N + 1, -1)
+    lo, hi = cell_game.cell_boxes(cells, flat)
+    m, action, hold = np.empty((N + 1, C), np.int64), np.full((N + 1, C), -1, np.int8), np.zeros((N + 1, C), np.int8)
+    m[N] = cells.never
+    plans = cell_game.all_plan_steps(cells, lookahead, lo, hi, tuple(key["holds"]), key["span_cap"])
+    for k in range(N - 1, -1, -1):
+        m[k], action[k], hold[k] = cell_game.backward_step(cells, plans, m_all, k, N, C)
+    return m, action, hold

@@ -21,7 +21,8 @@ from softreach.agents.audit import Row, _policy, _wind, run_episode
 from softreach.reach import get_model
 from softreach.reach.proof.cell_certificate import CellCertificate
 
-from cell_plans import assert_landing_cells_nested, cell_boxes, fly_plan_from_a_good_cell, run_certified_episode
+from cell_plans import (assert_landing_cells_nested, cell_boxes, fly_plan_from_a_good_cell, recheck,
+                        run_certified_episode)
 
 DT = 0.1
 
@@ -307,16 +308,14 @@ def test_safety_filter_on_the_env_keeps_its_promise_at_the_seam(dubins_held_tabl
 def test_the_packaged_cells_are_what_the_recursion_gives(vf):
     """The package's files at 1,500 random cells and the 2 x 60 x 60 cells on the heading's seam, at every sample:
     the least good budget index and the plan are those one step of the game's recursion gives from the file's own
-    later samples (``cell_game.recheck``), so the file is the build's answer there for this model, its enclosure
+    later samples (``cell_plans.recheck``), so the file is the build's answer there for this model, its enclosure
     and its ``c1`` bound."""
-    from softreach.reach.proof import cell_game
-
     cells = vf.landing_cells
     n = cells.shape[2]
     grid = np.arange(int(np.prod(cells.shape))).reshape(cells.shape)
     flat = np.r_[np.random.default_rng(1).choice(grid.size, 1500, replace=False), grid[:, :, 0].ravel(),
                  grid[:, :, n - 1].ravel()]
-    m, action, hold = cell_game.recheck(cells, vf.lookahead, flat)
+    m, action, hold = recheck(cells, vf.lookahead, flat)
     steps = cells.steps + 1
     for name, got in (("m", m), ("action", action), ("hold", hold)):
         np.testing.assert_array_equal(got, np.asarray(getattr(cells, name)).reshape(steps, -1)[:, flat],

@@ -10,9 +10,11 @@ import numpy as np
 import pytest
 
 from softreach.filters import ValueFilter
-from softreach.reach.proof import cell_certificate, cell_game
+from softreach.reach.proof import cell_certificate
 from softreach.reach.proof.cell_certificate import PACKAGED, CellCertificate, cell_key
 from softreach.reach.proof.lookahead import Lookahead
+
+from cell_plans import recheck
 
 #: every file is rechecked here, and one of the point mass's is rebuilt whole (the glider's and Dubins's take
 #: minutes to build; tests/test_glider_cells.py and tests/test_dubins_cells.py fly what they claim)
@@ -48,12 +50,12 @@ def test_packaged_cells_are_what_the_recursion_gives(path, request):
     kinds = [~good[0]] + [((hold_all == h) & good).any(axis=0) for h in stored.key["holds"]]
     flat = np.unique(np.r_[rng.choice(good.shape[1], 2000, replace=False),
                            *(rng.permutation(np.nonzero(k)[0])[:50] for k in kinds)])
-    m, action, hold = cell_game.recheck(stored, la, flat)
+    m, action, hold = recheck(stored, la, flat)
     for name, got in (("m", m), ("action", action), ("hold", hold)):
         np.testing.assert_array_equal(got, np.asarray(getattr(stored, name)).reshape(steps, -1)[:, flat],
                                       err_msg=name)
     with pytest.raises(ValueError, match=r"'target_checks': \(3, "):
-        cell_game.recheck(stored, Lookahead.from_table(table, table.model, table.control_period, table.eps,
+        recheck(stored, Lookahead.from_table(table, table.model, table.control_period, table.eps,
                                                        target_checks=3), flat[:10])
     # the sample holds good cells and bad ones, and plans of every length the file uses (more than one)
     assert 50 <= (m[0] < stored.never).sum() <= len(flat) - 50

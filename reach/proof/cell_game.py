@@ -1,6 +1,5 @@
 """The cell game of :mod:`softreach.reach.proof.cell_certificate` solved backwards from ``T`` (:func:`solve`) by
-:func:`backward_step` over plan steps (:func:`plan_steps`), and the same step asked again of a stored certificate
-(:func:`recheck`): one that passes at every cell is the one solved."""
+:func:`backward_step` over plan steps (:func:`plan_steps`)."""
 
 from __future__ import annotations
 
@@ -144,30 +143,6 @@ def plan_needs(m_next, shape, first, last, spend, dz, never, out):
                 break
             idx[a] += 1
         out[i] = budget_index(spend[i], worst, dz, never)
-
-
-def recheck(cells: Any, lookahead: Any, flat: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The recursion asked again at the cells ``flat``, each sample from the stored later ones: ``(m, action, hold)``.
-
-    :raises ValueError: the look-ahead is not the one the certificate was built for
-    """
-    from .cell_certificate import cell_key  # (that module imports this one)
-
-    key = cells.key
-    asked = cell_key(lookahead, key["shape"], key["dz"], key["holds"], key["span_cap"])
-    if asked != key:
-        differ = {k: (asked.get(k), key.get(k)) for k in sorted(set(asked) | set(key)) if asked.get(k) != key.get(k)}
-        raise ValueError(f"the look-ahead is not the one the cells were built for: (look-ahead, cells) {differ}")
-    flat = np.asarray(flat, dtype=np.int64)
-    N, C = cells.steps, len(flat)
-    m_all = np.asarray(cells.m).reshape(N + 1, -1)
-    lo, hi = cell_boxes(cells, flat)
-    m, action, hold = np.empty((N + 1, C), np.int64), np.full((N + 1, C), -1, np.int8), np.zeros((N + 1, C), np.int8)
-    m[N] = cells.never
-    plans = all_plan_steps(cells, lookahead, lo, hi, tuple(key["holds"]), key["span_cap"])
-    for k in range(N - 1, -1, -1):
-        m[k], action[k], hold[k] = backward_step(cells, plans, m_all, k, N, C)
-    return m, action, hold
 
 
 def plan_steps(cells: Any, bounds: tuple, lo: np.ndarray, hi: np.ndarray, a: np.ndarray, holds: tuple,

@@ -3,8 +3,6 @@ lower first: a failing action's badness is its rank plus its tie (``atan`` of it
 the overspend times :data:`TIE_OVERSPEND`); ranks lie at least ``1e6`` apart, so the rank decides first. numba
 compiles these globals as constants."""
 
-from __future__ import annotations
-
 #: badness rank of an action whose period keeps ``C1`` and the budget
 RANK_KEPT = 1e6
 #: badness rank of an action whose period keeps ``C1`` but may overspend the budget (``z_end < 0``)
