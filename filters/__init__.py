@@ -1,8 +1,9 @@
 """softreach.filters: a least-restrictive safety filter on a ``W_eps`` table (paper §V; docs/filters.md): the batched
 core :class:`ValueFilter`, the ``gymnasium.Wrapper`` :class:`SafetyFilter`, and :class:`VecSafetyFilter` for SB3.
 
-Each name loads at its first use, so that ``softreach`` commands that only register ``compile`` import no filter code,
-and a filtering process no torch (which :class:`VecSafetyFilter` imports through stable-baselines3)."""
+Each name loads at its first use: the ``softreach`` command line, which registers ``compile`` from :mod:`.precompile`,
+imports no filter code it does not run, and a process that filters imports no torch (:class:`VecSafetyFilter` does,
+through stable-baselines3)."""
 
 import importlib
 from typing import Any

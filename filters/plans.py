@@ -12,7 +12,6 @@ import numpy as np
 from softreach.reach.backend import is_torch
 from softreach.reach.proof.cell_certificate import CellCertificate, cell_key, cached
 
-
 #: ``info["plan"]`` where none is followed
 NO_PLAN = (-1, 0, 0)
 #: following a landing cell's plan (the step is certified: the run lands by ``T``)
