@@ -57,10 +57,10 @@ def _child_filter(table_path: str, model: str) -> dict[str, Any]:
 
     from softreach.agents.envs import make_env
     from softreach.filters import SafetyFilter
-    from softreach.filters.compiled import decide_rows
+    from softreach.filters.precompile import decision_code_counts, decision_code_source
     from softreach.reach import load_table
 
-    hits, misses = (sum(c.values()) for c in (decide_rows.stats.cache_hits, decide_rows.stats.cache_misses))
+    before = decision_code_counts()
     t0 = time.perf_counter()
     env = SafetyFilter(make_env(model), load_table(table_path))
     t1 = time.perf_counter()
@@ -68,9 +68,8 @@ def _child_filter(table_path: str, model: str) -> dict[str, Any]:
     t2 = time.perf_counter()
     env.step(np.asarray(env.action_space.sample(), dtype=float))
     t3 = time.perf_counter()
-    source = ("compiled" if sum(decide_rows.stats.cache_misses.values()) > misses else
-              "cache" if sum(decide_rows.stats.cache_hits.values()) > hits else "process")
-    return {"cells": t1 - t0, "first step": t3 - t1, "reset": t2 - t1, "step": t3 - t2, "decision_code": source,
+    return {"cells": t1 - t0, "first step": t3 - t1, "reset": t2 - t1, "step": t3 - t2,
+            "decision_code": decision_code_source(before),
             "certified": bool(info.get("certified"))}
 
 

@@ -11,6 +11,20 @@ from typing import Any
 import numpy as np
 
 
+def decision_code_counts() -> tuple[int, int]:
+    """The compiled decision's numba cache hits and misses in this process so far (:func:`decision_code_source`)."""
+    from .compiled import decide_rows
+
+    return sum(decide_rows.stats.cache_hits.values()), sum(decide_rows.stats.cache_misses.values())
+
+
+def decision_code_source(before: tuple[int, int]) -> str:
+    """Where the compiled decision came from since :func:`decision_code_counts` gave ``before``: ``"compiled"``,
+    loaded from the ``"cache"``, or already in this ``"process"``."""
+    hits, misses = decision_code_counts()
+    return "compiled" if misses > before[1] else "cache" if hits > before[0] else "process"
+
+
 def precompile(table: Any, period: float | None = None, cells: bool = True) -> dict[str, Any]:
     """Make one decision, state certificate and start-plan search of the filter an environment wraps around ``table``.
 
@@ -42,7 +56,7 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
                              f"and {model.name} declares no control_period")
         period = model.control_period  # the cells certify; the table only ranks, at the env's period
     dt = float(period if period is not None else table.control_period)
-    hits, misses = (sum(c.values()) for c in (decide_rows.stats.cache_hits, decide_rows.stats.cache_misses))
+    before = decision_code_counts()
     t0 = time.perf_counter()
     # the landing checks SafetyFilter asks for: the same compiled code as any other count, and cells it ships
     checks = getattr(model, "substeps", 1)
@@ -58,8 +72,7 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
     vf.certify(0.0, x, 0.0)
     vf.compiled.start_plans(np.zeros(1), x[None], np.zeros(1), 1, np.ones(1, bool), START_SEGMENTS)
     seconds = time.perf_counter() - t0  # the filter's construction with its first decision
-    source = ("compiled" if sum(decide_rows.stats.cache_misses.values()) > misses else
-              "cache" if sum(decide_rows.stats.cache_hits.values()) > hits else "process")
+    source = decision_code_source(before)
     if not (decide_rows.signatures and start_plan_rows.signatures):
         raise RuntimeError(f"{model.name}: the filter made a decision without its compiled code")
     return {"model": model.name, "compiled": True, "seconds": seconds, "source": source,
