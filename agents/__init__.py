@@ -18,24 +18,19 @@ for gymnasium, Stable-Baselines3 and torch.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from softreach import lazy_exports
 
 _EXPORTS = {
-    "ALGOS": "config", "MODELS": "config", "PPOConfig": "config", "RunConfig": "config", "SACConfig": "config",
-    "defaults": "config",
-    "TrainSpec": "train", "TrainResult": "train", "load_policy": "train",
-    "EvalSpec": "evaluate", "EvaluationResult": "evaluate",
-    "EVAL_SCHEMA": "report", "validate_evaluation": "report", "write_json": "report", "write_plots": "report",
-    "run_demo": "demo",
-    "SweepSpec": "sweep", "load_sweep_file": "sweep", "run_sweep": "sweep_cli",
+    "ALGOS": ".config", "MODELS": ".config", "PPOConfig": ".config", "RunConfig": ".config", "SACConfig": ".config",
+    "defaults": ".config",
+    "TrainSpec": ".train", "TrainResult": ".train", "load_policy": ".train",
+    "EvalSpec": ".evaluate", "EvaluationResult": ".evaluate",
+    "EVAL_SCHEMA": ".report", "validate_evaluation": ".report", "write_json": ".report", "write_plots": ".report",
+    "run_demo": ".demo",
+    "SweepSpec": ".sweep", "load_sweep_file": ".sweep", "run_sweep": ".sweep_cli",
 }
 
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'softreach.agents' has no attribute {name!r}")
-    return getattr(importlib.import_module(f".{module}", __name__), name)
+__getattr__, __dir__ = lazy_exports(globals(), _EXPORTS)

@@ -5,8 +5,7 @@ Each name loads at its first use: the ``softreach`` command line, which register
 imports no filter code it does not run, and a process that filters imports no torch (:class:`VecSafetyFilter` does,
 through stable-baselines3)."""
 
-import importlib
-from typing import Any
+from softreach import lazy_exports
 
 #: public name -> the module defining it
 _EXPORTS = {**{name: ".core" for name in ("AFTER_HORIZON", "BLEND", "CERTIFY_REASONS", "FALLBACK", "NO_PLAN",
@@ -18,14 +17,4 @@ _EXPORTS = {**{name: ".core" for name in ("AFTER_HORIZON", "BLEND", "CERTIFY_REA
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(module, __name__), name)
-    globals()[name] = value  # later look-ups skip this function
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_exports(globals(), _EXPORTS)

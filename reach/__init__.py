@@ -14,19 +14,20 @@ See :mod:`softreach.reach.problem` for the names (``target``, ``hard_constraint`
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from softreach import lazy_exports
 
 #: public name -> the submodule that defines it; each loads on first use (PEP 562), so that importing one
 #: submodule (``softreach.reach.problem`` for the envs) does not import the solver and torch with it
 _EXPORTS = {
-    "SolveConfig": "numerics.compute", "solve_table": "numerics.compute",
-    "Grid": "numerics.grid", "budget_axis": "numerics.grid",
-    "get_model": "models",
-    "Model": "problem", "ReachAvoidProblem": "problem", "classical_problem": "problem", "soft_problem": "problem",
-    "Table": "tables.query", "load_table": "tables.query",
-    "SolverSettings": "numerics.solver", "solve": "numerics.solver",
-    "TableError": "tables.table",
+    "SolveConfig": ".numerics.compute", "solve_table": ".numerics.compute",
+    "Grid": ".numerics.grid", "budget_axis": ".numerics.grid",
+    "get_model": ".models",
+    "Model": ".problem", "ReachAvoidProblem": ".problem", "classical_problem": ".problem", "soft_problem": ".problem",
+    "Table": ".tables.query", "load_table": ".tables.query",
+    "SolverSettings": ".numerics.solver", "solve": ".numerics.solver",
+    "TableError": ".tables.table",
 }
 
 __all__ = sorted(_EXPORTS)
@@ -41,14 +42,4 @@ if TYPE_CHECKING:  # static readers see the names without the lazy indirection
     from .tables.table import TableError
 
 
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value  # later look-ups skip this function
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_exports(globals(), _EXPORTS)
