@@ -237,6 +237,18 @@ def _writable(v: np.ndarray) -> np.ndarray:
     return v if v.flags.writeable else v.copy()
 
 
+class _OneRow:
+    """One thread's one-row inputs and outputs for :meth:`CompiledDecision.one`, and its argument lists."""
+
+    def __init__(self, n: int, m: int):
+        self.t, self.x, self.z, self.pol = np.empty(1), np.empty((1, n)), np.empty(1), np.empty((1, m))
+        self.plan = np.empty((1, 3), np.int64)
+        #: ``(applied, reason, value, next_value, certified, chosen, blend, new_plans)``
+        self.outs = (np.empty((1, m)), np.empty(1, np.int64), np.empty(1), np.empty(1), np.empty(1, bool),
+                     np.empty((1, m)), np.empty(1), np.empty((1, 3), np.int64))
+        self.calls: dict[tuple, tuple] = {}
+
+
 class CompiledDecision:
     """:func:`decide_rows` bound to one filter, whose model gives what it needs (:meth:`missing`)."""
 
@@ -253,6 +265,8 @@ class CompiledDecision:
                                 frozen(np.ascontiguousarray(exact_normalized(self.cands, la.a_mid, la.a_half))))
         self.fallback = frozen(np.asarray(vf.fallback_action, dtype=np.float64))
         self.no_plans = np.zeros((1, 3), np.int64)
+        #: the control box as Python numbers: ``(lo, hi, mid, half)`` (:mod:`softreach.filters.single`)
+        self.bounds = tuple(v.tolist() for v in (vf.a_lo, vf.a_hi, vf.a_mid, vf.a_half))
         self.args = plain((self.M, self.C, self.T, self.action))
         # one work space per thread: decide_rows writes into it
         self._local = threading.local()
@@ -287,23 +301,28 @@ class CompiledDecision:
         run_in_blocks(run, N, self.filter.threads)
         return outs
 
-    def one(self, t: float, x: list[float], z: float, pol: list[float], plan: np.ndarray | None,
+    def one(self, t: float, x: np.ndarray, z: float, pol: list[float], plan: np.ndarray | None,
             diagnostics: bool) -> tuple:
-        """:meth:`__call__` of one row given as Python numbers (``plan`` a ``(3,)`` int array or ``None``), in the
-        calling thread, into this thread's one-row outputs: valid until its next call, copy what is kept."""
-        rows = getattr(self._local, "one", None)
-        if rows is None:
-            n, m = len(x), self.cands.shape[1]
-            rows = self._local.one = (np.empty(1), np.empty((1, n)), np.empty(1), np.empty((1, m)),
-                                      np.empty((1, 3), np.int64), np.empty((1, m)), np.empty(1, np.int64),
-                                      np.empty(1), np.empty(1), np.empty(1, bool), np.empty((1, m)), np.empty(1),
-                                      np.empty((1, 3), np.int64))
-        rows[0][0], rows[1][0], rows[2][0], rows[3][0] = t, x, z, pol
+        """:meth:`__call__` of one row (``x`` a ``(n,)`` float array, ``pol`` Python numbers, ``plan`` a ``(3,)`` int
+        array or ``None``), in the calling thread, into this thread's one-row outputs: valid until its next call, copy
+        what is kept."""
+        row = getattr(self._local, "row", None)
+        if row is None:
+            row = self._local.row = _OneRow(len(x), self.cands.shape[1])
+        row.t[0], row.x[0], row.z[0], row.pol[0] = t, x, z, pol
         if plan is not None:
-            rows[4][0] = plan
-        self._decide(rows if plan is not None else rows[:4] + (self.no_plans,) + rows[5:], plan is not None,
-                     diagnostics)
-        return rows[5:]
+            row.plan[0] = plan
+        key = (plan is not None, diagnostics, self.filter.rule == "smooth", self.filter.smooth_iterations)
+        args = row.calls.get(key)
+        if args is None:
+            # the whole argument list, made once per kind of call: one row's fixed costs are mostly the call's
+            M, C, T, action = self.args
+            args = row.calls[key] = (
+                self.enclose, M, C, T, self.cands, self.fallback, key[2], key[3], action, row.t, row.x, row.z,
+                row.pol, row.plan if key[0] else self.no_plans, key[0], diagnostics, True) + row.outs + (
+                self._space()[1],)
+        decide_rows(*args)
+        return row.outs
 
     def _decide(self, rows: tuple, has_plans: bool, diagnostics: bool, with_policy: bool = True) -> None:
         """:func:`decide_rows` of ``rows`` (``t, x, z, pol, plans``, the outputs) in this thread's work space."""

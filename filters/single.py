@@ -32,37 +32,40 @@ def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, p
     row, or ``None`` for the batched path to decide; ``ValueError`` where ``vf.threads`` is below 1."""
     if not _plain(vf, t, x, z, action, plan):
         return None
-    t, z = float(t), float(z)
-    xs, act = x.tolist(), action.tolist()
-    if not (math.isfinite(t) and math.isfinite(z) and all(map(math.isfinite, xs)) and all(map(math.isfinite, act))):
+    t, z, act = float(t), float(z), action.tolist()
+    if not (math.isfinite(t) and math.isfinite(z) and all(map(math.isfinite, x.tolist()))
+            and all(map(math.isfinite, act))):
         return None
     # one row uses no other thread, but an invalid number is refused as for a batch (after the inputs, as there)
     check_threads(vf.threads)
+    cd = vf.compiled
+    lo, hi, mid, half = cd.bounds
     # the policy's physical action: ValueFilter.physical, or the clip to the control box, in the same arithmetic
     if normalized:
-        pol = [mid + half * min(max(a, -1.0), 1.0) for a, mid, half in zip(act, vf.a_mid.tolist(), vf.a_half.tolist())]
+        pol = [m + h * min(max(a, -1.0), 1.0) for a, m, h in zip(act, mid, half)]
     else:
-        pol = [min(max(a, lo), hi) for a, lo, hi in zip(act, vf.a_lo.tolist(), vf.a_hi.tolist())]
-    applied, reason, value, nxt, ok, chosen, blend, new_plans = vf.compiled.one(t, xs, z, pol, plan, diagnostics)
+        pol = [min(max(a, low), high) for a, low, high in zip(act, lo, hi)]
+    applied, reason, value, nxt, ok, chosen, blend, new_plans = cd.one(t, x, z, pol, plan, diagnostics)
     after = t >= vf.lookahead.horizon - 1e-9
-    code = AFTER_HORIZON if after else int(reason[0])
-    active = code != PASS
+    code = np.int64(AFTER_HORIZON) if after else reason[0]
+    active = after or code != PASS
     if normalized:
-        out = _normalized(vf, applied[0].tolist()) if active else np.array(act, dtype=np.float64)
-        chosen_out = vf.normalized(chosen[0])
+        out = _normalized(applied[0].tolist(), mid, half) if active else action.astype(np.float64)
+        # ValueFilter.normalized, in the same arithmetic
+        chosen_out = np.array([(c - m) / h for c, m, h in zip(chosen[0].tolist(), mid, half)])
     else:
         out, chosen_out = applied[0].copy(), chosen[0].copy()
     info = {"value": value[0], "margin": np.float64(vf.constant_margin or 0.0), "active": np.bool_(active),
-            "reason": np.int64(code), "optimal_action": chosen_out, "blend": blend[0], "lookahead": nxt[0],
-            "certified": np.bool_(bool(ok[0]) and not after), "plan": new_plans[0].copy()}
+            "reason": code, "optimal_action": chosen_out, "blend": blend[0], "lookahead": nxt[0],
+            "certified": np.bool_(ok[0] and not after), "plan": new_plans[0].copy()}
     return out, info
 
 
-def _normalized(vf: Any, u: list[float]) -> np.ndarray:
+def _normalized(u: list[float], mids: list[float], halves: list[float]) -> np.ndarray:
     """:func:`~softreach.reach.proof.lookahead.exact_normalized` of one physical action, in Python numbers where the
     plain quotient maps back exactly (the usual case), as the batched path returns it."""
     out = []
-    for v, mid, half in zip(u, vf.a_mid.tolist(), vf.a_half.tolist()):
+    for v, mid, half in zip(u, mids, halves):
         q = min(max((v - mid) / half, -1.0), 1.0)
         if mid + half * q != v:
             q = float(exact_normalized(np.array([v]), np.array([mid]), np.array([half]))[0])
