@@ -312,15 +312,16 @@ class CompiledDecision:
         row.t[0], row.x[0], row.z[0], row.pol[0] = t, x, z, pol
         if plan is not None:
             row.plan[0] = plan
-        key = (plan is not None, diagnostics, self.filter.rule == "smooth", self.filter.smooth_iterations)
+        has_plan, smooth, iterations = plan is not None, self.filter.rule == "smooth", self.filter.smooth_iterations
+        key = (has_plan, diagnostics, smooth, iterations)
         args = row.calls.get(key)
         if args is None:
             # the whole argument list, made once per kind of call: one row's fixed costs are mostly the call's
             M, C, T, action = self.args
-            args = row.calls[key] = (
-                self.enclose, M, C, T, self.cands, self.fallback, key[2], key[3], action, row.t, row.x, row.z,
-                row.pol, row.plan if key[0] else self.no_plans, key[0], diagnostics, True) + row.outs + (
-                self._space()[1],)
+            plans = row.plan if has_plan else self.no_plans
+            args = row.calls[key] = (self.enclose, M, C, T, self.cands, self.fallback, smooth, iterations, action,
+                                     row.t, row.x, row.z, row.pol, plans, has_plan, diagnostics, True, *row.outs,
+                                     self._space()[1])
         decide_rows(*args)
         return row.outs
 
