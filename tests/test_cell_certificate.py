@@ -157,10 +157,11 @@ def test_multi_period_plans_are_followed_to_their_end(vf, monkeypatch):
 
 def test_the_cover_test_is_every_touched_cell_good_at_the_budget(vf):
     """``CellCertificate.covered`` (the compiled cover test both filter paths use) against the definition written
-    out cell by cell: every cell a box touches (closed cells; a box reaching the grid's top exactly touches the last
-    cell only) is good at the step's budget index; off the grid, past ``T`` or at a negative budget it is not. Boxes
-    of one cell, of runs along either axis and of blocks, on and past the grid's edges, with budgets at, below and
-    above the cells' own."""
+    out cell by cell: along each axis, the cells from the last whose float box (as the builder has it) starts at or
+    below the box's lower end to the first that ends at or above its upper end are all good at the step's budget
+    index; off the grid, past ``T`` or at a negative budget nothing is. Boxes of one cell, of runs along either axis
+    and of blocks, on and past the grid's edges and reaching its top exactly, with budgets at, below and above the
+    cells' own."""
     rng = np.random.default_rng(11)
     for cells in (vf.landing_cells,):
         n = 3000
@@ -175,10 +176,13 @@ def test_the_cover_test_is_every_touched_cell_good_at_the_budget(vf):
         k = cells.step_index(t)
         z = rng.uniform(-0.01, 1.2 * cells.top * cells.dz, n)
         got = cells.covered(t, lo, hi, z)
+        # the cells' float boxes along each axis, as the builder has them (cell_game.cell_boxes)
+        edges = [cells.lo[a] + np.arange(cells.shape[a] + 1) * cells.width[a] for a in range(2)]
         for r in range(n):
-            first = np.floor((lo[r] - cells.lo) / cells.width)
-            last = np.where(hi[r] == cells.hi, np.asarray(cells.shape) - 1, np.floor((hi[r] - cells.lo) / cells.width))
-            on = (first >= 0).all() and (last <= np.asarray(cells.shape) - 1).all()
+            # from the last cell whose box starts at or below lo to the first whose box ends at or above hi
+            first = [np.searchsorted(e, v, side="right") - 1 for e, v in zip(edges, lo[r])]
+            last = [max(np.searchsorted(e, v, side="left") - 1, 0) for e, v in zip(edges, hi[r])]
+            on = all(e[0] <= a and b <= e[-1] for e, a, b in zip(edges, lo[r], hi[r]))
             if not on or t[r] > cells.horizon + 1e-9 * cells.dt or z[r] < 0:
                 assert not got[r], r
                 continue
@@ -226,3 +230,36 @@ def test_the_default_budget_cell_fits_long_horizons_and_a_finer_one_is_refused(p
         assert cell_certificate.budget_top(dz, horizon) <= cell_certificate.MAX_BUDGET_CELLS
     with pytest.raises(ValueError, match=r"dz must be .* got 0\.0125"):
         CellCertificate.build(la, SHAPE, dz=0.0125)  # 2000 s in budget cells of 12.5 ms: 160,000
+
+
+def test_a_state_is_read_in_the_cell_whose_float_box_holds_it():
+    """``cell_span``, the cells' one look-up (the builder's end boxes, the filter's states and boxes), against the
+    builder's own float boxes (``cell_game.cell_boxes``), at every edge of every packaged file's non-periodic axes:
+    a state on an edge or one ulp either side of it lies in the box of the first and of the last cell it is read in,
+    and a box whose ends lie one ulp outside a cell's edges is read over the cells beyond them. At hundreds of
+    those edges ``floor((x - lo) / width)`` alone rounds across the edge, into a cell whose box misses ``x``."""
+    from softreach.reach.proof.cell_certificate import PACKAGED
+    from softreach.reach.proof.cell_game import cell_boxes
+    from softreach.reach.proof.kernels import cell_span
+
+    rounded_across = 0
+    for path in sorted(PACKAGED.glob("cells-*.npz")):
+        cells = CellCertificate.load(path)
+        for a in np.nonzero(~cells.periodic)[0]:
+            n, clo, width = int(cells.shape[a]), float(cells.lo[a]), float(cells.width[a])
+            # the cells along axis a (the other axes' first): their boxes' ends along it, as the builder has them
+            box_lo, box_hi = (b[:, a] for b in cell_boxes(cells, np.arange(n) * int(np.prod(cells.shape[a + 1:]))))
+            edges = np.append(box_lo, box_hi[-1])
+            assert (box_hi[:-1] == box_lo[1:]).all()
+            for x in np.concatenate([np.nextafter(edges, -np.inf), edges, np.nextafter(edges, np.inf)]):
+                first, last, on = cell_span(x, x, clo, width, n, False, 0.0)
+                assert on == (edges[0] <= x <= edges[-1]), (path.name, a, x)
+                if on:
+                    assert first <= last and box_lo[first] <= x <= box_hi[first] and box_lo[last] <= x <= box_hi[last]
+                    guess = min(int(np.floor((x - clo) / width)), n - 1)
+                    rounded_across += not box_lo[guess] <= x <= box_hi[guess]
+            for k in range(1, n - 1):
+                lo, hi = np.nextafter(edges[k], -np.inf), np.nextafter(edges[k + 1], np.inf)
+                first, last, on = cell_span(lo, hi, clo, width, n, False, 0.0)
+                assert on and (first, last) == (k - 1, k + 1), (path.name, a, k, first, last)
+    assert rounded_across > 100, rounded_across

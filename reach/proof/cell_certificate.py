@@ -90,9 +90,9 @@ class CellCertificate:
         self.wrap = np.where(self.periodic, WRAP_ULPS * np.spacing(self.hi - self.lo), 0.0)
         #: what :func:`softreach.reach.proof.kernels.cover_row` reads: a row of cells per sample (a memmap stays mapped)
         self.kernel_args = (frozen(np.asarray(self.m).reshape(self.steps + 1, -1)),
-                            frozen(np.asarray(self.shape, dtype=np.int64)), frozen(self.lo), frozen(self.hi),
-                            frozen(self.width), frozen(self.periodic), frozen(self.wrap), self.dt, self.dz, self.top,
-                            self.steps, self.horizon)
+                            frozen(np.asarray(self.shape, dtype=np.int64)), frozen(self.lo), frozen(self.width),
+                            frozen(self.periodic), frozen(self.wrap), self.dt, self.dz, self.top, self.steps,
+                            self.horizon)
         #: the plans as :func:`softreach.reach.proof.kernels.plan_row` reads them
         self.plan_args = (frozen(np.asarray(self.action).reshape(self.steps + 1, -1)),
                           frozen(np.asarray(self.hold).reshape(self.steps + 1, -1)))

@@ -88,14 +88,14 @@ def backward_step(cells: Any, plans: list, m: np.ndarray, k: int, N: int, C: int
 
 
 @njit(nogil=True)
-def cell_ranges(shape, clo, chi, width, periodic, wrap, lo, hi, first, last, on):
+def cell_ranges(shape, clo, width, periodic, wrap, lo, hi, first, last, on):
     """Per row and axis the first and last cell the box ``[lo, hi]`` touches (closed cells, widened by ``wrap`` and
     read modulo the cells along a periodic axis, as the filter's :func:`~softreach.reach.proof.kernels.cell_span`),
     and whether it lies on the grid."""
     for i in range(lo.shape[0]):
         on[i] = True
         for a in range(len(shape)):
-            f, g, on_a = cell_span(lo[i, a], hi[i, a], clo[a], chi[a], width[a], shape[a], periodic[a], wrap[a])
+            f, g, on_a = cell_span(lo[i, a], hi[i, a], clo[a], width[a], shape[a], periodic[a], wrap[a])
             first[i, a], last[i, a] = f, g
             on[i] = on[i] and on_a
 
@@ -171,7 +171,7 @@ def plan_steps(cells: Any, bounds: tuple, lo: np.ndarray, hi: np.ndarray, a: np.
         lo, hi = np.where(ok[:, None], end_lo, lo), np.where(ok[:, None], end_hi, hi)
         if p in holds:
             first, last, on = np.empty((C, n), np.int64), np.empty((C, n), np.int64), np.empty(C, bool)
-            cell_ranges(shape, cells.lo, cells.hi, cells.width, cells.periodic, cells.wrap, np.ascontiguousarray(lo),
+            cell_ranges(shape, cells.lo, cells.width, cells.periodic, cells.wrap, np.ascontiguousarray(lo),
                         np.ascontiguousarray(hi), first, last, on)
             rows = np.nonzero(ok & on & ((last - first + 1).prod(axis=1) <= span_cap))[0]
             land_rows = np.nonzero(ok & lands)[0]

@@ -176,9 +176,10 @@ WRAP_ULPS = 16
 
 
 @njit(inline="always")
-def cell_span(lo, hi, clo, chi, width, n, periodic, pad):
+def cell_span(lo, hi, clo, width, n, periodic, pad):
     """The cells ``[first, last]`` that ``[lo, hi]`` touches along one axis of ``n`` cells, and whether it lies on
-    the grid along it. A non-periodic axis clamps the range to the grid. Along a periodic axis the box is widened by
+    the grid along it. A non-periodic axis clamps the range to the grid, and its first and last cells' float boxes
+    hold ``lo`` and ``hi``. Along a periodic axis the box is widened by
     ``pad`` (:data:`WRAP_ULPS`; 0 for a state the environment has wrapped already), is on the grid within a period
     of either end (where the allowance holds), and its range may run past either end, read modulo ``n`` (one of
     ``n`` cells or more: all, once)."""
@@ -190,11 +191,19 @@ def cell_span(lo, hi, clo, chi, width, n, periodic, pad):
         return (0, n - 1, True) if g - f + 1 >= n else (int(f), int(g), True)
     f = math.floor((lo - clo) / width)
     g = math.floor((hi - clo) / width)
-    if hi == chi:
-        g = n - 1.0
-    on = math.isfinite(f) and math.isfinite(g) and f >= 0 and g <= n - 1
+    on = lo >= clo and hi <= clo + n * width
     fi = int(min(max(f, 0.0), n - 1.0)) if math.isfinite(f) else 0
     gi = int(min(max(g, 0.0), n - 1.0)) if math.isfinite(g) else 0
+    # the quotient may round across an edge: move to the cells whose float boxes, ``clo + i * width`` to
+    # ``clo + (i + 1) * width`` as the builder computes them (cell_game.cell_boxes), hold ``lo`` and ``hi``
+    while fi > 0 and clo + fi * width > lo:
+        fi -= 1
+    while fi < n - 1 and clo + (fi + 1) * width < lo:
+        fi += 1
+    while gi < n - 1 and clo + (gi + 1) * width < hi:
+        gi += 1
+    while gi > 0 and clo + gi * width > hi:
+        gi -= 1
     return fi, max(fi, gi), on
 
 
@@ -205,11 +214,11 @@ def cover_row(cells, t, lo, hi, z):
     least each cell's lowest good index in ``m``. Cells are read as runs along the last axis, the other axes' spans
     recomputed per run so that nothing is allocated (``cells``: :attr:`~softreach.reach.proof.cell_certificate.
     CellCertificate.kernel_args`)."""
-    m, shape, clo, chi, width, periodic, wrap, dt, dz, top, steps, horizon = cells
+    m, shape, clo, width, periodic, wrap, dt, dz, top, steps, horizon = cells
     D = len(shape)
     on, runs, run_lo, run_hi = True, 1, 0, 0
     for a in range(D):
-        fi, gi, on_a = cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a], periodic[a], wrap[a])
+        fi, gi, on_a = cell_span(lo[a], hi[a], clo[a], width[a], shape[a], periodic[a], wrap[a])
         on = on and on_a
         if a == D - 1:
             run_lo, run_hi = fi, gi
@@ -224,7 +233,7 @@ def cover_row(cells, t, lo, hi, z):
     for p in range(runs):
         rest, off, stride = p, 0, n_run
         for a in range(D - 2, -1, -1):
-            fi, gi, _ = cell_span(lo[a], hi[a], clo[a], chi[a], width[a], shape[a], periodic[a], wrap[a])
+            fi, gi, _ = cell_span(lo[a], hi[a], clo[a], width[a], shape[a], periodic[a], wrap[a])
             span = gi - fi + 1
             off += ((fi + rest % span) % shape[a]) * stride
             rest //= span
@@ -240,10 +249,10 @@ def plan_row(cells, action, hold, t, x):
     """The plan ``(candidate index, periods)`` of the cell holding ``x`` at time ``t`` (read modulo the cells along a
     periodic axis); ``(-1, 0)`` off the grid or where no budget suffices
     (:meth:`~softreach.reach.proof.cell_certificate.CellCertificate.plan`)."""
-    m, shape, clo, chi, width, periodic, wrap, dt, dz, top, steps, horizon = cells
+    m, shape, clo, width, periodic, wrap, dt, dz, top, steps, horizon = cells
     off, stride = 0, 1
     for a in range(len(shape) - 1, -1, -1):
-        fi, _, on = cell_span(x[a], x[a], clo[a], chi[a], width[a], shape[a], periodic[a], 0.0)
+        fi, _, on = cell_span(x[a], x[a], clo[a], width[a], shape[a], periodic[a], 0.0)
         if not on:
             return -1, 0
         off += (fi % shape[a]) * stride
