@@ -234,10 +234,11 @@ def test_the_default_budget_cell_fits_long_horizons_and_a_finer_one_is_refused(p
 
 def test_a_state_is_read_in_the_cell_whose_float_box_holds_it():
     """``cell_span``, the cells' one look-up (the builder's end boxes, the filter's states and boxes), against the
-    builder's own float boxes (``cell_game.cell_boxes``), at every edge of every packaged file's non-periodic axes:
-    a state on an edge or one ulp either side of it lies in the box of the first and of the last cell it is read in,
-    and a box whose ends lie one ulp outside a cell's edges is read over the cells beyond them. At hundreds of
-    those edges ``floor((x - lo) / width)`` alone rounds across the edge, into a cell whose box misses ``x``."""
+    builder's own float boxes (``cell_game.cell_boxes``), at every edge of every packaged file's axes: a state on an
+    edge or one ulp either side of it lies in the box of the first and of the last cell it is read in (along a
+    periodic axis, a state the env has wrapped into the period, read unwidened), and a box whose ends lie one ulp
+    outside a cell's edges is read over the cells beyond them. At hundreds of those edges ``floor((x - lo) /
+    width)`` alone rounds across the edge, into a cell whose box misses ``x``."""
     from softreach.reach.proof.cell_certificate import PACKAGED
     from softreach.reach.proof.cell_game import cell_boxes
     from softreach.reach.proof.kernels import cell_span
@@ -245,14 +246,16 @@ def test_a_state_is_read_in_the_cell_whose_float_box_holds_it():
     rounded_across = 0
     for path in sorted(PACKAGED.glob("cells-*.npz")):
         cells = CellCertificate.load(path)
-        for a in np.nonzero(~cells.periodic)[0]:
-            n, clo, width = int(cells.shape[a]), float(cells.lo[a]), float(cells.width[a])
+        for a in range(len(cells.shape)):
+            n, clo, width, periodic = int(cells.shape[a]), float(cells.lo[a]), float(cells.width[a]), cells.periodic[a]
             # the cells along axis a (the other axes' first): their boxes' ends along it, as the builder has them
             box_lo, box_hi = (b[:, a] for b in cell_boxes(cells, np.arange(n) * int(np.prod(cells.shape[a + 1:]))))
             edges = np.append(box_lo, box_hi[-1])
             assert (box_hi[:-1] == box_lo[1:]).all()
             for x in np.concatenate([np.nextafter(edges, -np.inf), edges, np.nextafter(edges, np.inf)]):
-                first, last, on = cell_span(x, x, clo, width, n, False, 0.0)
+                if periodic and not edges[0] <= x < edges[-1]:
+                    continue  # the env's wrap puts every heading in [lo, hi)
+                first, last, on = cell_span(x, x, clo, width, n, periodic, 0.0)
                 assert on == (edges[0] <= x <= edges[-1]), (path.name, a, x)
                 if on:
                     assert first <= last and box_lo[first] <= x <= box_hi[first] and box_lo[last] <= x <= box_hi[last]
@@ -260,6 +263,6 @@ def test_a_state_is_read_in_the_cell_whose_float_box_holds_it():
                     rounded_across += not box_lo[guess] <= x <= box_hi[guess]
             for k in range(1, n - 1):
                 lo, hi = np.nextafter(edges[k], -np.inf), np.nextafter(edges[k + 1], np.inf)
-                first, last, on = cell_span(lo, hi, clo, width, n, False, 0.0)
+                first, last, on = cell_span(lo, hi, clo, width, n, periodic, 0.0)
                 assert on and (first, last) == (k - 1, k + 1), (path.name, a, k, first, last)
     assert rounded_across > 100, rounded_across

@@ -176,34 +176,44 @@ WRAP_ULPS = 16
 
 
 @njit(inline="always")
+def _float_boxes(f, g, lo, hi, clo, width, first, last):
+    """``f`` and ``g`` (cell indices that ``floor((lo - clo) / width)`` and ``floor((hi - clo) / width)`` gave) moved,
+    within ``[first, last]``, to cells whose float boxes, ``clo + i * width`` to ``clo + (i + 1) * width`` as the
+    builder computes them (:func:`~softreach.reach.proof.cell_game.cell_boxes`), hold ``lo`` and ``hi``: the quotient
+    may round across an edge."""
+    while f > first and clo + f * width > lo:
+        f -= 1
+    while f < last and clo + (f + 1) * width < lo:
+        f += 1
+    while g < last and clo + (g + 1) * width < hi:
+        g += 1
+    while g > first and clo + g * width > hi:
+        g -= 1
+    return f, g
+
+
+@njit(inline="always")
 def cell_span(lo, hi, clo, width, n, periodic, pad):
     """The cells ``[first, last]`` that ``[lo, hi]`` touches along one axis of ``n`` cells, and whether it lies on
-    the grid along it. A non-periodic axis clamps the range to the grid, and its first and last cells' float boxes
-    hold ``lo`` and ``hi``. Along a periodic axis the box is widened by
-    ``pad`` (:data:`WRAP_ULPS`; 0 for a state the environment has wrapped already), is on the grid within a period
-    of either end (where the allowance holds), and its range may run past either end, read modulo ``n`` (one of
-    ``n`` cells or more: all, once)."""
+    the grid along it; the first and last cells' float boxes hold ``lo`` and ``hi`` (:func:`_float_boxes`). A
+    non-periodic axis clamps the range to the grid. Along a periodic axis the box is widened by ``pad``
+    (:data:`WRAP_ULPS`; 0 for a state the environment has wrapped already), is on the grid within a period of either
+    end (where the allowance holds), and its range may run past either end, read modulo ``n`` (one of ``n`` cells or
+    more: all, once)."""
     if periodic:
-        f = math.floor((lo - pad - clo) / width)
-        g = math.floor((hi + pad - clo) / width)
+        lo, hi = lo - pad, hi + pad
+        f = math.floor((lo - clo) / width)
+        g = math.floor((hi - clo) / width)
         if not (f >= -n and g < 2 * n):
             return 0, 0, False
-        return (0, n - 1, True) if g - f + 1 >= n else (int(f), int(g), True)
+        f, g = _float_boxes(int(f), int(g), lo, hi, clo, width, -n, 2 * n - 1)
+        return (0, n - 1, True) if g - f + 1 >= n else (f, g, True)
     f = math.floor((lo - clo) / width)
     g = math.floor((hi - clo) / width)
     on = lo >= clo and hi <= clo + n * width
     fi = int(min(max(f, 0.0), n - 1.0)) if math.isfinite(f) else 0
     gi = int(min(max(g, 0.0), n - 1.0)) if math.isfinite(g) else 0
-    # the quotient may round across an edge: move to the cells whose float boxes, ``clo + i * width`` to
-    # ``clo + (i + 1) * width`` as the builder computes them (cell_game.cell_boxes), hold ``lo`` and ``hi``
-    while fi > 0 and clo + fi * width > lo:
-        fi -= 1
-    while fi < n - 1 and clo + (fi + 1) * width < lo:
-        fi += 1
-    while gi < n - 1 and clo + (gi + 1) * width < hi:
-        gi += 1
-    while gi > 0 and clo + gi * width > hi:
-        gi -= 1
+    fi, gi = _float_boxes(fi, gi, lo, hi, clo, width, 0, n - 1)
     return fi, max(fi, gi), on
 
 
