@@ -143,29 +143,43 @@ class ReferenceDecision:
 
     # ------------------------------------------------------------ cells
     @staticmethod
-    def _span(cells, lo, hi, wrapped=False):
-        """Per axis the cells a closed box touches, and whether it lies on the cell grid. Along a periodic axis the
-        box is first widened by ``WRAP_ULPS`` ulps of the period, unless it is a state the environment has
-        ``wrapped`` already (a state it wraps from the box then lies in a touched cell), and the cells run past
-        either end of the grid, up to a period, onto those one period on: their indices modulo the axis's cells."""
+    def _held(cells, i, v, c, first, last):
+        """Cell ``c`` of axis ``i`` (``floor``'s guess for ``v``) moved, within ``[first, last]``, to a neighbour
+        while its float box, ``lo + c width`` to ``lo + (c + 1) width`` as the builder computes it, misses ``v``."""
+        def edge(k):
+            return cells.lo[i] + k * cells.width[i]
+        while c > first and edge(c) > v:
+            c -= 1
+        while c < last and edge(c + 1) < v:
+            c += 1
+        return c
+
+    @classmethod
+    def _span(cls, cells, lo, hi, wrapped=False):
+        """Per axis the cells a closed box touches, and whether it lies on the cell grid: from the cell whose float
+        box holds its lower end to the one whose float box holds its upper end (``floor``'s guess, moved where the
+        quotient rounded across an edge). Along a periodic axis the box is first widened by ``WRAP_ULPS`` ulps of
+        the period, unless it is a state the environment has ``wrapped`` already (a state it wraps from the box then
+        lies in a touched cell), and the cells run past either end of the grid, up to a period, onto those one
+        period on: their indices modulo the axis's cells."""
         spans, on = [], True
         for i in range(len(lo)):
             n = cells.shape[i]
             if cells.periodic[i] and math.isfinite(lo[i]) and math.isfinite(hi[i]):
                 pad = 0.0 if wrapped else WRAP_ULPS * np.spacing(cells.hi[i] - cells.lo[i])
-                f, g = (math.floor((v - cells.lo[i]) / cells.width[i]) for v in (lo[i] - pad, hi[i] + pad))
+                a, b = lo[i] - pad, hi[i] + pad
+                f, g = (math.floor((v - cells.lo[i]) / cells.width[i]) for v in (a, b))
                 if -n <= f and g < 2 * n:  # else off the grid, below
+                    f, g = cls._held(cells, i, a, f, -n, 2 * n - 1), cls._held(cells, i, b, g, -n, 2 * n - 1)
                     spans.append(sorted({c % n for c in range(f, min(g, f + n - 1) + 1)}))
                     continue
-            f = math.floor((lo[i] - cells.lo[i]) / cells.width[i]) if math.isfinite(lo[i]) else math.nan
-            g = math.floor((hi[i] - cells.lo[i]) / cells.width[i]) if math.isfinite(hi[i]) else math.nan
-            if hi[i] == cells.hi[i]:
-                g = cells.shape[i] - 1  # a box reaching the grid's upper end touches the last cell only
-            if not (math.isfinite(f) and math.isfinite(g) and f >= 0 and g <= cells.shape[i] - 1):
+            if not (cells.lo[i] <= lo[i] and hi[i] <= cells.lo[i] + n * cells.width[i]):
                 on = False
-                f = g = 0
-            f = min(f, cells.shape[i] - 1)  # a box starting on the grid's upper end lies in the last cell
-            spans.append(list(range(int(f), max(int(f), int(g)) + 1)))
+                spans.append([0])
+                continue
+            f, g = (min(math.floor((v - cells.lo[i]) / cells.width[i]), n - 1) for v in (lo[i], hi[i]))
+            f, g = cls._held(cells, i, lo[i], f, 0, n - 1), cls._held(cells, i, hi[i], g, 0, n - 1)
+            spans.append(list(range(f, max(f, g) + 1)))
         return spans, on
 
     @staticmethod
