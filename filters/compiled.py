@@ -312,26 +312,28 @@ class CompiledDecision:
         row.t[0], row.x[0], row.z[0], row.pol[0] = t, x, z, pol
         if plan is not None:
             row.plan[0] = plan
-        has_plan, smooth, iterations = plan is not None, self.filter.rule == "smooth", self.filter.smooth_iterations
-        key = (has_plan, diagnostics, smooth, iterations)
+        has_plan = plan is not None
+        key = (has_plan, diagnostics, self.filter.rule, self.filter.smooth_iterations)
         args = row.calls.get(key)
         if args is None:
             # the whole argument list, made once per kind of call: one row's fixed costs are mostly the call's
-            M, C, T, action = self.args
-            plans = row.plan if has_plan else self.no_plans
-            args = row.calls[key] = (self.enclose, M, C, T, self.cands, self.fallback, smooth, iterations, action,
-                                     row.t, row.x, row.z, row.pol, plans, has_plan, diagnostics, True, *row.outs,
-                                     self._space()[1])
+            rows = (row.t, row.x, row.z, row.pol, row.plan if has_plan else self.no_plans, *row.outs)
+            args = row.calls[key] = self._arguments(rows, has_plan, diagnostics, True)
         decide_rows(*args)
         return row.outs
 
     def _decide(self, rows: tuple, has_plans: bool, diagnostics: bool, with_policy: bool = True) -> None:
         """:func:`decide_rows` of ``rows`` (``t, x, z, pol, plans``, the outputs) in this thread's work space."""
+        decide_rows(*self._arguments(rows, has_plans, diagnostics, with_policy))
+
+    def _arguments(self, rows: tuple, has_plans: bool, diagnostics: bool, with_policy: bool) -> tuple:
+        """:func:`decide_rows`'s arguments for ``rows`` (``t, x, z, pol, plans``, the outputs), in this thread's work
+        space, under the filter's rule now."""
         vf = self.filter
         M, C, T, action = self.args
-        decide_rows(self.enclose, M, C, T, self.cands, self.fallback, with_policy and vf.rule == "smooth",
-                    vf.smooth_iterations, action, *rows[:5], has_plans, diagnostics, with_policy, *rows[5:],
-                    self._space()[1])
+        return (self.enclose, M, C, T, self.cands, self.fallback, with_policy and vf.rule == "smooth",
+                vf.smooth_iterations, action, *rows[:5], has_plans, diagnostics, with_policy, *rows[5:],
+                self._space()[1])
 
     def certify(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple:
         """``(certified, next_value, value, inside)`` for ``N`` rows: the decision without a policy's action, whose
