@@ -51,7 +51,7 @@ def _stable_order(keys, order):
         order[j] = i
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _after(a, b):
     """Whether ``a`` sorts after ``b`` (NaN after every number, as numpy sorts)."""
     return a > b or (math.isnan(a) and not math.isnan(b))

@@ -4,7 +4,9 @@
 
 Inlined or called (:mod:`softreach.reach.proof.kernels`; docs/filters.md, "How"): what a loop runs is inlined into
 it, :func:`judge` once, into the decision's loop; each loop, the other searches (:func:`judge_once`) and large parts
-run at most once a row are called, as every inlined copy is typed again and typing is superlinear in length."""
+run at most once a row are called, as every inlined copy is typed again and typing is superlinear in length. Small
+helpers of numbers only (outward rounding, ranks, a cell's look-up) are inlined by LLVM instead
+(``forceinline=True``): typed once, then inlined at each call site where LLVM compiles the caller."""
 
 import math
 
@@ -58,7 +60,7 @@ def next_value(T, t_next, end_lo, end_hi, z_end, work):
                            work.buf, work.node)
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _rank(bounded, in_c1, kept, c1):
     """The badness of an action that does not pass, but for its tie: its rank (:mod:`softreach.reach.proof.ranks`)."""
     if not bounded:
@@ -68,7 +70,7 @@ def _rank(bounded, in_c1, kept, c1):
     return RANK_KEPT if kept else RANK_OVERSPENT
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _tie(nxt, z_end):
     """Within a rank, the lower next table value first (mapped into ``(-0.5, 0.5)``), then the smaller overspend."""
     return math.atan(TIE_INF if nxt == np.inf else nxt) / math.pi + TIE_OVERSPEND * max(-z_end, 0.0)

@@ -24,24 +24,24 @@ _INFLATE_REL, _INFLATE_ABS, _INFLATE_STATE = 0.1, 1e-9, 1e-6
 _MAX_TRIES, _REFINE = 20, 3
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _dn(v):
     return v - (abs(v) * ROUND_REL + ROUND_ABS)
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _up(v):
     return v + (abs(v) * ROUND_REL + ROUND_ABS)
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _mul(a0, a1, b0, b1):
     # the extremes of a bilinear function over a box lie at its corners, whatever the signs
     p1, p2, p3, p4 = a0 * b0, a0 * b1, a1 * b0, a1 * b1
     return _dn(min(min(p1, p2), min(p3, p4))), _up(max(max(p1, p2), max(p3, p4)))
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _div_pos(a0, a1, b0, b1):
     """``a / b`` for ``b0 > 0``: ``1 / b`` is decreasing, so its ends swap."""
     return _mul(a0, a1, _dn(1.0 / b1), _up(1.0 / b0))
@@ -49,10 +49,12 @@ def _div_pos(a0, a1, b0, b1):
 
 # The state is always (h, V, gamma): the kernel keeps its boxes in 3-tuples, in registers, because the arrays it
 # would otherwise allocate at every call cost a third of the call, and the filter calls it hundreds of times a
-# decision.
+# decision. Its helpers are inlined by LLVM (forceinline), not by numba (inline="always"), which would type each of
+# their hundreds of call sites again; they take the parameters as a tuple of floats, as an array handed to a
+# function is reference-counted at every call.
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _field(P, c0, c1, V0, V1, g0, g1):
     """Interval extension of :meth:`Glider.f` over the states with airspeed in ``[V0, V1]`` and flight-path angle
     in ``[g0, g1]`` (the field does not depend on ``h``), the lift coefficients ``[c0, c1]`` and every wind in
@@ -87,24 +89,24 @@ def _field(P, c0, c1, V0, V1, g0, g1):
     return True, (h0, v0, _dn(l0 - r1)), (h1, v1, _up(l1 - r0))
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _field_over(P, c0, c1, lo, hi):
     """:func:`_field` over the box ``[lo, hi]`` (3-tuples)."""
     return _field(P, c0, c1, lo[1], hi[1], lo[2], hi[2])
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _hull_lo(x, s, d):
     # a rate that cannot be negative adds nothing below the start: its end is exact, no rounding to widen it
     return x if d >= 0.0 else _dn(x + _dn(s * d))
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _hull_hi(x, s, d):
     return x if d <= 0.0 else _up(x + _up(s * d))
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _hull_step(x_lo, x_hi, s, d_lo, d_hi):
     """``[x_lo, x_hi] + [0, s] * [d_lo, d_hi]`` (``s >= 0``), rounded outwards, as two 3-tuples. Along an axis
     whose rate has one sign the start's end is kept exactly: the motion only leaves it the other way."""
@@ -112,7 +114,7 @@ def _hull_step(x_lo, x_hi, s, d_lo, d_hi):
             (_hull_hi(x_hi[0], s, d_hi[0]), _hull_hi(x_hi[1], s, d_hi[1]), _hull_hi(x_hi[2], s, d_hi[2])))
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _pad(X_lo, X_hi, x_lo, x_hi, i):
     """How far a failed Picard candidate grows along axis ``i``."""
     return _INFLATE_REL * (X_hi[i] - X_lo[i]) + _INFLATE_ABS + _INFLATE_STATE * max(abs(x_lo[i]), abs(x_hi[i]))
@@ -147,7 +149,7 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
        taken to leave ``C1`` by it.
     6. The end box (``s0 = s1``) tightened to second order along every axis (:func:`_second_order`).
     """
-    P = params
+    P = (params[0], params[1], params[2], params[3], params[4], params[5], params[6], params[7])
     alpha = a[0]
     c0, c1 = _mul(P[1], P[1], alpha, alpha)
     c0, c1 = _dn(P[0] + c0), _up(P[0] + c1)
@@ -200,7 +202,7 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
             _second_order(P, c0, c1, xl, xh, e_lo, e_hi, T_lo, T_hi, t_lo, t_hi, s1, lo, hi)
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _second_order(P, c0, c1, xl, xh, e_lo, e_hi, X_lo, X_hi, d_lo, d_hi, s, lo, hi):
     """Step 6, the end box at ``s`` tightened to second order over the tube ``X`` of ``[0, s]`` and ``F(X)``
     (``d_lo``, ``d_hi``, the wind in ``V'``). ``h`` and ``gamma`` have rates without wind, absolutely continuous

@@ -100,7 +100,7 @@ def cell_ranges(shape, clo, width, periodic, wrap, lo, hi, first, last, on):
             on[i] = on[i] and on_a
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def budget_index(spend, needed, dz, never):
     """The lowest budget index ``j`` with ``j dz - spend >= needed dz``, else (or for a spend not finite) ``never``."""
     if not math.isfinite(spend):

@@ -16,19 +16,19 @@ ROUND_ABS = float(np.finfo(np.float64).tiny)
 HALF_PI = 0.5 * math.pi  # rounds below the true pi/2, so "< HALF_PI" is inside the real open interval
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def down(v: float) -> float:
     """``v`` moved down by the rounding allowance (:data:`ROUND_REL`, :data:`ROUND_ABS`)."""
     return v - (abs(v) * ROUND_REL + ROUND_ABS)
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def up(v: float) -> float:
     """``v`` moved up by the rounding allowance."""
     return v + (abs(v) * ROUND_REL + ROUND_ABS)
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def cos_range(lo: float, hi: float) -> tuple[float, float]:
     """cos over any ``[lo, hi]``: the ends' range widened, 1 (-1) where it holds an even (odd) multiple of ``pi``."""
     two_pi = 2.0 * math.pi
@@ -41,7 +41,7 @@ def cos_range(lo: float, hi: float) -> tuple[float, float]:
     return max(bottom, -1.0), min(top, 1.0)
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def sin_range(lo: float, hi: float) -> tuple[float, float]:
     """sin over any interval as ``cos(a - pi/2)``, the shift widened beyond its rounding."""
     return cos_range(down(lo - HALF_PI) - 1e-15, up(hi - HALF_PI) + 1e-15)

@@ -46,7 +46,7 @@ def snapshot(times, t):
     return k, wt
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _blend(a, b, f):
     """``(1 - f) a + f b``, a node of weight 0 left out: an infinite node (:func:`~softreach.reach.proof.lookahead.
     surface_fields`) counts only where its weight is positive, not as the NaN of ``0 * inf``."""
@@ -111,7 +111,7 @@ def point_value(field, t, x, buf, node):
     return buf[0]
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def usable_budget(z, z_top, z_left, t):
     """The budget at which a table is read: ``z``, at most ``z_top`` (conservative: ``W_eps`` falls with the
     budget) and the time left ``z_left - t`` (``z_left`` the horizon of a budget surface, else ``+inf``)."""
@@ -175,7 +175,7 @@ def budget_floor(z, dz, top):
 WRAP_ULPS = 16
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def _float_boxes(f, g, lo, hi, clo, width, first, last):
     """``f`` and ``g`` (cell indices that ``floor((lo - clo) / width)`` and ``floor((hi - clo) / width)`` gave) moved,
     within ``[first, last]``, to cells whose float boxes, ``clo + i * width`` to ``clo + (i + 1) * width`` as the
@@ -192,7 +192,7 @@ def _float_boxes(f, g, lo, hi, clo, width, first, last):
     return f, g
 
 
-@njit(inline="always")
+@njit(forceinline=True)
 def cell_span(lo, hi, clo, width, n, periodic, pad):
     """The cells ``[first, last]`` that ``[lo, hi]`` touches along one axis of ``n`` cells, and whether it lies on
     the grid along it; the first and last cells' float boxes hold ``lo`` and ``hi`` (:func:`_float_boxes`). A
