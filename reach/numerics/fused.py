@@ -18,7 +18,9 @@ and move a few such nodes.
 Why not ``torch.compile``: on a CPU it compiles the WENO5 step of a 3-D grid for over a minute, on every machine
 that has not yet, and its loops keep several full-grid temporaries per stage. The source written here depends on the
 model, the scheme and the float type, not on the grid; numba compiles it once (a few seconds) and keeps it in
-``$SOFTREACH_CACHE/kernels`` for every later process.
+``$SOFTREACH_CACHE/kernels`` for every later process. The rate loop is a module of its own; the stages and each axis's
+ghost layers, which read only the grid's dimension, the scheme's width, the float type and the axis's rule, are
+modules that every step reading the same shares (:func:`kernel_sources`).
 
 Rows of the first axis are handed to threads in small chunks, taken in turn, so that a thread that the machine
 deschedules (a loaded machine) delays only its current chunk.
@@ -33,6 +35,7 @@ import os
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -196,30 +199,28 @@ def _stage_sources(op: Any, width: int) -> tuple[list[str], dict[tuple[float, fl
     return src, names
 
 
-def _ghost_sources(op: Any, width: int) -> list[str]:
-    """``ghosts_<a>(up)`` per axis: the ghost layers along axis ``a`` at the other axes' inner nodes
+def _ghost_source(op: Any, width: int, a: int) -> list[str]:
+    """``ghosts_<a>(up)``: the ghost layers along axis ``a`` at the other axes' inner nodes
     (:func:`~softreach.reach.numerics.derivatives.pad`: wrapped where periodic, else :func:`~softreach.reach.numerics.derivatives.ghost`)."""
     D = op.grid.ndim
-    src = []
-    for a in range(D):
-        rule = op.boundaries[a]
-        src += ["@nb.njit(**_JIT)", f"def ghosts_{a}(up):", f"    W = {width}"]
-        src += [f"    n{d} = up.shape[{d}] - 2 * W" for d in range(D)]
-        loops, pad = _loops(D, "", 4, skip=a)
-        src += loops
-        at = lambda e: f"up[{padded_index(D, a, e, ' + W')}]"  # noqa: E731
-        n = f"n{a}"
-        if rule == "periodic":
-            for g in range(width):
-                src += [f"{pad}{at(str(g))} = {at(f'{g} + {n}')}", f"{pad}{at(f'{n} + W + {g}')} = {at(f'W + {g}')}"]
-            continue
-        lo_rule, hi_rule = (rule, rule) if isinstance(rule, str) else rule
-        for end, r, edge, inner, place in (("lo", lo_rule, "W", "W + 1", "W - {k}"),
-                                           ("hi", hi_rule, f"{n} + W - 1", f"{n} + W - 2", f"{n} + W - 1 + {{k}}")):
-            lines, values = ghost_body(r, end, width)
-            src += [f"{pad}e_{end} = {at(edge)}", f"{pad}i_{end} = {at(inner)}"] + [pad + line for line in lines]
-            for k, v in enumerate(values, start=1):
-                src.append(f"{pad}{at(place.format(k=k))} = {v}")
+    rule = op.boundaries[a]
+    src = ["@nb.njit(**_JIT)", f"def ghosts_{a}(up):", f"    W = {width}"]
+    src += [f"    n{d} = up.shape[{d}] - 2 * W" for d in range(D)]
+    loops, pad = _loops(D, "", 4, skip=a)
+    src += loops
+    at = lambda e: f"up[{padded_index(D, a, e, ' + W')}]"  # noqa: E731
+    n = f"n{a}"
+    if rule == "periodic":
+        for g in range(width):
+            src += [f"{pad}{at(str(g))} = {at(f'{g} + {n}')}", f"{pad}{at(f'{n} + W + {g}')} = {at(f'W + {g}')}"]
+        return src
+    lo_rule, hi_rule = (rule, rule) if isinstance(rule, str) else rule
+    for end, r, edge, inner, place in (("lo", lo_rule, "W", "W + 1", "W - {k}"),
+                                       ("hi", hi_rule, f"{n} + W - 1", f"{n} + W - 2", f"{n} + W - 1 + {{k}}")):
+        lines, values = ghost_body(r, end, width)
+        src += [f"{pad}e_{end} = {at(edge)}", f"{pad}i_{end} = {at(inner)}"] + [pad + line for line in lines]
+        for k, v in enumerate(values, start=1):
+            src.append(f"{pad}{at(place.format(k=k))} = {v}")
     return src
 
 
@@ -231,22 +232,28 @@ def _renamed(lines: list[str], prefix: str) -> list[str]:
     return [re.sub(r"\bt(\d+)\b", prefix + r"\1", line) for line in lines]
 
 
-def kernel_source(op: Any, dtype: str) -> str:
-    """The loops of ``op``'s step as Python source for numba.
+def kernel_sources(op: Any, dtype: str) -> dict[str, str]:
+    """The loops of ``op``'s step as Python source for numba, one module per part, so that steps whose part reads
+    the same share its compiled code: ``"rate"`` (the model's Hamiltonian and the scheme), ``"stages"`` (the
+    grid's dimension and the scheme's width) and ``"ghosts_<a>"`` per axis (its rule, the dimension and the width).
 
     :raises Unsupported: the model's code does something a pointwise loop cannot (the array path then runs)
     """
     width = SCHEMES[op.settings.scheme][0]
-    src = [_HEADER.replace("DTYPE", dtype)]
-    src += _rate_source(op, width)
-    stages, _ = _stage_sources(op, width)
-    src += stages + _ghost_sources(op, width)
-    return "\n".join(src) + "\n"
+    header = _HEADER.replace("DTYPE", dtype)
+    parts = {"rate": _rate_source(op, width), "stages": _stage_sources(op, width)[0]}
+    parts.update({f"ghosts_{a}": _ghost_source(op, width, a) for a in range(op.grid.ndim)})
+    return {name: "\n".join([header] + lines) + "\n" for name, lines in parts.items()}
 
 
 def load_kernels(op: Any, dtype: str) -> Any:
-    """The compiled module of ``op``'s loops (:func:`load_source`)."""
-    return load_source(kernel_source(op, dtype), "softreach_kernel_")
+    """``op``'s compiled loops by name (``rate_rows``, ``stage_<k>``, ``ghosts_<a>``), from the modules of
+    :func:`kernel_sources` (:func:`load_source`)."""
+    loops = {}
+    for part, text in kernel_sources(op, dtype).items():
+        module = load_source(text, f"softreach_{part.split('_')[0]}_")
+        loops.update({k: v for k, v in vars(module).items() if k.startswith(("rate_rows", "stage_", "ghosts_"))})
+    return SimpleNamespace(**loops)
 
 
 def load_source(text: str, prefix: str) -> Any:
