@@ -201,7 +201,8 @@ def _stage_sources(op: Any, width: int) -> tuple[list[str], dict[tuple[float, fl
 
 def _ghost_source(op: Any, width: int, a: int) -> list[str]:
     """``ghosts_<a>(up)``: the ghost layers along axis ``a`` at the other axes' inner nodes
-    (:func:`~softreach.reach.numerics.derivatives.pad`: wrapped where periodic, else :func:`~softreach.reach.numerics.derivatives.ghost`)."""
+    (:func:`~softreach.reach.numerics.derivatives.pad`: wrapped where periodic, else
+    :func:`~softreach.reach.numerics.derivatives.ghost`)."""
     D = op.grid.ndim
     rule = op.boundaries[a]
     src = ["@nb.njit(**_JIT)", f"def ghosts_{a}(up):", f"    W = {width}"]
