@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from ..proof.intervals import HALF_PI, ROUND_ABS, ROUND_REL
+from ..proof.intervals import HALF_PI, down, up
 from ..jit import njit
 from .glider_params import GliderParams
 
@@ -25,26 +25,16 @@ _MAX_TRIES, _REFINE = 20, 3
 
 
 @njit(forceinline=True)
-def _dn(v):
-    return v - (abs(v) * ROUND_REL + ROUND_ABS)
-
-
-@njit(forceinline=True)
-def _up(v):
-    return v + (abs(v) * ROUND_REL + ROUND_ABS)
-
-
-@njit(forceinline=True)
 def _mul(a0, a1, b0, b1):
     # the extremes of a bilinear function over a box lie at its corners, whatever the signs
     p1, p2, p3, p4 = a0 * b0, a0 * b1, a1 * b0, a1 * b1
-    return _dn(min(min(p1, p2), min(p3, p4))), _up(max(max(p1, p2), max(p3, p4)))
+    return down(min(min(p1, p2), min(p3, p4))), up(max(max(p1, p2), max(p3, p4)))
 
 
 @njit(forceinline=True)
 def _div_pos(a0, a1, b0, b1):
     """``a / b`` for ``b0 > 0``: ``1 / b`` is decreasing, so its ends swap."""
-    return _mul(a0, a1, _dn(1.0 / b1), _up(1.0 / b0))
+    return _mul(a0, a1, down(1.0 / b1), up(1.0 / b0))
 
 
 # The state is always (h, V, gamma): the kernel keeps its boxes in 3-tuples, in registers, because the arrays it
@@ -68,25 +58,25 @@ def _field(P, c0, c1, V0, V1, g0, g1):
     cd0, cd_k, mass, g, half_rho_s, wind_max = P[2], P[3], P[4], P[5], P[6], P[7]
     if not (V0 > 0.0 and g0 > -HALF_PI and g1 < HALF_PI):
         return False, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
-    s0, s1 = _dn(math.sin(g0)), _up(math.sin(g1))
+    s0, s1 = down(math.sin(g0)), up(math.sin(g1))
     k0, k1 = math.cos(g0), math.cos(g1)
-    cg0, cg1 = _dn(min(k0, k1)), _up(1.0 if (g0 <= 0.0 and g1 >= 0.0) else max(k0, k1))
+    cg0, cg1 = down(min(k0, k1)), up(1.0 if (g0 <= 0.0 and g1 >= 0.0) else max(k0, k1))
     h0, h1 = _mul(V0, V1, s0, s1)
     cc0, cc1 = _mul(c0, c1, c0, c1)
     q0, q1 = _mul(cd_k, cd_k, cc0, cc1)
-    dc0, dc1 = _dn(cd0 + q0), _up(cd0 + q1)
-    d0, d1 = _mul(dc0, dc1, _dn(V0 * V0), _up(V1 * V1))
+    dc0, dc1 = down(cd0 + q0), up(cd0 + q1)
+    d0, d1 = _mul(dc0, dc1, down(V0 * V0), up(V1 * V1))
     drag0, drag1 = _div_pos(d0, d1, mass, mass)
     w0, w1 = _div_pos(-wind_max, wind_max, mass, mass)
     gs0, gs1 = _mul(g, g, s0, s1)
-    a0, a1 = _dn(w0 - drag1), _up(w1 - drag0)
-    v0, v1 = _dn(a0 - gs1), _up(a1 - gs0)
+    a0, a1 = down(w0 - drag1), up(w1 - drag0)
+    v0, v1 = down(a0 - gs1), up(a1 - gs0)
     l0, l1 = _mul(half_rho_s, half_rho_s, c0, c1)
     l0, l1 = _mul(l0, l1, V0, V1)
     l0, l1 = _div_pos(l0, l1, mass, mass)
     gc0, gc1 = _mul(g, g, cg0, cg1)
     r0, r1 = _div_pos(gc0, gc1, V0, V1)
-    return True, (h0, v0, _dn(l0 - r1)), (h1, v1, _up(l1 - r0))
+    return True, (h0, v0, down(l0 - r1)), (h1, v1, up(l1 - r0))
 
 
 @njit(forceinline=True)
@@ -98,12 +88,12 @@ def _field_over(P, c0, c1, lo, hi):
 @njit(forceinline=True)
 def _hull_lo(x, s, d):
     # a rate that cannot be negative adds nothing below the start: its end is exact, no rounding to widen it
-    return x if d >= 0.0 else _dn(x + _dn(s * d))
+    return x if d >= 0.0 else down(x + down(s * d))
 
 
 @njit(forceinline=True)
 def _hull_hi(x, s, d):
-    return x if d <= 0.0 else _up(x + _up(s * d))
+    return x if d <= 0.0 else up(x + up(s * d))
 
 
 @njit(forceinline=True)
@@ -152,7 +142,7 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
     P = (params[0], params[1], params[2], params[3], params[4], params[5], params[6], params[7])
     alpha = a[0]
     c0, c1 = _mul(P[1], P[1], alpha, alpha)
-    c0, c1 = _dn(P[0] + c0), _up(P[0] + c1)
+    c0, c1 = down(P[0] + c0), up(P[0] + c1)
     for i in range(3):
         lo[i], hi[i] = np.nan, np.nan
     xl, xh = (x_lo[0], x_lo[1], x_lo[2]), (x_hi[0], x_hi[1], x_hi[2])
@@ -185,8 +175,8 @@ def held_box_kernel(params, x_lo, x_hi, a, s0, s1, lo, hi):
         X_hi = (min(X_hi[0], Y_hi[0]), min(X_hi[1], Y_hi[1]), min(X_hi[2], Y_hi[2]))
     ok, d_lo, d_hi = _field_over(P, c0, c1, X_lo, X_hi)
     for i in range(3):
-        lo[i] = max(_dn(xl[i] + _dn(min(s0 * d_lo[i], s1 * d_lo[i]))), X_lo[i])
-        hi[i] = min(_up(xh[i] + _up(max(s0 * d_hi[i], s1 * d_hi[i]))), X_hi[i])
+        lo[i] = max(down(xl[i] + down(min(s0 * d_lo[i], s1 * d_lo[i]))), X_lo[i])
+        hi[i] = min(up(xh[i] + up(max(s0 * d_hi[i], s1 * d_hi[i]))), X_hi[i])
         # step 5: a rate of one sign over X moves the axis one way only, so the start's far end bounds it exactly
         if d_lo[i] >= 0.0:
             lo[i] = max(lo[i], xl[i])
@@ -214,9 +204,9 @@ def _second_order(P, c0, c1, xl, xh, e_lo, e_hi, X_lo, X_hi, d_lo, d_hi, s, lo, 
     both first terms. The first-order box counts the period's whole turn as if any rate of it held all period; this
     counts its curvature only."""
     cd0, cd_k, mass, g, half_rho_s = P[2], P[3], P[4], P[5], P[6]
-    sg0, sg1 = _dn(math.sin(X_lo[2])), _up(math.sin(X_hi[2]))
+    sg0, sg1 = down(math.sin(X_lo[2])), up(math.sin(X_hi[2]))
     k0, k1 = math.cos(X_lo[2]), math.cos(X_hi[2])
-    cg0, cg1 = _dn(min(k0, k1)), _up(1.0 if (X_lo[2] <= 0.0 and X_hi[2] >= 0.0) else max(k0, k1))
+    cg0, cg1 = down(min(k0, k1)), up(1.0 if (X_lo[2] <= 0.0 and X_hi[2] >= 0.0) else max(k0, k1))
     a0, a1 = _mul(d_lo[1], d_hi[1], sg0, sg1)
     b0, b1 = _mul(X_lo[1], X_hi[1], cg0, cg1)
     b0, b1 = _mul(b0, b1, d_lo[2], d_hi[2])
@@ -229,21 +219,21 @@ def _second_order(P, c0, c1, xl, xh, e_lo, e_hi, X_lo, X_hi, d_lo, d_hi, s, lo, 
     gc0, gc1 = _mul(g, g, cg0, cg1)
     r0, r1 = _mul(gc0, gc1, d_lo[1], d_hi[1])
     r0, r1 = _mul(r0, r1, iv0, iv1)
-    q0, q1 = _mul(_dn(q0 + r0), _up(q1 + r1), iv0, iv1)
+    q0, q1 = _mul(down(q0 + r0), up(q1 + r1), iv0, iv1)
     # A' of V's windless part: the drag's 2 (cd0 + cd_k C_L^2) V V' / m and g cos(gamma) gamma'
     cc0, cc1 = _mul(c0, c1, c0, c1)
     e0, e1 = _mul(cd_k, cd_k, cc0, cc1)
-    e0, e1 = _mul(_dn(cd0 + e0), _up(cd0 + e1), X_lo[1], X_hi[1])
+    e0, e1 = _mul(down(cd0 + e0), up(cd0 + e1), X_lo[1], X_hi[1])
     e0, e1 = _mul(e0, e1, d_lo[1], d_hi[1])
-    e0, e1 = _div_pos(_dn(2.0 * e0), _up(2.0 * e1), mass, mass)
+    e0, e1 = _div_pos(down(2.0 * e0), up(2.0 * e1), mass, mass)
     f0, f1 = _mul(gc0, gc1, d_lo[2], d_hi[2])
     half_s2 = 0.5 * s * s
-    for i, w0, w1 in ((0, _dn(a0 + b0), _up(a1 + b1)), (1, _dn(-e1 - f1), _up(-e0 - f0)),
-                      (2, _dn(p0 + q0), _up(p1 + q1))):
+    for i, w0, w1 in ((0, down(a0 + b0), up(a1 + b1)), (1, down(-e1 - f1), up(-e0 - f0)),
+                      (2, down(p0 + q0), up(p1 + q1))):
         m0, m1 = _mul(s, s, e_lo[i], e_hi[i])
-        n0, n1 = _mul(_dn(half_s2), _up(half_s2), w0, w1)
-        lo[i] = max(lo[i], _dn(_dn(xl[i] + m0) + n0))
-        hi[i] = min(hi[i], _up(_up(xh[i] + m1) + n1))
+        n0, n1 = _mul(down(half_s2), up(half_s2), w0, w1)
+        lo[i] = max(lo[i], down(down(xl[i] + m0) + n0))
+        hi[i] = min(hi[i], up(up(xh[i] + m1) + n1))
 
 
 class GliderHeldEnclosure:
