@@ -10,7 +10,8 @@ Each installation runs in a process of its own (this file with ``--worker``) tha
 on one thread and, asked for a task, times it once: ``batch_certified`` (1,024 certified states), ``batch_random``
 (1,024 random states and actions), ``certify`` (:meth:`ValueFilter.certify` of the random states) and
 ``single_certified`` (256 single certified states, one call each; per call). The driver asks each process in turn,
-``--rounds`` times, and prints the best and the median of each task and installation side by side [us].
+``--rounds`` times, and prints the best and the median of each task and installation side by side [us], and the
+ratio of the first two installations' medians.
 """
 
 from __future__ import annotations
@@ -89,10 +90,13 @@ def main() -> None:
     for proc in procs.values():
         proc.stdin.close()
         proc.wait()
-    print(f"{'task [us]':18s}" + "".join(f"{name + ' best':>16s}{name + ' median':>16s}" for name in procs))
+    first, second = list(procs)[:2]
+    print(f"{'task [us]':18s}" + "".join(f"{name + ' best':>16s}{name + ' median':>16s}" for name in procs)
+          + f"{first + '/' + second:>20s}")
     for task in TASKS:
         cells = "".join(f"{min(times[task, n]):16.1f}{statistics.median(times[task, n]):16.1f}" for n in procs)
-        print(f"{task:18s}{cells}")
+        ratio = statistics.median(times[task, first]) / statistics.median(times[task, second])
+        print(f"{task:18s}{cells}{ratio:20.3f}")
 
 
 if __name__ == "__main__":
