@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from softreach.reach.jit import njit
+from softreach.reach.jit import entry_point, njit
 from softreach.reach.proof.blocks import run_in_blocks
 from softreach.reach.proof.enclosure_check import lacking
 from softreach.reach.proof.kernels import certificate_row, cover_row, frozen, plan_row, point_scratch
@@ -238,7 +238,8 @@ def _writable(v: np.ndarray) -> np.ndarray:
 
 
 class _OneRow:
-    """One thread's one-row inputs and outputs for :meth:`CompiledDecision.one`, and its argument lists."""
+    """One thread's one-row inputs and outputs for :meth:`CompiledDecision.one`, and per kind of call the compiled
+    code and its argument list."""
 
     def __init__(self, n: int, m: int):
         self.t, self.x, self.z, self.pol = np.empty(1), np.empty((1, n)), np.empty(1), np.empty((1, m))
@@ -314,12 +315,17 @@ class CompiledDecision:
             row.plan[0] = plan
         has_plan = plan is not None
         key = (has_plan, diagnostics, self.filter.rule, self.filter.smooth_iterations)
-        args = row.calls.get(key)
-        if args is None:
-            # the whole argument list, made once per kind of call: one row's fixed costs are mostly the call's
+        call = row.calls.get(key)
+        if call is None:
+            # the whole argument list, made once per kind of call, and the compiled code it runs: one row's fixed
+            # costs are mostly the call's
             rows = (row.t, row.x, row.z, row.pol, row.plan if has_plan else self.no_plans, *row.outs)
-            args = row.calls[key] = self._arguments(rows, has_plan, diagnostics, True)
-        decide_rows(*args)
+            args = self._arguments(rows, has_plan, diagnostics, True)
+            decide_rows(*args)
+            row.calls[key] = (entry_point(decide_rows, args), args)
+        else:
+            run, args = call
+            run(*args)
         return row.outs
 
     def _decide(self, rows: tuple, has_plans: bool, diagnostics: bool, with_policy: bool = True) -> None:

@@ -266,3 +266,14 @@ def njit(func: Callable | None = None, **options: Any) -> Any:
         return dispatcher
 
     return wrap if func is None else wrap(func)
+
+
+def entry_point(dispatcher: Any, args: tuple) -> Callable:
+    """The compiled function that ``dispatcher(*args)`` runs, for a caller that passes the same argument objects
+    again and again (arrays it rewrites in place): numba's dispatcher types every argument at every call, which for
+    a long argument list costs more than the work; the entry point only unboxes them. ``dispatcher`` itself where
+    it has compiled nothing for exactly these types (it may then convert them). Call the dispatcher once first, so
+    that the code exists (``Dispatcher.overloads``, which the numba pin covers)."""
+    types = tuple(dispatcher.typeof_pyval(a) for a in args)
+    compiled = dispatcher.overloads.get(types)
+    return dispatcher if compiled is None else compiled.entry_point

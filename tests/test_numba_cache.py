@@ -15,6 +15,7 @@ import tomllib
 from pathlib import Path
 
 import numba
+import numpy as np
 import pytest
 from numba.core.caching import NullCache
 
@@ -113,6 +114,7 @@ RUN = """\
 import json, sys
 from pathlib import Path
 import numba
+import numpy as np
 folder = Path(sys.argv[1])
 sys.path.insert(0, str(folder))
 import softreach.reach.jit as jit
@@ -125,6 +127,7 @@ print(json.dumps({{"f": user.f(2.0), "hits": sum(user.f.stats.cache_hits.values(
 """
 PLAIN = """\
 import numba
+import numpy as np
 
 @numba.njit(cache=True)
 def p(x):
@@ -196,3 +199,15 @@ def test_an_unwritable_cache_folder_compiles_without_a_cache(tmp_path, monkeypat
 def test_cache_is_not_an_option():
     with pytest.raises(TypeError, match="cache=False"):
         jit.njit(cache=False)
+
+
+def test_entry_point_runs_the_code_compiled_for_these_arguments_and_else_the_dispatcher():
+    f = numba.njit(lambda a, pair: a[0] + pair[1][0])
+    args = (np.arange(3.0), (1, np.ones(2)))
+    assert f(*args) == 1.0
+    run = jit.entry_point(f, args)
+    assert run is not f and run(*args) == 1.0
+    args[0][0] = 5.0  # the same objects, rewritten in place, as CompiledDecision.one passes them
+    assert run(*args) == 6.0
+    # integer values: the dispatcher has no code for exactly these types (it would convert them)
+    assert jit.entry_point(f, (np.arange(3), (1, np.ones(2)))) is f
