@@ -129,7 +129,7 @@ def _rate_source(op: Any, width: int) -> list[str]:
     D = op.grid.ndim
     body, out, speed = rate_body(op, width)
     args = ", ".join(f"x{a}" for a in range(D))
-    src = [f"@nb.njit(**_JIT)", f"def rate_rows(lo, hi, up, out, {args}, inv, h, t, params, speed, acc):", f"    W = {width}"]
+    src = ["@nb.njit(**_JIT)", f"def rate_rows(lo, hi, up, out, {args}, inv, h, t, params, speed, acc):", f"    W = {width}"]
     src += [f"    n{a} = out.shape[{a}]" for a in range(D)]
     src += [f"    inv{a} = inv[{a}]" for a in range(D)] + [f"    h{a} = h[{a}]" for a in range(D)]
     # the largest speed of a row is kept per node of the last axis: a running maximum in one variable would keep
