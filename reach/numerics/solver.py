@@ -29,10 +29,8 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from typing import Any, Callable, Sequence
-
-import numpy as np
 
 from .. import backend as B
 from .derivatives import SCHEMES, upwind_derivatives
