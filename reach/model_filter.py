@@ -104,6 +104,15 @@ class FilterPart:
         points. The budget bound of the safety filter charges each piece by its own box."""
         return self.held_tube_pieces_box(t, x, x, a, dt, pieces)
 
+    def rk4_error(self, h: float) -> np.ndarray | None:
+        """How far, per state axis, one RK4 sub-step of ``h`` seconds (the environments' integrator,
+        :mod:`softreach.reach.sim.rk4`) may end from the exact motion of :attr:`held_box_kernel`'s bound, rounding
+        aside, for every held control and disturbance signal: the environment's state after the sub-step is that of
+        an exact motion within this distance. ``None`` (the default): not known; then the filter proves the
+        environment's numbers only where RK4 is exact for the model (the point mass), and otherwise proves the
+        exact motion (docs/filters.md, "Sound to the last bit")."""
+        return None
+
     #: ``(lo, hi)`` of a box that holds the target set (``-inf``/``inf`` where unbounded), or ``None``. The safety
     #: filter skips its landing test for periods whose motion cannot meet this box; only speed depends on it
     target_box: tuple[tuple[float, ...], tuple[float, ...]] | None = None

@@ -78,8 +78,8 @@ class ReferenceDecision:
         la = vf.lookahead
         self.model, self.dt, self.eps = vf.model, la.dt, la.eps
         self.P, self.checks, self.horizon = la.pieces, la.target_checks, la.horizon
-        self.slack, self.budget_slack, self.first, self.exact_env = la.slack, la.budget_slack, la.first_check, \
-            la.exact_env
+        self.slack, self.budget_slack, self.first, self.env_covered = la.slack, la.budget_slack, la.first_check, \
+            la.env_covered
         self.cands = np.asarray(la.candidates, dtype=np.float64)
         self.a_lo, self.a_hi = vf.a_lo, vf.a_hi
         self.a_mid, self.a_half = la.a_mid, la.a_half
@@ -96,7 +96,7 @@ class ReferenceDecision:
 
     def widened(self, lo, hi):
         """Every box compared with a set or a cell holds the environment's states: widened by the allowance."""
-        return (lo - self.slack, hi + self.slack) if self.exact_env else (lo, hi)
+        return (lo - self.slack, hi + self.slack) if self.env_covered else (lo, hi)
 
     def set_max(self, name, lo, hi):
         """The largest value of the model's set function over the box: the model's own bound where it gives one
@@ -117,7 +117,7 @@ class ReferenceDecision:
         """``max c1`` over the exact tube, and over the widened box of the states the env checks (from its first
         check instant on)."""
         c1 = self.set_max("hard_constraint", tube_lo, tube_hi)
-        if self.exact_env:
+        if self.env_covered:
             moved = self.set_max("hard_constraint", *self.widened(*self.boxes(lo, hi, a, min(self.first, length),
                                                                                length)))
             c1 = moved if (math.isnan(moved) or moved > c1) else c1
@@ -126,7 +126,7 @@ class ReferenceDecision:
     def may_spend(self, lo, hi, a, length, tube_lo, tube_hi):
         if not self.set_max("soft_constraint", tube_lo, tube_hi) <= 0:
             return True
-        if not self.exact_env:
+        if not self.env_covered:
             return False
         return not self.set_max("soft_constraint", *self.widened(*self.boxes(lo, hi, a, min(0.5 * self.first, length),
                                                                               length))) <= 0

@@ -245,3 +245,63 @@ def test_table_policy_under_table_wind_reaches_the_goal_from_a_start_that_needs_
     assert info["landed"] and not info["hard_violation"]
     assert np.all(MODEL.hard_constraint(0.0, [path[:, 0], path[:, 1], path[:, 2]]) <= 0)
     assert info["budget_used"] > 0  # it did take the shortcut through the zone
+
+
+def _exact_sub_step(x: np.ndarray, u: float, w: np.ndarray, h: float) -> np.ndarray:
+    """The exact motion over ``h`` with the turn rate ``u != 0`` and the wind ``w`` held, in closed form."""
+    v, th = MODEL.params.speed, x[:, 2]
+    return np.stack([x[:, 0] + v / u * (np.sin(th + u * h) - np.sin(th)) + w[0] * h,
+                     x[:, 1] - v / u * (np.cos(th + u * h) - np.cos(th)) + w[1] * h, th + u * h], axis=1)
+
+
+def test_rk4_error_bounds_the_envs_sub_step_and_is_nearly_reached():
+    """The environments' RK4 sub-step against the closed-form motion, over every heading, at the largest turn
+    rates and a smaller one, with and without wind: never farther than ``Dubins.rk4_error`` along any axis, and
+    at the largest turn rate farther than half of it (Simpson's bound on a cosine is reached at its peaks): a bound
+    off by a power of ``h`` fails one or the other."""
+    from softreach.reach.sim.rk4 import rk4_rows
+
+    p = MODEL.params
+    h = MODEL.control_period / MODEL.substeps
+    bound = MODEL.rk4_error(h)
+    assert bound.shape == (3,) and bound[2] == 0.0 and 0 < bound[0] == bound[1] < 1e-9
+    theta = np.linspace(-math.pi, math.pi, 1441)
+    x = np.stack([np.full(theta.size, 0.3), np.full(theta.size, -0.2), theta], axis=1)
+    worst = 0.0
+    for u in (p.turn_max, -p.turn_max, 0.5 * p.turn_max):
+        for w in ((p.wind_max, -p.wind_max), (0.0, 0.0)):
+            w = np.array(w)
+            end = rk4_rows(MODEL.f, 0.0, 0.5 * h, h, h, x, np.full((theta.size, 1), u), np.tile(w, (theta.size, 1)))
+            err = np.abs(end - _exact_sub_step(x, u, w, h))
+            # the closed form and RK4 round at about 1e-16 here, six orders below the bound
+            assert (err[:, :2] <= bound[:2]).all(), (u, w, err[:, :2].max(), bound[0])
+            assert err[:, 2].max() <= 1e-15
+            if abs(u) == p.turn_max:
+                worst = max(worst, err[:, :2].max())
+    assert worst > 0.5 * bound[0], (worst, bound[0])
+
+
+def test_the_filters_end_box_holds_the_envs_own_state_without_tolerance(dubins_held_table):
+    """The env's period (its RK4 sub-steps, as an episode runs them) from points at the largest turn rates and
+    with constant winds at the box's corners ends inside the end box the filter proves with (the exact motion's box
+    widened by ``Lookahead.slack``: the sub-steps' error and the rounding), compared with no tolerance. The exact
+    motion's box alone is tight along the wind there, and misses the env's state at some of these starts."""
+    from softreach.reach.proof.lookahead import Lookahead
+    from softreach.reach.sim.integrator import integrate_period
+
+    dt = MODEL.control_period
+    la = Lookahead.from_table(dubins_held_table, MODEL, dt, dubins_held_table.eps, target_checks=MODEL.substeps)
+    assert la.env_covered and (la.slack[:2] > MODEL.substeps * MODEL.rk4_error(dt / MODEL.substeps)[:2]).all()
+    rng = np.random.default_rng(5)
+    w = MODEL.params.wind_max
+    outside_exact = 0
+    for _ in range(200):
+        x = np.array([rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(-math.pi, math.pi)])
+        u = float(rng.choice(la.candidates[:, 0]))
+        _, _, end_lo, end_hi = MODEL.held_enclosure_box(0.0, x[None], x[None], np.array([[u]]), dt)
+        for wind in itertools.product((-w, w), repeat=2):
+            end = np.array(integrate_period(MODEL, 0.0, x.tolist(), [u], list(wind), dt, MODEL.substeps, 1.0,
+                                            1e-3)[0])
+            assert (end >= end_lo[0] - la.slack).all() and (end <= end_hi[0] + la.slack).all(), (x, u, wind)
+            outside_exact += int(not ((end >= end_lo[0]).all() and (end <= end_hi[0]).all()))
+    assert outside_exact > 0

@@ -122,7 +122,7 @@ def test_glider_gets_its_candidates_in_binary64(glider_held_table):
     the second angle of attack (no normalised action maps to it) one unit in the last place away, where a float32
     action would have moved each by about 1e-9 rad."""
     f = ValueFilter(glider_held_table, 0.1, target_checks=2)
-    assert not f.lookahead.exact_env and not f.lookahead.slack.any() and 0 < f.lookahead.budget_slack < 1e-12
+    assert not f.lookahead.env_covered and not f.lookahead.slack.any() and 0 < f.lookahead.budget_slack < 1e-12
     cands = f.lookahead.candidates[:, 0]
     env = SafetyFilter(gym.make("softreach/GliderLanding-v0"), value_filter=f)
     replaced = 0
@@ -178,7 +178,7 @@ def test_the_allowances_are_outward_and_tiny(vf):
     below any physical scale (metres, m/s, seconds of budget)."""
     la = vf.lookahead
     # the point mass's RK4 is exact for its motion (the allowances apply); the glider's and Dubins' are not
-    assert la.exact_env and rk4_exact(get_model("pointmass"), 0.001)
+    assert la.env_covered and rk4_exact(get_model("pointmass"), 0.001)
     assert not rk4_exact(get_model("glider"), 0.05) and not rk4_exact(get_model("dubins"), 0.05)
     assert (la.slack > 0).all() and (la.slack < 1e-9).all()
     assert 0 < la.budget_slack < 1e-12

@@ -229,9 +229,9 @@ def cell_key(lookahead: Any, shape: Any, dz: float | None = None, holds: Any = (
            "holds": sorted({int(h) for h in holds}), "span_cap": int(span_cap)}
     if any(model.periodic_axes()):
         key["periodic"] = list(model.periodic_axes())
-    # the allowances for the environment's rounding: the budget's always, the state's where Lookahead.exact_env
+    # the allowances for the environment's numbers: the budget's always, the state's where Lookahead.env_covered
     key["allowance"] = {"budget": la.budget_slack}
-    if la.exact_env:
+    if la.env_covered:
         key["allowance"].update(state=la.slack.tolist(), c1_from=la.first_check, spends_from=0.5 * la.first_check)
     return key
 

@@ -93,6 +93,23 @@ def rk4_exact(model: Any, h: float, samples: int = 64) -> bool:
     return True
 
 
+def env_error(model: Any, h: float) -> np.ndarray | None:
+    """How far, per state axis, one of the environments' RK4 sub-steps of ``h`` seconds may end from an exact motion,
+    rounding aside: zero where RK4 is exact for the model (:func:`rk4_exact`), else the model's own bound
+    (:meth:`~softreach.reach.model_filter.FilterPart.rk4_error`); ``None`` where neither."""
+    if rk4_exact(model, h):
+        return np.zeros(model.state_dim)
+    bound = getattr(model, "rk4_error", None)
+    error = None if bound is None else bound(h)
+    if error is None:
+        return None
+    error = np.asarray(error, dtype=np.float64)
+    if error.shape != (model.state_dim,) or not (np.isfinite(error) & (error >= 0)).all():
+        raise ValueError(f"{model.name}.rk4_error({h!r}) must give {model.state_dim} finite numbers >= 0, got "
+                         f"{error!r}")
+    return error
+
+
 def state_allowance(model: Any, checks: int) -> np.ndarray:
     """How far, per state axis, the environment's state after a period may lie from the exact motion by rounding
     alone, ``(24 checks + 8) u M_i``, ``M_i`` twice the largest ``|x_i|`` of the domain: every box compared with
@@ -165,10 +182,14 @@ class Lookahead:
         #: the environment's sub-steps a period, at whose ends it checks ``C1`` and landing (at least ``substeps``)
         self.checks = max(self.target_checks, int(getattr(model, "substeps", 1) or 1))
         self.first_check = self.dt / self.checks
-        #: RK4 is exact for the model (:func:`rk4_exact`): the proof covers the env's numbers, else the exact motion
-        self.exact_env = rk4_exact(model, self.first_check)
-        #: the state's rounding allowance (:func:`state_allowance`), zero unless :attr:`exact_env`
-        self.slack = state_allowance(model, self.checks) if self.exact_env else np.zeros(model.state_dim)
+        error = env_error(model, self.first_check)
+        #: the proof covers the env's numbers (RK4 exact for the model, or its error bounded: :func:`env_error`),
+        #: else only the exact motion
+        self.env_covered = error is not None
+        #: how far the env's state after a period may lie from an exact motion, every sub-step's error and the
+        #: rounding (:func:`state_allowance`); zero unless :attr:`env_covered`
+        self.slack = (state_allowance(model, self.checks) + self.checks * error if self.env_covered
+                      else np.zeros(model.state_dim))
         self.fields = dict(fields)
         #: ``W_eps`` or the budget surface ``Q_min``
         self.budget_field = next((f for f in BUDGET_FIELDS if f in self.fields), None)
@@ -193,7 +214,7 @@ class Lookahead:
         #: the control box's map (:func:`action_map`); candidates are made :func:`representable`
         self.a_mid, self.a_half = action_map(model)
         self.candidates = np.asarray(candidates, dtype=np.float64)
-        if self.exact_env:
+        if self.env_covered:
             self.candidates = representable(self.candidates, self.a_mid, self.a_half)
 
     @classmethod

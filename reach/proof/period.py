@@ -30,10 +30,11 @@ class Motion(NamedTuple):
     edges: np.ndarray  #: the instants ``0, dt / P, ..., dt`` that cut the period into the budget's ``P`` pieces
     check_edges: np.ndarray  #: a row per landing check instant ``s``: the instants cutting ``[0, s]`` into ``P`` pieces
     horizon: float  #: the table's horizon ``T`` [s]
-    slack: np.ndarray  #: the rounding allowance per axis (:func:`~softreach.reach.proof.lookahead.state_allowance`)
+    #: how far the env's state may lie from an exact motion (:attr:`~softreach.reach.proof.lookahead.Lookahead.slack`)
+    slack: np.ndarray
     first_check: float  #: the environment's first check instant inside a period [s]
     budget_slack: float  #: added to a positive charge (:func:`~softreach.reach.proof.lookahead.budget_allowance`)
-    exact_env: bool  #: the allowances apply (:attr:`~softreach.reach.proof.lookahead.Lookahead.exact_env`)
+    env_covered: bool  #: the allowances apply (:attr:`~softreach.reach.proof.lookahead.Lookahead.env_covered`)
 
 
 def motion(la: Any) -> tuple[int, Motion]:
@@ -47,7 +48,7 @@ def motion(la: Any) -> tuple[int, Motion]:
     M = Motion(np.asarray(model.held_box_params, dtype=np.float64), la.eps,
                np.ascontiguousarray(model.set_max_params, dtype=np.float64), set_max_address(model), t_lo, t_hi,
                np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon, frozen(la.slack), la.first_check,
-               la.budget_slack, la.exact_env)
+               la.budget_slack, la.env_covered)
     return held_box_address(model), M
 
 
@@ -76,7 +77,7 @@ def checked_c1(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
     """The largest ``c1`` over the motion of ``length`` seconds: over the exact tube, and over the widened box of
     the states from the environment's first check instant on (the start is its own number, exact)."""
     c1 = set_max(M, _HARD, tube_lo, tube_hi)
-    if not M.exact_env:  # no allowance: the tube alone
+    if not M.env_covered:  # no allowance: the tube alone
         return c1
     call_held_box(enclose, M.params, x_lo, x_hi, a, min(M.first_check, length), length, lo, hi)
     widen(lo, hi, M.slack)
@@ -91,7 +92,7 @@ def may_spend(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
     half the first sub-step on (its first stage states), may leave ``C2``; else every rate it reads is 0."""
     if not set_max(M, _SOFT, tube_lo, tube_hi) <= 0:
         return True
-    if not M.exact_env:  # no allowance: the tube alone
+    if not M.env_covered:  # no allowance: the tube alone
         return False
     call_held_box(enclose, M.params, x_lo, x_hi, a, min(0.5 * M.first_check, length), length, lo, hi)
     widen(lo, hi, M.slack)
