@@ -305,3 +305,18 @@ def test_the_filters_end_box_holds_the_envs_own_state_without_tolerance(dubins_h
             assert (end >= end_lo[0] - la.slack).all() and (end <= end_hi[0] + la.slack).all(), (x, u, wind)
             outside_exact += int(not ((end >= end_lo[0]).all() and (end <= end_hi[0]).all()))
     assert outside_exact > 0
+
+
+def test_env_error_is_rk4s_where_exact_the_models_bound_else_unknown_and_a_bad_bound_is_refused():
+    from softreach.reach.proof.lookahead import env_error
+
+    assert (env_error(get_model("pointmass"), 0.001) == 0).all()  # RK4 is exact for its quadratic motion
+    assert env_error(get_model("glider"), 0.05) is None
+    assert (env_error(MODEL, 0.05) == MODEL.rk4_error(0.05)).all()
+
+    class Bad(Dubins):
+        def rk4_error(self, h):
+            return [1e-10, -1.0, 0.0]
+
+    with pytest.raises(ValueError, match=r"dubins\.rk4_error\(0\.05\) must give 3 finite numbers >= 0.*-1\."):
+        env_error(Bad(), 0.05)

@@ -110,6 +110,14 @@ def env_error(model: Any, h: float) -> np.ndarray | None:
     return error
 
 
+def env_slack(model: Any, dt: float, checks: int) -> np.ndarray | None:
+    """How far, per state axis, the environment's state after a period of ``dt`` seconds in ``checks`` RK4 sub-steps
+    may lie from an exact motion: every sub-step's error (:func:`env_error`) and the rounding
+    (:func:`state_allowance`); ``None`` where the error is not known."""
+    error = env_error(model, dt / checks)
+    return None if error is None else state_allowance(model, checks) + checks * error
+
+
 def state_allowance(model: Any, checks: int) -> np.ndarray:
     """How far, per state axis, the environment's state after a period may lie from the exact motion by rounding
     alone, ``(24 checks + 8) u M_i``, ``M_i`` twice the largest ``|x_i|`` of the domain: every box compared with
@@ -182,14 +190,13 @@ class Lookahead:
         #: the environment's sub-steps a period, at whose ends it checks ``C1`` and landing (at least ``substeps``)
         self.checks = max(self.target_checks, int(getattr(model, "substeps", 1) or 1))
         self.first_check = self.dt / self.checks
-        error = env_error(model, self.first_check)
+        slack = env_slack(model, self.dt, self.checks)
         #: the proof covers the env's numbers (RK4 exact for the model, or its error bounded: :func:`env_error`),
         #: else only the exact motion
-        self.env_covered = error is not None
-        #: how far the env's state after a period may lie from an exact motion, every sub-step's error and the
-        #: rounding (:func:`state_allowance`); zero unless :attr:`env_covered`
-        self.slack = (state_allowance(model, self.checks) + self.checks * error if self.env_covered
-                      else np.zeros(model.state_dim))
+        self.env_covered = slack is not None
+        #: how far the env's state after a period may lie from an exact motion (:func:`env_slack`); zero unless
+        #: :attr:`env_covered`
+        self.slack = slack if self.env_covered else np.zeros(model.state_dim)
         self.fields = dict(fields)
         #: ``W_eps`` or the budget surface ``Q_min``
         self.budget_field = next((f for f in BUDGET_FIELDS if f in self.fields), None)
