@@ -1,16 +1,17 @@
-"""How far each built-in model's environment ends a period outside the exact motion's end box that the safety filter
-proves with, and the allowance that covers it where the model's RK4 error is known.
+"""How far each built-in model's environment lies outside the boxes the safety filter proves with: its states at the
+end of a period outside the exact motion's end box, and the stage states where it reads the budget's rate outside the
+boxes the filter charges the budget by; and the allowances that cover them where the model bounds them.
 
     python benchmarks/env_error.py [--starts 200] [--seed 5] [--models pointmass glider dubins]
 
 For each model: ``--starts`` states uniform over its ``hard_box``, each with a random held candidate
 (:meth:`~softreach.reach.model_filter.FilterPart.held_candidates`) and every corner of the disturbance box held for
-the period; the period is the environments' own (:func:`softreach.reach.sim.integrator.integrate_period` with the
-model's ``control_period`` and ``substeps``), its end box the model's exact-motion bound
-(:meth:`~softreach.reach.model_filter.FilterPart.held_enclosure_box`). It prints how many end states lie outside
-that box, the largest excursion per axis, and the filter's slack (:func:`softreach.reach.proof.lookahead.env_slack`:
-RK4's error a sub-step times the sub-steps plus the rounding), or that the model bounds no RK4 error; and whether
-every end state lies inside the box widened by the slack.
+the period, integrated as the environments do (:func:`softreach.reach.sim.rk4.rk4_stages`, the model's
+``control_period`` and ``substeps``). End states against the model's exact-motion end box
+(:meth:`~softreach.reach.model_filter.FilterPart.held_enclosure_box`); stage states against the kernel's box over
+the quarter of the period holding their instant (``reach.proof.period.spent``). It prints how many lie outside, the
+largest excursion per axis, and the filter's allowances (:func:`softreach.reach.proof.lookahead.env_slack`), or that
+the model bounds no error; and how many lie inside the boxes widened by them.
 """
 
 from __future__ import annotations
@@ -22,36 +23,47 @@ import numpy as np
 
 from softreach.reach import get_model
 from softreach.reach.proof.lookahead import env_slack
-from softreach.reach.sim.integrator import integrate_period
+from softreach.reach.sim.rk4 import rk4_stages
 
 
-def measure(name: str, starts: int, seed: int) -> dict:
-    """The excursions of ``name``'s environment outside the exact end boxes (see the module docstring)."""
+def measure(name: str, starts: int, seed: int, pieces: int = 4) -> dict:
+    """The excursions of ``name``'s environment outside the filter's boxes (see the module docstring)."""
     model = get_model(name)
-    dt, substeps = model.control_period, model.substeps
+    dt, n = model.control_period, model.substeps
+    h = dt / n
     rng = np.random.default_rng(seed)
     lo, hi = (np.asarray(b, dtype=np.float64) for b in model.hard_box)
     cands = np.asarray(model.held_candidates(), dtype=np.float64)
-    winds = [np.array(w) for w in itertools.product(*zip(*model.disturbance_bounds))]
-    slack = env_slack(model, dt, substeps)
-    worst, outside, inside_slack, runs = np.zeros(model.state_dim), 0, 0, 0
+    winds = [list(w) for w in itertools.product(*zip(*model.disturbance_bounds))]
+    slacks = env_slack(model, dt, n)
+    p_lo, p_hi = np.empty(model.state_dim), np.empty(model.state_dim)
+    out = {kind: {"runs": 0, "outside": 0, "worst": np.zeros(model.state_dim), "covered": 0}
+           for kind in ("end", "stage")}
+
+    def record(kind: str, state: list[float], b_lo: np.ndarray, b_hi: np.ndarray) -> None:
+        r, beyond = out[kind], np.maximum(np.maximum(b_lo - state, np.asarray(state) - b_hi), 0.0)
+        r["runs"] += 1
+        r["outside"] += int(beyond.any())
+        r["worst"] = np.maximum(r["worst"], beyond)
+        r["covered"] += int(slacks is not None and (beyond <= slacks[kind == "stage"]).all())
+
     for _ in range(starts):
-        x = rng.uniform(lo, hi)
-        a = cands[rng.integers(len(cands))]
-        _, _, end_lo, end_hi = model.held_enclosure_box(0.0, x[None], x[None], a[None], dt)
-        if not np.isfinite(end_lo).all() or not np.isfinite(end_hi).all():
+        x0, a = rng.uniform(lo, hi), cands[rng.integers(len(cands))]
+        _, _, end_lo, end_hi = model.held_enclosure_box(0.0, x0[None], x0[None], a[None], dt)
+        if not (np.isfinite(end_lo).all() and np.isfinite(end_hi).all()):
             continue
-        for w in winds:
-            # eps and the budget's resolution move only the budget, which this does not read
-            end = np.array(integrate_period(model, 0.0, x.tolist(), a.tolist(), w.tolist(), dt, substeps, 1.0,
-                                            1e-3)[0])
-            beyond = np.maximum(np.maximum(end_lo[0] - end, end - end_hi[0]), 0.0)
-            worst = np.maximum(worst, beyond)
-            outside += int(beyond.any())
-            inside_slack += int(slack is not None and (beyond <= slack).all())
-            runs += 1
-    return {"model": name, "runs": runs, "outside": outside, "worst": worst, "slack": slack,
-            "inside_slack": inside_slack, "substeps": substeps, "dt": dt}
+        for wind in winds:
+            x, t = list(x0), 0.0
+            for _ in range(n):
+                end, stages = rk4_stages(model.f, t, x, list(a), wind, h)
+                for s, state in zip((t, t + h / 2, t + h / 2, t + h), stages):
+                    piece = min(int(s / (dt / pieces)), pieces - 1)
+                    model.held_box_kernel(model.held_box_params, x0, x0, a, piece * dt / pieces,
+                                          (piece + 1) * dt / pieces, p_lo, p_hi)
+                    record("stage", state, p_lo, p_hi)
+                x, t = [float(v) for v in end], t + h
+            record("end", x, end_lo[0], end_hi[0])
+    return {"model": name, "substeps": n, "dt": dt, "slacks": slacks, **out}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -63,13 +75,17 @@ def main(argv: list[str] | None = None) -> int:
     np.set_printoptions(precision=3)
     for name in args.models:
         r = measure(name, args.starts, args.seed)
-        print(f"{name}: {r['outside']} of {r['runs']} env end states outside the exact motion's end box "
-              f"({r['substeps']} RK4 sub-steps of {r['dt'] / r['substeps']:g} s); largest excursion per axis "
-              f"{r['worst']}")
-        if r["slack"] is None:
+        print(f"{name} ({r['substeps']} RK4 sub-steps of {r['dt'] / r['substeps']:g} s a period):")
+        for kind, what in (("end", "end states outside the exact motion's end box"),
+                           ("stage", "stage states outside the box of their quarter period")):
+            e = r[kind]
+            print(f"    {e['outside']} of {e['runs']} {what}; largest excursion per axis {e['worst']}")
+        if r["slacks"] is None:
             print("    the model bounds no RK4 error: the filter proves the exact motion, no state allowance")
         else:
-            print(f"    filter's slack {r['slack']}: {r['inside_slack']} of {r['runs']} inside the widened box")
+            print(f"    the filter's allowances: states {r['slacks'][0]}, stages {r['slacks'][1]}; inside the widened "
+                  f"boxes: {r['end']['covered']} of {r['end']['runs']} end states, {r['stage']['covered']} of "
+                  f"{r['stage']['runs']} stage states")
     return 0
 
 

@@ -108,10 +108,16 @@ class FilterPart:
         """How far, per state axis, one RK4 sub-step of ``h`` seconds (the environments' integrator,
         :mod:`softreach.reach.sim.rk4`) may end from the exact motion of :attr:`held_box_kernel`'s bound, rounding
         aside, for every held control and disturbance signal: the environment's state after the sub-step is that of
-        an exact motion within this distance, and RK4's stage states (where the environment reads the budget's rate)
-        lie within it of the bound's box over the times they stand for. ``None`` (the default): not known; then the
-        filter proves the environment's numbers only where RK4 is exact for the model (the point mass), and
-        otherwise proves the exact motion (docs/filters.md, "Sound to the last bit")."""
+        an exact motion within this distance. ``None`` (the default): not known; then the filter proves the
+        environment's numbers only where RK4 is exact for the model (the point mass), and otherwise proves the
+        exact motion (docs/filters.md, "Sound to the last bit"). The budget needs :meth:`rk4_stage_error` too."""
+        return None
+
+    def rk4_stage_error(self, h: float) -> np.ndarray | None:
+        """How far, per state axis, the stage states of an RK4 sub-step of ``h`` seconds, where the environment reads
+        the budget's rate, may lie outside :attr:`held_box_kernel`'s box over any interval holding the instant each
+        stands for (the sub-step's start, middle and end), rounding aside. ``None`` (the default): not known; the
+        filter then proves only the exact motion, as without :meth:`rk4_error`."""
         return None
 
     #: ``(lo, hi)`` of a box that holds the target set (``-inf``/``inf`` where unbounded), or ``None``. The safety

@@ -78,8 +78,8 @@ class ReferenceDecision:
         la = vf.lookahead
         self.model, self.dt, self.eps = vf.model, la.dt, la.eps
         self.P, self.checks, self.horizon = la.pieces, la.target_checks, la.horizon
-        self.slack, self.budget_slack, self.first, self.env_covered = la.slack, la.budget_slack, la.first_check, \
-            la.env_covered
+        self.slack, self.stage_slack, self.budget_slack = la.slack, la.stage_slack, la.budget_slack
+        self.first, self.env_covered = la.first_check, la.env_covered
         self.cands = np.asarray(la.candidates, dtype=np.float64)
         self.a_lo, self.a_hi = vf.a_lo, vf.a_hi
         self.a_mid, self.a_half = la.a_mid, la.a_half
@@ -94,9 +94,11 @@ class ReferenceDecision:
         b_lo, b_hi = held_boxes(self.model, lo[None], hi[None], np.asarray(a, float)[None], float(s0), float(s1))
         return b_lo[0], b_hi[0]
 
-    def widened(self, lo, hi):
-        """Every box compared with a set or a cell holds the environment's states: widened by the allowance."""
-        return (lo - self.slack, hi + self.slack) if self.env_covered else (lo, hi)
+    def widened(self, lo, hi, stages=False):
+        """Every box compared with a set or a cell holds the environment's states: widened by the allowance; a box
+        the budget's rate is read over holds its stage states too: widened by their allowance."""
+        slack = self.stage_slack if stages else self.slack
+        return (lo - slack, hi + slack) if self.env_covered else (lo, hi)
 
     def set_max(self, name, lo, hi):
         """The largest value of the model's set function over the box: the model's own bound where it gives one
@@ -129,15 +131,15 @@ class ReferenceDecision:
         if not self.env_covered:
             return False
         return not self.set_max("soft_constraint", *self.widened(*self.boxes(lo, hi, a, min(0.5 * self.first, length),
-                                                                              length))) <= 0
+                                                                              length), stages=True)) <= 0
 
     def spent(self, lo, hi, a, length):
         """Each of the ``P`` pieces of ``[0, length]`` charged ``length / P`` times the largest ``h_eps`` over its
-        widened box; the rounding allowance where the charge is positive."""
+        box widened for the stage states; the rounding allowance where the charge is positive."""
         edges = np.linspace(0.0, length, self.P + 1)
         out = 0.0
         for j in range(self.P):
-            p_lo, p_hi = self.widened(*self.boxes(lo, hi, a, edges[j], edges[j + 1]))
+            p_lo, p_hi = self.widened(*self.boxes(lo, hi, a, edges[j], edges[j + 1]), stages=True)
             out += (length / self.P) * min(max(self.set_max("soft_constraint", p_lo, p_hi) / self.eps, 0.0), 1.0)
         return out + self.budget_slack if out > 0 else out
 

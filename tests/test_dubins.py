@@ -321,33 +321,3 @@ def test_env_error_is_rk4s_where_exact_the_models_bound_else_unknown_and_a_bad_b
     with pytest.raises(ValueError, match=r"dubins\.rk4_error\(0\.05\) must give 3 finite numbers >= 0.*-1\."):
         env_error(Bad(), 0.05)
 
-
-def test_rk4_stage_states_lie_in_the_boxes_the_filter_reads_the_budget_by():
-    """The env reads the budget's rate at RK4's stage states; the filter bounds it over the kernel's box from half
-    a sub-step on (``period.may_spend``) and over each quarter of the period (``period.spent``), widened by the
-    slack. Every stage state of two sub-steps, from random states at the turn rates' ends and middle and the wind
-    box's corners, lies in each such box whose times it stands for, with no tolerance beyond the slack."""
-    from softreach.reach.proof.lookahead import env_slack
-    from softreach.reach.sim.rk4 import rk4_stages
-
-    dt, n, pieces = MODEL.control_period, MODEL.substeps, 4
-    h = dt / n
-    slack = env_slack(MODEL, dt, n)
-    rng = np.random.default_rng(1)
-    w = MODEL.params.wind_max
-    lo, hi = np.empty(3), np.empty(3)
-    for _ in range(100):
-        x0 = np.array([rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(-math.pi, math.pi)])
-        u = float(rng.choice([-1.0, -0.5, 0.0, 0.5, 1.0]))
-        for wind in itertools.product((-w, w), repeat=2):
-            x, t = list(x0), 0.0
-            for _ in range(n):
-                end, stages = rk4_stages(MODEL.f, t, x, [u], list(wind), h)
-                for s, state in zip((t, t + h / 2, t + h / 2, t + h), stages):
-                    piece = min(int(s / (dt / pieces)), pieces - 1)
-                    boxes = [(piece * dt / pieces, (piece + 1) * dt / pieces)] + ([(h / 2, dt)] if s >= h / 2 else [])
-                    for s0, s1 in boxes:
-                        MODEL.held_box_kernel(MODEL.held_box_params, x0, x0, np.array([u]), s0, s1, lo, hi)
-                        assert (np.array(state) >= lo - slack).all() and (np.array(state) <= hi + slack).all(), \
-                            (x0, u, wind, s, s0, s1)
-                x, t = [float(v) for v in end], t + h

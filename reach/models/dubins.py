@@ -259,12 +259,16 @@ class Dubins(Model, ControlAndDisturbanceAffine):
         the stage headings lie on the exact heading line and the position's rate ``v (cos, sin)(theta)`` is a function
         of time alone, which RK4 weighs ``1/6, 4/6, 1/6`` at the sub-step's start, middle and end; the wind's stage
         values, weighed ``1/6, 2/6, 2/6, 1/6``, make a constant wind in the box. Simpson's rule over ``h`` errs by at
-        most ``h^5 / 2880`` times the largest fourth derivative, ``v turn_max^4``; the heading by nothing. A stage
-        state is the start plus its elapsed time ``s`` times a weighted mean of rates along the heading line, which
-        :func:`held_box_kernel`'s box over an interval holding ``s`` holds (``s v`` times the range of the rate)."""
+        most ``h^5 / 2880`` times the largest fourth derivative, ``v turn_max^4``; the heading by nothing."""
         p = self.params
         error = h ** 5 * p.speed * p.turn_max ** 4 / 2880.0
         return np.array([error, error, 0.0])
+
+    def rk4_stage_error(self, h: float) -> np.ndarray:
+        """Zero: a stage state is the start plus its elapsed time ``s`` times a weighted mean of rates along the
+        heading line, which :func:`held_box_kernel`'s box over an interval holding ``s`` holds (``s v`` times the
+        range of the rate over the headings, plus the wind's)."""
+        return np.zeros(3)
 
     @property
     def held_box_params(self) -> np.ndarray:

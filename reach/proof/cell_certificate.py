@@ -232,7 +232,8 @@ def cell_key(lookahead: Any, shape: Any, dz: float | None = None, holds: Any = (
     # the allowances for the environment's numbers: the budget's always, the state's where Lookahead.env_covered
     key["allowance"] = {"budget": la.budget_slack}
     if la.env_covered:
-        key["allowance"].update(state=la.slack.tolist(), c1_from=la.first_check, spends_from=0.5 * la.first_check)
+        key["allowance"].update(state=la.slack.tolist(), stages=la.stage_slack.tolist(), c1_from=la.first_check,
+                                spends_from=0.5 * la.first_check)
     return key
 
 

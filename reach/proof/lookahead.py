@@ -93,29 +93,39 @@ def rk4_exact(model: Any, h: float, samples: int = 64) -> bool:
     return True
 
 
-def env_error(model: Any, h: float) -> np.ndarray | None:
-    """How far, per state axis, one of the environments' RK4 sub-steps of ``h`` seconds may end from an exact motion,
-    rounding aside: zero where RK4 is exact for the model (:func:`rk4_exact`), else the model's own bound
-    (:meth:`~softreach.reach.model_filter.FilterPart.rk4_error`); ``None`` where neither."""
-    if rk4_exact(model, h):
-        return np.zeros(model.state_dim)
-    bound = getattr(model, "rk4_error", None)
+def _declared(model: Any, name: str, h: float) -> np.ndarray | None:
+    """The model's bound ``name(h)`` per state axis (:class:`~softreach.reach.model_filter.FilterPart`), or ``None``.
+
+    :raises ValueError: it is not one finite number >= 0 per axis
+    """
+    bound = getattr(model, name, None)
     error = None if bound is None else bound(h)
     if error is None:
         return None
     error = np.asarray(error, dtype=np.float64)
     if error.shape != (model.state_dim,) or not (np.isfinite(error) & (error >= 0)).all():
-        raise ValueError(f"{model.name}.rk4_error({h!r}) must give {model.state_dim} finite numbers >= 0, got "
-                         f"{error!r}")
+        raise ValueError(f"{model.name}.{name}({h!r}) must give {model.state_dim} finite numbers >= 0, got {error!r}")
     return error
 
 
-def env_slack(model: Any, dt: float, checks: int) -> np.ndarray | None:
-    """How far, per state axis, the environment's state after a period of ``dt`` seconds in ``checks`` RK4 sub-steps
-    may lie from an exact motion: every sub-step's error (:func:`env_error`) and the rounding
-    (:func:`state_allowance`); ``None`` where the error is not known."""
-    error = env_error(model, dt / checks)
-    return None if error is None else state_allowance(model, checks) + checks * error
+def env_error(model: Any, h: float) -> np.ndarray | None:
+    """How far, per state axis, one of the environments' RK4 sub-steps of ``h`` seconds may end from an exact motion,
+    rounding aside: zero where RK4 is exact for the model (:func:`rk4_exact`), else the model's own bound
+    (:meth:`~softreach.reach.model_filter.FilterPart.rk4_error`); ``None`` where neither."""
+    return np.zeros(model.state_dim) if rk4_exact(model, h) else _declared(model, "rk4_error", h)
+
+
+def env_slack(model: Any, dt: float, checks: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """How far, per state axis, the environment's numbers over a period of ``dt`` seconds in ``checks`` RK4
+    sub-steps may lie from an exact motion, ``(states, stages)``: its states, every sub-step's error
+    (:func:`env_error`) and the rounding (:func:`state_allowance`); the stage states where it reads the budget's
+    rate, that and the model's :meth:`~softreach.reach.model_filter.FilterPart.rk4_stage_error`. ``None`` where
+    either error is not known."""
+    error, stage = env_error(model, dt / checks), _declared(model, "rk4_stage_error", dt / checks)
+    if error is None or stage is None:
+        return None
+    states = state_allowance(model, checks) + checks * error
+    return states, states + stage
 
 
 def state_allowance(model: Any, checks: int) -> np.ndarray:
@@ -190,13 +200,13 @@ class Lookahead:
         #: the environment's sub-steps a period, at whose ends it checks ``C1`` and landing (at least ``substeps``)
         self.checks = max(self.target_checks, int(getattr(model, "substeps", 1) or 1))
         self.first_check = self.dt / self.checks
-        slack = env_slack(model, self.dt, self.checks)
-        #: the proof covers the env's numbers (RK4 exact for the model, or its error bounded: :func:`env_error`),
-        #: else only the exact motion
-        self.env_covered = slack is not None
-        #: how far the env's state after a period may lie from an exact motion (:func:`env_slack`); zero unless
-        #: :attr:`env_covered`
-        self.slack = slack if self.env_covered else np.zeros(model.state_dim)
+        slacks = env_slack(model, self.dt, self.checks)
+        #: the proof covers the env's numbers (RK4's error and its stages' bounded: :func:`env_slack`), else only
+        #: the exact motion
+        self.env_covered = slacks is not None
+        #: how far the env's states, and the stage states where it reads the budget's rate, may lie from the
+        #: motion's boxes (:func:`env_slack`); zero unless :attr:`env_covered`
+        self.slack, self.stage_slack = slacks if self.env_covered else (np.zeros(model.state_dim),) * 2
         self.fields = dict(fields)
         #: ``W_eps`` or the budget surface ``Q_min``
         self.budget_field = next((f for f in BUDGET_FIELDS if f in self.fields), None)

@@ -32,6 +32,9 @@ class Motion(NamedTuple):
     horizon: float  #: the table's horizon ``T`` [s]
     #: how far the env's state may lie from an exact motion (:attr:`~softreach.reach.proof.lookahead.Lookahead.slack`)
     slack: np.ndarray
+    #: that for the stage states where the env reads the budget's rate
+    #: (:attr:`~softreach.reach.proof.lookahead.Lookahead.stage_slack`)
+    stage_slack: np.ndarray
     first_check: float  #: the environment's first check instant inside a period [s]
     budget_slack: float  #: added to a positive charge (:func:`~softreach.reach.proof.lookahead.budget_allowance`)
     env_covered: bool  #: the allowances apply (:attr:`~softreach.reach.proof.lookahead.Lookahead.env_covered`)
@@ -47,7 +50,8 @@ def motion(la: Any) -> tuple[int, Motion]:
                        for j in range(1, la.target_checks + 1)])
     M = Motion(np.asarray(model.held_box_params, dtype=np.float64), la.eps,
                np.ascontiguousarray(model.set_max_params, dtype=np.float64), set_max_address(model), t_lo, t_hi,
-               np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon, frozen(la.slack), la.first_check,
+               np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon, frozen(la.slack),
+               frozen(la.stage_slack), la.first_check,
                la.budget_slack, la.env_covered)
     return held_box_address(model), M
 
@@ -88,27 +92,29 @@ def checked_c1(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
 
 @njit(inline="always")
 def may_spend(enclose, M, x_lo, x_hi, a, length, tube_lo, tube_hi, lo, hi):
-    """Whether the environment's cost over ``length`` seconds may be positive: the tube, or the widened box from
-    half the first sub-step on (its first stage states), may leave ``C2``; else every rate it reads is 0."""
+    """Whether the environment's cost over ``length`` seconds may be positive: the tube, or the box from half the
+    first sub-step on (its first stage states) widened by the stage slack, may leave ``C2``; else every rate it reads
+    is 0."""
     if not set_max(M, _SOFT, tube_lo, tube_hi) <= 0:
         return True
     if not M.env_covered:  # no allowance: the tube alone
         return False
     call_held_box(enclose, M.params, x_lo, x_hi, a, min(0.5 * M.first_check, length), length, lo, hi)
-    widen(lo, hi, M.slack)
+    widen(lo, hi, M.stage_slack)
     return not set_max(M, _SOFT, lo, hi) <= 0
 
 
 @njit(inline="always")
 def spent(enclose, M, x_lo, x_hi, a, edges, lo, hi):
     """The budget the motion over the pieces ``[edges[j], edges[j + 1]]`` may spend: each its share of the length
-    times the largest ``h_eps`` over its widened box, plus the rounding allowance where positive."""
+    times the largest ``h_eps`` over its box widened by the stage slack, plus the rounding allowance where
+    positive."""
     P = len(edges) - 1
     length = edges[P]
     out = 0.0
     for j in range(P):
         call_held_box(enclose, M.params, x_lo, x_hi, a, edges[j], edges[j + 1], lo, hi)
-        widen(lo, hi, M.slack)
+        widen(lo, hi, M.stage_slack)
         out += (length / P) * min(max(set_max(M, _SOFT, lo, hi) / M.eps, 0.0), 1.0)
     return out + M.budget_slack if out > 0 else out
 
