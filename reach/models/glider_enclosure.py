@@ -250,6 +250,22 @@ class GliderHeldEnclosure:
     #: the compiled enclosure (:attr:`~softreach.reach.model_filter.FilterPart.held_box_kernel`)
     held_box_kernel = staticmethod(held_box_kernel)
 
+    def rk4_error(self, h: float) -> np.ndarray:
+        """Zero: :func:`held_box_kernel`'s boxes hold the states of the environments' RK4 themselves, not only the
+        exact motion's. An RK4 state at elapsed time ``s`` (a stage or a sub-step's end) is the start plus ``s``
+        times a mean, with weights of one sign, of ``f`` at earlier stages, the wind's stage values a mean in its
+        box; so by induction every stage lies in ``[x_lo, x_hi] + s F(X)``, inside the Picard tube ``X`` and each
+        refinement of it (steps 2 and 3), in the box of step 4 and on the side that step 5 keeps. At a sub-step's end
+        ``s`` the second-order box of step 6 holds it too: ``f(y) - f(x_0)`` at a stage ``y`` of elapsed time ``t``
+        lies in ``t`` times the gradient over the tube times its ``F`` (the mean-value theorem), the interval
+        ``X''`` is made of, and RK4's weights sum ``t`` to ``s^2 / 2`` over the sub-steps, the factor of the exact
+        motion's remainder."""
+        return np.zeros(3)
+
+    def rk4_stage_error(self, h: float) -> np.ndarray:
+        """Zero: every RK4 stage lies in the kernel's box over an interval holding its instant (:meth:`rk4_error`)."""
+        return np.zeros(3)
+
     @property
     def held_box_params(self) -> np.ndarray:
         """The numbers :func:`held_box_kernel` reads: ``(cl0, cl_alpha, cd0, cd_k, mass, gravity, half_rho_s,
