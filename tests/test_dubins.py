@@ -307,12 +307,18 @@ def test_the_filters_end_box_holds_the_envs_own_state_without_tolerance(dubins_h
     assert outside_exact > 0
 
 
-def test_env_error_is_rk4s_where_exact_the_models_bound_else_unknown_and_a_bad_bound_is_refused():
+def test_env_error_is_zero_where_rk4_is_exact_else_the_models_bound_or_unknown_and_a_bad_one_is_refused():
     from softreach.reach.proof.lookahead import env_error
 
     assert (env_error(get_model("pointmass"), 0.001) == 0).all()  # RK4 is exact for its quadratic motion
-    assert env_error(get_model("glider"), 0.05) is None
+    assert (env_error(get_model("glider"), 0.05) == 0).all()  # its kernel holds RK4's states
     assert (env_error(MODEL, 0.05) == MODEL.rk4_error(0.05)).all()
+
+    class Unknown(Dubins):
+        def rk4_error(self, h):
+            return None
+
+    assert env_error(Unknown(), 0.05) is None
 
     class Bad(Dubins):
         def rk4_error(self, h):
