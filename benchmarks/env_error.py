@@ -8,8 +8,9 @@ For each model: ``--starts`` states uniform over its ``hard_box``, each with a r
 (:meth:`~softreach.reach.model_filter.FilterPart.held_candidates`) and every corner of the disturbance box held for
 the period, integrated as the environments do (:func:`softreach.reach.sim.rk4.rk4_stages`, the model's
 ``control_period`` and ``substeps``). End states against the model's exact-motion end box
-(:meth:`~softreach.reach.model_filter.FilterPart.held_enclosure_box`); stage states against the kernel's box over
-the quarter of the period holding their instant (``reach.proof.period.spent``). It prints how many lie outside, the
+(:meth:`~softreach.reach.model_filter.FilterPart.held_enclosure_box`); stage states against the kernel's boxes the
+filter bounds the budget's rate over: the quarter of the period holding their instant (``reach.proof.period.spent``)
+and, from half a sub-step on, the rest of the period (``period.may_spend``). It prints how many lie outside, the
 largest excursion per axis, and the filter's allowances (:func:`softreach.reach.proof.lookahead.env_slack`), or that
 the model bounds no error; and how many lie inside the boxes widened by them.
 """
@@ -58,9 +59,10 @@ def measure(name: str, starts: int, seed: int, pieces: int = 4) -> dict:
                 end, stages = rk4_stages(model.f, t, x, list(a), wind, h)
                 for s, state in zip((t, t + h / 2, t + h / 2, t + h), stages):
                     piece = min(int(s / (dt / pieces)), pieces - 1)
-                    model.held_box_kernel(model.held_box_params, x0, x0, a, piece * dt / pieces,
-                                          (piece + 1) * dt / pieces, p_lo, p_hi)
-                    record("stage", state, p_lo, p_hi)
+                    boxes = [(piece * dt / pieces, (piece + 1) * dt / pieces)] + ([(h / 2, dt)] if s >= h / 2 else [])
+                    for s0, s1 in boxes:
+                        model.held_box_kernel(model.held_box_params, x0, x0, a, s0, s1, p_lo, p_hi)
+                        record("stage", state, p_lo, p_hi)
                 x, t = [float(v) for v in end], t + h
             record("end", x, end_lo[0], end_hi[0])
     return {"model": name, "substeps": n, "dt": dt, "slacks": slacks, **out}
@@ -77,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         r = measure(name, args.starts, args.seed)
         print(f"{name} ({r['substeps']} RK4 sub-steps of {r['dt'] / r['substeps']:g} s a period):")
         for kind, what in (("end", "end states outside the exact motion's end box"),
-                           ("stage", "stage states outside the box of their quarter period")):
+                           ("stage", "stage states' comparisons outside the budget's boxes")):
             e = r[kind]
             print(f"    {e['outside']} of {e['runs']} {what}; largest excursion per axis {e['worst']}")
         if r["slacks"] is None:

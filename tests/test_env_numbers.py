@@ -1,49 +1,25 @@
-"""The environments' own numbers against the boxes the filter proves with, for the three built-in systems: the
-states at a period's end against the end box widened by ``Lookahead.slack``, and RK4's stage states, where the env
-reads the budget's rate, against the boxes the filter charges the budget by (the kernel's box from half a sub-step
-on, ``period.may_spend``, and over each quarter of the period, ``period.spent``) widened by ``Lookahead.stage_slack``
-(docs/filters.md, "Sound to the last bit")."""
+"""The environments' own numbers against the boxes the filter proves with, for the three built-in systems, as
+``benchmarks/env_error.py`` measures them: the states at a period's end against the end box widened by
+``Lookahead.slack``, and RK4's stage states, where the env reads the budget's rate, against the boxes the filter
+charges the budget by, widened by ``Lookahead.stage_slack`` (docs/filters.md, "Sound to the last bit")."""
 
 from __future__ import annotations
 
-import itertools
+import importlib.util
+from pathlib import Path
 
-import numpy as np
 import pytest
 
 from softreach.reach import get_model
-from softreach.reach.proof.lookahead import env_slack
-from softreach.reach.sim.rk4 import rk4_stages
+
+_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "env_error.py"
 
 
-def _excursions(model, starts: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """How far, per axis, each period's end state lies outside its end box, and each stage state outside each such
-    box of its instant: from ``starts`` states uniform over ``hard_box`` with a random candidate each, under every
-    corner of the wind box."""
-    dt, n, pieces = model.control_period, model.substeps, 4
-    h = dt / n
-    rng = np.random.default_rng(seed)
-    box_lo, box_hi = (np.asarray(b, dtype=np.float64) for b in model.hard_box)
-    cands = np.asarray(model.held_candidates(), dtype=np.float64)
-    winds = [list(w) for w in itertools.product(*zip(*model.disturbance_bounds))]
-    lo, hi, ends, stage_out = np.empty(model.state_dim), np.empty(model.state_dim), [], []
-    for _ in range(starts):
-        x0, a = rng.uniform(box_lo, box_hi), cands[rng.integers(len(cands))]
-        model.held_box_kernel(model.held_box_params, x0, x0, a, dt, dt, lo, hi)
-        end_lo, end_hi = lo.copy(), hi.copy()
-        for wind in winds:
-            x, t = list(x0), 0.0
-            for _ in range(n):
-                end, stages = rk4_stages(model.f, t, x, list(a), wind, h)
-                for s, state in zip((t, t + h / 2, t + h / 2, t + h), stages):
-                    piece = min(int(s / (dt / pieces)), pieces - 1)
-                    boxes = [(piece * dt / pieces, (piece + 1) * dt / pieces)] + ([(h / 2, dt)] if s >= h / 2 else [])
-                    for s0, s1 in boxes:
-                        model.held_box_kernel(model.held_box_params, x0, x0, a, s0, s1, lo, hi)
-                        stage_out.append(np.maximum(lo - np.array(state), np.array(state) - hi))
-                x, t = [float(v) for v in end], t + h
-            ends.append(np.maximum(end_lo - np.array(x), np.array(x) - end_hi))
-    return np.array(ends), np.array(stage_out)
+def _measure(name: str, starts: int, seed: int) -> dict:
+    spec = importlib.util.spec_from_file_location("env_error", _PATH)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.measure(name, starts, seed)
 
 
 @pytest.mark.parametrize("name", ["pointmass", "glider", "dubins"])
@@ -53,13 +29,13 @@ def test_the_envs_states_and_stages_lie_in_the_filters_widened_boxes(name):
     up to ``h^2 / 8`` times the acceleration along the altitude, which its state slack does not cover: some lie
     beyond them, so the test tells the slacks' parts apart."""
     model = get_model(name)
-    states, stages = env_slack(model, model.control_period, model.substeps)
-    ends, stage_out = _excursions(model, 100, 1)
-    assert np.isfinite(ends).all() and np.isfinite(stage_out).all()
-    assert (ends <= states).all(), (ends.max(axis=0), states)
-    assert (stage_out <= stages).all(), (stage_out.max(axis=0), stages)
+    r = _measure(name, 100, 1)
+    states, stages = r["slacks"]
+    assert r["end"]["runs"] > 0 and r["stage"]["runs"] > 0
+    assert r["end"]["covered"] == r["end"]["runs"], (r["end"]["worst"], states)
+    assert r["stage"]["covered"] == r["stage"]["runs"], (r["stage"]["worst"], stages)
     h = model.control_period / model.substeps
     if name == "pointmass":
-        assert (stage_out > states).any() and stage_out[:, 1].max() > 0.5 * model.rk4_stage_error(h)[1]
+        assert (r["stage"]["worst"] > states).any() and r["stage"]["worst"][1] > 0.5 * model.rk4_stage_error(h)[1]
     if name == "dubins":
-        assert ends[:, :2].max() > 0.5 * model.substeps * model.rk4_error(h)[0]
+        assert r["end"]["worst"][:2].max() > 0.5 * model.substeps * model.rk4_error(h)[0]
