@@ -238,8 +238,8 @@ def _writable(v: np.ndarray) -> np.ndarray:
 
 
 class _OneRow:
-    """One thread's one-row inputs and outputs for :meth:`CompiledDecision.one`, and per kind of call the compiled
-    code and its argument list."""
+    """One thread's one-row inputs and outputs for :meth:`CompiledDecision.one`, their first rows as views (written
+    and read without indexing at each call), and per kind of call the compiled code and its argument list."""
 
     def __init__(self, n: int, m: int):
         self.t, self.x, self.z, self.pol = np.empty(1), np.empty((1, n)), np.empty(1), np.empty((1, m))
@@ -247,6 +247,8 @@ class _OneRow:
         #: ``(applied, reason, value, next_value, certified, chosen, blend, new_plans)``
         self.outs = (np.empty((1, m)), np.empty(1, np.int64), np.empty(1), np.empty(1), np.empty(1, bool),
                      np.empty((1, m)), np.empty(1), np.empty((1, 3), np.int64))
+        self.x0, self.pol0, self.plan0 = self.x[0], self.pol[0], self.plan[0]
+        self.applied0, self.chosen0, self.new_plan0 = self.outs[0][0], self.outs[5][0], self.outs[7][0]
         self.calls: dict[tuple, tuple] = {}
 
 
@@ -303,16 +305,20 @@ class CompiledDecision:
         return outs
 
     def one(self, t: float, x: np.ndarray, z: float, pol: list[float], plan: np.ndarray | None,
-            diagnostics: bool) -> tuple:
+            diagnostics: bool) -> _OneRow:
         """:meth:`__call__` of one row (``x`` a ``(n,)`` float array, ``pol`` Python numbers, ``plan`` a ``(3,)`` int
-        array or ``None``), in the calling thread, into this thread's one-row outputs: valid until its next call, copy
-        what is kept."""
+        array or ``None``), in the calling thread, into this thread's one-row outputs (:class:`_OneRow`): valid until
+        its next call, copy what is kept."""
         row = getattr(self._local, "row", None)
         if row is None:
             row = self._local.row = _OneRow(len(x), self.cands.shape[1])
-        row.t[0], row.x[0], row.z[0], row.pol[0] = t, x, z, pol
+        row.t[0], row.z[0] = t, z
+        row.x0[:] = x
+        pol0 = row.pol0
+        for i, v in enumerate(pol):
+            pol0[i] = v
         if plan is not None:
-            row.plan[0] = plan
+            row.plan0[:] = plan
         has_plan = plan is not None
         key = (has_plan, diagnostics, self.filter.rule, self.filter.smooth_iterations)
         call = row.calls.get(key)
@@ -326,7 +332,7 @@ class CompiledDecision:
         else:
             run, args = call
             run(*args)
-        return row.outs
+        return row
 
     def _decide(self, rows: tuple, has_plans: bool, diagnostics: bool, with_policy: bool = True) -> None:
         """:func:`decide_rows` of ``rows`` (``t, x, z, pol, plans``, the outputs) in this thread's work space."""

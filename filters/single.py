@@ -15,29 +15,28 @@ from softreach.reach.proof.lookahead import exact_normalized
 from .reasons import AFTER_HORIZON, PASS
 
 _SCALARS = (float, int, np.floating, np.integer)
-
-
-def _plain(vf: Any, t: Any, x: Any, z: Any, action: Any, plan: Any) -> bool:
-    """Whether the inputs are plain: numpy float ``x`` and ``action`` of one row, real scalar ``t`` and ``z``, and
-    no plan or a ``(3,)`` integer one."""
-    return (type(x) is np.ndarray and x.shape == (vf.n,) and x.dtype.kind == "f"
-            and type(action) is np.ndarray and action.shape == (vf.m,) and action.dtype.kind == "f"
-            and isinstance(t, _SCALARS) and isinstance(z, _SCALARS)
-            and (plan is None or (type(plan) is np.ndarray and plan.shape == (3,) and plan.dtype.kind in "iu")))
+_AFTER_HORIZON = np.int64(AFTER_HORIZON)
+_ZERO = np.float64(0.0)
 
 
 def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, plan: Any,
                diagnostics: bool) -> tuple[np.ndarray, dict[str, Any]] | None:
     """``vf.filter(t, x, z, action, normalized=normalized, plan=plan, diagnostics=diagnostics)`` of one plain, finite
-    row, or ``None`` for the batched path to decide; ``ValueError`` where ``vf.threads`` is below 1."""
-    if not _plain(vf, t, x, z, action, plan):
+    row, or ``None`` for the batched path to decide; ``ValueError`` where ``vf.threads`` is below 1. Plain: numpy
+    float ``x`` and ``action`` of one row, real scalar ``t`` and ``z``, no plan or a ``(3,)`` integer one."""
+    if not (type(x) is np.ndarray and type(action) is np.ndarray and x.shape == (vf.n,) and action.shape == (vf.m,)
+            and x.dtype.kind == "f" and action.dtype.kind == "f" and isinstance(t, _SCALARS)
+            and isinstance(z, _SCALARS)
+            and (plan is None or (type(plan) is np.ndarray and plan.shape == (3,) and plan.dtype.kind in "iu"))):
         return None
     t, z, act = float(t), float(z), action.tolist()
-    if not (math.isfinite(t) and math.isfinite(z) and all(map(math.isfinite, x.tolist()))
-            and all(map(math.isfinite, act))):
+    # an infinity or NaN makes the sum so (a finite row whose sum overflows only goes to the batched path)
+    if not math.isfinite(t + z + sum(x.tolist()) + sum(act)):
         return None
-    # one row uses no other thread, but an invalid number is refused as for a batch (after the inputs, as there)
-    check_threads(vf.threads)
+    threads = vf.threads
+    if type(threads) is not int or threads < 1:
+        # one row uses no other thread, but an invalid number is refused as for a batch (after the inputs, as there)
+        check_threads(threads)
     cd = vf.compiled
     lo, hi, mid, half = cd.bounds
     # the policy's physical action: ValueFilter.physical, or the clip to the control box, in the same arithmetic
@@ -45,19 +44,22 @@ def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, p
         pol = [m + h * min(max(a, -1.0), 1.0) for a, m, h in zip(act, mid, half)]
     else:
         pol = [min(max(a, low), high) for a, low, high in zip(act, lo, hi)]
-    applied, reason, value, nxt, ok, chosen, blend, new_plans = cd.one(t, x, z, pol, plan, diagnostics)
+    row = cd.one(t, x, z, pol, plan, diagnostics)
+    _, reason, value, nxt, ok, _, blend, _ = row.outs
     after = t >= vf.lookahead.horizon - 1e-9
-    code = np.int64(AFTER_HORIZON) if after else reason[0]
+    code = _AFTER_HORIZON if after else reason[0]
     active = after or code != PASS
     if normalized:
-        out = _normalized(applied[0].tolist(), mid, half) if active else action.astype(np.float64)
+        out = _normalized(row.applied0.tolist(), mid, half) if active else action.astype(np.float64)
         # ValueFilter.normalized, in the same arithmetic
-        chosen_out = np.array([(c - m) / h for c, m, h in zip(chosen[0].tolist(), mid, half)])
+        chosen_out = np.array([(c - m) / h for c, m, h in zip(row.chosen0.tolist(), mid, half)])
     else:
-        out, chosen_out = applied[0].copy(), chosen[0].copy()
-    info = {"value": value[0], "margin": np.float64(vf.constant_margin or 0.0), "active": np.bool_(active),
-            "reason": code, "optimal_action": chosen_out, "blend": blend[0], "lookahead": nxt[0],
-            "certified": np.bool_(ok[0] and not after), "plan": new_plans[0].copy()}
+        out, chosen_out = row.applied0.copy(), row.chosen0.copy()
+    margin = vf.constant_margin
+    info = {"value": value[0], "margin": np.float64(margin) if margin else _ZERO,
+            "active": np.True_ if active else np.False_, "reason": code, "optimal_action": chosen_out,
+            "blend": blend[0], "lookahead": nxt[0], "certified": np.True_ if ok[0] and not after else np.False_,
+            "plan": row.new_plan0.copy()}
     return out, info
 
 
