@@ -15,7 +15,8 @@ from softreach.reach.proof.lookahead import exact_normalized
 from .reasons import AFTER_HORIZON, PASS
 
 _SCALARS = (float, int, np.floating, np.integer)
-_AFTER_HORIZON = np.int64(AFTER_HORIZON)
+#: the reason after the horizon as the batched path returns it (a numpy integer)
+_AFTER_CODE = np.int64(AFTER_HORIZON)
 _ZERO = np.float64(0.0)
 
 
@@ -47,7 +48,7 @@ def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, p
     row = cd.one(t, x, z, pol, plan, diagnostics)
     _, reason, value, nxt, ok, _, blend, _ = row.outs
     after = t >= vf.lookahead.horizon - 1e-9
-    code = _AFTER_HORIZON if after else reason[0]
+    code = _AFTER_CODE if after else reason[0]
     active = after or code != PASS
     if normalized:
         out = _normalized(row.applied0.tolist(), mid, half) if active else action.astype(np.float64)
