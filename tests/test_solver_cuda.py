@@ -18,7 +18,10 @@ from shared_tables import lock, run_root
 pytestmark = pytest.mark.process
 
 _PRELUDE = '''
-import json, math
+import json, math, sys
+# the simulator runs each GPU thread as a Python thread and waits for them by polling: at the interpreter's default
+# switch interval (5 ms) the polling thread keeps the GIL that long each time a simulated thread is to run
+sys.setswitchinterval(1e-4)
 import numpy as np
 from softreach.reach import Grid, budget_axis, classical_problem, get_model, soft_problem
 from softreach.reach.numerics import device_loop, fused
