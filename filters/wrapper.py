@@ -107,6 +107,8 @@ class SafetyFilter(gym.Wrapper):
                                        model=base.model, **filter_kwargs)
         self.value_filter = value_filter
         self.rule = value_filter.rule
+        #: ``env.unwrapped``, read at every step (each read goes down the chain of wrappers)
+        self._base = base
         self._reset_stats()
 
     def _reset_stats(self) -> None:
@@ -143,7 +145,7 @@ class SafetyFilter(gym.Wrapper):
     def step(self, action: Any):
         """Filter ``action`` (normalised, as the policy gives it) and step the environment; a non-finite or wrongly
         shaped action raises ``ValueError`` (as the environment would)."""
-        base = self.env.unwrapped
+        base = self._base
         x = base.state
         if x is None:
             raise gym.error.ResetNeeded("call reset() before step()")
@@ -160,7 +162,7 @@ class SafetyFilter(gym.Wrapper):
         space = self.action_space
         dtype, shape = space.dtype if space.dtype is not None else np.float32, space.shape
         # the filter's action goes in binary64: the space's float32 would move its physical image off the one judged
-        to_env = np.array(applied, dtype=np.float64) if active else action
+        to_env = np.asarray(applied, dtype=np.float64) if active else action
         obs, reward, terminated, truncated, info = self.env.step(to_env)
 
         value = float(f["value"])
@@ -172,7 +174,7 @@ class SafetyFilter(gym.Wrapper):
         info["filter_active"] = active
         info["policy_action"] = np.array(action, dtype=dtype, copy=True).reshape(shape)
         # what the environment applies: it clips a finite out-of-range action to [-1, 1]
-        info["applied_action"] = clip_unit(np.array(to_env, dtype=dtype, copy=True)).reshape(shape)
+        info["applied_action"] = clip_unit(np.asarray(to_env, dtype=dtype)).reshape(shape)
         info["value"] = value
         info["margin"] = float(f["margin"])
         info["optimal_action"] = np.asarray(f["optimal_action"], dtype=dtype).reshape(shape)
