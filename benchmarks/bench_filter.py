@@ -27,7 +27,8 @@ use). Each latency is the mean time per call over many calls, on fixed random in
   candidate (``one_thread_row_uncertified_tests_only_us``), the least such a row costs while the filter searches
   for the least bad action there.
 
-Then one ``step`` of ``PointMassLanding-v0``, bare and in ``SafetyFilter``: what the filter adds to a training step.
+Then one ``step`` of ``PointMassLanding-v0``, bare and in ``SafetyFilter``: what the filter adds to a training step;
+and the filter's decisions inside that loop, one by one (the caches as a training loop leaves them).
 
 Each figure is given as the best and the median wall-clock time over the runs and the median CPU time of the
 process (on a machine shared with other jobs the wall clock includes their time slices; CPU time does not).
@@ -210,17 +211,31 @@ def _one_period_tests(decision, t, x, z, pol):
 def env_steps(table, repeats: int, steps: int = 3000) -> dict[str, float]:
     """Microseconds per ``step`` of ``PointMassLanding-v0`` with uniformly random actions (resets included), bare
     and wrapped in :class:`SafetyFilter` with a filter on ``table``: what the filter adds to a training step. The
-    best of ``repeats`` runs, taken round robin."""
+    best of ``repeats`` runs, taken round robin. Inside the filtered runs, the median of the filter's decisions
+    (``ValueFilter.filter``, the call ``SafetyFilter.step`` makes), timed one by one where the policy's action passed
+    and where it did not: between two decisions the environment's own step runs, so they start from the caches a
+    training loop leaves them, unlike the single queries above."""
     import gymnasium as gym
 
     import softreach.envs  # noqa: F401  (registers the ids)
-    from softreach.filters import SafetyFilter
+    from softreach.filters import PASS, SafetyFilter
 
     def make(filtered: bool):
         env = gym.make("softreach/PointMassLanding-v0")
         return SafetyFilter(env, table) if filtered else env
 
     envs = {"env_step_us": make(False), "safety_filter_step_us": make(True)}
+    vf = envs["safety_filter_step_us"].value_filter
+    decide = vf.filter
+    times: dict[bool, list[float]] = {True: [], False: []}
+
+    def timed(*args, **kwargs):
+        t0 = time.perf_counter()
+        out = decide(*args, **kwargs)
+        elapsed = time.perf_counter() - t0
+        times[bool(out[1]["reason"] == PASS)].append(elapsed)
+        return out
+
     best = {k: float("inf") for k in envs}
     for _ in range(repeats):
         for key, env in envs.items():
@@ -233,6 +248,20 @@ def env_steps(table, repeats: int, steps: int = 3000) -> dict[str, float]:
                 if terminated or truncated:
                     env.reset()
             best[key] = min(best[key], (time.perf_counter() - t0) / steps * 1e6)
+    # the decisions timed in runs of their own, so that the timer adds nothing to the steps above
+    vf.filter = timed
+    try:
+        for _ in range(repeats):
+            env = envs["safety_filter_step_us"]
+            env.reset(seed=0)
+            for a in np.random.default_rng(0).uniform(-1, 1, (steps, 1)).astype(np.float32):
+                _, _, terminated, truncated, _ = env.step(a)
+                if terminated or truncated:
+                    env.reset()
+    finally:
+        del vf.filter
+    for passed, key in ((True, "decision_in_loop_pass_us"), (False, "decision_in_loop_other_us")):
+        best[key] = statistics.median(times[passed]) * 1e6 if times[passed] else float("nan")
     return best
 
 
@@ -318,7 +347,9 @@ def main(argv: list[str] | None = None) -> dict:
         results["latency_us"] = lat
         results["env_step_us"] = steps = env_steps(table, args.repeats)
         print(f"PointMassLanding-v0 step: {steps['env_step_us']:.1f} us bare, {steps['safety_filter_step_us']:.1f} us "
-              f"in SafetyFilter (random actions, resets included; best of {args.repeats})")
+              f"in SafetyFilter (random actions, resets included; best of {args.repeats}); its decisions there "
+              f"{steps['decision_in_loop_pass_us']:.1f} us where the policy's action passed, "
+              f"{steps['decision_in_loop_other_us']:.1f} us where not (medians)")
         print(f"{'latency [us]':32s} {'wall best':>10s} {'wall median':>12s} {'cpu median':>11s}")
         for k, v in lat.items():
             print(f"{k:32s} {v['wall_best']:10.1f} {v['wall_median']:12.1f} {v['cpu_median']:11.1f}")
