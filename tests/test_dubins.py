@@ -281,6 +281,34 @@ def test_rk4_error_bounds_the_envs_sub_step_and_is_nearly_reached():
     assert worst > 0.5 * bound[0], (worst, bound[0])
 
 
+def test_the_wrap_between_periods_stays_within_its_allowance():
+    """The environment wraps the heading into ``[-pi, pi)`` once a period, and a cell's plan held for several periods
+    starts each from the wrapped heading, which the motion (``2 pi``-periodic) treats as the unwrapped one moved by
+    the wrap's error. Measured in exact arithmetic against the true ``2 pi``, from end headings up to 0.2 rad past
+    either end (more than a period's turn) and across the period, that error is not zero, so the heading's allowance
+    needs a part for it, and lies within the part ``state_allowance`` adds along a periodic axis."""
+    from decimal import Decimal
+    from fractions import Fraction
+
+    from softreach.reach.proof.lookahead import UNIT_ROUNDOFF, state_allowance
+
+    pi = Fraction(Decimal("3.14159265358979323846264338327950288419716939937510582097494459"))
+    lo, hi = MODEL.domain[0][2], MODEL.domain[1][2]
+    M = 2.0 * max(abs(lo), abs(hi))
+    # the allowance along the heading beyond the rounding every axis gets, (24 checks + 8) u M
+    part = state_allowance(MODEL, 1)[2] - 32 * UNIT_ROUNDOFF * M
+    rng = np.random.default_rng(0)
+    ends = np.concatenate([hi + rng.uniform(-0.2, 0.2, 3000), lo + rng.uniform(-0.2, 0.2, 3000),
+                           rng.uniform(lo, hi, 1000), [hi, lo, np.nextafter(hi, 0.0), np.nextafter(lo, 0.0)]])
+    worst = Fraction(0)
+    for r in ends.tolist():
+        w = MODEL.wrap_state([0.0, 0.0, r])[2]
+        assert lo <= w < hi
+        periods = round((Fraction(r) - Fraction(w)) / (2 * pi))
+        worst = max(worst, abs(Fraction(w) + periods * 2 * pi - Fraction(r)))
+    assert 0 < worst <= part, (float(worst), part)
+
+
 def test_the_filters_end_box_holds_the_envs_own_state_without_tolerance(dubins_held_table):
     """The env's period (its RK4 sub-steps, as an episode runs them) from points at the largest turn rates and
     with constant winds at the box's corners ends inside the end box the filter proves with (the exact motion's box

@@ -130,13 +130,18 @@ def env_slack(model: Any, dt: float, checks: int) -> tuple[np.ndarray, np.ndarra
 
 def state_allowance(model: Any, checks: int) -> np.ndarray:
     """How far, per state axis, the environment's state after a period may lie from the exact motion by rounding
-    alone, ``(24 checks + 8) u M_i``, ``M_i`` twice the largest ``|x_i|`` of the domain: every box compared with
-    ``C1``, ``C2``, the target or a cell edge is widened by it. An RK4 sub-step makes at most 16 roundings of numbers
-    up to ``M_i`` along an axis, and its stage states' errors reach the update through ``h L <= 1``: ``24 u M_i`` a
-    sub-step; the enclosure's arithmetic adds ``8 u M_i`` (``docs/filters.md``, "Sound to the last bit")."""
+    alone, ``(24 checks + 8) u M_i``, ``M_i`` twice the largest ``|x_i|`` of the domain, and ``4 u M_i`` more along a
+    periodic axis: every box compared with ``C1``, ``C2``, the target or a cell edge is widened by it. An RK4 sub-step
+    makes at most 16 roundings of numbers up to ``M_i`` along an axis, and its stage states' errors reach the update
+    through ``h L <= 1``: ``24 u M_i`` a sub-step; the enclosure's arithmetic adds ``8 u M_i``. Along a periodic axis
+    the environment wraps the state into its period once a period (:meth:`~softreach.reach.problem.Model.wrap_state`;
+    the state moves less than a period in one): three roundings, and the float period's difference from the motion's,
+    ``3.5 u M_i``, which a plan held over several periods meets between them (``docs/filters.md``, "Sound to the last
+    bit")."""
     lo, hi = (np.asarray(b, dtype=np.float64) for b in model.domain)
     M = 2.0 * np.maximum(np.abs(lo), np.abs(hi))
-    return (24 * int(checks) + 8) * UNIT_ROUNDOFF * M
+    wrap = np.where(np.asarray(model.periodic_axes(), dtype=bool), 4, 0)
+    return (24 * int(checks) + 8 + wrap) * UNIT_ROUNDOFF * M
 
 
 def budget_allowance(dt: float, horizon: float, pieces: int, samples: int = 128) -> float:
