@@ -31,7 +31,7 @@ def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, p
             and (plan is None or (type(plan) is np.ndarray and plan.shape == (3,) and plan.dtype.kind in "iu"))):
         return None
     t, z, act = float(t), float(z), action.tolist()
-    # an infinity or NaN makes the sum so (a finite row whose sum overflows only goes to the batched path)
+    # an infinity or NaN anywhere makes the sum non-finite (a finite row whose sum overflows goes to the batched path)
     if not math.isfinite(t + z + sum(x.tolist()) + sum(act)):
         return None
     threads = vf.threads

@@ -107,7 +107,7 @@ class SafetyFilter(gym.Wrapper):
                                        model=base.model, **filter_kwargs)
         self.value_filter = value_filter
         self.rule = value_filter.rule
-        #: ``env.unwrapped``, read at every step (each read goes down the chain of wrappers)
+        #: ``env.unwrapped``, kept: each read of it goes down the chain of wrappers
         self._base = base
         self._reset_stats()
 
@@ -123,7 +123,7 @@ class SafetyFilter(gym.Wrapper):
     def expect(self, action: Any, applied: np.ndarray, decision: dict[str, Any]) -> None:
         """Hand over a batched decision for ``action`` in this state (:class:`~softreach.filters.VecSafetyFilter`):
         the next :meth:`step` uses it if it gets that action in that state, and decides itself otherwise."""
-        base = self.env.unwrapped
+        base = self._base
         self._pending = (np.array(action, copy=True), base.time, np.array(base.state, copy=True), base.budget,
                          applied, decision)
 
@@ -131,7 +131,7 @@ class SafetyFilter(gym.Wrapper):
         """Reset the environment and the episode statistics; ``info`` adds the start's keys (the class docstring)."""
         obs, info = self.env.reset(seed=seed, options=options)
         self._reset_stats()
-        base = self.env.unwrapped
+        base = self._base
         self._initial_budget = float(base.budget)
         vf = self.value_filter
         value = float(vf.value(base.time, base.state, base.budget))
@@ -187,7 +187,7 @@ class SafetyFilter(gym.Wrapper):
 
     def episode_summary(self, info: dict[str, Any] | None = None) -> dict[str, float]:
         """The running episode's filter statistics (what ``info["filter_episode"]`` holds at its end)."""
-        base = self.env.unwrapped
+        base = self._base
         used = info.get("budget_used") if info else None
         if used is None:
             used = self._initial_budget - float(base.budget)
