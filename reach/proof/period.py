@@ -50,9 +50,8 @@ def motion(la: Any) -> tuple[int, Motion]:
                        for j in range(1, la.target_checks + 1)])
     M = Motion(np.asarray(model.held_box_params, dtype=np.float64), la.eps,
                np.ascontiguousarray(model.set_max_params, dtype=np.float64), set_max_address(model), t_lo, t_hi,
-               np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon, frozen(la.slack),
-               frozen(la.stage_slack), la.first_check,
-               la.budget_slack, la.env_covered)
+               np.linspace(0.0, la.dt, la.pieces + 1), checks, la.horizon, frozen(la.slack), frozen(la.stage_slack),
+               la.first_check, la.budget_slack, la.env_covered)
     return held_box_address(model), M
 
 
