@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from ..inputs import column, points
 from ..numerics.grid import Grid
 from ..numerics.budget_surface import no_budget_suffices
 from .interpolation import Interpolant
@@ -30,30 +31,6 @@ def load_table(path: str | Path, verify_checksum: bool = True) -> "Table":
     if verify_checksum:
         verify(path, header)
     return Table(path, header)
-
-
-def _as_points(x: Any, n: int, what: str) -> np.ndarray:
-    arr = np.asarray(x, dtype=np.float64)
-    if arr.ndim == 1 and arr.shape[0] == n:
-        arr = arr[None, :]
-    if arr.ndim != 2 or arr.shape[1] != n:
-        raise ValueError(f"{what} must have shape (N, {n}) or ({n},), got {np.shape(x)}")
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        row = int(np.nonzero(bad.any(axis=1))[0][0])
-        raise ValueError(f"{what} must be finite, got {arr[row].tolist()} at row {row}")
-    return arr
-
-
-def _as_column(v: Any, n_points: int, what: str) -> np.ndarray:
-    arr = np.asarray(v, dtype=np.float64).reshape(-1)
-    if arr.size == 1:
-        arr = np.full(n_points, float(arr[0]))
-    if arr.shape != (n_points,):
-        raise ValueError(f"{what} must be a scalar or have shape ({n_points},), got {np.shape(v)}")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{what} must be finite, got {arr[~np.isfinite(arr)][:3].tolist()}")
-    return arr
 
 
 class Table:
@@ -177,14 +154,14 @@ class Table:
 
     def _queries(self, t: Any, x: Any, z: Any) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
         field = self._field_for(z)
-        n = len(self.model_metadata["state_names"])
-        pts = _as_points(x, n, "x")
-        tt = _as_column(t, len(pts), "t")
+        names = self.model_metadata["state_names"]
+        pts = points(x, len(names), "x", names)[0]
+        tt = column(t, len(pts), "t")
         unsafe = np.zeros(len(pts), bool)
         if field == "W_eps":  # below the budget grid and above it: the interpolant's budget_last rule
-            pts = np.concatenate([pts, _as_column(z, len(pts), "z")[:, None]], axis=1)
+            pts = np.concatenate([pts, column(z, len(pts), "z")[:, None]], axis=1)
         elif field == "Q_min":
-            unsafe = _as_column(z, len(pts), "z") < 0
+            unsafe = column(z, len(pts), "z") < 0
         return field, tt, pts, unsafe
 
     def value(self, t: Any, x: Any, z: Any = None) -> np.ndarray:
@@ -198,7 +175,7 @@ class Table:
         if field == "Q_min":
             # the certificate of a budget-surface table: Q_min - z, <= 0 exactly where the budget z suffices
             # (RA~_0 from V, as set_mask reads it)
-            val = val - _as_column(z, len(pts), "z")
+            val = val - column(z, len(pts), "z")
             v = self.interpolant("V").value(tt, pts)
             val = np.where(np.isfinite(val) & (v <= 0), np.minimum(val, v), val)
         return np.where(unsafe, np.inf, val)
@@ -237,7 +214,7 @@ class Table:
         if field == "Q_min":
             # on the classical RA Q_min is 0, flat: its gradient says nothing there (both players would idle). The
             # certificate is V where V <= 0 and below Q_min - z (value()), so its gradient is V's
-            zz = _as_column(z, len(pts), "z")
+            zz = column(z, len(pts), "z")
             v = self.interpolant("V").value(tt, pts)
             on_v = (zz >= 0) & (v <= 0) & (v < self.interpolant("Q_min").value(tt, pts) - zz)
             if on_v.any():
@@ -271,9 +248,9 @@ class Table:
         Found along the budget nodes and refined linearly between them; budgets below
         :attr:`budget_resolution` are reported as 0, consistently with :meth:`set_mask`.
         """
-        n = len(self.model_metadata["state_names"])
-        pts = _as_points(x, n, "x")
-        tt = _as_column(t, len(pts), "t")
+        names = self.model_metadata["state_names"]
+        pts = points(x, len(names), "x", names)[0]
+        tt = column(t, len(pts), "t")
         if self.has_budget_surface and not self.has_budget:
             q = self.interpolant("Q_min").value(tt, pts)
             q = np.where(np.isfinite(q) & ~no_budget_suffices(q, self.horizon - tt), np.maximum(q, 0.0), np.inf)
@@ -347,9 +324,9 @@ class Table:
 
         :param x: ``(N, n)`` or ``(n,)`` states; ``t`` and ``budget`` scalars or ``(N,)``
         """
-        n = len(self.model_metadata["state_names"])
-        pts = _as_points(x, n, "x")
-        tt = _as_column(t, len(pts), "t")
+        names = self.model_metadata["state_names"]
+        pts = points(x, len(names), "x", names)[0]
+        tt = column(t, len(pts), "t")
 
         def read(field: str, z: Any) -> np.ndarray:
             X = pts if z is None else np.concatenate([pts, np.broadcast_to(z, (len(pts),))[:, None]], axis=1)
@@ -357,7 +334,7 @@ class Table:
 
         if budget is None:
             return self._in_set(read, None, margin, tt)
-        q = _as_column(budget, len(pts), "budget")
+        q = column(budget, len(pts), "budget")
         if np.any(q < 0):
             raise ValueError(f"budget must be >= 0, got {q[q < 0][0]!r}")
         return self._in_set(read, q, margin, tt)
