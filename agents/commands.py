@@ -220,8 +220,8 @@ def train_notes(spec: Any) -> list[str]:
     :raises ValueError: a filter table whose model the safety filter cannot decide for (no cells, no compiled
         enclosure), naming what to add, before any training
     """
-    from softreach.filters.compiled import CompiledDecision
     from softreach.reach import load_table
+    from softreach.reach.proof.enclosure_check import lacking
 
     from .config import learn_unit, planned_steps
     from .train import resolve
@@ -231,7 +231,7 @@ def train_notes(spec: Any) -> list[str]:
     for option, path in (("--filter", spec.filter), ("--eval-filter", spec.eval_filter)):
         if path is None:
             continue
-        missing = CompiledDecision.missing(load_table(path).model)
+        missing = lacking(load_table(path).model)
         if missing is not None:
             raise ValueError(f"{option} {path}: the safety filter cannot decide for this model: {missing}")
     pretrain = run.pretrain_steps if spec.filter else 0

@@ -2,7 +2,7 @@
 
 :class:`~softreach.filters.ValueFilter` decides, both rules included, by the one-period test and the cells' plans
 (docs/filters.md, "The rule" and "How"), with the kernels the cells' builder runs too; a model must give its enclosure
-and sets' maxima compiled (:meth:`CompiledDecision.missing`). The table only ranks
+and sets' maxima compiled (:func:`~softreach.reach.proof.enclosure_check.lacking`). The table only ranks
 (:func:`~softreach.filters.judge.next_value`); ``tests/test_filter_reference.py`` checks against
 ``tests/reference_decision.py``."""
 
@@ -16,7 +16,6 @@ import numpy as np
 
 from softreach.reach.jit import entry_point, njit
 from softreach.reach.proof.blocks import run_in_blocks
-from softreach.reach.proof.enclosure_check import lacking
 from softreach.reach.proof.kernels import certificate_row, cover_row, frozen, plan_row, point_scratch
 from softreach.reach.proof.lookahead import exact_normalized
 from softreach.reach.proof.period import motion
@@ -25,7 +24,7 @@ from .compiled_args import (N_BOOL_J, N_FLOAT_J, N_FLOAT_N, N_FLOAT_N1, ActionMa
                             named, packed_space, plain)
 from .compiled_starts import start_plan_rows
 from .judge import badness, judge, next_value, on_table
-from .plans import PLAN_LAND
+from .plans import PLAN_LAND, START_SEGMENTS
 from .reasons import BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, UNCERTIFIED
 from .keeps import keeps
 
@@ -253,7 +252,8 @@ class _OneRow:
 
 
 class CompiledDecision:
-    """:func:`decide_rows` bound to one filter, whose model gives what it needs (:meth:`missing`)."""
+    """:func:`decide_rows` bound to one filter, whose model gives what it needs
+    (:func:`~softreach.reach.proof.enclosure_check.lacking`)."""
 
     def __init__(self, vf: Any):
         la = vf.lookahead
@@ -274,12 +274,6 @@ class CompiledDecision:
         # one work space per thread: decide_rows writes into it
         self._local = threading.local()
 
-    @staticmethod
-    def missing(model: Any) -> str | None:
-        """What the decision needs that ``model`` does not give, naming what to add; ``None``: nothing
-        (:func:`~softreach.reach.proof.enclosure_check.lacking`)."""
-        return lacking(model)
-
     def __call__(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, pol: np.ndarray, plans: np.ndarray | None,
                  diagnostics: bool = True, with_policy: bool = True):
         """``(applied, reason, value, next_value, certified, chosen, blend, new_plans)`` for ``N`` rows (physical
@@ -297,8 +291,8 @@ class CompiledDecision:
 
         def run(lo: int, hi: int) -> None:
             # a block of rows; a whole batch goes unsliced (slicing costs about as much as deciding a row)
-            self._decide(rows if hi - lo == N else tuple(v if v is self.no_plans else v[lo:hi] for v in rows),
-                         plans is not None, diagnostics, with_policy)
+            block = rows if hi - lo == N else tuple(v if v is self.no_plans else v[lo:hi] for v in rows)
+            decide_rows(*self._arguments(block, plans is not None, diagnostics, with_policy))
 
         # each thread in its own work space (decide_rows releases the GIL)
         run_in_blocks(run, N, self.filter.threads)
@@ -334,10 +328,6 @@ class CompiledDecision:
             run(*args)
         return row
 
-    def _decide(self, rows: tuple, has_plans: bool, diagnostics: bool, with_policy: bool = True) -> None:
-        """:func:`decide_rows` of ``rows`` (``t, x, z, pol, plans``, the outputs) in this thread's work space."""
-        decide_rows(*self._arguments(rows, has_plans, diagnostics, with_policy))
-
     def _arguments(self, rows: tuple, has_plans: bool, diagnostics: bool, with_policy: bool) -> tuple:
         """:func:`decide_rows`'s arguments for ``rows`` (``t, x, z, pol, plans``, the outputs), in this thread's work
         space, under the filter's rule now."""
@@ -354,10 +344,16 @@ class CompiledDecision:
         _, reason, value, nxt, certified, _, _, _ = self(t, x, z, pol, None, True, with_policy=False)
         return certified, nxt, value, reason != OUTSIDE
 
-    def start_plans(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int, second: np.ndarray,
-                    segments: int) -> np.ndarray:
-        """:func:`start_plan_rows` for ``N`` rows: the ``(N, segments, 3)`` plans."""
-        out = np.empty((len(x), segments, 3), np.int64)
+    def start_plans(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int, second: np.ndarray
+                    ) -> np.ndarray:
+        """Plans from start states themselves (docs/filters.md, 'A start's own plan'; :func:`start_plan_rows`), valid
+        only as a run's first ``plan`` from its state, the second segment handed over as the first ends
+        (:func:`~softreach.filters.plans.advance_plan`).
+
+        :param periods: the most periods a plan holds, its segments together
+        :param second: per row, whether to search two segments where one does not do
+        :return: ``(N, START_SEGMENTS, 3)``, each segment ``(candidate, periods, PLAN_LAND)`` or ``NO_PLAN``"""
+        out = np.empty((len(x), START_SEGMENTS, 3), np.int64)
         t, x, z = (_writable(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z))
         space = self._space()[0]
         M, C, _, _ = self.args

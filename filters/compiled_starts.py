@@ -1,6 +1,6 @@
-"""The start-plan search of :func:`~softreach.filters.plans.start_plans`, compiled, in its order: each period is
-:func:`~softreach.filters.judge.judge_once`, which reads no table. ``tests/test_filters_soundness.py`` flies the plans
-it finds against switching winds."""
+"""The start-plan search of :meth:`~softreach.filters.compiled.CompiledDecision.start_plans`, compiled, in its order:
+each period is :func:`~softreach.filters.judge.judge_once`, which reads no table. ``tests/test_filters_soundness.py``
+flies the plans it finds against switching winds."""
 
 import math
 
@@ -58,8 +58,8 @@ def _segment_row(enclose, M, C, cands, periods, t, lo0, hi0, z, from_state, lo, 
 
 @njit(nogil=True, _nrt=False)
 def start_plan_rows(enclose, m_args, c_args, cands, periods, t, x, z, second, out, work_args, boxes):
-    """:func:`~softreach.filters.plans.start_plans` row by row: ``out[r]`` gets its ``(START_SEGMENTS, 3)`` segments;
-    the ``*_args`` as plain tuples (:mod:`softreach.filters.compiled_args`)."""
+    """:meth:`~softreach.filters.compiled.CompiledDecision.start_plans` row by row: ``out[r]`` gets its
+    ``(START_SEGMENTS, 3)`` segments; the ``*_args`` as plain tuples (:mod:`softreach.filters.compiled_args`)."""
     M, C, work = Motion(*m_args), Cells(*c_args), Work(*work_args)
     N, n = x.shape
     dt = period(M)

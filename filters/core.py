@@ -18,10 +18,11 @@ import numpy as np
 
 from softreach.reach import Table, TableError
 from softreach.reach.proof.blocks import default_threads
+from softreach.reach.proof import enclosure_check
 from softreach.reach.proof.lookahead import Lookahead, exact_normalized
 
 from .compiled import CompiledDecision
-from .plans import NO_PLAN, PLAN_LAND, PLAN_SAFE, START_SEGMENTS, check_plans, resolve_cells, start_plans
+from .plans import NO_PLAN, PLAN_LAND, PLAN_SAFE, START_SEGMENTS, check_plans, resolve_cells
 from .reasons import AFTER_HORIZON, BLEND, FALLBACK, OPTIMAL, OUTSIDE, PASS, REASONS, UNCERTIFIED
 from .single import filter_one
 from .tensors import batch_inputs, clip_unit, to_torch
@@ -85,7 +86,7 @@ class ValueFilter:
         self.model = model if model is not None else table.model
         if table.grid("V").ndim != self.model.state_dim:
             raise TableError(f"table {table.path} has {table.grid('V').ndim} states, the model {self.model.state_dim}")
-        missing = CompiledDecision.missing(self.model)
+        missing = enclosure_check.lacking(self.model)
         if missing is not None:
             raise ValueError(f"the safety filter cannot decide for model {self.model.name!r}: {missing}")
         self.dt = float(dt)
@@ -145,36 +146,30 @@ class ValueFilter:
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
         ok, nxt, value, inside = self.compiled.certify(tt, xs, zz)
         after = tt >= self.lookahead.horizon - 1e-9
-        reasons = []
-        for i in range(len(xs)):
-            if after[i]:
-                reasons.append("after_horizon")
-            elif not inside[i]:
-                reasons.append("outside_table")
-            elif ok[i]:
-                reasons.append("certified")
-            elif value[i] > 0:
-                reasons.append("not_in_set")
-            else:
-                reasons.append("no_certified_action")
-        certified = np.array([r == "certified" for r in reasons], dtype=bool)
+        # the first condition that holds names the reason
+        reasons = np.select([after, ~inside, ok, value > 0], ["after_horizon", "outside_table", "certified",
+                                                              "not_in_set"], "no_certified_action").tolist()
+        certified = ok & inside & ~after
         if single:
             return certified[0], reasons[0], nxt[0]
         return certified, reasons, nxt
 
     def certify_start(self, t: Any, x: Any, z: Any) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
         """:meth:`certify`, where a start not otherwise certified may begin with a plan of its own
-        (:func:`~softreach.filters.plans.start_plans`), certified only for a run whose :meth:`filter` calls get that
-        plan (:func:`~softreach.filters.plans.advance_plan`; :class:`SafetyFilter` does so).
+        (:meth:`~softreach.filters.compiled.CompiledDecision.start_plans`), certified only for a run whose
+        :meth:`filter` calls get that plan (:func:`~softreach.filters.plans.advance_plan`; :class:`SafetyFilter` does
+        so).
 
         :return: ``(certified, reasons, best next table value, plans (N, START_SEGMENTS, 3))``; :data:`NO_PLAN`: none"""
         tt, xs, zz, _, single, _ = self._inputs(t, x, z, None)
         certified, reasons, nxt = self.certify(tt, xs, zz)
+        # searched where neither one period nor a cell certifies the start; a plan of one period would be neither
         rows = np.nonzero([r in ("not_in_set", "no_certified_action") for r in reasons])[0]
         plans = np.tile(np.array(NO_PLAN, np.int64), (len(xs), START_SEGMENTS, 1))
-        second = np.array([self.model.start_segments > 1 and reasons[r] == "no_certified_action" for r in rows],
-                          dtype=bool)
-        plans[rows] = start_plans(self, tt[rows], xs[rows], zz[rows], self.start_periods, second)
+        if self.start_periods >= 2 and len(rows):
+            second = np.array([self.model.start_segments > 1 and reasons[r] == "no_certified_action" for r in rows],
+                              dtype=bool)
+            plans[rows] = self.compiled.start_plans(tt[rows], xs[rows], zz[rows], self.start_periods, second)
         planned = plans[:, 0, 0] >= 0
         certified = certified | planned
         reasons = ["certified" if p else r for r, p in zip(reasons, planned)]

@@ -18,7 +18,8 @@ NO_PLAN = (-1, 0, 0)
 PLAN_LAND = 1
 #: the owner code of a plan that keeps ``C1`` and the budget without landing, which the filter never follows
 PLAN_SAFE = 2
-#: a start's own plan holds one candidate, or two in sequence (:func:`start_plans`)
+#: a start's own plan holds one candidate, or two in sequence
+#: (:meth:`~softreach.filters.compiled.CompiledDecision.start_plans`)
 START_SEGMENTS = 2
 # what advance_plan returns for no plan: one read-only array, not one made at each step
 _NO_PLAN = np.array(NO_PLAN, np.int64)
@@ -53,22 +54,6 @@ def check_plans(plan: Any, N: int) -> np.ndarray | None:
     if arr.shape != (N, 3) or not np.issubdtype(arr.dtype, np.integer):
         raise ValueError(f"plan must be the integer (N, 3) info['plan'] of the previous step, got {plan!r}")
     return arr.astype(np.int64, copy=False)
-
-
-def start_plans(vf: Any, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int,
-                second: np.ndarray | None = None) -> np.ndarray:
-    """Plans from a start state itself where neither one period nor its cell certifies it (docs/filters.md, 'A start's
-    own plan'; :mod:`softreach.filters.compiled_starts`), valid only as a run's first ``plan`` from this state, the
-    second segment handed over as the first ends (:func:`advance_plan`).
-
-    :param periods: the most periods a plan holds, its segments together (no plan below 2)
-    :param second: per row, whether to search two segments where one does not do (default: no row)
-    :return: ``(N, START_SEGMENTS, 3)``, each segment ``(candidate, periods, PLAN_LAND)`` or :data:`NO_PLAN`"""
-    N = len(x)
-    second = np.zeros(N, bool) if second is None else np.asarray(second, bool)
-    if vf.landing_cells is None or periods < 2 or N == 0:
-        return np.tile(np.array(NO_PLAN, np.int64), (N, START_SEGMENTS, 1))
-    return vf.compiled.start_plans(t, x, z, periods, second, START_SEGMENTS)
 
 
 def advance_plan(plan: np.ndarray, queued: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

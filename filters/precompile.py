@@ -32,9 +32,9 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
     :param period: the control period [s] (default: the table's, else the model's for a continuous-time table)
     :param cells: the model's cells (built or unpacked where missing); ``False``: empty ones, which run the same code
     :return: ``model``, ``seconds``, ``source`` (``"compiled"`` by this call, loaded from the ``"cache"``, or already in
-        this ``"process"``), ``cache`` (the folder, :func:`softreach.reach.jit.compiled_cache_dir`), ``compiled`` (true)
-        and ``missing`` (``None``): :class:`~softreach.filters.ValueFilter` refuses a model it cannot serve compiled
-    :raises ValueError: a table without ``W_eps`` or ``Q_min``, or no control period known"""
+        this ``"process"``) and ``cache`` (the folder, :func:`softreach.reach.jit.compiled_cache_dir`)
+    :raises ValueError: a table without ``W_eps`` or ``Q_min``, or no control period known (and the refusals of
+        :class:`~softreach.filters.ValueFilter`, e.g. of a model it cannot serve)"""
     from softreach.reach import load_table
     from softreach.reach.proof.cell_certificate import CellCertificate
     from softreach.reach.proof.lookahead import Lookahead
@@ -42,7 +42,6 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
     from . import ValueFilter
     from .compiled import decide_rows
     from .compiled_starts import start_plan_rows
-    from .plans import START_SEGMENTS
 
     if not hasattr(table, "model"):
         table = load_table(table)
@@ -70,13 +69,12 @@ def precompile(table: Any, period: float | None = None, cells: bool = True) -> d
     x = 0.5 * (np.asarray(grid.lo[:model.state_dim]) + np.asarray(grid.hi[:model.state_dim]))
     vf.filter(0.0, x, 0.0, vf.fallback_action)
     vf.certify(0.0, x, 0.0)
-    vf.compiled.start_plans(np.zeros(1), x[None], np.zeros(1), 1, np.ones(1, bool), START_SEGMENTS)
+    vf.compiled.start_plans(np.zeros(1), x[None], np.zeros(1), 1, np.ones(1, bool))
     seconds = time.perf_counter() - t0  # the filter's construction with its first decision
     source = decision_code_source(before)
     if not (decide_rows.signatures and start_plan_rows.signatures):
         raise RuntimeError(f"{model.name}: the filter made a decision without its compiled code")
-    return {"model": model.name, "compiled": True, "seconds": seconds, "source": source,
-            "cache": decide_rows.stats.cache_path, "missing": None}
+    return {"model": model.name, "seconds": seconds, "source": source, "cache": decide_rows.stats.cache_path}
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:

@@ -165,7 +165,8 @@ class FilterPart:
     #: lengths [periods] of the landing game's cells
     cell_shape: tuple[int, ...] | None = None
     cell_holds: tuple[int, ...] = (1,)
-    #: candidates a start's own plan may hold in sequence, 1 or 2 (:func:`softreach.filters.plans.start_plans`)
+    #: candidates a start's own plan may hold in sequence, 1 or 2
+    #: (:meth:`softreach.filters.compiled.CompiledDecision.start_plans`)
     start_segments: int = 1
 
 

@@ -16,20 +16,20 @@ from softreach.reach.sim.integrator import integrate_period
 
 
 def without_cells(monkeypatch) -> None:
-    """Make the filter's check of a model (:meth:`~softreach.filters.compiled.CompiledDecision.missing`) see every
-    model as one that declares no ``cell_shape``: a copy of it without, so that the check itself runs."""
+    """Make the filter's check of a model (:func:`~softreach.reach.proof.enclosure_check.lacking`) see every model as
+    one that declares no ``cell_shape``: a copy of it without, so that the check itself runs."""
     import copy
 
-    from softreach.filters.compiled import CompiledDecision
+    from softreach.reach.proof import enclosure_check
 
-    check = CompiledDecision.missing
+    check = enclosure_check.lacking
 
-    def missing(model):
+    def lacking(model):
         bare = copy.copy(model)
         bare.cell_shape = None
         return check(bare)
 
-    monkeypatch.setattr(CompiledDecision, "missing", staticmethod(missing))
+    monkeypatch.setattr(enclosure_check, "lacking", lacking)
 
 
 def cell_boxes(cells, k: int):

@@ -301,13 +301,13 @@ def test_softreach_compile_leaves_the_decision_in_numbas_cache(pointmass_held_ta
     from softreach.filters.compiled_starts import start_plan_rows
 
     calls = []
-    # _decide: the decision of a batch and of one row alike
-    for name in ("_decide", "certify", "start_plans"):
+    # _arguments: the decision of a batch and of one row alike
+    for name in ("_arguments", "certify", "start_plans"):
         real = getattr(CompiledDecision, name)
         monkeypatch.setattr(CompiledDecision, name,
                             lambda self, *a, _real=real, _name=name, **k: calls.append(_name) or _real(self, *a, **k))
     assert main(["compile", str(pointmass_held_table.path), str(dubins_held_table.path)]) == 0
-    assert sorted(set(calls)) == ["_decide", "certify", "start_plans"]
+    assert sorted(set(calls)) == ["_arguments", "certify", "start_plans"]
     out = capsys.readouterr().out.splitlines()
     assert "pointmass's filter" in out[0] and str(decide_rows.stats.cache_path) in out[0]
     assert "dubins's filter" in out[1] and str(decide_rows.stats.cache_path) in out[1]

@@ -12,7 +12,7 @@ import gymnasium as gym
 import softreach.envs  # noqa: F401  (registers the environments)
 from softreach.filters import SafetyFilter, ValueFilter
 from softreach.agents.audit import POLICIES, Row, _policy, _wind, audit, run_episode
-from softreach.filters.plans import NO_PLAN, PLAN_LAND, advance_plan, start_plans
+from softreach.filters.plans import NO_PLAN, PLAN_LAND, advance_plan
 from softreach.reach import get_model
 from softreach.reach.sim.integrator import integrate_period
 
@@ -203,7 +203,7 @@ def test_glider_audit_from_certified_starts(glider_held_table):
 
 
 #: glider states that no single held angle from the state certifies at Q = 5 but two in sequence do (by the
-#: packaged cells; found by start_plans with every row searched for two segments)
+#: packaged cells; found by CompiledDecision.start_plans with every row searched for two segments)
 TWO_ANGLE_STARTS = [[9.292976274617553, 81.54197091844232, -0.045972736491441055],
                     [1.5974903238648426, 80.98291223616016, -0.022155006349714453],
                     [10.58611239445255, 81.63657903203169, -0.051038693539694174],
@@ -218,7 +218,8 @@ def test_glider_start_plans_of_two_angles_in_sequence(glider_held_table):
     q = 5.0
     x = np.asarray(TWO_ANGLE_STARTS)
     assert not vf.certify(0.0, x, q)[0].any()
-    plans = start_plans(vf, np.zeros(len(x)), x, np.full(len(x), q), vf.start_periods, np.ones(len(x), bool))
+    plans = vf.compiled.start_plans(np.zeros(len(x)), x, np.full(len(x), q), vf.start_periods,
+                                    np.ones(len(x), bool))
     two = plans[:, 1, 0] >= 0
     assert two.sum() >= 3, plans
     rng = np.random.default_rng(10)
