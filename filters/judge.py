@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from softreach.reach.jit import njit
-from softreach.reach.proof.kernels import certificate_row, cover_row, point_value
+from softreach.reach.proof.kernels import TOL, certificate_row, cover_row, point_value
 from softreach.reach.proof.period import c1_and_charge, enclose_period, lands, meets_target, period
 from softreach.reach.proof.ranks import RANK_KEPT, RANK_LEAVES_C1, RANK_OVERSPENT, TIE_INF, TIE_OVERSPEND
 
@@ -89,10 +89,10 @@ def badness(T, t_next, end_lo, end_hi, work, c_in, c_bounded, c_kept, c_c1, c_ze
 def on_table(W, t, x, z, point, buf, node):
     """:meth:`Table.inside` of a ``W_eps`` table: the interpolant of ``W`` is finite at ``(t, x, z)`` (a budget above
     the grid is read at its top)."""
-    # a field's (values, times, shape, glo, ghi, ...) (softreach.reach.proof.lookahead.kernel_field)
-    times, glo, ghi = W[1], W[3], W[4]
+    # a field as softreach.reach.proof.lookahead.kernel_field makes it
+    _, times, _, glo, ghi, _, _, _ = W
     n = len(x)
-    if not (t >= times[0] - 1e-9 and t <= times[-1] + 1e-9) or not z >= glo[n]:
+    if not (t >= times[0] - TOL and t <= times[-1] + TOL) or not z >= glo[n]:
         return False
     for a in range(n):
         point[a] = x[a]

@@ -237,11 +237,6 @@ def cell_key(lookahead: Any, shape: Any, dz: float | None = None, holds: Any = (
     return key
 
 
-def cache_dir() -> Path:
-    """Where built cells are kept: the package's cache folder, :func:`softreach.reach.jit.cache_root`."""
-    return cache_root()
-
-
 #: cells shipped for :class:`~softreach.filters.SafetyFilter`'s default configurations (``tests/test_packaged_cells.py``
 #: rechecks them), written by ``python benchmarks/cell_certificate.py --table TABLE --write-packaged [--checks N]``
 PACKAGED = Path(__file__).parent / "cells"
@@ -272,10 +267,11 @@ def cache_file(key: dict[str, Any], folder: Path) -> Path:
 
 def cached(lookahead: Any, shape: Any, dz: float | None = None, holds: Any = (1,), span_cap: int = 32
            ) -> CellCertificate:
-    """The cells, memory-mapped from a folder in :func:`cache_dir` first written from :data:`PACKAGED` or a build; a
-    folder of another origin (:data:`_MADE_WITH`) is replaced, and an unwritable cache skipped with a warning."""
+    """The cells, memory-mapped from a folder in the package's cache (:func:`softreach.reach.jit.cache_root`) first
+    written from :data:`PACKAGED` or a build; a folder of another origin (:data:`_MADE_WITH`) is replaced, and an
+    unwritable cache skipped with a warning."""
     key = cell_key(lookahead, shape, dz, holds, span_cap)
-    folder = cache_file(key, cache_dir()).with_suffix("")
+    folder = cache_file(key, cache_root()).with_suffix("")
     packaged = cache_file(key, PACKAGED)
     shipped = _file_digest(packaged) if packaged.is_file() else None
     origin = shipped if shipped is not None else f"built:{source_stamp()}"
