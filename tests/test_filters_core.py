@@ -317,7 +317,7 @@ def test_bad_inputs_raise(vfilter, bad, match):
 @pytest.mark.parametrize("rows", [1, 4, 20])
 @pytest.mark.parametrize("name, bad", [("x", -np.inf), ("t", np.nan), ("z", np.inf), ("action", np.nan)])
 def test_a_non_finite_entry_is_named_in_a_batch_of_any_size(vfilter, rows, name, bad):
-    # a step's few numbers and a batch's many are checked by different code (filters/tensors.finite)
+    # a step's few numbers and a batch's many are checked by different code (reach/inputs.check_finite)
     args = dict(t=np.full(rows, 0.1), x=np.tile([0.0, 5.0], (rows, 1)), z=np.full(rows, 0.3),
                 action=np.ones((rows, 1)))
     args[name] = args[name].copy()
