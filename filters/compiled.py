@@ -20,8 +20,8 @@ from softreach.reach.proof.kernels import certificate_row, cover_row, frozen, pl
 from softreach.reach.proof.lookahead import exact_normalized
 from softreach.reach.proof.period import motion
 
-from .compiled_args import (N_BOOL_J, N_FLOAT_J, N_FLOAT_N, N_FLOAT_N1, ActionMap, Cells, DecisionSpace, TableArgs,
-                            named, packed_space, plain)
+from .compiled_args import (N_BOOL_J, N_FLOAT_J, N_FLOAT_M, N_FLOAT_N, N_FLOAT_N1, ActionMap, Cells, DecisionSpace,
+                            TableArgs, named, packed_space, plain)
 from .compiled_starts import start_plan_rows
 from .judge import badness, judge, next_value, on_table
 from .plans import PLAN_LAND, START_SEGMENTS
@@ -33,7 +33,7 @@ def decision_space(n: int, m: int, J: int) -> tuple[DecisionSpace, tuple]:
     """The work space of :func:`decide_rows` and :func:`~softreach.filters.compiled_starts.start_plan_rows`, so that
     the compiled loops allocate nothing: ``(named, packed)``, one memory."""
     packed = (np.empty((N_FLOAT_J, J)), np.empty((N_BOOL_J, J), np.bool_), np.empty((N_FLOAT_N, n)),
-              np.empty((N_FLOAT_N1, n + 1)), np.empty((2, J + 1, n)), np.empty(m), np.empty(J, np.int64),
+              np.empty((N_FLOAT_N1, n + 1)), np.empty((2, J + 1, n)), np.empty((N_FLOAT_M, m)), np.empty(J, np.int64),
               np.empty((8, n))) + point_scratch(n + 1)
     # the named views in Python: the compiled function's own code, run by the interpreter
     return packed_space.py_func(packed), packed
@@ -57,30 +57,36 @@ def _after(a, b):
 
 
 @njit(inline="always")
-def _blend(act, action, best, lam, pol, r):
-    """:meth:`ValueFilter.blend` of row ``r`` into ``act``."""
-    a_mid, a_half, cands_q = action.mid, action.half, action.cands_q
-    for i in range(len(act)):
-        act[i] = a_mid[i] + a_half[i] * (cands_q[best, i] + lam * ((pol[r, i] - a_mid[i]) / a_half[i]
-                                                                   - cands_q[best, i]))
+def _policy(space, action, actions, r, normalized):
+    """Row ``r``'s policy action as an environment applies it into ``space.pol`` (:meth:`ValueFilter.physical` of a
+    normalised one, else clipped to the control box) and, where ``normalized``, the normalised action whose image it
+    is into ``space.pol_q``."""
+    for i in range(len(space.pol)):
+        a = actions[r, i]
+        if normalized:
+            space.pol_q[i] = min(max(a, -1.0), 1.0)
+            space.pol[i] = action.mid[i] + action.half[i] * space.pol_q[i]
+        else:
+            space.pol[i] = min(max(a, action.lo[i]), action.hi[i])
 
 
 @njit(inline="always")
-def _try(s, J, act, action, cands, pol, r, best, mid):
-    """Into ``act``, row ``r``'s action at step ``s``: the policy's, candidate ``s - 1``, or the bisection point."""
-    if s > J:
-        _blend(act, action, best, mid, pol, r)
-        return
-    for i in range(len(act)):
-        act[i] = pol[r, i] if s == 0 else cands[s - 1, i]
+def _blend(space, action, best, lam):
+    """:meth:`ValueFilter.blend` of candidate ``best`` and the policy's action into ``space.act``, and the normalised
+    action whose image it is into ``space.act_q``."""
+    a_mid, a_half, cands_q, pol = action.mid, action.half, action.cands_q, space.pol
+    for i in range(len(pol)):
+        q = cands_q[best, i] + lam * ((pol[i] - a_mid[i]) / a_half[i] - cands_q[best, i])
+        space.act_q[i] = min(max(q, -1.0), 1.0)
+        space.act[i] = a_mid[i] + a_half[i] * space.act_q[i]
 
 
 @njit(inline="always")
-def _distance(cands, j, pol, r, a_half):
-    """The normalised distance from candidate ``j`` to row ``r``'s policy action (the smooth rule's preference)."""
+def _distance(cands, j, pol, a_half):
+    """The normalised distance from candidate ``j`` to the policy's action ``pol`` (the smooth rule's preference)."""
     d = 0.0
     for i in range(cands.shape[1]):
-        q = (cands[j, i] - pol[r, i]) / a_half[i]
+        q = (cands[j, i] - pol[i]) / a_half[i]
         d += q * q
     return math.sqrt(d)
 
@@ -130,9 +136,10 @@ def _choose(enclose, M, C, T, cands, smooth, tr, t_next, space):
 
 # called, not inlined: large and run at most once a row (softreach.filters.judge, "Inlined or called")
 @njit(_nrt=False)
-def _follow_plan(C, cands, r, tr, xr, zr, plans, has_plans, best, best_next, lam, act, c_next, new_plans):
+def _follow_plan(C, cands, cands_q, r, tr, xr, zr, plans, has_plans, best, best_next, lam, act, act_q, c_next,
+                 new_plans):
     """Row ``r``'s landing-cell plan where no candidate passes: the one followed, else the state's cell's. Writes
-    ``act`` and ``new_plans[r]``; returns ``(best, best_next, lam, followed)``."""
+    ``act``, ``act_q`` (its normalised action) and ``new_plans[r]``; returns ``(best, best_next, lam, followed)``."""
     J = cands.shape[0]
     if has_plans and plans[r, 1] > 0 and 0 <= plans[r, 0] < J and plans[r, 2] == PLAN_LAND:
         jj, left = plans[r, 0], plans[r, 1] - 1
@@ -143,7 +150,7 @@ def _follow_plan(C, cands, r, tr, xr, zr, plans, has_plans, best, best_next, lam
             return best, best_next, lam, False
         jj, left = cj, ck - 1
     for i in range(cands.shape[1]):
-        act[i] = cands[jj, i]
+        act[i], act_q[i] = cands[jj, i], cands_q[jj, i]
     new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = jj, left, PLAN_LAND
     # the plan's candidate itself is applied, not a blend towards the policy's action
     return jj, c_next[jj], 0.0, True
@@ -151,19 +158,23 @@ def _follow_plan(C, cands, r, tr, xr, zr, plans, has_plans, best, best_next, lam
 
 # _nrt=False here and in the kernels it calls: reference counting costs, and they allocate nothing (docs/filters.md)
 @njit(nogil=True, _nrt=False)
-def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterations, a_args, t, x, z, pol, plans,
-                has_plans, diagnostics, with_policy, applied, reason, value, nxt, certified, chosen, blend, new_plans,
-                space_args):
+def decide_rows(enclose, m_args, c_args, t_args, cands, smooth, iterations, a_args, t, x, z, actions, normalized,
+                plans, has_plans, diagnostics, with_policy, applied, reason, value, nxt, certified, chosen, blend,
+                new_plans, space_args):
     """The decision for every row (:meth:`ValueFilter.filter`): the ``"smooth"`` rule with ``iterations`` bisection
     steps where ``smooth``, else ``"switch"``; ``*_args`` as plain tuples (:mod:`softreach.filters.compiled_args`).
+    The policy's ``actions`` and the ``applied`` and ``chosen`` ones are normalised where ``normalized``, else
+    physical; a normalised applied action is the one whose image (``mid + half * q``) was judged.
     Without ``diagnostics`` the value at the state and a passing policy's next value (deciding nothing) are NaN. Without
     ``with_policy`` only the candidates are judged: the certificate at a state (:meth:`CompiledDecision.certify`)."""
     M, C, T, action = named(m_args, c_args, t_args, a_args)
     space = packed_space(space_args)
     J, m = cands.shape
     work, end_lo, end_hi, act = space.work, space.end_lo, space.end_hi, space.act
+    a_mid, a_half = action.mid, action.half
     for r in range(x.shape[0]):
         tr, xr, zr = t[r], x[r], z[r]
+        _policy(space, action, actions, r, normalized)
         value[r] = (certificate_row(T.W, T.z_top, T.z_floor, T.z_left, T.V, T.has_V, tr, xr, zr, work.point,
                                     work.buf, work.node) if diagnostics else np.nan)
         new_plans[r, 0], new_plans[r, 1], new_plans[r, 2] = -1, 0, 0
@@ -174,9 +185,13 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
         lo, hi, mid = 0.0, 1.0, 0.0
         for s in range(0 if with_policy else 1, 1 + J + (iterations if smooth else 0)):
             slot = s - 1 if 1 <= s <= J else J
+            # the action of step s: the policy's, candidate s - 1, or the bisection point
             if s > J:
                 mid = 0.5 * (lo + hi)
-            _try(s, J, act, action, cands, pol, r, best, mid)
+                _blend(space, action, best, mid)
+            else:
+                for i in range(m):
+                    act[i] = space.pol[i] if s == 0 else cands[s - 1, i]
             v = judge(enclose, M, C, tr, xr, xr, zr, act, end_lo[slot], end_hi[slot], work)
             a_lands, a_zend, t_next = v.lands, v.z_end, v.t_next
             a_ok, a_kept = v.ok or a_lands, v.kept or a_lands
@@ -191,7 +206,7 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
                 if a_ok or keeps(enclose, M, C, cands, tr, end_lo[J], end_hi[J], a_zend, a_kept, work,
                                  space.work_box, space.slab_box, np.bool_(True)):
                     for i in range(m):
-                        applied[r, i] = pol[r, i]
+                        applied[r, i] = space.pol_q[i] if normalized else space.pol[i]
                     reason[r], nxt[r], certified[r], blend[r] = PASS, a_next if diagnostics else np.nan, True, 1.0
                     chosen[r] = np.nan
                     passed = True
@@ -208,22 +223,27 @@ def decide_rows(enclose, m_args, c_args, t_args, cands, fallback, smooth, iterat
             space.c_ok[j], space.c_next[j], space.c_zend[j], space.c_kept[j] = a_ok, a_next, a_zend, a_kept
             space.c_in[j], space.c_bounded[j], space.c_c1[j] = v.in_c1, v.bounded, v.c1
             any_ok = any_ok or a_ok
-            space.c_dist[j] = _distance(cands, j, pol, r, action.half)
+            space.c_dist[j] = _distance(cands, j, space.pol, a_half)
             if s == J:
                 best, bounded = _choose(enclose, M, C, T, cands, smooth, tr, t_next, space)
                 best_next = space.c_next[best]
         if passed:
             continue
         lam = lo
-        _blend(act, action, best, lam, pol, r)
+        _blend(space, action, best, lam)
         if not any_ok:
             # np.int64: a literal 0 would compile _follow_plan once more
-            best, best_next, lam, any_ok = _follow_plan(C, cands, r, tr, xr, zr, plans, has_plans, np.int64(best),
-                                                        best_next, lam, act, space.c_next, new_plans)
+            best, best_next, lam, any_ok = _follow_plan(C, cands, action.cands_q, r, tr, xr, zr, plans, has_plans,
+                                                        np.int64(best), best_next, lam, act, space.act_q,
+                                                        space.c_next, new_plans)
             bounded = bounded or any_ok
         for i in range(m):
-            applied[r, i] = act[i] if bounded else fallback[i]
-            chosen[r, i] = cands[best, i]
+            if normalized:
+                applied[r, i] = space.act_q[i] if bounded else action.fallback_q[i]
+                chosen[r, i] = (cands[best, i] - a_mid[i]) / a_half[i]
+            else:
+                applied[r, i] = act[i] if bounded else action.fallback[i]
+                chosen[r, i] = cands[best, i]
         nxt[r], certified[r], blend[r] = best_next, any_ok, lam
         reason[r] = ((BLEND if lam > 0 else OPTIMAL) if any_ok else UNCERTIFIED) if bounded else FALLBACK
         if not on_table(T.inside, tr, xr, max(zr, 0.0), work.point, work.buf, work.node):
@@ -241,12 +261,12 @@ class _OneRow:
     and read without indexing at each call), and per kind of call the compiled code and its argument list."""
 
     def __init__(self, n: int, m: int):
-        self.t, self.x, self.z, self.pol = np.empty(1), np.empty((1, n)), np.empty(1), np.empty((1, m))
+        self.t, self.x, self.z, self.actions = np.empty(1), np.empty((1, n)), np.empty(1), np.empty((1, m))
         self.plan = np.empty((1, 3), np.int64)
         #: ``(applied, reason, value, next_value, certified, chosen, blend, new_plans)``
         self.outs = (np.empty((1, m)), np.empty(1, np.int64), np.empty(1), np.empty(1), np.empty(1, bool),
                      np.empty((1, m)), np.empty(1), np.empty((1, 3), np.int64))
-        self.x0, self.pol0, self.plan0 = self.x[0], self.pol[0], self.plan[0]
+        self.x0, self.action0, self.plan0 = self.x[0], self.actions[0], self.plan[0]
         self.applied0, self.chosen0, self.new_plan0 = self.outs[0][0], self.outs[5][0], self.outs[7][0]
         self.calls: dict[tuple, tuple] = {}
 
@@ -264,63 +284,60 @@ class CompiledDecision:
         self.T = TableArgs(*la.table_args)
         # a private writable copy: a candidate row has the type of a judged work array, so judge compiles once
         self.cands = np.array(la.candidates, dtype=np.float64, order="C")
-        self.action = ActionMap(frozen(np.ascontiguousarray(la.a_mid)), frozen(np.ascontiguousarray(la.a_half)),
-                                frozen(np.ascontiguousarray(exact_normalized(self.cands, la.a_mid, la.a_half))))
-        self.fallback = frozen(np.asarray(vf.fallback_action, dtype=np.float64))
+        fallback = np.asarray(vf.fallback_action, dtype=np.float64)
+        self.action = ActionMap(*(frozen(np.ascontiguousarray(v, dtype=np.float64)) for v in (
+            la.a_mid, la.a_half, vf.a_lo, vf.a_hi, exact_normalized(self.cands, la.a_mid, la.a_half), fallback,
+            exact_normalized(fallback, la.a_mid, la.a_half))))
         self.no_plans = np.zeros((1, 3), np.int64)
-        #: the control box as Python numbers: ``(lo, hi, mid, half)`` (:mod:`softreach.filters.single`)
-        self.bounds = tuple(v.tolist() for v in (vf.a_lo, vf.a_hi, vf.a_mid, vf.a_half))
         self.args = plain((self.M, self.C, self.T, self.action))
         # one work space per thread: decide_rows writes into it
         self._local = threading.local()
 
-    def __call__(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, pol: np.ndarray, plans: np.ndarray | None,
-                 diagnostics: bool = True, with_policy: bool = True):
-        """``(applied, reason, value, next_value, certified, chosen, blend, new_plans)`` for ``N`` rows (physical
-        policy actions; ``plans`` the previous step's or ``None``; ``diagnostics``, ``with_policy`` as
-        :func:`decide_rows`, which then decides by the switch rule)."""
+    def __call__(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, actions: np.ndarray, normalized: bool,
+                 plans: np.ndarray | None, diagnostics: bool = True, with_policy: bool = True):
+        """``(applied, reason, value, next_value, certified, chosen, blend, new_plans)`` for ``N`` rows (the policy's
+        ``actions``, normalised where ``normalized``, else physical; ``plans`` the previous step's or ``None``;
+        ``diagnostics``, ``with_policy`` as :func:`decide_rows`, which then decides by the switch rule)."""
         N, m = len(x), self.cands.shape[1]
         applied, chosen = np.empty((N, m)), np.empty((N, m))
         reason, new_plans = np.empty(N, np.int64), np.empty((N, 3), np.int64)
         value, nxt, certified, blend = np.empty(N), np.empty(N), np.empty(N, bool), np.empty(N)
         # the enclosure reads rows by address: contiguous rows
-        t, x, z, pol = (_writable(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z, pol))
+        t, x, z, actions = (_writable(np.ascontiguousarray(v, dtype=np.float64)) for v in (t, x, z, actions))
         plans = None if plans is None else _writable(np.ascontiguousarray(plans, dtype=np.int64))
         outs = (applied, reason, value, nxt, certified, chosen, blend, new_plans)
-        rows = (t, x, z, pol, self.no_plans if plans is None else plans) + outs
+        rows = (t, x, z, actions, self.no_plans if plans is None else plans) + outs
 
         def run(lo: int, hi: int) -> None:
             # a block of rows; a whole batch goes unsliced (slicing costs about as much as deciding a row)
             block = rows if hi - lo == N else tuple(v if v is self.no_plans else v[lo:hi] for v in rows)
-            decide_rows(*self._arguments(block, plans is not None, diagnostics, with_policy))
+            decide_rows(*self._arguments(block, normalized, plans is not None, diagnostics, with_policy))
 
         # each thread in its own work space (decide_rows releases the GIL)
         run_in_blocks(run, N, self.filter.threads)
         return outs
 
-    def one(self, t: float, x: np.ndarray, z: float, pol: list[float], plan: np.ndarray | None,
+    def one(self, t: float, x: np.ndarray, z: float, action: np.ndarray, normalized: bool, plan: np.ndarray | None,
             diagnostics: bool) -> _OneRow:
-        """:meth:`__call__` of one row (``x`` a ``(n,)`` float array, ``pol`` Python numbers, ``plan`` a ``(3,)`` int
-        array or ``None``), in the calling thread, into this thread's one-row outputs (:class:`_OneRow`): valid until
-        its next call, copy what is kept."""
+        """:meth:`__call__` of one row (``x`` and ``action`` float arrays, ``plan`` a ``(3,)`` int array or ``None``),
+        in the calling thread, into this thread's one-row outputs (:class:`_OneRow`): valid until its next call, copy
+        what is kept."""
         row = getattr(self._local, "row", None)
         if row is None:
             row = self._local.row = _OneRow(len(x), self.cands.shape[1])
         row.t[0], row.z[0] = t, z
         row.x0[:] = x
-        pol0 = row.pol0
-        for i, v in enumerate(pol):
-            pol0[i] = v
+        row.action0[:] = action
         if plan is not None:
             row.plan0[:] = plan
         has_plan = plan is not None
-        key = (has_plan, diagnostics, self.filter.rule, self.filter.smooth_iterations)
+        key = (has_plan, normalized, diagnostics, self.filter.rule, self.filter.smooth_iterations)
         call = row.calls.get(key)
         if call is None:
             # the whole argument list, made once per kind of call, and the compiled code it runs: one row's fixed
             # costs are mostly the call's
-            rows = (row.t, row.x, row.z, row.pol, row.plan if has_plan else self.no_plans, *row.outs)
-            args = self._arguments(rows, has_plan, diagnostics, True)
+            rows = (row.t, row.x, row.z, row.actions, row.plan if has_plan else self.no_plans, *row.outs)
+            args = self._arguments(rows, normalized, has_plan, diagnostics, True)
             decide_rows(*args)
             row.calls[key] = (entry_point(decide_rows, args), args)
         else:
@@ -328,20 +345,20 @@ class CompiledDecision:
             run(*args)
         return row
 
-    def _arguments(self, rows: tuple, has_plans: bool, diagnostics: bool, with_policy: bool) -> tuple:
-        """:func:`decide_rows`'s arguments for ``rows`` (``t, x, z, pol, plans``, the outputs), in this thread's work
-        space, under the filter's rule now."""
+    def _arguments(self, rows: tuple, normalized: bool, has_plans: bool, diagnostics: bool, with_policy: bool
+                   ) -> tuple:
+        """:func:`decide_rows`'s arguments for ``rows`` (``t, x, z, actions, plans``, the outputs), in this thread's
+        work space, under the filter's rule now."""
         vf = self.filter
         M, C, T, action = self.args
-        return (self.enclose, M, C, T, self.cands, self.fallback, with_policy and vf.rule == "smooth",
-                vf.smooth_iterations, action, *rows[:5], has_plans, diagnostics, with_policy, *rows[5:],
-                self._space()[1])
+        return (self.enclose, M, C, T, self.cands, with_policy and vf.rule == "smooth", vf.smooth_iterations, action,
+                *rows[:4], normalized, rows[4], has_plans, diagnostics, with_policy, *rows[5:], self._space()[1])
 
     def certify(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple:
         """``(certified, next_value, value, inside)`` for ``N`` rows: the decision without a policy's action, whose
         candidates the switch rule ranks; certified where one passes or the state's landing cell has a plan."""
-        pol = np.zeros((len(x), self.cands.shape[1]))
-        _, reason, value, nxt, certified, _, _, _ = self(t, x, z, pol, None, True, with_policy=False)
+        actions = np.zeros((len(x), self.cands.shape[1]))
+        _, reason, value, nxt, certified, _, _, _ = self(t, x, z, actions, False, None, True, with_policy=False)
         return certified, nxt, value, reason != OUTSIDE
 
     def start_plans(self, t: np.ndarray, x: np.ndarray, z: np.ndarray, periods: int, second: np.ndarray

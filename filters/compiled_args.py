@@ -43,13 +43,19 @@ class TableArgs(NamedTuple):
 
 
 class ActionMap(NamedTuple):
-    """The control box's map (:func:`~softreach.reach.proof.lookahead.action_map`) and the candidates in it."""
+    """The control box, its map (:func:`~softreach.reach.proof.lookahead.action_map`) and the actions in it."""
 
     #: an environment applies ``mid + half * q``
     mid: np.ndarray
     half: np.ndarray
+    #: the control box's corners
+    lo: np.ndarray
+    hi: np.ndarray
     #: the candidates normalised, each mapped back exactly (:func:`~softreach.reach.proof.lookahead.exact_normalized`)
     cands_q: np.ndarray
+    #: the action where no candidate can be bounded (:attr:`ValueFilter.fallback_action`), and normalised alike
+    fallback: np.ndarray
+    fallback_q: np.ndarray
 
 
 class Verdict(NamedTuple):
@@ -114,8 +120,12 @@ class DecisionSpace(NamedTuple):
     c_dist: np.ndarray
     c_order: np.ndarray
     c_pref: np.ndarray
-    #: the action being judged
+    #: the action being judged, and the normalised action whose image it is (where it is a candidate or a blend)
     act: np.ndarray
+    act_q: np.ndarray
+    #: the row's policy action as applied, and normalised (where the policy's actions are)
+    pol: np.ndarray
+    pol_q: np.ndarray
     #: the verdict's ``in_c1``, ``bounded`` and ``c1``
     c_in: np.ndarray
     c_bounded: np.ndarray
@@ -136,8 +146,9 @@ def named(M, C, T, action):
     return Motion(*M), Cells(*C), TableArgs(*T), ActionMap(*action)
 
 
-#: rows of the packed arrays (:func:`packed_space`): floats and booleans per candidate, floats per state (and budget)
-N_FLOAT_J, N_BOOL_J, N_FLOAT_N, N_FLOAT_N1 = 6, 4, 9, 3
+#: rows of the packed arrays (:func:`packed_space`): floats and booleans per candidate, floats per state (and budget),
+#: floats per action axis
+N_FLOAT_J, N_BOOL_J, N_FLOAT_N, N_FLOAT_N1, N_FLOAT_M = 6, 4, 9, 3, 4
 
 
 @njit(inline="always")
@@ -147,4 +158,4 @@ def packed_space(packed):
     fJ, bJ, fn, fn1, ends, act, order, boxes, buf, node = packed
     work = Work(fn[0], fn[1], fn[2], fn[3], fn1[0], fn1[1], fn[6], fn1[2], buf, node)
     return DecisionSpace(work, Box(fn[4], fn[5]), Box(fn[7], fn[8]), ends[0], ends[1], bJ[0], fJ[0], fJ[1], fJ[2],
-                         bJ[1], fJ[3], order, fJ[4], act, bJ[2], bJ[3], fJ[5], boxes)
+                         bJ[1], fJ[3], order, fJ[4], act[0], act[1], act[2], act[3], bJ[2], bJ[3], fJ[5], boxes)

@@ -128,7 +128,7 @@ class ValueFilter:
         """The smooth rule's point ``lam`` of the way from candidates ``best`` to policy actions ``pol`` (physical,
         ``(N, m)``), in the normalised space and mapped back as an environment maps it: the point judged is applied."""
         qb = exact_normalized(best, self.a_mid, self.a_half)
-        return self.a_mid + self.a_half * (qb + lam[:, None] * ((pol - self.a_mid) / self.a_half - qb))
+        return self.a_mid + self.a_half * clip_unit(qb + lam[:, None] * ((pol - self.a_mid) / self.a_half - qb))
 
     def _inputs(self, t: Any, x: Any, z: Any, action: Any | None):
         return batch_inputs(t, x, z, action, self.n, self.m, self.model.state_names)
@@ -213,15 +213,14 @@ class ValueFilter:
         tt, xs, zz, act, single, ref = self._inputs(t, x, z, action)
         N = len(xs)
         plans = check_plans(plan, N)
-        pol = self.physical(act) if normalized else np.minimum(np.maximum(act, self.a_lo), self.a_hi)
-        applied, reason, value, nxt, ok, chosen, blend, new_plans = self.compiled(tt, xs, zz, pol, plans, diagnostics)
+        applied, reason, value, nxt, ok, chosen, blend, new_plans = self.compiled(tt, xs, zz, act, normalized, plans,
+                                                                                  diagnostics)
         after = tt >= self.lookahead.horizon - 1e-9
         reason = np.where(after, AFTER_HORIZON, reason)
         active = reason != PASS
         if normalized:
-            # what the filter judged, exactly: an environment maps it back to the same physical action
-            applied = np.where(active[:, None], exact_normalized(applied, self.a_mid, self.a_half), act)
-            chosen = self.normalized(chosen)
+            # a passing action as the policy gave it
+            applied = np.where(active[:, None], applied, act)
         info = {"value": value, "margin": np.full(N, self.constant_margin or 0.0), "active": active, "reason": reason,
                 "optimal_action": chosen, "blend": blend, "lookahead": nxt, "certified": ok & ~after}
         if single:

@@ -10,7 +10,6 @@ from typing import Any
 import numpy as np
 
 from softreach.reach.proof.blocks import check_threads
-from softreach.reach.proof.lookahead import exact_normalized
 
 from .reasons import AFTER_HORIZON, PASS
 
@@ -30,32 +29,22 @@ def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, p
             and isinstance(z, _SCALARS)
             and (plan is None or (type(plan) is np.ndarray and plan.shape == (3,) and plan.dtype.kind in "iu"))):
         return None
-    t, z, act = float(t), float(z), action.tolist()
+    t, z = float(t), float(z)
     # an infinity or NaN anywhere makes the sum non-finite (a finite row whose sum overflows goes to the batched path)
-    if not math.isfinite(t + z + sum(x.tolist()) + sum(act)):
+    if not math.isfinite(t + z + sum(x.tolist()) + sum(action.tolist())):
         return None
     threads = vf.threads
     if type(threads) is not int or threads < 1:
         # one row uses no other thread, but an invalid number is refused as for a batch (after the inputs, as there)
         check_threads(threads)
-    cd = vf.compiled
-    lo, hi, mid, half = cd.bounds
-    # the policy's physical action: ValueFilter.physical, or the clip to the control box, in the same arithmetic
-    if normalized:
-        pol = [m + h * min(max(a, -1.0), 1.0) for a, m, h in zip(act, mid, half)]
-    else:
-        pol = [min(max(a, low), high) for a, low, high in zip(act, lo, hi)]
-    row = cd.one(t, x, z, pol, plan, diagnostics)
+    row = vf.compiled.one(t, x, z, action, normalized, plan, diagnostics)
     _, reason, value, nxt, ok, _, blend, _ = row.outs
     after = t >= vf.lookahead.horizon - 1e-9
     code = _AFTER_CODE if after else reason[0]
     active = after or code != PASS
-    if normalized:
-        out = _normalized(row.applied0.tolist(), mid, half) if active else action.astype(np.float64)
-        # ValueFilter.normalized, in the same arithmetic
-        chosen_out = np.array([(c - m) / h for c, m, h in zip(row.chosen0.tolist(), mid, half)])
-    else:
-        out, chosen_out = row.applied0.copy(), row.chosen0.copy()
+    # a passing normalised action as the policy gave it
+    out = row.applied0.copy() if active or not normalized else action.astype(np.float64)
+    chosen_out = row.chosen0.copy()
     margin = vf.constant_margin
     info = {"value": value[0], "margin": np.float64(margin) if margin else _ZERO,
             "active": np.True_ if active else np.False_, "reason": code, "optimal_action": chosen_out,
@@ -63,14 +52,3 @@ def filter_one(vf: Any, t: Any, x: Any, z: Any, action: Any, normalized: bool, p
             "plan": row.new_plan0.copy()}
     return out, info
 
-
-def _normalized(u: list[float], mids: list[float], halves: list[float]) -> np.ndarray:
-    """:func:`~softreach.reach.proof.lookahead.exact_normalized` of one physical action, in Python numbers where the
-    plain quotient maps back exactly (the usual case), as the batched path returns it."""
-    out = []
-    for v, mid, half in zip(u, mids, halves):
-        q = min(max((v - mid) / half, -1.0), 1.0)
-        if mid + half * q != v:
-            q = float(exact_normalized(np.array([v]), np.array([mid]), np.array([half]))[0])
-        out.append(q)
-    return np.array(out, dtype=np.float64)

@@ -11,7 +11,7 @@ centre (by :func:`softreach.reach.tables.interpolation.interpolate`, the table's
 an action, the rule's choice and the plans followed where no action is admissible.
 
 The choice among candidates is made by lexicographic keys instead of the filter's numeric rank offsets
-(``softreach.reach.proof.ranks``); where two keys lie within the interpolation's rounding of each other the
+(``softreach.filters.reasons``); where two keys lie within the interpolation's rounding of each other the
 reference reports them as tied (:attr:`Decision.tied`), and either choice is right.
 """
 
@@ -356,7 +356,7 @@ class ReferenceDecision:
 
     def blend(self, j, pol, lam):
         q = exact_normalized(self.cands[j], self.a_mid, self.a_half)
-        return self.a_mid + self.a_half * (q + lam * ((pol - self.a_mid) / self.a_half - q))
+        return self.a_mid + self.a_half * np.clip(q + lam * ((pol - self.a_mid) / self.a_half - q), -1.0, 1.0)
 
     # ------------------------------------------------------------ the decision
     def decide(self, t, x, z, pol, plan=None) -> Decision:
