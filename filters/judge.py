@@ -15,9 +15,9 @@ import numpy as np
 from softreach.reach.jit import njit
 from softreach.reach.proof.kernels import TOL, certificate_row, cover_row, point_value
 from softreach.reach.proof.period import c1_and_charge, enclose_period, lands, meets_target, period
-from softreach.reach.proof.ranks import RANK_KEPT, RANK_LEAVES_C1, RANK_OVERSPENT, TIE_INF, TIE_OVERSPEND
 
 from .compiled_args import Verdict
+from .reasons import RANK_KEPT, RANK_LEAVES_C1, RANK_OVERSPENT, TIE_INF, TIE_OVERSPEND
 
 __all__ = ["badness", "judge", "judge_once", "next_value", "on_table"]
 
@@ -62,7 +62,7 @@ def next_value(T, t_next, end_lo, end_hi, z_end, work):
 
 @njit(forceinline=True)
 def _rank(bounded, in_c1, kept, c1):
-    """The badness of an action that does not pass, but for its tie: its rank (:mod:`softreach.reach.proof.ranks`)."""
+    """The badness of an action that does not pass, but for its tie: its rank (:mod:`softreach.filters.reasons`)."""
     if not bounded:
         return np.inf
     if not in_c1:

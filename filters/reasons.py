@@ -1,5 +1,9 @@
-"""The reason codes of :meth:`~softreach.filters.ValueFilter.filter`'s decisions (``info["reason"]``; the wrapper's
-``info["filter_reason"]`` is their name in :data:`REASONS`), written alike by :mod:`softreach.filters.compiled`."""
+"""The decision's numbers, in one home: the reason codes of :meth:`~softreach.filters.ValueFilter.filter`'s decisions
+(``info["reason"]``; the wrapper's ``info["filter_reason"]`` is their name in :data:`REASONS`), and the order in which
+it ranks actions that do not pass (:func:`softreach.filters.judge.badness`), lower first: a failing action's badness
+is its rank plus its tie (``atan`` of its next table value over ``pi``, plus the overspend times
+:data:`TIE_OVERSPEND`); ranks lie at least ``1e6`` apart, so the rank decides first. numba compiles these globals as
+constants."""
 
 from __future__ import annotations
 
@@ -21,3 +25,14 @@ UNCERTIFIED = 7
 #: reason code -> name (the wrapper's ``info["filter_reason"]``)
 REASONS = {PASS: "pass", BLEND: "blend", OPTIMAL: "optimal", OUTSIDE: "outside_domain",
            AFTER_HORIZON: "after_horizon", FALLBACK: "fallback", UNCERTIFIED: "uncertified"}
+
+#: badness rank of an action whose period keeps ``C1`` and the budget
+RANK_KEPT = 1e6
+#: badness rank of an action whose period keeps ``C1`` but may overspend the budget (``z_end < 0``)
+RANK_OVERSPENT = 3e6
+#: badness of an action whose motion may leave ``C1``: this plus the largest ``c1``
+RANK_LEAVES_C1 = 5e6
+#: a tie's next value of ``+inf`` is read as this
+TIE_INF = 1e12
+#: a tie's weight of the overspend ``max(-z_end, 0)`` [value units per second of budget]
+TIE_OVERSPEND = 1e3

@@ -11,6 +11,7 @@ from softreach.filters import ValueFilter
 from softreach.agents.audit import Row, _policy, _wind, run_episode
 from softreach.reach import get_model
 from softreach.reach.proof.cell_certificate import CellCertificate
+from softreach.reach.proof.kernels import step_index
 from softreach.reach.proof.lookahead import Lookahead
 from softreach.reach.numerics.exact_pointmass import exact_member
 
@@ -173,7 +174,7 @@ def test_the_cover_test_is_every_touched_cell_good_at_the_budget(vf):
         hi[top, axis] = cells.hi[axis]
         lo[top, axis] = cells.hi[axis] - rng.uniform(0, 2, len(top)) * cells.width[axis]
         t = rng.choice(np.arange(cells.steps + 2) * cells.dt, n) + rng.choice([0.0, 0.3 * cells.dt], n)
-        k = cells.step_index(t)
+        k = np.array([step_index(v, cells.dt, cells.steps) for v in t])
         z = rng.uniform(-0.01, 1.2 * cells.top * cells.dz, n)
         got = cells.covered(t, lo, hi, z)
         # the cells' float boxes along each axis, as the builder has them (cell_game.cell_boxes)

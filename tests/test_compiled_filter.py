@@ -107,8 +107,8 @@ def test_without_diagnostics_the_same_decisions(pointmass_held_table, rule):
 
 def _reference_key(bad):
     """A compiled badness as the reference's key ``(class, tie)`` (``tests/reference_decision.py``,
-    ``ReferenceDecision._bad_key``): the rank offsets of :mod:`softreach.reach.proof.ranks` named by class."""
-    from softreach.reach.proof.ranks import RANK_KEPT, RANK_LEAVES_C1, RANK_OVERSPENT
+    ``ReferenceDecision._bad_key``): the rank offsets of :mod:`softreach.filters.reasons` named by class."""
+    from softreach.filters.reasons import RANK_KEPT, RANK_LEAVES_C1, RANK_OVERSPENT
 
     if bad == np.inf:
         return 3, 0.0

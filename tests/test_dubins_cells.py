@@ -20,6 +20,7 @@ from softreach.filters import SafetyFilter, ValueFilter
 from softreach.agents.audit import Row, _policy, _wind, run_episode
 from softreach.reach import get_model
 from softreach.reach.proof.cell_certificate import CellCertificate
+from softreach.reach.proof.kernels import step_index
 
 from cell_plans import (assert_landing_cells_nested, cell_boxes, fly_plan_from_a_good_cell, recheck,
                         run_certified_episode)
@@ -47,7 +48,7 @@ def test_no_landing_cell_is_farther_from_the_goal_than_the_vehicle_can_fly_by_T(
     # the vehicle's ground speed is at most v + sqrt(2) w_max: a cell farther from the goal disc cannot land by T
     p = vf.model.params
     cells = vf.landing_cells
-    k = cells.step_index(np.array([t]))[0]
+    k = step_index(t, cells.dt, cells.steps)
     lo, hi, m = cell_boxes(cells, k)
     good = m < cells.never
     reach = (p.speed + math.sqrt(2.0) * p.wind_max) * (vf.model.horizon - k * DT)

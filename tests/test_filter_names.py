@@ -1,5 +1,5 @@
-"""The filter's numbers and arguments by name (issue 37): the reason codes and the rank offsets each have one home
-(:mod:`softreach.filters.reasons`, :mod:`softreach.reach.proof.ranks`) whose order leaves room for every tie, the
+"""The filter's numbers and arguments by name (issue 37): the reason codes and the rank offsets have one home
+(:mod:`softreach.filters.reasons`), where the ranks' order leaves room for every tie, the
 compiled code reads its arguments by name, and a control box that an environment or the filter normalises by
 has a width on every axis."""
 
@@ -12,19 +12,18 @@ from pathlib import Path
 import pytest
 
 from softreach.filters import reasons
-from softreach.reach.proof import ranks
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the filter's sources: the filters package and the one-period test's parameters
 SOURCES = sorted((ROOT / "filters").glob("*.py")) + [ROOT / "reach" / "proof" / "lookahead.py"]
-#: a kept budget's tie lies in (-0.5, 0.5): atan(next) / pi (reach/proof/ranks.py)
+#: a kept budget's tie lies in (-0.5, 0.5): atan(next) / pi (filters/reasons.py)
 TIE = 0.5
 
 
 def test_ranks_leave_room_for_every_tie():
     """The badness of a failing action is its rank plus its tie; the filter's choices rely on the ranks' order
     surviving any tie of a budget-kept action (an overspend's tie of at most a period's budget, ``1e3 dt``, too)."""
-    r = ranks
+    r = reasons
     # each kind of failing action, in the order the filter prefers them
     order = [r.RANK_KEPT, r.RANK_OVERSPENT, r.RANK_LEAVES_C1]
     for lower, upper in zip(order, order[1:]):
@@ -50,7 +49,8 @@ def test_no_source_writes_a_rank_offset_or_a_reason_code_of_its_own():
                          r"(\s*,\s*_?\w+)*\s*=", re.M)
     for path in SOURCES:
         code = _code(path)
-        assert not offsets.findall(code), (path.name, offsets.findall(code))
+        if path.name != "reasons.py":  # their home
+            assert not offsets.findall(code), (path.name, offsets.findall(code))
         homes = {"reasons.py": {"PASS", "BLEND", "OPTIMAL", "OUTSIDE", "AFTER_HORIZON", "FALLBACK", "UNCERTIFIED"},
                  "plans.py": {"PLAN_LAND", "PLAN_SAFE"}}
         found = {m.group(1) for m in defines.finditer(code)}

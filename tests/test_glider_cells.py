@@ -12,6 +12,7 @@ import pytest
 
 from softreach.filters import ValueFilter
 from softreach.agents.audit import Row, _policy, _wind, run_episode
+from softreach.reach.proof.kernels import step_index
 
 from cell_plans import assert_landing_cells_nested, cell_boxes, fly_plan_from_a_good_cell
 
@@ -30,7 +31,8 @@ def test_no_landing_cell_is_too_high_to_reach_the_ground_in_time(vf, t):
     # in C1 the glider sinks at most V_max sin(3 deg): a cell above what that reaches by T cannot land
     p = vf.model.params
     reach = p.hard_speed[1] * math.sin(-p.hard_gamma[0]) * (vf.model.horizon - t)
-    lo, _, m = cell_boxes(vf.landing_cells, vf.landing_cells.step_index(np.array([t]))[0])
+    cells = vf.landing_cells
+    lo, _, m = cell_boxes(cells, step_index(t, cells.dt, cells.steps))
     lo = lo[m < vf.landing_cells.never]
     assert len(lo) and (lo[:, 0] <= p.min_altitude + p.touchdown_altitude + reach + 1e-9).all()
 

@@ -36,7 +36,7 @@ import numpy as np
 from . import cell_game
 from .enclosure_check import check_model_for_filter
 from ..jit import cache_root, source_stamp
-from .kernels import WRAP_ULPS, cover_rows, frozen, plan_rows, step_rows
+from .kernels import WRAP_ULPS, cover_rows, frozen, plan_rows
 
 #: file format of :meth:`CellCertificate.save`
 FORMAT = "softreach-cell-certificate-1"
@@ -147,13 +147,6 @@ class CellCertificate:
                     np.zeros(m.shape, np.int8), la.candidates, la.dt, key["dz"], la.horizon, key)
         m[...] = cells.never  # the certificate's own "no budget suffices" (its kernel arguments view m)
         return cells
-
-    def step_index(self, t: np.ndarray) -> np.ndarray:
-        """The sample whose cells cover ``t``: ``ceil(t / dt)`` (:func:`~softreach.reach.proof.kernels.step_index`)."""
-        t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
-        out = np.empty(len(t), np.int64)
-        step_rows(t, self.dt, self.steps, out)
-        return out
 
     def contains(self, t: Any, x: Any, z: Any) -> np.ndarray:
         """Is each state ``(t, x, z)`` in a good cell (``False`` off the grid, at a negative budget, after ``T``)?"""

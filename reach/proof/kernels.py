@@ -284,9 +284,3 @@ def cover_rows(cells, t, lo, hi, z, out):
     """:func:`cover_row` for every row."""
     for r in range(len(lo)):
         out[r] = cover_row(cells, t[r], lo[r], hi[r], z[r])
-
-
-@njit
-def step_rows(t, dt, steps, out):
-    for r in range(len(t)):
-        out[r] = step_index(t[r], dt, steps)
