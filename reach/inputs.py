@@ -23,7 +23,7 @@ def to_numpy(v: Any) -> tuple[np.ndarray, Any]:
 def check_finite(arr: np.ndarray, what: str) -> None:
     """Refuse a non-finite entry of the float array ``arr``, naming the first and where it is. A few entries (a
     step's) are checked in Python, cheaper than numpy's call."""
-    if arr.size <= 8 and all(map(math.isfinite, arr.ravel().tolist())) or arr.size > 8 and np.isfinite(arr).all():
+    if all(map(math.isfinite, arr.ravel().tolist())) if arr.size <= 8 else np.isfinite(arr).all():
         return
     bad = ~np.isfinite(arr)
     if arr.ndim == 2:
@@ -31,7 +31,7 @@ def check_finite(arr: np.ndarray, what: str) -> None:
         where = f"{arr[row].tolist()} at row {row}"
     elif arr.ndim == 1:
         i = int(np.nonzero(bad)[0][0])
-        where = f"{arr[i]!r} at index {i}"
+        where = f"{float(arr[i])!r} at index {i}"
     else:
         where = repr(float(arr))
     raise ValueError(f"{what} must be finite, got {where}")

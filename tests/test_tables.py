@@ -155,6 +155,20 @@ def test_bad_queries_name_the_bad_value(pointmass_table):
         t.value(0.0, [[1.0, 2.0, 3.0]], 0.3)
     with pytest.raises(ValueError, match="z must be finite"):
         t.value(0.0, [[1.0, 2.0]], np.inf)
+    # the one check of batched inputs (softreach.reach.inputs): the first bad entry of a column and where it is
+    with pytest.raises(ValueError, match=r"t must be finite, got nan at index 1"):
+        t.value([0.0, np.nan, 0.1], [[1.0, 2.0]] * 3, 0.3)
+    with pytest.raises(ValueError, match=r"x must have shape \(N, 2\) or \(2,\) \(v, y\), got \(3,\)"):
+        t.value(0.0, [1.0, 2.0, 3.0], 0.3)
+
+
+def test_queries_take_torch_tensors(pointmass_table):
+    """A table answers tensors as the filter does (``softreach.reach.inputs``): the same values as for numpy."""
+    torch = pytest.importorskip("torch")
+    x = np.array([[0.0, 5.0], [-3.0, 10.0], [2.0, 1.0]])
+    t, z = torch.tensor(0.2, dtype=torch.float64), torch.tensor([0.1, 0.3, 0.6], dtype=torch.float64)
+    got = pointmass_table.value(t, torch.tensor(x, requires_grad=True), z)
+    np.testing.assert_array_equal(got, pointmass_table.value(0.2, x, [0.1, 0.3, 0.6]))
 
 
 def test_classical_only_table_wants_no_budget(tmp_path):
