@@ -415,3 +415,23 @@ def test_a_row_is_decided_alone_as_in_a_batch(pointmass_held_table, rule):
         assert np.array_equal(one, batch[i])
         for key in ("reason", "lookahead", "certified", "optimal_action"):
             assert np.array_equal(one_info[key], info[key][i], equal_nan=True), key
+
+
+def test_the_smooth_rules_point_is_an_action_the_environment_applies(vfilter):
+    """``ValueFilter.blend``, the smooth rule's point (the compiled decision and the tests' reference clip alike),
+    maps a point of the normalised box ``[-1, 1]`` back as an environment does. A box whose top normalises one ulp
+    above 1, ``(hi - mid) / half = 1 + 2^-52``, and a policy action at that top: unclipped, the point's image is
+    ``hi``, which no normalised action maps to."""
+    import copy
+
+    from softreach.reach.proof.lookahead import exact_normalized
+
+    lo, hi = -3.9450472042977047, -1.3488983175517144
+    vf = copy.copy(vfilter)
+    vf.a_mid, vf.a_half = np.array([0.5 * (lo + hi)]), np.array([0.5 * (hi - lo)])
+    assert (hi - vf.a_mid[0]) / vf.a_half[0] > 1.0  # the box this test is about
+    top = vf.a_mid + vf.a_half * 1.0  # the largest action the environment applies
+    point = vf.blend(top[None, :], np.array([[hi]]), np.array([0.75]))
+    q = exact_normalized(point, vf.a_mid, vf.a_half)
+    assert -1.0 <= q[0, 0] <= 1.0 and vf.a_mid[0] + vf.a_half[0] * q[0, 0] == point[0, 0]
+    assert point[0, 0] == top[0]
