@@ -351,8 +351,10 @@ class CompiledDecision:
         work space, under the filter's rule now."""
         vf = self.filter
         M, C, T, action = self.args
+        # bool(): an int or numpy flag would have numba compile the decision once more for its type
         return (self.enclose, M, C, T, self.cands, with_policy and vf.rule == "smooth", vf.smooth_iterations, action,
-                *rows[:4], normalized, rows[4], has_plans, diagnostics, with_policy, *rows[5:], self._space()[1])
+                *rows[:4], bool(normalized), rows[4], has_plans, diagnostics, with_policy, *rows[5:],
+                self._space()[1])
 
     def certify(self, t: np.ndarray, x: np.ndarray, z: np.ndarray) -> tuple:
         """``(certified, next_value, value, inside)`` for ``N`` rows: the decision without a policy's action, whose

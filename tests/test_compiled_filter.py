@@ -288,6 +288,12 @@ def test_tables_and_inputs_made_in_this_process_reuse_the_compiled_decision(poin
     frozen_x.flags.writeable = False
     applied, _ = made.filter(t, frozen_x, z, a)
     np.testing.assert_array_equal(applied, expect)
+    # a flag given as an int or a numpy bool, for a batch and for one row
+    q = np.clip(a / 60.0, -1.0, 1.0)
+    for flag in (1, np.True_):
+        np.testing.assert_array_equal(made.filter(t, x, z, q, normalized=flag)[0],
+                                      loaded.filter(t, x, z, q, normalized=True)[0])
+        made.filter(float(t[0]), x[0], float(z[0]), q[0], normalized=flag)
     assert len(decide_rows.signatures) == compiled
 
 
