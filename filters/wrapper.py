@@ -119,6 +119,10 @@ class SafetyFilter(gym.Wrapper):
         self._pending: tuple | None = None
         #: the plan the filter follows (``ValueFilter.filter``'s ``plan``), and a start plan's second segment
         self._plan, self._queued = np.array(NO_PLAN, np.int64), np.array(NO_PLAN, np.int64)
+        # the action space's dtype and shape, read once an episode: each read of a wrapper's action_space goes down
+        # the chain of wrappers
+        space = self.action_space
+        self._action_type = (space.dtype if space.dtype is not None else np.float32, space.shape)
 
     def expect(self, action: Any, applied: np.ndarray, decision: dict[str, Any]) -> None:
         """Hand over a batched decision for ``action`` in this state (:class:`~softreach.filters.VecSafetyFilter`):
@@ -158,9 +162,7 @@ class SafetyFilter(gym.Wrapper):
                                                   plan=self._plan)
         self._plan, self._queued = advance_plan(f["plan"], self._queued)
         active = bool(f["active"])
-        # read once a step: each read of a wrapper's action_space goes down the chain of wrappers
-        space = self.action_space
-        dtype, shape = space.dtype if space.dtype is not None else np.float32, space.shape
+        dtype, shape = self._action_type
         # the filter's action goes in binary64: the space's float32 would move its physical image off the one judged
         to_env = np.asarray(applied, dtype=np.float64) if active else action
         obs, reward, terminated, truncated, info = self.env.step(to_env)
