@@ -12,9 +12,9 @@ from softreach.reach.inputs import check_finite, column, points, to_numpy
 
 
 def clip_unit(a: np.ndarray) -> np.ndarray:
-    """``a`` clipped to ``[-1, 1]`` (the normalised action range) in its own dtype (Python bounds do not promote it),
-    without ``np.clip``'s wrapper."""
-    return np.minimum(np.maximum(a, -1.0), 1.0)
+    """``a`` clipped to ``[-1, 1]`` (the normalised action range) in its own dtype, without ``np.clip``'s wrapper; the
+    bounds are Python floats, cheaper than numpy scalars made at each call (numpy before 2 may promote a 0-d ``a``)."""
+    return np.minimum(np.maximum(a, -1.0), 1.0).astype(a.dtype, copy=False)
 
 
 def to_torch(applied: np.ndarray, info: dict[str, Any], ref: Any, action: Any):
