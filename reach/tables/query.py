@@ -152,11 +152,15 @@ class Table:
             return "Q_min"
         raise ValueError(f"table {self.path} holds only the classical V: call without z")
 
-    def _queries(self, t: Any, x: Any, z: Any) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
-        field = self._field_for(z)
+    def _rows(self, t: Any, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        """The query's times ``(N,)`` and states ``(N, n)``, checked (:mod:`softreach.reach.inputs`)."""
         names = self.model_metadata["state_names"]
         pts = points(x, len(names), "x", names)[0]
-        tt = column(t, len(pts), "t")
+        return column(t, len(pts), "t"), pts
+
+    def _queries(self, t: Any, x: Any, z: Any) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
+        field = self._field_for(z)
+        tt, pts = self._rows(t, x)
         unsafe = np.zeros(len(pts), bool)
         if field == "W_eps":  # below the budget grid and above it: the interpolant's budget_last rule
             pts = np.concatenate([pts, column(z, len(pts), "z")[:, None]], axis=1)
@@ -248,9 +252,7 @@ class Table:
         Found along the budget nodes and refined linearly between them; budgets below
         :attr:`budget_resolution` are reported as 0, consistently with :meth:`set_mask`.
         """
-        names = self.model_metadata["state_names"]
-        pts = points(x, len(names), "x", names)[0]
-        tt = column(t, len(pts), "t")
+        tt, pts = self._rows(t, x)
         if self.has_budget_surface and not self.has_budget:
             q = self.interpolant("Q_min").value(tt, pts)
             q = np.where(np.isfinite(q) & ~no_budget_suffices(q, self.horizon - tt), np.maximum(q, 0.0), np.inf)
@@ -324,9 +326,7 @@ class Table:
 
         :param x: ``(N, n)`` or ``(n,)`` states; ``t`` and ``budget`` scalars or ``(N,)``
         """
-        names = self.model_metadata["state_names"]
-        pts = points(x, len(names), "x", names)[0]
-        tt = column(t, len(pts), "t")
+        tt, pts = self._rows(t, x)
 
         def read(field: str, z: Any) -> np.ndarray:
             X = pts if z is None else np.concatenate([pts, np.broadcast_to(z, (len(pts),))[:, None]], axis=1)
