@@ -108,9 +108,10 @@ class FilterPart:
         """How far, per state axis, one RK4 sub-step of ``h`` seconds (the environments' integrator,
         :mod:`softreach.reach.sim.rk4`) may end from the exact motion of :attr:`held_box_kernel`'s bound, rounding
         aside, for every held control and disturbance signal: the environment's state after the sub-step is that of
-        an exact motion within this distance. ``None`` (the default): not known; then the filter proves the
-        environment's numbers only where RK4 is exact for the model (the point mass), and otherwise proves the
-        exact motion (docs/filters.md, "Sound to the last bit"). The budget needs :meth:`rk4_stage_error` too."""
+        an exact motion within this distance. Zero where RK4 is exact for the motion: with the control and the
+        disturbance held over a sub-step, a motion polynomial in time of degree at most 4 (the point mass's and the
+        cart's are quadratic). ``None`` (the default): not known; then the filter proves the exact motion only
+        (docs/filters.md, "Sound to the last bit"). The budget needs :meth:`rk4_stage_error` too."""
         return None
 
     def rk4_stage_error(self, h: float) -> np.ndarray | None:

@@ -335,10 +335,11 @@ def test_the_filters_end_box_holds_the_envs_own_state_without_tolerance(dubins_h
     assert outside_exact > 0
 
 
-def test_env_error_is_zero_where_rk4_is_exact_else_the_models_bound_or_unknown_and_a_bad_one_is_refused():
+def test_env_error_is_the_models_bound_or_unknown_and_a_bad_one_is_refused():
+    from softreach.reach.models.pointmass import PointMass
     from softreach.reach.proof.lookahead import env_error
 
-    assert (env_error(get_model("pointmass"), 0.001) == 0).all()  # RK4 is exact for its quadratic motion
+    assert (env_error(get_model("pointmass"), 0.001) == 0).all()  # it states RK4 exact for its quadratic motion
     assert (env_error(get_model("glider"), 0.05) == 0).all()  # its kernel holds RK4's states
     assert (env_error(MODEL, 0.05) == MODEL.rk4_error(0.05)).all()
 
@@ -347,6 +348,13 @@ def test_env_error_is_zero_where_rk4_is_exact_else_the_models_bound_or_unknown_a
             return None
 
     assert env_error(Unknown(), 0.05) is None
+
+    class Unstated(PointMass):
+        def rk4_error(self, h):
+            return None
+
+    # RK4 is exact for this motion too, but a model that does not say so gets no allowance: none is inferred
+    assert env_error(Unstated(), 0.001) is None
 
     class Bad(Dubins):
         def rk4_error(self, h):

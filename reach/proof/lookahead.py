@@ -22,7 +22,6 @@ import numpy as np
 
 from ..boxes import check_action_box
 from ..numerics.grid import Grid
-from ..sim.rk4 import rk4_rows
 from ..tables.interpolation import geometry
 from .kernels import certificate_rows, frozen
 
@@ -67,32 +66,6 @@ def representable(u: np.ndarray, mid: np.ndarray, half: np.ndarray) -> np.ndarra
     return mid + half * exact_normalized(u, mid, half)
 
 
-def rk4_exact(model: Any, h: float, samples: int = 64) -> bool:
-    """Whether the environments' RK4 sub-step of ``h`` seconds is exact for the model's held motion: from
-    ``samples`` states across ``C1`` (else the domain), inputs at their boxes' corners and centres, one sub-step and
-    two half sub-steps agree within ``64 u M`` (:func:`state_allowance`'s magnitudes)."""
-    box = model.hard_box if model.hard_box is not None else model.domain
-    lo, hi = (np.asarray(b, dtype=np.float64) for b in box)
-    x = np.random.default_rng(0).uniform(lo, hi, (samples, len(lo)))
-    M = 2.0 * np.maximum(*(np.abs(np.asarray(b, dtype=np.float64)) for b in model.domain))
-
-    def step(x0: np.ndarray, a: np.ndarray, b: np.ndarray, dt: float) -> np.ndarray:
-        return rk4_rows(model.f, 0.0, 0.0, 0.0, dt, x0, a, b)
-
-    def levels(bounds: Any) -> list[np.ndarray]:
-        b_lo, b_hi = (np.asarray(v, dtype=np.float64) for v in bounds)
-        return [b_lo, b_hi, 0.5 * (b_lo + b_hi)]
-
-    for a in levels(model.control_bounds):
-        for b in levels(model.disturbance_bounds):
-            A, B = np.tile(a, (samples, 1)), np.tile(b, (samples, 1))
-            one = step(x, A, B, h)
-            two = step(step(x, A, B, 0.5 * h), A, B, 0.5 * h)
-            if not (np.abs(one - two) <= 64 * UNIT_ROUNDOFF * M).all():
-                return False
-    return True
-
-
 def _declared(model: Any, name: str, h: float) -> np.ndarray | None:
     """The model's bound ``name(h)`` per state axis (:class:`~softreach.reach.model_filter.FilterPart`), or ``None``.
 
@@ -110,9 +83,10 @@ def _declared(model: Any, name: str, h: float) -> np.ndarray | None:
 
 def env_error(model: Any, h: float) -> np.ndarray | None:
     """How far, per state axis, one of the environments' RK4 sub-steps of ``h`` seconds may end from an exact motion,
-    rounding aside: zero where RK4 is exact for the model (:func:`rk4_exact`), else the model's own bound
-    (:meth:`~softreach.reach.model_filter.FilterPart.rk4_error`); ``None`` where neither."""
-    return np.zeros(model.state_dim) if rk4_exact(model, h) else _declared(model, "rk4_error", h)
+    rounding aside: the model's own bound (:meth:`~softreach.reach.model_filter.FilterPart.rk4_error`, zero where
+    RK4 is exact for its motion), ``None`` where it gives none. Never inferred from samples: a sampled agreement
+    proves nothing about the states between the samples."""
+    return _declared(model, "rk4_error", h)
 
 
 def env_slack(model: Any, dt: float, checks: int) -> tuple[np.ndarray, np.ndarray] | None:
