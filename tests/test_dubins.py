@@ -337,7 +337,7 @@ def test_the_filters_end_box_holds_the_envs_own_state_without_tolerance(dubins_h
 
 def test_env_error_is_the_models_bound_or_unknown_and_a_bad_one_is_refused():
     from softreach.reach.models.pointmass import PointMass
-    from softreach.reach.proof.lookahead import env_error
+    from softreach.reach.proof.lookahead import env_error, env_slack
 
     assert (env_error(get_model("pointmass"), 0.001) == 0).all()  # it states RK4 exact for its quadratic motion
     assert (env_error(get_model("glider"), 0.05) == 0).all()  # its kernel holds RK4's states
@@ -353,8 +353,11 @@ def test_env_error_is_the_models_bound_or_unknown_and_a_bad_one_is_refused():
         def rk4_error(self, h):
             return None
 
-    # RK4 is exact for this motion too, but a model that does not say so gets no allowance: none is inferred
+    # RK4 is exact for this motion too, but a model that does not say so gets no allowance: none is inferred, and
+    # the look-ahead says which half of the pair is missing
     assert env_error(Unstated(), 0.001) is None
+    with pytest.warns(UserWarning, match=r"model 'pointmass' \(.*Unstated\) states rk4_stage_error but not rk4_error"):
+        assert env_slack(Unstated(), 0.01, 10) is None
 
     class Bad(Dubins):
         def rk4_error(self, h):

@@ -16,11 +16,12 @@ surface, :func:`surface_fields`). Boxes are widened by
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
 
-from ..boxes import check_action_box
+from ..boxes import check_action_box, model_label
 from ..numerics.grid import Grid
 from ..tables.interpolation import geometry
 from .kernels import certificate_rows, frozen
@@ -94,9 +95,15 @@ def env_slack(model: Any, dt: float, checks: int) -> tuple[np.ndarray, np.ndarra
     sub-steps may lie from an exact motion, ``(states, stages)``: its states, every sub-step's error
     (:func:`env_error`) and the rounding (:func:`state_allowance`); the stage states where it reads the budget's
     rate, that and the model's :meth:`~softreach.reach.model_filter.FilterPart.rk4_stage_error`. ``None`` where
-    either error is not known."""
+    either error is not known; a warning names the missing one where the model states only the other."""
     error, stage = env_error(model, dt / checks), _declared(model, "rk4_stage_error", dt / checks)
     if error is None or stage is None:
+        if (error is None) != (stage is None):
+            missing = "rk4_error" if error is None else "rk4_stage_error"
+            warnings.warn(f"{model_label(model)} states {'rk4_stage_error' if error is None else 'rk4_error'} but "
+                          f"not {missing}: the safety filter proves the exact motion only, not the environment's "
+                          f"numbers. Add {missing}(h) (rk4_error: zero where RK4 is exact for the motion, as for a "
+                          f"motion polynomial in time of degree at most 4; docs/models.md)", stacklevel=2)
         return None
     states = state_allowance(model, checks) + checks * error
     return states, states + stage
