@@ -23,6 +23,7 @@ import numpy as np
 
 from ..boxes import check_action_box, model_label
 from ..numerics.grid import Grid
+from ..sim.budget_quadrature import KINK_SAMPLES
 from ..tables.interpolation import geometry
 from .kernels import certificate_rows, frozen
 
@@ -125,7 +126,7 @@ def state_allowance(model: Any, checks: int) -> np.ndarray:
     return (24 * int(checks) + 8 + wrap) * UNIT_ROUNDOFF * M
 
 
-def budget_allowance(dt: float, horizon: float, pieces: int, samples: int = 128) -> float:
+def budget_allowance(dt: float, horizon: float, pieces: int, samples: int = KINK_SAMPLES) -> float:
     """What a period's positive budget charge adds for rounding [s], ``u ((2 samples + 8 + 2 pieces) dt + 4 T)``, so
     that the filter's end budget is never above the environment's (:mod:`softreach.reach.sim.integrator`). Every rate
     lies in ``[0, 1]``: the environment's cost rounds by at most ``(2 samples + 8) u dt`` a period, the filter's charge

@@ -59,6 +59,11 @@ class _FloatOps:
 #: :func:`budget_piece`'s ``ops`` for stage rates given as Python floats
 FLOATS = _FloatOps()
 
+#: the cells into which :func:`kink_costs` cuts a sub-step, and each refined cell (the environments' number; the
+#: filter's budget allowance counts the roundings of a sum over this many, :func:`~softreach.reach.proof.lookahead.
+#: budget_allowance`)
+KINK_SAMPLES = 128
+
 
 def budget_piece(v0: Any, v1: Any, v2: Any, v3: Any, h: float, ops: Any = np) -> tuple[Any, Any]:
     """The budget spent over a sub-step from its four stage rates, and whether a kink needs :func:`kink_costs`.
@@ -116,7 +121,7 @@ def kink_grid(samples: int) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
 
 
 def kink_costs(model: Model, t0: np.ndarray, h: float, x0: np.ndarray, f0: np.ndarray, x1: np.ndarray,
-               f1: np.ndarray, eps: float, resolution: float, samples: int = 128, max_levels: int = 8
+               f1: np.ndarray, eps: float, resolution: float, samples: int = KINK_SAMPLES, max_levels: int = 8
                ) -> np.ndarray:
     """``int h_eps dt`` over ``K`` sub-steps in each of which ``h_eps`` has a kink.
 
