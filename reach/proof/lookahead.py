@@ -100,11 +100,11 @@ def env_slack(model: Any, dt: float, checks: int) -> tuple[np.ndarray, np.ndarra
     error, stage = env_error(model, dt / checks), _declared(model, "rk4_stage_error", dt / checks)
     if error is None or stage is None:
         if (error is None) != (stage is None):
-            missing = "rk4_error" if error is None else "rk4_stage_error"
-            warnings.warn(f"{model_label(model)} states {'rk4_stage_error' if error is None else 'rk4_error'} but "
-                          f"not {missing}: the safety filter proves the exact motion only, not the environment's "
-                          f"numbers. Add {missing}(h) (rk4_error: zero where RK4 is exact for the motion, as for a "
-                          f"motion polynomial in time of degree at most 4; docs/models.md)", stacklevel=2)
+            given, missing = ("rk4_stage_error", "rk4_error") if error is None else ("rk4_error", "rk4_stage_error")
+            warnings.warn(f"{model_label(model)} states {given} but not {missing}: the safety filter proves the "
+                          f"exact motion only, not the environment's numbers. Add {missing}(h) (rk4_error: zero where "
+                          f"RK4 is exact for the motion, as for a motion polynomial in time of degree at most 4; "
+                          f"docs/models.md)", stacklevel=2)
         return None
     states = state_allowance(model, checks) + checks * error
     return states, states + stage
