@@ -178,11 +178,11 @@ def test_exact_motion_touching_the_ground(vf, x0, t0, action):
 
 def test_the_point_mass_rk4_error_of_zero_holds_to_the_rounding_the_allowance_counts():
     """``PointMass.rk4_error`` is zero because RK4 integrates its held quadratic motion exactly: an env sub-step
-    (:func:`rk4_step` on ``f_scalar``, as the env takes it) ends within the ``24 u M_i`` a sub-step that :func:`state_allowance` counts
-    for rounding of the exact motion, computed in exact rational arithmetic from the same floats; from states across
-    the domain and its corners, thrusts at the box's ends, the hover and inside, winds at the box's ends and inside,
-    at the env's sub-step and at 50 times it. A motion RK4 does not integrate exactly (a drag term, say) ends farther
-    at the longer step."""
+    (:func:`rk4_step` on ``f_scalar``, as the env takes it) ends within the ``24 u M_i`` a sub-step that
+    :func:`state_allowance` counts for rounding of the exact motion, computed in exact rational arithmetic from the
+    same floats; from states across the domain and its corners, thrusts at the box's ends, the hover and inside,
+    winds at the box's ends and inside, at the env's sub-step and at 50 times it. A motion RK4 does not integrate
+    exactly (a drag term, say) ends farther."""
     from fractions import Fraction
 
     model = get_model("pointmass")
