@@ -13,13 +13,18 @@ package's other cached files (:func:`cache_root`: ``$SOFTREACH_CACHE`` or ``~/.c
 the installed package, which is often read-only. Only the functions compiled through :func:`njit` use it; other
 numba code in the same process keeps numba's defaults.
 
+Names: the cache holds code that many processes compiled (a warm-up, the compile-ahead process, each test worker),
+so that one process may load copies of a function from several. numba's symbol names would coincide between
+processes and links one to another's code; every compilation in a process that imports this module is numbered
+from a random start instead (:func:`_draw_function_ids`).
+
 A process that compiles ahead of use (:func:`compiling_ahead`: ``softreach solve`` compiles the safety filter's code
 in the background while it solves) holds a lock beside the cache and names the functions it compiles; another
 process that misses one of them in the cache waits for it and loads the result (:meth:`PackageCache.load_overload`)
 instead of compiling the same code at the same time on the same cores.
 
-This relies on numba's cache classes (``numba.core.caching``) and on a dispatcher's ``_cache`` attribute, which
-``pyproject.toml`` pins to a tested range of numba versions; tests/test_numba_cache.py checks the mechanism.
+This relies on numba's cache classes (``numba.core.caching``), a dispatcher's ``_cache`` attribute and
+``FunctionIdentity._unique_ids``, which ``pyproject.toml`` pins to a tested range of numba versions; tests/test_numba_cache.py checks the mechanism.
 """
 
 from __future__ import annotations
@@ -29,8 +34,10 @@ import functools
 import hashlib
 import importlib.util
 import inspect
+import itertools
 import json
 import os
+import secrets
 import sys
 import time
 import warnings
@@ -40,6 +47,7 @@ from typing import Any
 
 import numba
 from numba.core import config
+from numba.core.bytecode import FunctionIdentity
 from numba.core.caching import CompileResultCacheImpl, FunctionCache, _CacheLocator
 
 try:  # POSIX file locks; elsewhere nothing compiles ahead and nothing waits
@@ -50,6 +58,25 @@ except ImportError:  # pragma: no cover - Windows
 #: the packages whose sources make up :func:`source_stamp` (pyproject.toml, ``[tool.setuptools] packages``;
 #: each folder is searched with its sub-folders)
 PACKAGES = ("softreach", "softreach.reach", "softreach.envs", "softreach.filters", "softreach.agents")
+
+
+def _draw_function_ids() -> None:
+    """Number this process's compilations from a random 62-bit start, drawn again in a forked child.
+
+    numba names a compiled function's symbols by its qualified name and an id that counts compilations from 1 in
+    every process (``FunctionIdentity._unique_ids``), so two processes that compile the same function after the
+    same steps give it the same names. A cached caller carries a copy of each function it calls; a process that
+    loads that caller and the function's own cached code, each compiled by another process, links the one name to
+    both and can run the function's wrapper with the copy's environment, which nothing set: a call from Python
+    then fails with ``In 'NRT_adapt_ndarray_to_python', 'descr' is NULL`` (numba/numba#10486). With a random start
+    the ids stay unique within a process and two processes' ranges overlap by a chance of about ``n / 2**61`` for
+    ``n`` compilations."""
+    FunctionIdentity._unique_ids = itertools.count(secrets.randbits(62))
+
+
+_draw_function_ids()
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_draw_function_ids)
 
 
 def cache_root() -> Path:

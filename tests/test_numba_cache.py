@@ -211,3 +211,47 @@ def test_entry_point_runs_the_code_compiled_for_these_arguments_and_else_the_dis
     assert run(*args) == 6.0
     # integer values: the dispatcher has no code for exactly these types (it would convert them)
     assert jit.entry_point(f, (np.arange(3), (1, np.ones(2)))) is f
+
+
+_NAME_OF_A_COMPILATION = """
+import os, sys
+import numba
+import numpy as np
+import softreach.reach.jit
+
+def ones(n):
+    return np.ones(n)
+
+def name():
+    f = numba.njit(ones)
+    f(3)
+    return next(iter(f.overloads.values())).fndesc.mangled_name
+
+if sys.argv[1] == "fork":
+    read, write = os.pipe()
+    if os.fork() == 0:
+        os.write(write, name().encode())
+        os._exit(0)
+    os.wait()
+    print(name(), os.read(read, 4096).decode())
+else:
+    print(name())
+"""
+
+
+def test_processes_name_the_same_compilation_apart():
+    """Two processes, and a process and its forked child, that compile the same function after the same steps
+    give its code different symbol names (numba would give both the same: ids counted from 1), so that a process
+    loading cached code that both compiled links each name to one code (:func:`softreach.reach.jit.
+    _draw_function_ids`)."""
+    def run(mode: str) -> list[str]:
+        out = subprocess.run([sys.executable, "-c", _NAME_OF_A_COMPILATION, mode], capture_output=True, text=True,
+                             timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"})
+        assert out.returncode == 0, out.stderr
+        return out.stdout.split()
+
+    first, second = run("plain"), run("plain")
+    parent, child = run("fork")
+    for a, b in ((first[0], second[0]), (parent, child)):
+        assert "ones" in a and "ones" in b
+        assert a != b
