@@ -11,7 +11,11 @@ use). Each latency is the mean time per call over many calls, on fixed random in
 
 * **single query** — ``ValueFilter.filter(t, x, z, action)`` for one state (numpy in and out, switch rule): the call a
   ``SafetyFilter.step`` makes. Target (issue 37): under 20 us. Once over the random states, once over those of them
-  the filter certifies (before the last 0.1 s), where a deployed policy spends its steps.
+  the filter certifies (before the last 0.1 s), where a deployed policy spends its steps. Of the latter, the
+  compiled decision with its one-row buffers written, without the API's checks and ``info``
+  (``switch_single_certified_decision_us``: ``CompiledDecision.one``), the compiled call of the last row again
+  (``switch_single_compiled_call_us``) and numba's unboxing of its arguments alone (``switch_single_unboxing_us``:
+  a compiled function that returns at once, handed them).
 * **batch of 1,024** — the same call on ``(1024, n)`` states (numpy). Target: under 1 ms. Once over the random
   states (most of them outside the sets, where the filter searches the candidates), once over certified ones; and
   both again for the actions alone (``diagnostics=False``: ``info["value"]`` and a passing action's
@@ -55,10 +59,12 @@ import tempfile
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from softreach.filters import ValueFilter
 from softreach.reach import SolveConfig, SolverSettings, get_model, load_table, solve_table
+from softreach.reach.jit import entry_point
 from softreach.reach.sim.simulate import constant, random_switching, rollout, table_disturbance
 
 DT = 0.01
@@ -77,6 +83,22 @@ def _per_call(fn, calls: int, repeats: int) -> dict[str, float]:
         wall.append((time.perf_counter() - t0) / calls)
         cpu.append((time.process_time() - c0) / calls)
     return {"wall_best": min(wall), "wall_median": statistics.median(wall), "cpu_median": statistics.median(cpu)}
+
+
+def _one_row_calls(vf) -> tuple:
+    """The compiled call of ``vf``'s one-row decisions (:meth:`CompiledDecision.one`; its last row decided again),
+    and a compiled function that returns at once, handed the same arguments: what numba's unboxing of them costs."""
+    calls = list(vf.compiled._local.row.calls.values())
+    assert len(calls) == 1, "one kind of one-row call expected"
+    run, args = calls[0]
+    names = ", ".join(f"a{i}" for i in range(len(args)))
+    space: dict = {}
+    exec(f"def nothing({names}):\n    return 0", space)
+    # without numba's reference counting, as the decision is compiled
+    nothing = numba.njit(_nrt=False)(space["nothing"])
+    nothing(*args)
+    unbox = entry_point(nothing, args)
+    return (lambda: run(*args)), (lambda: unbox(*args))
 
 
 def latency(table, repeats: int) -> dict[str, dict[str, float]]:
@@ -104,8 +126,9 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
     rows = np.resize(np.nonzero(cert)[0], n)
     cert_batch = (np.round(t[rows] * 0.94, 2), x[rows], z[rows], a[rows])
 
-    def single_from(vf, queries):
+    def single_from(vf, queries, method="filter"):
         it = iter(())
+        decide = getattr(vf, method)
 
         def call():
             nonlocal it
@@ -114,7 +137,7 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
             except StopIteration:
                 it = iter(queries)
                 args = next(it)
-            vf.filter(*args)
+            decide(*args)
         return call
 
     def single(vf):
@@ -123,6 +146,12 @@ def latency(table, repeats: int) -> dict[str, dict[str, float]]:
     out = {
         "switch_single_us": _per_call(single(switch), 300, repeats),
         "switch_single_certified_us": _per_call(single_from(switch, inside), 300, repeats),
+        # of which the compiled decision with its one-row buffers written, without the API's checks and info
+        "switch_single_certified_decision_us": _per_call(single_from(switch.compiled, [
+            (*q, False, None, True) for q in inside], method="one"), 300, repeats),
+        # the compiled call of the last row again, and numba's unboxing of its arguments alone
+        **dict(zip(("switch_single_compiled_call_us", "switch_single_unboxing_us"),
+                   (_per_call(f, 300, repeats) for f in _one_row_calls(switch)))),
         "switch_batch1024_us": _per_call(lambda: switch.filter(t, x, z, a), 5, repeats),
         "switch_batch1024_certified_us": _per_call(lambda: switch.filter(*cert_batch), 5, repeats),
         # the actions alone (diagnostics=False: no certificate at the state, no next one for a passing action)
