@@ -14,9 +14,9 @@ the installed package, which is often read-only. Only the functions compiled thr
 numba code in the same process keeps numba's defaults.
 
 Names: the cache holds code that many processes compiled (a warm-up, the compile-ahead process, each test worker),
-so that one process may load copies of a function from several. numba's symbol names would coincide between
-processes and links one to another's code; every compilation in a process that imports this module is numbered
-from a random start instead (:func:`_draw_function_ids`).
+so that one process may load copies of a function from several. numba's symbol names can coincide between
+processes, and the loading process then links one to another's code; every compilation in a process that imports
+this module is numbered from a random start instead (:func:`_draw_function_ids`).
 
 A process that compiles ahead of use (:func:`compiling_ahead`: ``softreach solve`` compiles the safety filter's code
 in the background while it solves) holds a lock beside the cache and names the functions it compiles; another
@@ -24,7 +24,8 @@ process that misses one of them in the cache waits for it and loads the result (
 instead of compiling the same code at the same time on the same cores.
 
 This relies on numba's cache classes (``numba.core.caching``), a dispatcher's ``_cache`` attribute and
-``FunctionIdentity._unique_ids``, which ``pyproject.toml`` pins to a tested range of numba versions; tests/test_numba_cache.py checks the mechanism.
+``FunctionIdentity._unique_ids``, which ``pyproject.toml`` pins to a tested range of numba versions;
+tests/test_numba_cache.py checks the mechanism.
 """
 
 from __future__ import annotations

@@ -235,6 +235,7 @@ print(name(), os.read(read, 4096).decode())
 """
 
 
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="the check forks")
 def test_processes_name_the_same_compilation_apart():
     """Two processes, and a process and its forked child, that compile the same function after the same steps
     give its code different symbol names (numba would give both the same: ids counted from 1), so that a process
