@@ -15,8 +15,8 @@ numba code in the same process keeps numba's defaults.
 
 Names: the cache holds code that many processes compiled (a warm-up, the compile-ahead process, each test worker),
 so that one process may load copies of a function from several. numba's symbol names can coincide between
-processes, and the loading process then links one to another's code; every compilation in a process that imports
-this module is numbered from a random start instead (:func:`_draw_function_ids`).
+processes, and a process that loads such copies may fail; every compilation in a process that imports this module
+is numbered from a random start instead (:func:`_draw_function_ids`).
 
 A process that compiles ahead of use (:func:`compiling_ahead`: ``softreach solve`` compiles the safety filter's code
 in the background while it solves) holds a lock beside the cache and names the functions it compiles; another
@@ -66,12 +66,11 @@ def _draw_function_ids() -> None:
 
     numba names a compiled function's symbols by its qualified name and an id that counts compilations from 1 in
     every process (``FunctionIdentity._unique_ids``), so two processes that compile the same function after the
-    same steps give it the same names. A cached caller carries a copy of each function it calls; a process that
-    loads that caller and the function's own cached code, each compiled by another process, links the one name to
-    both and can run the function's wrapper with the copy's environment, which nothing set: a call from Python
-    then fails with ``In 'NRT_adapt_ndarray_to_python', 'descr' is NULL`` (numba/numba#10486). With a random start
-    the ids stay unique within a process and two processes' ranges overlap by a chance of about ``n / 2**61`` for
-    ``n`` compilations."""
+    same steps give it the same names (numba/numba#10486). A cached caller carries a copy of each function it
+    calls; with that copy and the function's own cached code compiled by two processes under one name, a process
+    that loaded both failed at the function's first call from Python with ``In 'NRT_adapt_ndarray_to_python',
+    'descr' is NULL`` (docs/filters.md). With a random start the ids stay unique within a process and two
+    processes' ranges overlap by a chance of about ``n / 2**61`` for ``n`` compilations."""
     FunctionIdentity._unique_ids = itertools.count(secrets.randbits(62))
 
 
