@@ -69,8 +69,9 @@ def _draw_function_ids() -> None:
     same steps give it the same names (numba/numba#10486). A cached caller carries a copy of each function it
     calls; where that copy and the function's own cached code were compiled by two processes under one name, a
     process that loads both can fail at the function's first call from Python with
-    ``In 'NRT_adapt_ndarray_to_python', 'descr' is NULL`` (docs/filters.md). With a random start the ids stay unique within a process and two
-    processes' ranges overlap by a chance of about ``n / 2**61`` for ``n`` compilations."""
+    ``In 'NRT_adapt_ndarray_to_python', 'descr' is NULL`` (docs/filters.md). With a random start the ids stay
+    unique within a process and two processes' ranges overlap by a chance of about ``n / 2**61`` for ``n``
+    compilations."""
     FunctionIdentity._unique_ids = itertools.count(secrets.randbits(62))
 
 
